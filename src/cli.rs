@@ -1,0 +1,306 @@
+//! The `armtwin` command line: argument definitions and the commands behind them.
+//!
+//! The outer ring: reads files, prints, and turns every error into one message with context
+//! (`anyhow`). All computing is delegated to the core.
+
+use std::fs::File;
+use std::io::{self, BufReader, BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use serde::Serialize;
+
+use crate::codec::PoseFields;
+use crate::codec::joint_csv::{JointCsvReader, PoseCsvWriter};
+use crate::kinematics::{OutputFrame, TcpOffset};
+use crate::model::{Calibration, RobotModel, catalog, custom};
+
+/// armtwin: live digital twin for robot arms.
+#[derive(Debug, Parser)]
+#[command(name = "armtwin", version, about, propagate_version = true)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// armtwin's commands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Forward kinematics: TCP pose of one joint configuration (JSON), or of every row of a CSV.
+    Fk(FkArgs),
+    /// List the built-in robot models with their DH parameters and joint limits.
+    Models(ModelsArgs),
+}
+
+/// Which robot: model, its calibration, its tool, and the output frame. Shared by every command
+/// that computes poses.
+#[derive(Debug, Args)]
+pub struct RobotArgs {
+    /// Catalog model (see `armtwin models`) or a custom arm's TOML file.
+    #[arg(long, default_value = "ur10e")]
+    pub model: String,
+    /// The robot's factory calibration: the controller's `calibration.conf` or the YAML written by
+    /// ROS `ur_calibration`.
+    #[arg(long, value_name = "FILE")]
+    pub calibration: Option<PathBuf>,
+    /// Tool (TCP) offset `x,y,z,rx,ry,rz` as on the UR pendant: metres and a rotation vector in
+    /// radians. Write `--tcp=-0.1,...` when the first value is negative.
+    #[arg(long, value_name = "X,Y,Z,RX,RY,RZ", value_parser = parse_tcp)]
+    pub tcp: Option<TcpOffset>,
+    /// Frame of the output pose: the controller's `base` (as RTDE `actual_TCP_pose`) or ROS
+    /// `base_link` (base rotated π about z).
+    #[arg(long, value_enum, default_value_t = FrameArg::Base)]
+    pub frame: FrameArg,
+}
+
+/// `--frame` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum FrameArg {
+    /// The controller's base frame.
+    Base,
+    /// ROS `base_link`.
+    #[value(name = "base_link")]
+    BaseLink,
+}
+
+impl From<FrameArg> for OutputFrame {
+    fn from(frame: FrameArg) -> Self {
+        match frame {
+            FrameArg::Base => Self::Base,
+            FrameArg::BaseLink => Self::BaseLink,
+        }
+    }
+}
+
+/// `armtwin fk` arguments.
+#[derive(Debug, Args)]
+pub struct FkArgs {
+    /// The robot.
+    #[command(flatten)]
+    pub robot: RobotArgs,
+    /// Joint angles are in degrees (outputs stay in metres and radians).
+    #[arg(long)]
+    pub deg: bool,
+    /// Also print the 4×4 homogeneous matrix (row-major) of the pose.
+    #[arg(long)]
+    pub matrix: bool,
+    /// Read joint angles from a CSV (`q1..qn` or `time,q1..qn` columns; `-` for stdin) and write
+    /// the pose CSV `time,x,y,z,roll,pitch,yaw,qx,qy,qz,qw` to stdout.
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["joints", "matrix"])]
+    pub csv: Option<PathBuf>,
+    /// Joint angles q1 … qn (radians unless --deg).
+    #[arg(allow_negative_numbers = true, value_name = "Q")]
+    pub joints: Vec<f64>,
+}
+
+/// `armtwin models` arguments.
+#[derive(Debug, Args)]
+pub struct ModelsArgs {
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs one parsed command line.
+pub fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Fk(args) => run_fk(&args),
+        Command::Models(args) => run_models(&args),
+    }
+}
+
+/// Parses `x,y,z,rx,ry,rz`; also accepts the pendant's `p[x, y, z, rx, ry, rz]` spelling.
+fn parse_tcp(text: &str) -> Result<TcpOffset, String> {
+    let inner = text.trim();
+    let inner = inner.strip_prefix('p').unwrap_or(inner);
+    let inner = inner
+        .strip_prefix('[')
+        .and_then(|t| t.strip_suffix(']'))
+        .unwrap_or(inner);
+    let values = inner
+        .split(',')
+        .map(|item| {
+            item.trim()
+                .parse::<f64>()
+                .map_err(|_| format!("'{}' is not a number", item.trim()))
+        })
+        .collect::<Result<Vec<f64>, String>>()?;
+    let values: [f64; 6] = values
+        .try_into()
+        .map_err(|v: Vec<f64>| format!("expected 6 values x,y,z,rx,ry,rz, got {}", v.len()))?;
+    TcpOffset::from_ur_pose(values).ok_or_else(|| "every value must be finite".to_owned())
+}
+
+fn read_text(path: &Path) -> Result<String> {
+    std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))
+}
+
+impl RobotArgs {
+    /// Loads the model, calibration and tool these arguments name.
+    pub fn load(&self) -> Result<RobotModel> {
+        let arm = if Path::new(&self.model).extension().is_some_and(|e| e == "toml") {
+            let path = Path::new(&self.model);
+            custom::parse_arm(&read_text(path)?, &path.display().to_string())?
+        } else {
+            catalog::arm(&self.model)?
+        };
+        let calibration = self
+            .calibration
+            .as_deref()
+            .map(|path| -> Result<Calibration> {
+                Ok(Calibration::parse(&read_text(path)?, &path.display().to_string())?)
+            })
+            .transpose()?;
+        Ok(RobotModel::new(
+            arm,
+            calibration,
+            self.tcp.unwrap_or(TcpOffset::FLANGE),
+            self.frame.into(),
+        )?)
+    }
+}
+
+#[derive(Serialize)]
+struct FkOutput {
+    #[serde(flatten)]
+    pose: PoseFields,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    matrix: Option<[[f64; 4]; 4]>,
+}
+
+fn to_radians(q: &mut [f64], degrees: bool) {
+    if degrees {
+        for angle in q {
+            *angle = angle.to_radians();
+        }
+    }
+}
+
+fn run_fk(args: &FkArgs) -> Result<()> {
+    let model = args.robot.load()?;
+    if let Some(path) = &args.csv {
+        return run_fk_csv(&model, path, args.deg);
+    }
+    if args.joints.is_empty() {
+        bail!(
+            "give {} joint angles (or --csv FILE); e.g. armtwin fk --model {} 0 -1.57 0 -1.57 0 0",
+            model.joint_count(),
+            model.arm().name
+        );
+    }
+    let mut q = args.joints.clone();
+    to_radians(&mut q, args.deg);
+    let pose = model.pose(&q)?;
+    let output = FkOutput {
+        pose: PoseFields::from(&pose.readout()),
+        matrix: args.matrix.then(|| pose.homogeneous_rows()),
+    };
+    let stdout = io::stdout();
+    let mut out = stdout.lock();
+    serde_json::to_writer(&mut out, &output)?;
+    writeln!(out)?;
+    Ok(())
+}
+
+fn run_fk_csv(model: &RobotModel, path: &Path, degrees: bool) -> Result<()> {
+    let (input, name): (Box<dyn Read>, String) = if path == Path::new("-") {
+        (Box::new(io::stdin().lock()), "stdin".to_owned())
+    } else {
+        let file = File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+        (Box::new(BufReader::new(file)), path.display().to_string())
+    };
+    let rows = JointCsvReader::new(input, model.joint_count()).with_context(|| name.clone())?;
+    let mut writer = PoseCsvWriter::new(BufWriter::new(io::stdout().lock()))?;
+    for row in rows {
+        let mut row = row.with_context(|| name.clone())?;
+        to_radians(&mut row.q, degrees);
+        let pose = model
+            .pose(&row.q)
+            .with_context(|| format!("{name}: line {}", row.line))?;
+        writer.write(row.time_s, &PoseFields::from(&pose.readout()))?;
+    }
+    writer.finish()?;
+    Ok(())
+}
+
+#[derive(Serialize)]
+struct ModelListing {
+    name: &'static str,
+    title: &'static str,
+    convention: &'static str,
+    joints: Vec<JointListing>,
+}
+
+#[derive(Serialize)]
+struct JointListing {
+    name: &'static str,
+    a_m: f64,
+    alpha_rad: f64,
+    d_m: f64,
+    theta_offset_rad: f64,
+    min_rad: Option<f64>,
+    max_rad: Option<f64>,
+}
+
+fn run_models(args: &ModelsArgs) -> Result<()> {
+    let listings: Vec<ModelListing> = catalog::UNIVERSAL_ROBOTS
+        .iter()
+        .map(|entry| {
+            let arm = entry.arm();
+            ModelListing {
+                name: entry.name,
+                title: entry.title,
+                convention: arm.convention.as_str(),
+                joints: arm
+                    .dh
+                    .iter()
+                    .zip(&arm.joint_limits)
+                    .zip(catalog::UR_JOINT_NAMES)
+                    .map(|((row, limits), name)| JointListing {
+                        name,
+                        a_m: row.a_m,
+                        alpha_rad: row.alpha_rad,
+                        d_m: row.d_m,
+                        theta_offset_rad: row.theta_offset_rad,
+                        min_rad: limits.min_rad,
+                        max_rad: limits.max_rad,
+                    })
+                    .collect(),
+            }
+        })
+        .collect();
+    let stdout = io::stdout();
+    let mut out = stdout.lock();
+    if args.json {
+        serde_json::to_writer_pretty(&mut out, &listings)?;
+        writeln!(out)?;
+        return Ok(());
+    }
+    writeln!(
+        out,
+        "Universal Robots, standard DH (alpha = [pi/2, 0, 0, pi/2, -pi/2, 0]), metres:"
+    )?;
+    writeln!(
+        out,
+        "{:<7} {:<17} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}  wrist 3",
+        "model", "", "d1", "a2", "a3", "d4", "d5", "d6"
+    )?;
+    for entry in &catalog::UNIVERSAL_ROBOTS {
+        let [d1, a2, a3, d4, d5, d6] = entry.d1_a2_a3_d4_d5_d6_m;
+        writeln!(
+            out,
+            "{:<7} {:<17} {d1:>9} {a2:>9} {a3:>9} {d4:>9} {d5:>9} {d6:>9}  {}",
+            entry.name,
+            entry.title,
+            if entry.wrist_3_unlimited {
+                "unlimited"
+            } else {
+                "±360°"
+            }
+        )?;
+    }
+    writeln!(out, "Every other joint: ±360°. `armtwin models --json` for full tables.")?;
+    Ok(())
+}

@@ -1,0 +1,454 @@
+//! Forward kinematics of serial arms with revolute joints: a pure function of a compiled chain and
+//! the joint angles.
+//!
+//! Owns: Denavit–Hartenberg tables (standard and modified), URDF-style joint origins, the tool
+//! (TCP) offset, the output frame, and the chain they compile into. No caches, no I/O: the same
+//! inputs always give the same pose.
+//!
+//! Every chain, whatever its source, compiles to one form,
+//! `frame_from_tcp = F₀ · Rz(q₁ + θ₁) · F₁ · Rz(q₂ + θ₂) · … · Rz(qₙ + θₙ) · Fₙ`, with fixed rigid
+//! transforms `Fₖ`, so the per-sample cost is n `sin_cos` and 2n small matrix products. The output
+//! frame is folded into `F₀` and the tool into `Fₙ` once, when the chain is built.
+
+use std::f64::consts::FRAC_PI_2;
+
+use nalgebra::{IsometryMatrix3, Matrix3, Rotation3, Translation3, Vector3};
+use thiserror::Error;
+
+use crate::orientation::{self, Rpy};
+
+/// One row of a Denavit–Hartenberg table. Lengths in metres, angles in radians.
+///
+/// - Standard DH (Denavit–Hartenberg, as Universal Robots publish it): joint i contributes
+///   `Rz(qᵢ + θᵢ) · Tz(dᵢ) · Tx(aᵢ) · Rx(αᵢ)`.
+/// - Modified DH (Craig): row i holds `(aᵢ₋₁, αᵢ₋₁, dᵢ, θᵢ)` and joint i contributes
+///   `Rx(αᵢ₋₁) · Tx(aᵢ₋₁) · Rz(qᵢ + θᵢ) · Tz(dᵢ)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DhParameters {
+    /// Link length `a` (m).
+    pub a_m: f64,
+    /// Link twist `α` (rad).
+    pub alpha_rad: f64,
+    /// Link offset `d` (m).
+    pub d_m: f64,
+    /// Joint angle offset `θ` (rad), added to the joint angle.
+    pub theta_offset_rad: f64,
+}
+
+/// Which Denavit–Hartenberg convention a table is written in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DhConvention {
+    /// `Rz(θ) · Tz(d) · Tx(a) · Rx(α)` per joint.
+    Standard,
+    /// Craig's `Rx(α) · Tx(a) · Rz(θ) · Tz(d)` per joint.
+    Modified,
+}
+
+impl DhConvention {
+    /// The name used in config files and listings: `standard` or `modified`.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Standard => "standard",
+            Self::Modified => "modified",
+        }
+    }
+}
+
+/// The frame poses are expressed in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum OutputFrame {
+    /// The controller's `base` frame, in which RTDE reports `actual_TCP_pose` (DH frame 0).
+    #[default]
+    Base,
+    /// ROS `base_link`: `base` rotated by π about z (x and y negated).
+    BaseLink,
+}
+
+impl OutputFrame {
+    /// The name used on the wire and on the command line: `base` or `base_link`.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Base => "base",
+            Self::BaseLink => "base_link",
+        }
+    }
+
+    /// `frame_from_base`: exact (no `sin(π)` rounding) for `base_link`.
+    #[must_use]
+    pub fn frame_from_base(self) -> IsometryMatrix3<f64> {
+        match self {
+            Self::Base => IsometryMatrix3::identity(),
+            Self::BaseLink => IsometryMatrix3::from_parts(
+                Translation3::identity(),
+                Rotation3::from_matrix_unchecked(Matrix3::from_diagonal(&Vector3::new(
+                    -1.0, -1.0, 1.0,
+                ))),
+            ),
+        }
+    }
+}
+
+/// A tool (TCP) offset as entered on the UR pendant and reported by RTDE `tcp_offset`:
+/// `[x, y, z, rx, ry, rz]`, metres and a rotation vector in radians, in the flange frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TcpOffset {
+    /// `[x, y, z]` (m) of the TCP in the flange frame.
+    pub position_m: [f64; 3],
+    /// `[rx, ry, rz]` (rad): the TCP's orientation in the flange frame as a rotation vector.
+    pub rotation_vector_rad: [f64; 3],
+}
+
+impl TcpOffset {
+    /// No tool: the TCP is the flange.
+    pub const FLANGE: Self = Self {
+        position_m: [0.0; 3],
+        rotation_vector_rad: [0.0; 3],
+    };
+
+    /// From the pendant's `[x, y, z, rx, ry, rz]`; `None` unless all six are finite.
+    #[must_use]
+    pub fn from_ur_pose(pose: [f64; 6]) -> Option<Self> {
+        pose.iter().all(|v| v.is_finite()).then(|| Self {
+            position_m: [pose[0], pose[1], pose[2]],
+            rotation_vector_rad: [pose[3], pose[4], pose[5]],
+        })
+    }
+
+    /// `[x, y, z, rx, ry, rz]`.
+    #[must_use]
+    pub fn to_ur_pose(&self) -> [f64; 6] {
+        let [x, y, z] = self.position_m;
+        let [rx, ry, rz] = self.rotation_vector_rad;
+        [x, y, z, rx, ry, rz]
+    }
+
+    /// `flange_from_tcp` as a rigid transform.
+    #[must_use]
+    pub fn flange_from_tcp(&self) -> IsometryMatrix3<f64> {
+        let rotation = orientation::matrix_from_rotation_vector(&Vector3::from(
+            self.rotation_vector_rad,
+        ));
+        IsometryMatrix3::from_parts(
+            Translation3::from(Vector3::from(self.position_m)),
+            Rotation3::from_matrix_unchecked(rotation),
+        )
+    }
+}
+
+/// Why a set of joint angles cannot be evaluated.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum KinematicsError {
+    /// The number of joint angles differs from the arm's joint count.
+    #[error("expected {expected} joint angles, got {got}")]
+    JointCount {
+        /// The arm's joint count.
+        expected: usize,
+        /// How many were given.
+        got: usize,
+    },
+    /// A joint angle is NaN or infinite.
+    #[error("joint q{joint} is not a finite number ({value})")]
+    NonFinite {
+        /// 1-based joint number.
+        joint: usize,
+        /// The offending value.
+        value: f64,
+    },
+    /// A joint angle lies outside the joint's position limits.
+    #[error("joint q{joint} = {value_rad} rad is outside its limits [{min_rad}, {max_rad}] rad")]
+    OutOfLimits {
+        /// 1-based joint number.
+        joint: usize,
+        /// The offending angle (rad).
+        value_rad: f64,
+        /// Lower limit (rad), −∞ if none.
+        min_rad: f64,
+        /// Upper limit (rad), +∞ if none.
+        max_rad: f64,
+    },
+}
+
+/// A kinematic chain compiled to `F₀ · Π (Rz(qₖ + θₖ) · Fₖ)`, including output frame and tool.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Chain {
+    /// `F₀`: output frame from joint 1's frame.
+    first: IsometryMatrix3<f64>,
+    /// Per joint: its angle offset θ and the fixed transform `Fₖ` that follows its rotation.
+    joints: Vec<CompiledJoint>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct CompiledJoint {
+    theta_offset_rad: f64,
+    after: IsometryMatrix3<f64>,
+}
+
+fn rot_x(angle_rad: f64) -> IsometryMatrix3<f64> {
+    IsometryMatrix3::from_parts(
+        Translation3::identity(),
+        Rotation3::from_axis_angle(&Vector3::x_axis(), angle_rad),
+    )
+}
+
+fn trans(x_m: f64, y_m: f64, z_m: f64) -> IsometryMatrix3<f64> {
+    IsometryMatrix3::from_parts(Translation3::new(x_m, y_m, z_m), Rotation3::identity())
+}
+
+/// `Tx(a) · Rx(α)`, with `Rx(±π/2)` built exactly (UR tables use ±π/2, whose cosine rounds to
+/// 6e-17 otherwise).
+fn tx_rx(a_m: f64, alpha_rad: f64) -> IsometryMatrix3<f64> {
+    let rotation = if alpha_rad == FRAC_PI_2 {
+        Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 1.0, 0.0)
+    } else if alpha_rad == -FRAC_PI_2 {
+        Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0)
+    } else {
+        *rot_x(alpha_rad).rotation.matrix()
+    };
+    IsometryMatrix3::from_parts(
+        Translation3::new(a_m, 0.0, 0.0),
+        Rotation3::from_matrix_unchecked(rotation),
+    )
+}
+
+impl Chain {
+    /// A chain from a DH table in the given convention; the flange is the last DH frame.
+    #[must_use]
+    pub fn from_dh(convention: DhConvention, rows: &[DhParameters]) -> Self {
+        match convention {
+            DhConvention::Standard => Self::from_standard_dh(rows),
+            DhConvention::Modified => Self::from_modified_dh(rows),
+        }
+    }
+
+    fn from_standard_dh(rows: &[DhParameters]) -> Self {
+        Self {
+            first: IsometryMatrix3::identity(),
+            joints: rows
+                .iter()
+                .map(|row| CompiledJoint {
+                    theta_offset_rad: row.theta_offset_rad,
+                    after: trans(0.0, 0.0, row.d_m) * tx_rx(row.a_m, row.alpha_rad),
+                })
+                .collect(),
+        }
+    }
+
+    fn from_modified_dh(rows: &[DhParameters]) -> Self {
+        // Rx(α) · Tx(a) == Tx(a) · Rx(α): both act along or about x.
+        let before = |row: &DhParameters| tx_rx(row.a_m, row.alpha_rad);
+        let first = rows.first().map_or_else(IsometryMatrix3::identity, before);
+        let joints = rows
+            .iter()
+            .enumerate()
+            .map(|(k, row)| {
+                let along_z = trans(0.0, 0.0, row.d_m);
+                let after = match rows.get(k + 1) {
+                    Some(next) => along_z * before(next),
+                    None => along_z,
+                };
+                CompiledJoint {
+                    theta_offset_rad: row.theta_offset_rad,
+                    after,
+                }
+            })
+            .collect();
+        Self { first, joints }
+    }
+
+    /// A chain from URDF-style joint origins: `O₁ · Rz(q₁) · O₂ · Rz(q₂) · … · Oₙ · Rz(qₙ)`, each
+    /// origin being the fixed transform from the parent link to the joint frame (as written by ROS
+    /// `ur_calibration`); the flange is the last joint frame.
+    #[must_use]
+    pub fn from_joint_origins(parent_from_joint: &[IsometryMatrix3<f64>]) -> Self {
+        let first = parent_from_joint
+            .first()
+            .copied()
+            .unwrap_or_else(IsometryMatrix3::identity);
+        let joints = (0..parent_from_joint.len())
+            .map(|k| CompiledJoint {
+                theta_offset_rad: 0.0,
+                after: parent_from_joint
+                    .get(k + 1)
+                    .copied()
+                    .unwrap_or_else(IsometryMatrix3::identity),
+            })
+            .collect();
+        Self { first, joints }
+    }
+
+    /// This chain expressed in `frame` with `tool` attached: `frame_from_base · chain · flange_from_tcp`.
+    #[must_use]
+    pub fn with_frame_and_tool(mut self, frame: OutputFrame, tool: &TcpOffset) -> Self {
+        self.first = frame.frame_from_base() * self.first;
+        match self.joints.last_mut() {
+            Some(last) => last.after *= tool.flange_from_tcp(),
+            None => self.first *= tool.flange_from_tcp(),
+        }
+        self
+    }
+
+    /// Number of revolute joints.
+    #[must_use]
+    pub fn joint_count(&self) -> usize {
+        self.joints.len()
+    }
+
+    /// `frame_from_tcp` for joint angles `q_rad`, after checking their count and finiteness.
+    pub fn pose(&self, q_rad: &[f64]) -> Result<Pose, KinematicsError> {
+        if q_rad.len() != self.joints.len() {
+            return Err(KinematicsError::JointCount {
+                expected: self.joints.len(),
+                got: q_rad.len(),
+            });
+        }
+        if let Some((index, &value)) = q_rad.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+            return Err(KinematicsError::NonFinite {
+                joint: index + 1,
+                value,
+            });
+        }
+        Ok(self.pose_unchecked(q_rad))
+    }
+
+    /// `frame_from_tcp` for joint angles the caller has already validated (count and finiteness).
+    ///
+    /// # Panics
+    /// If `q_rad` is shorter than the joint count.
+    #[must_use]
+    pub fn pose_unchecked(&self, q_rad: &[f64]) -> Pose {
+        let mut rotation = *self.first.rotation.matrix();
+        let mut translation_m = self.first.translation.vector;
+        for (joint, &q) in self.joints.iter().zip(q_rad) {
+            // Post-multiply by Rz(θ): only the first two columns change.
+            let (s, c) = (q + joint.theta_offset_rad).sin_cos();
+            let x_axis = rotation.column(0).into_owned();
+            let y_axis = rotation.column(1).into_owned();
+            rotation.set_column(0, &(x_axis * c + y_axis * s));
+            rotation.set_column(1, &(y_axis * c - x_axis * s));
+            // Post-multiply by the fixed transform.
+            translation_m += rotation * joint.after.translation.vector;
+            rotation *= joint.after.rotation.matrix();
+        }
+        Pose {
+            position_m: translation_m,
+            rotation,
+        }
+    }
+}
+
+/// A rigid pose: the TCP's position and orientation in the output frame (`frame_from_tcp`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    /// TCP position (m).
+    pub position_m: Vector3<f64>,
+    /// TCP orientation as a rotation matrix (columns: the TCP's axes in the output frame).
+    pub rotation: Matrix3<f64>,
+}
+
+/// A pose in every representation armtwin reports, with the seed's names.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PoseReadout {
+    /// `[x, y, z]` (m).
+    pub position_m: [f64; 3],
+    /// Roll, pitch, yaw (rad), `R = Rz(yaw) · Ry(pitch) · Rx(roll)`.
+    pub rpy: Rpy,
+    /// Unit quaternion `[qx, qy, qz, qw]`, `qw ≥ 0`.
+    pub quaternion_xyzw: [f64; 4],
+}
+
+impl Pose {
+    /// Position, roll/pitch/yaw and canonical quaternion of this pose.
+    #[must_use]
+    pub fn readout(&self) -> PoseReadout {
+        PoseReadout {
+            position_m: self.position_m.into(),
+            rpy: orientation::rpy_from_matrix(&self.rotation),
+            quaternion_xyzw: orientation::quaternion_to_xyzw(&orientation::quaternion_from_matrix(
+                &self.rotation,
+            )),
+        }
+    }
+
+    /// The 4×4 homogeneous matrix, row-major.
+    #[must_use]
+    pub fn homogeneous_rows(&self) -> [[f64; 4]; 4] {
+        let r = &self.rotation;
+        let t = &self.position_m;
+        [
+            [r[(0, 0)], r[(0, 1)], r[(0, 2)], t.x],
+            [r[(1, 0)], r[(1, 1)], r[(1, 2)], t.y],
+            [r[(2, 0)], r[(2, 1)], r[(2, 2)], t.z],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dh(a_m: f64, alpha_rad: f64, d_m: f64) -> DhParameters {
+        DhParameters {
+            a_m,
+            alpha_rad,
+            d_m,
+            theta_offset_rad: 0.0,
+        }
+    }
+
+    #[test]
+    fn modified_and_standard_tables_of_one_planar_arm_agree() {
+        // A planar 2R arm: standard rows (a1, 0, 0), (a2, 0, 0); modified rows (0, 0), (a1, 0),
+        // and the last link length a2 as a tool offset along x.
+        let standard = Chain::from_dh(
+            DhConvention::Standard,
+            &[dh(0.4, 0.0, 0.0), dh(0.3, 0.0, 0.0)],
+        );
+        let tool = TcpOffset::from_ur_pose([0.3, 0.0, 0.0, 0.0, 0.0, 0.0]).expect("finite");
+        let modified = Chain::from_dh(
+            DhConvention::Modified,
+            &[dh(0.0, 0.0, 0.0), dh(0.4, 0.0, 0.0)],
+        )
+        .with_frame_and_tool(OutputFrame::Base, &tool);
+        for q in [[0.0, 0.0], [0.5, -1.0], [2.0, 3.0]] {
+            let a = standard.pose(&q).expect("valid");
+            let b = modified.pose(&q).expect("valid");
+            assert!((a.position_m - b.position_m).norm() < 1e-15);
+            assert!((a.rotation - b.rotation).norm() < 1e-15);
+        }
+    }
+
+    #[test]
+    fn base_link_negates_x_and_y() {
+        let chain = Chain::from_dh(DhConvention::Standard, &[dh(0.5, 0.0, 0.2)]);
+        let base = chain.pose(&[0.3]).expect("valid");
+        let link = chain
+            .clone()
+            .with_frame_and_tool(OutputFrame::BaseLink, &TcpOffset::FLANGE)
+            .pose(&[0.3])
+            .expect("valid");
+        assert_eq!(link.position_m.x, -base.position_m.x);
+        assert_eq!(link.position_m.y, -base.position_m.y);
+        assert_eq!(link.position_m.z, base.position_m.z);
+    }
+
+    #[test]
+    fn joint_errors_name_count_and_joint() {
+        let chain = Chain::from_dh(DhConvention::Standard, &[dh(0.5, 0.0, 0.2); 2]);
+        assert_eq!(
+            chain.pose(&[0.0]),
+            Err(KinematicsError::JointCount {
+                expected: 2,
+                got: 1
+            })
+        );
+        let err = chain.pose(&[0.0, f64::NAN]).expect_err("NaN");
+        assert!(matches!(err, KinematicsError::NonFinite { joint: 2, .. }));
+        assert_eq!(
+            chain.pose(&[f64::INFINITY, 0.0]).expect_err("inf").to_string(),
+            "joint q1 is not a finite number (inf)"
+        );
+    }
+}

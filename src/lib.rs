@@ -1,0 +1,21 @@
+//! armtwin: a live digital twin for robot arms.
+//!
+//! Gateways stream joint angles (and the controller's measured tool pose); armtwin computes each
+//! arm's calibrated forward kinematics and keeps running twin-vs-robot error metrics. One pure
+//! core serves every mode: the command line, the live service, offline validation and the FMU.
+//!
+//! Layout, inner ring first (the inner ring never touches the network, the filesystem, tokio,
+//! zenoh or `serde_json`):
+//! - [`orientation`]: rotation matrix, quaternion, roll/pitch/yaw and UR rotation vector
+//!   conversions, and the orientation error measures.
+//! - [`kinematics`]: DH tables, tool and output frame, compiled chains, forward kinematics.
+//! - [`model`]: the Universal Robots catalog, custom arms, factory calibration
+//!   (`calibration.conf`, `ur_calibration` YAML) and [`model::RobotModel`].
+//! - [`codec`]: the core's types to and from CSV and JSON field sets.
+//! - [`cli`]: the `armtwin` command line (the outer ring, with `main.rs`).
+
+pub mod cli;
+pub mod codec;
+pub mod kinematics;
+pub mod model;
+pub mod orientation;

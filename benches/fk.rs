@@ -10,6 +10,23 @@ fn fk(c: &mut Criterion) {
     c.bench_function("fk_ur10e_readout", |b| {
         b.iter(|| model.pose(black_box(&q)).expect("valid").readout());
     });
+    c.bench_function("fk_ur10e_pose_only", |b| {
+        b.iter(|| model.chain().pose_unchecked(black_box(&q)));
+    });
+    let pose = model.pose(&q).expect("valid");
+    c.bench_function("readout_only", |b| {
+        b.iter(|| black_box(&pose).readout());
+    });
+    c.bench_function("sin_cos_x6", |b| {
+        b.iter(|| {
+            let mut acc = 0.0;
+            for v in black_box(&q) {
+                let (s, c) = v.sin_cos();
+                acc += s * c;
+            }
+            acc
+        });
+    });
 }
 
 criterion_group!(benches, fk);

@@ -140,7 +140,10 @@ fn read_text(path: &Path) -> Result<String> {
 impl RobotArgs {
     /// Loads the model, calibration and tool these arguments name.
     pub fn load(&self) -> Result<RobotModel> {
-        let arm = if Path::new(&self.model).extension().is_some_and(|e| e == "toml") {
+        let arm = if Path::new(&self.model)
+            .extension()
+            .is_some_and(|e| e == "toml")
+        {
             let path = Path::new(&self.model);
             custom::parse_arm(&read_text(path)?, &path.display().to_string())?
         } else {
@@ -150,7 +153,10 @@ impl RobotArgs {
             .calibration
             .as_deref()
             .map(|path| -> Result<Calibration> {
-                Ok(Calibration::parse(&read_text(path)?, &path.display().to_string())?)
+                Ok(Calibration::parse(
+                    &read_text(path)?,
+                    &path.display().to_string(),
+                )?)
             })
             .transpose()?;
         Ok(RobotModel::new(
@@ -301,6 +307,9 @@ fn run_models(args: &ModelsArgs) -> Result<()> {
             }
         )?;
     }
-    writeln!(out, "Every other joint: ±360°. `armtwin models --json` for full tables.")?;
+    writeln!(
+        out,
+        "Every other joint: ±360°. `armtwin models --json` for full tables."
+    )?;
     Ok(())
 }

@@ -127,9 +127,8 @@ impl TcpOffset {
     /// `flange_from_tcp` as a rigid transform.
     #[must_use]
     pub fn flange_from_tcp(&self) -> IsometryMatrix3<f64> {
-        let rotation = orientation::matrix_from_rotation_vector(&Vector3::from(
-            self.rotation_vector_rad,
-        ));
+        let rotation =
+            orientation::matrix_from_rotation_vector(&Vector3::from(self.rotation_vector_rad));
         IsometryMatrix3::from_parts(
             Translation3::from(Vector3::from(self.position_m)),
             Rotation3::from_matrix_unchecked(rotation),
@@ -198,6 +197,7 @@ fn trans(x_m: f64, y_m: f64, z_m: f64) -> IsometryMatrix3<f64> {
 
 /// `Tx(a) · Rx(α)`, with `Rx(±π/2)` built exactly (UR tables use ±π/2, whose cosine rounds to
 /// 6e-17 otherwise).
+#[allow(clippy::float_cmp, reason = "exactly ±π/2 is what nominal tables hold")]
 fn tx_rx(a_m: f64, alpha_rad: f64) -> IsometryMatrix3<f64> {
     let rotation = if alpha_rad == FRAC_PI_2 {
         Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 1.0, 0.0)
@@ -386,6 +386,7 @@ impl Pose {
 }
 
 #[cfg(test)]
+#[allow(clippy::float_cmp, reason = "exact results are expected where tested")]
 mod tests {
     use super::*;
 
@@ -447,7 +448,10 @@ mod tests {
         let err = chain.pose(&[0.0, f64::NAN]).expect_err("NaN");
         assert!(matches!(err, KinematicsError::NonFinite { joint: 2, .. }));
         assert_eq!(
-            chain.pose(&[f64::INFINITY, 0.0]).expect_err("inf").to_string(),
+            chain
+                .pose(&[f64::INFINITY, 0.0])
+                .expect_err("inf")
+                .to_string(),
             "joint q1 is not a finite number (inf)"
         );
     }

@@ -18,8 +18,9 @@ use std::f64::consts::{PI, TAU};
 use nalgebra::{Matrix3, Quaternion, Rotation3, UnitQuaternion, Vector3};
 
 /// Below this value of `cos(pitch)` the roll/yaw split is ill-defined (gimbal lock) and
-/// [`rpy_from_matrix`] sets yaw to zero. The rotation itself is still represented exactly.
-const GIMBAL_LOCK_COS_PITCH: f64 = 1e-10;
+/// [`rpy_from_matrix`] sets yaw to zero; the rotation rebuilt from the angles then differs from the
+/// original by at most about twice this value.
+const GIMBAL_LOCK_COS_PITCH: f64 = 1e-12;
 
 /// Roll, pitch, yaw in radians with `R = Rz(yaw) · Ry(pitch) · Rx(roll)`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -62,26 +63,35 @@ pub fn matrix_from_rpy(rpy: Rpy) -> Matrix3<f64> {
 /// Roll, pitch, yaw of a rotation matrix, `R = Rz(yaw) · Ry(pitch) · Rx(roll)` (the seed's
 /// `matrix_to_rpy`).
 ///
-/// At gimbal lock (`cos(pitch)` below 1e-10, pitch = ±π/2) only `roll ∓ yaw` is defined: yaw is
-/// set to 0 and roll carries the whole rotation about the remaining axis, so
-/// `matrix_from_rpy(rpy_from_matrix(R)) == R` still holds.
+/// At gimbal lock (`cos(pitch)` below 1e-12, pitch = ±π/2) only `roll ∓ yaw` is defined: yaw is
+/// set to 0 and roll carries the whole rotation about the remaining axis.
+///
+/// Roll is taken after undoing yaw (from the first two rows rotated by −yaw), not from the nearly
+/// vanishing third row, so `matrix_from_rpy(rpy_from_matrix(R)) == R` holds to rounding at every
+/// distance from the lock.
 #[must_use]
 pub fn rpy_from_matrix(m: &Matrix3<f64>) -> Rpy {
     let cos_pitch = m[(0, 0)].hypot(m[(1, 0)]);
     // `+ 0.0` turns −0.0 into 0.0, so exact poses print without a stray sign.
     let pitch_rad = (-m[(2, 0)]).atan2(cos_pitch) + 0.0;
-    if cos_pitch > GIMBAL_LOCK_COS_PITCH {
-        Rpy {
-            roll_rad: wrap_angle(m[(2, 1)].atan2(m[(2, 2)])),
-            pitch_rad,
-            yaw_rad: wrap_angle(m[(1, 0)].atan2(m[(0, 0)])),
-        }
+    let (sin_yaw, cos_yaw, yaw_rad) = if cos_pitch > GIMBAL_LOCK_COS_PITCH {
+        (
+            m[(1, 0)] / cos_pitch,
+            m[(0, 0)] / cos_pitch,
+            wrap_angle(m[(1, 0)].atan2(m[(0, 0)])),
+        )
     } else {
-        Rpy {
-            roll_rad: wrap_angle((-m[(1, 2)]).atan2(m[(1, 1)])),
-            pitch_rad,
-            yaw_rad: 0.0,
-        }
+        (0.0, 1.0, 0.0)
+    };
+    // Rz(−yaw) · R = Ry(pitch) · Rx(roll), whose row 1 is [0, cos(roll), −sin(roll)].
+    let roll_rad = wrap_angle(
+        (sin_yaw * m[(0, 2)] - cos_yaw * m[(1, 2)])
+            .atan2(cos_yaw * m[(1, 1)] - sin_yaw * m[(0, 1)]),
+    );
+    Rpy {
+        roll_rad,
+        pitch_rad,
+        yaw_rad,
     }
 }
 
@@ -238,6 +248,7 @@ pub fn rpy_difference(a: Rpy, b: Rpy) -> Rpy {
 }
 
 #[cfg(test)]
+#[allow(clippy::float_cmp, reason = "exact results are expected where tested")]
 mod tests {
     use super::*;
     use std::f64::consts::FRAC_PI_2;
@@ -272,7 +283,9 @@ mod tests {
         let r = Vector3::new(0.0, 0.0, PI);
         let back = rotation_vector_from_quaternion(&quaternion_from_rotation_vector(&r));
         assert!((back.norm() - PI).abs() < 1e-12);
-        assert!((matrix_from_rotation_vector(&back) - matrix_from_rotation_vector(&r)).norm() < 1e-12);
+        assert!(
+            (matrix_from_rotation_vector(&back) - matrix_from_rotation_vector(&r)).norm() < 1e-12
+        );
     }
 
     #[test]

@@ -144,7 +144,12 @@ impl<R: Read> JointCsvReader<R> {
         })
     }
 
-    fn cell(&self, record: &csv::StringRecord, line: u64, column: usize) -> Result<f64, JointCsvError> {
+    fn cell(
+        &self,
+        record: &csv::StringRecord,
+        line: u64,
+        column: usize,
+    ) -> Result<f64, JointCsvError> {
         let name = || self.column_names.get(column).cloned().unwrap_or_default();
         let text = record.get(column).ok_or_else(|| JointCsvError::ShortRow {
             line,
@@ -158,7 +163,9 @@ impl<R: Read> JointCsvReader<R> {
     }
 
     fn row(&mut self, record: &csv::StringRecord) -> Result<JointRow, JointCsvError> {
-        let line = record.position().map_or(self.row_index + 1, |p| p.line());
+        let line = record
+            .position()
+            .map_or(self.row_index + 1, csv::Position::line);
         let time_s = match self.time_column {
             Some(column) => self.cell(record, line, column)?,
             None => self.row_index as f64,

@@ -160,7 +160,11 @@ impl fmt::Display for CalibrationProblem {
     }
 }
 
-fn error(source_name: &str, field: impl Into<String>, problem: CalibrationProblem) -> CalibrationError {
+fn error(
+    source_name: &str,
+    field: impl Into<String>,
+    problem: CalibrationProblem,
+) -> CalibrationError {
     CalibrationError {
         source_name: source_name.to_owned(),
         field: field.into(),
@@ -194,7 +198,7 @@ impl Calibration {
                 continue;
             }
             if let Some(name) = line.strip_prefix('[').and_then(|l| l.strip_suffix(']')) {
-                section = name.trim().to_owned();
+                name.trim().clone_into(&mut section);
                 saw_mounting |= section == "mounting";
                 continue;
             }
@@ -233,7 +237,11 @@ impl Calibration {
             found[slot] = Some(parse_list(&value, source_name, &field)?);
         }
         if !saw_mounting {
-            return Err(error(source_name, "[mounting]", CalibrationProblem::Missing));
+            return Err(error(
+                source_name,
+                "[mounting]",
+                CalibrationProblem::Missing,
+            ));
         }
         let take = |slot: usize| {
             found[slot].ok_or_else(|| {
@@ -269,7 +277,11 @@ impl Calibration {
         let root = documents.first().unwrap_or(&Yaml::BadValue);
         let kinematics = &root["kinematics"];
         if kinematics.as_hash().is_none() {
-            return Err(error(source_name, "kinematics", CalibrationProblem::Missing));
+            return Err(error(
+                source_name,
+                "kinematics",
+                CalibrationProblem::Missing,
+            ));
         }
         let mut parent_from_joint = Vec::with_capacity(YAML_SEGMENTS.len());
         for segment in YAML_SEGMENTS {
@@ -342,7 +354,10 @@ impl Calibration {
                         arm.convention.as_str()
                     )));
                 }
-                Ok(Chain::from_dh(DhConvention::Standard, &deltas.apply(&arm.dh)))
+                Ok(Chain::from_dh(
+                    DhConvention::Standard,
+                    &deltas.apply(&arm.dh),
+                ))
             }
             CalibrationForm::JointOrigins {
                 parent_from_joint, ..
@@ -401,9 +416,10 @@ fn parse_list(value: &str, source_name: &str, field: &str) -> Result<[f64; 6], C
 
 fn yaml_number(node: &Yaml) -> Result<f64, CalibrationProblem> {
     let number = match node {
-        Yaml::Real(text) => text.parse::<f64>().map_err(|_| CalibrationProblem::NotANumber {
-            text: text.clone(),
-        })?,
+        // `as_f64` also reads YAML's `.nan` and `.inf` spellings, rejected just below.
+        Yaml::Real(text) => node
+            .as_f64()
+            .ok_or_else(|| CalibrationProblem::NotANumber { text: text.clone() })?,
         Yaml::Integer(i) => *i as f64,
         Yaml::BadValue | Yaml::Null => return Err(CalibrationProblem::Missing),
         Yaml::String(text) => {

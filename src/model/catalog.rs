@@ -7,7 +7,7 @@
 //! holds only `d₁, a₂, a₃, d₄, d₅, d₆`.
 //!
 //! Joint limits are the controller's: ±360° on every joint, except the tool joint (wrist 3) of
-//! the UR3 and UR3e, which turns without limit. (ROS descriptions halve the elbow to ±180° for
+//! the `UR3` and `UR3e`, which turns without limit. (ROS descriptions halve the elbow to ±180° for
 //! motion planning; the controller reports the full range, so a twin must accept it.)
 
 use std::f64::consts::{FRAC_PI_2, TAU};

@@ -65,7 +65,9 @@ pub fn parse_arm(text: &str, source_name: &str) -> Result<ArmDescription, ModelE
     };
     let file: ArmFile = toml::from_str(text).map_err(|e| invalid(e.to_string()))?;
     if file.joints.is_empty() {
-        return Err(invalid("joints: an arm needs at least one joint".to_owned()));
+        return Err(invalid(
+            "joints: an arm needs at least one joint".to_owned(),
+        ));
     }
     let to_rad = |angle: f64| match file.angle_unit {
         AngleUnit::Rad => angle,
@@ -87,12 +89,16 @@ pub fn parse_arm(text: &str, source_name: &str) -> Result<ArmDescription, ModelE
             .iter()
             .find_map(|(field, value)| value.filter(|v| !v.is_finite()).map(|v| (field, v)))
         {
-            return Err(invalid(format!("joints[{joint}].{field}: {value} is not finite")));
+            return Err(invalid(format!(
+                "joints[{joint}].{field}: {value} is not finite"
+            )));
         }
         if let (Some(min), Some(max)) = (row.min, row.max)
             && min > max
         {
-            return Err(invalid(format!("joints[{joint}]: min {min} is above max {max}")));
+            return Err(invalid(format!(
+                "joints[{joint}]: min {min} is above max {max}"
+            )));
         }
         dh.push(DhParameters {
             a_m: row.a,

@@ -287,6 +287,42 @@ def test_csv_special_angles(model):
     check_poses(out[:, 1:], T_ref, q=k * 90.0, ctx=f"{model}/special-deg")
 
 
+GIMBAL_NUDGES = {
+    "exact": [0.0],  # |cos pitch| ~ 1e-16
+    "near": [1e-12, 1e-9, 1e-7],  # still |cos pitch| < 1e-6: matrix comparison
+    "boundary": [1e-6, 2e-6, 1e-5, 1e-3],  # mostly regular: roll/pitch/yaw comparison
+}
+
+
+@pytest.mark.parametrize("kind", list(GIMBAL_NUDGES))
+@pytest.mark.parametrize("model", ur.MODEL_NAMES)
+def test_csv_gimbal_lock(model, kind):
+    """Generic (not axis-aligned) configurations at and near pitch = +-pi/2.
+
+    q4 = +-pi/2 - q2 - q3 and q5 = +-pi/2 make the flange z axis vertical; the tool
+    rotation Ry(pi/2) then makes the tool x axis vertical, i.e. ZYX gimbal lock,
+    with ~1e-16 rounding noise in the matrix entries. ``near``/``boundary`` rows
+    are nudged off the lock on q4.
+    """
+    rng = np.random.default_rng(seed_for(model, "gimbal", kind))
+    n = 400
+    q = rng.uniform(-2 * math.pi, 2 * math.pi, size=(n, 6))
+    # wrapped to [-pi, pi) so that q4 stays inside the +-2 pi joint limits
+    q[:, 3] = ur.wrap(rng.choice([-1.0, 1.0], n) * (math.pi / 2) - q[:, 1] - q[:, 2])
+    q[:, 4] = rng.choice([-1.0, 1.0], n) * (math.pi / 2)
+    q[:, 3] += rng.choice(GIMBAL_NUDGES[kind], n) * rng.choice([-1.0, 1.0], n)
+    tcp = [0.0, 0.0, 0.05, 0.0, math.pi / 2, 0.0]
+    for frame in ("base", "base_link"):
+        out = run_fk_csv(model, csv_input(q, np.arange(n)), tcp_arg(tcp), "--frame", frame)
+        T_ref = ur.fk(model, q, tcp=tcp, frame=frame)
+        cp = ur.cos_pitch(T_ref[:, :3, :3])
+        if kind == "exact":
+            assert cp.max() < 1e-12
+        elif kind == "near":
+            assert cp.max() < GIMBAL_COS
+        check_poses(out[:, 1:], T_ref, q=q, ctx=f"{model}/gimbal-{kind}/{frame}")
+
+
 def test_csv_without_time_column():
     rng = np.random.default_rng(99)
     q = random_joints(rng, 300)

@@ -160,3 +160,50 @@ fn models_lists_the_catalog() {
     assert_eq!(models[5]["joints"][1]["a_m"], -0.6127);
     assert!(stdout(&armtwin(&["models"], None)).contains("ur16e"));
 }
+
+#[test]
+fn example_configs_work_as_documented() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let example = |name: &str| {
+        root.join("config/examples")
+            .join(name)
+            .display()
+            .to_string()
+    };
+    let pose = |args: &[&str]| -> serde_json::Value {
+        serde_json::from_str(&stdout(&armtwin(args, None))).expect("json")
+    };
+    // The two calibration forms of one robot give one pose.
+    let q = ["0.1", "-1", "1", "-1", "1", "1"];
+    let conf = example("calibration.conf");
+    let yaml = example("ur_calibration.yaml");
+    let from_conf = pose(&[&["fk", "--calibration", &conf][..], &q].concat());
+    let from_yaml = pose(&[&["fk", "--calibration", &yaml][..], &q].concat());
+    for key in ["x", "y", "z", "qx", "qy", "qz", "qw"] {
+        let (a, b) = (
+            from_conf[key].as_f64().expect("num"),
+            from_yaml[key].as_f64().expect("num"),
+        );
+        assert!((a - b).abs() < 1e-9, "{key}: {a} vs {b}");
+    }
+    // The custom 7-joint modified-DH arm in its ready pose, against an independent numpy
+    // evaluation of Craig's convention: flange at (0.3068905665929, 0, 0.5902820523028).
+    let panda = example("franka-panda.toml");
+    let ready = pose(&[
+        "fk",
+        "--model",
+        &panda,
+        "--tcp=0,0,0.107,0,0,0",
+        "--deg",
+        "0",
+        "-45",
+        "0",
+        "-135",
+        "0",
+        "90",
+        "45",
+    ]);
+    assert!((ready["x"].as_f64().expect("x") - 0.306_890_566_592_9).abs() < 1e-12);
+    assert!(ready["y"].as_f64().expect("y").abs() < 1e-12);
+    assert!((ready["z"].as_f64().expect("z") - 0.590_282_052_302_8).abs() < 1e-12);
+}

@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# Runs every armtwin test from a fresh clone: Rust (format, lints, unit, integration and doc tests)
+# and the Python tests (independent numpy/scipy reference), in a virtualenv this script creates.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+step() { printf '\n== %s\n' "$*"; }
+
+step "cargo fmt --check"
+cargo fmt --all -- --check
+
+step "cargo clippy (pedantic, warnings are errors)"
+cargo clippy --locked --all-targets -- -D warnings
+
+step "cargo test"
+cargo test --locked
+
+step "Python virtualenv (.venv) from tests/python/requirements.txt"
+venv=.venv
+[ -x "$venv/bin/python" ] || python3 -m venv "$venv"
+want=$(sha256sum tests/python/requirements.txt | cut -d' ' -f1)
+if [ "$(cat "$venv/.requirements.sha256" 2>/dev/null)" != "$want" ]; then
+  "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r tests/python/requirements.txt
+  echo "$want" > "$venv/.requirements.sha256"
+fi
+
+step "pytest tests/python"
+cargo build --locked --bin armtwin
+ARMTWIN_BIN="$PWD/target/debug/armtwin" "$venv/bin/python" -m pytest tests/python -q

@@ -1,30 +1,63 @@
-//! FK throughput: one pose with position, quaternion and roll/pitch/yaw, per catalog model.
+//! FK cost: one pose with position, quaternion and roll/pitch/yaw (the target: ≤ 50 ns), its
+//! parts, and the platform's scalar `sin_cos` / `atan2` as in-run baselines for the batched trig.
 use std::hint::black_box;
 
-use armtwin::model::RobotModel;
+use armtwin::kinematics::{OutputFrame, TcpOffset};
+use armtwin::model::{Calibration, RobotModel, catalog};
+use armtwin::orientation::{quaternion_from_matrix, rpy_from_matrix};
+use armtwin::trig;
 use criterion::{Criterion, criterion_group, criterion_main};
+
+const Q: [f64; 6] = [-0.693, -0.833, 0.951, 1.149, 1.515, 1.739];
 
 fn fk(c: &mut Criterion) {
     let model = RobotModel::nominal("ur10e").expect("catalog model");
-    let q = [-0.693, -0.833, 0.951, 1.149, 1.515, 1.739];
-    c.bench_function("fk_ur10e_readout", |b| {
-        b.iter(|| model.pose(black_box(&q)).expect("valid").readout());
+    c.bench_function("fk_readout/ur10e", |b| {
+        b.iter(|| model.pose(black_box(&Q)).expect("valid").readout());
     });
-    c.bench_function("fk_ur10e_pose_only", |b| {
-        b.iter(|| model.chain().pose_unchecked(black_box(&q)));
+    let calibrated = RobotModel::new(
+        catalog::arm("ur10e").expect("catalog"),
+        Some(
+            Calibration::parse(
+                include_str!("../config/examples/ur_calibration.yaml"),
+                "ur_calibration.yaml",
+            )
+            .expect("example calibration"),
+        ),
+        TcpOffset::from_ur_pose([0.0, 0.02, 0.15, 0.0, 0.0, 0.5]).expect("finite"),
+        OutputFrame::BaseLink,
+    )
+    .expect("model");
+    c.bench_function("fk_readout/ur10e_yaml_calibration_tool_base_link", |b| {
+        b.iter(|| calibrated.pose(black_box(&Q)).expect("valid").readout());
     });
-    let pose = model.pose(&q).expect("valid");
-    c.bench_function("readout_only", |b| {
+    c.bench_function("parts/pose_only", |b| {
+        b.iter(|| model.chain().pose_unchecked(black_box(&Q)));
+    });
+    let pose = model.pose(&Q).expect("valid");
+    c.bench_function("parts/readout_only", |b| {
         b.iter(|| black_box(&pose).readout());
     });
-    c.bench_function("sin_cos_x6", |b| {
+    c.bench_function("parts/quaternion_from_matrix", |b| {
+        b.iter(|| quaternion_from_matrix(black_box(&pose.rotation)));
+    });
+    c.bench_function("parts/rpy_from_matrix", |b| {
+        b.iter(|| rpy_from_matrix(black_box(&pose.rotation)));
+    });
+    c.bench_function("trig/sin_cos_batch6", |b| {
+        b.iter(|| trig::sin_cos_batch(black_box(&Q)));
+    });
+    c.bench_function("trig/platform_sin_cos_x6", |b| {
+        b.iter(|| black_box(&Q).map(f64::sin_cos));
+    });
+    let (y, x) = ([0.3, -0.7, 0.9], [0.1, -0.2, 0.5]);
+    c.bench_function("trig/atan2_batch3", |b| {
+        b.iter(|| trig::atan2_batch(black_box(&y), black_box(&x)));
+    });
+    c.bench_function("trig/platform_atan2_x3", |b| {
         b.iter(|| {
-            let mut acc = 0.0;
-            for v in black_box(&q) {
-                let (s, c) = v.sin_cos();
-                acc += s * c;
-            }
-            acc
+            let (y, x) = (black_box(&y), black_box(&x));
+            [y[0].atan2(x[0]), y[1].atan2(x[1]), y[2].atan2(x[2])]
         });
     });
 }

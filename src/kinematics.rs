@@ -16,6 +16,7 @@ use nalgebra::{IsometryMatrix3, Matrix3, Rotation3, Translation3, Vector3};
 use thiserror::Error;
 
 use crate::orientation::{self, Rpy};
+use crate::trig;
 
 /// One row of a Denavit–Hartenberg table. Lengths in metres, angles in radians.
 ///
@@ -172,7 +173,7 @@ pub enum KinematicsError {
 /// A kinematic chain compiled to `F₀ · Π (Rz(qₖ + θₖ) · Fₖ)`, including output frame and tool.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Chain {
-    /// `F₀`: output frame from joint 1's frame.
+    /// `F₀`: output frame from joint 1's frame; the starting state of every evaluation.
     first: IsometryMatrix3<f64>,
     /// Per joint: its angle offset θ and the fixed transform `Fₖ` that follows its rotation.
     joints: Vec<CompiledJoint>,
@@ -181,35 +182,132 @@ pub struct Chain {
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct CompiledJoint {
     theta_offset_rad: f64,
-    after: IsometryMatrix3<f64>,
+    after: Link,
 }
 
-fn rot_x(angle_rad: f64) -> IsometryMatrix3<f64> {
-    IsometryMatrix3::from_parts(
-        Translation3::identity(),
-        Rotation3::from_axis_angle(&Vector3::x_axis(), angle_rad),
-    )
+/// The fixed transform after a joint's rotation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Link {
+    /// `Tz(d) · Tx(a) · Rx(α)`: every link of a standard or modified DH table, applied in 48 flops.
+    Dh {
+        d_m: f64,
+        a_m: f64,
+        cos_alpha: f64,
+        sin_alpha: f64,
+    },
+    /// Any rigid transform (URDF joint origins, a link with the tool folded in).
+    General(IsometryMatrix3<f64>),
 }
 
-fn trans(x_m: f64, y_m: f64, z_m: f64) -> IsometryMatrix3<f64> {
-    IsometryMatrix3::from_parts(Translation3::new(x_m, y_m, z_m), Rotation3::identity())
+impl Link {
+    fn dh(d_m: f64, a_m: f64, alpha_rad: f64) -> Self {
+        let rotation = tx_rx(0.0, alpha_rad).rotation;
+        Self::Dh {
+            d_m,
+            a_m,
+            cos_alpha: rotation[(1, 1)],
+            sin_alpha: rotation[(2, 1)],
+        }
+    }
+
+    fn to_isometry(self) -> IsometryMatrix3<f64> {
+        match self {
+            Self::Dh {
+                d_m,
+                a_m,
+                cos_alpha,
+                sin_alpha,
+            } => IsometryMatrix3::from_parts(
+                Translation3::new(a_m, 0.0, d_m),
+                Rotation3::from_matrix_unchecked(Matrix3::new(
+                    1.0, 0.0, 0.0, 0.0, cos_alpha, -sin_alpha, 0.0, sin_alpha, cos_alpha,
+                )),
+            ),
+            Self::General(isometry) => isometry,
+        }
+    }
 }
 
 /// `Tx(a) · Rx(α)`, with `Rx(±π/2)` built exactly (UR tables use ±π/2, whose cosine rounds to
 /// 6e-17 otherwise).
 #[allow(clippy::float_cmp, reason = "exactly ±π/2 is what nominal tables hold")]
 fn tx_rx(a_m: f64, alpha_rad: f64) -> IsometryMatrix3<f64> {
-    let rotation = if alpha_rad == FRAC_PI_2 {
-        Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 1.0, 0.0)
+    let (sin_alpha, cos_alpha) = if alpha_rad == FRAC_PI_2 {
+        (1.0, 0.0)
     } else if alpha_rad == -FRAC_PI_2 {
-        Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0)
+        (-1.0, 0.0)
     } else {
-        *rot_x(alpha_rad).rotation.matrix()
+        alpha_rad.sin_cos()
     };
     IsometryMatrix3::from_parts(
         Translation3::new(a_m, 0.0, 0.0),
-        Rotation3::from_matrix_unchecked(rotation),
+        Rotation3::from_matrix_unchecked(Matrix3::new(
+            1.0, 0.0, 0.0, 0.0, cos_alpha, -sin_alpha, 0.0, sin_alpha, cos_alpha,
+        )),
     )
+}
+
+/// `state · Rz(θ) · link`, the state being the columns `[x, y, z]` of a rotation and a
+/// translation `t`, both in the output frame.
+#[inline]
+fn advance(
+    axes: &mut [[f64; 3]; 3],
+    t: &mut [f64; 3],
+    sin_theta: f64,
+    cos_theta: f64,
+    link: &Link,
+) {
+    let [x, y, z] = *axes;
+    // Rz(θ) mixes the first two columns only. Written out per component: three-element array
+    // closures compiled to shuffles that cost more than the arithmetic.
+    let x1 = [
+        cos_theta * x[0] + sin_theta * y[0],
+        cos_theta * x[1] + sin_theta * y[1],
+        cos_theta * x[2] + sin_theta * y[2],
+    ];
+    let y1 = [
+        cos_theta * y[0] - sin_theta * x[0],
+        cos_theta * y[1] - sin_theta * x[1],
+        cos_theta * y[2] - sin_theta * x[2],
+    ];
+    match *link {
+        Link::Dh {
+            d_m,
+            a_m,
+            cos_alpha,
+            sin_alpha,
+        } => {
+            t[0] += d_m * z[0] + a_m * x1[0];
+            t[1] += d_m * z[1] + a_m * x1[1];
+            t[2] += d_m * z[2] + a_m * x1[2];
+            axes[0] = x1;
+            axes[1] = [
+                cos_alpha * y1[0] + sin_alpha * z[0],
+                cos_alpha * y1[1] + sin_alpha * z[1],
+                cos_alpha * y1[2] + sin_alpha * z[2],
+            ];
+            axes[2] = [
+                cos_alpha * z[0] - sin_alpha * y1[0],
+                cos_alpha * z[1] - sin_alpha * y1[1],
+                cos_alpha * z[2] - sin_alpha * y1[2],
+            ];
+        }
+        Link::General(ref isometry) => {
+            let r = isometry.rotation.matrix();
+            let v = &isometry.translation.vector;
+            let columns = [x1, y1, z];
+            for i in 0..3 {
+                t[i] += columns[0][i] * v.x + columns[1][i] * v.y + columns[2][i] * v.z;
+            }
+            for (j, axis) in axes.iter_mut().enumerate() {
+                *axis = std::array::from_fn(|i| {
+                    columns[0][i] * r[(0, j)]
+                        + columns[1][i] * r[(1, j)]
+                        + columns[2][i] * r[(2, j)]
+                });
+            }
+        }
+    }
 }
 
 impl Chain {
@@ -229,28 +327,28 @@ impl Chain {
                 .iter()
                 .map(|row| CompiledJoint {
                     theta_offset_rad: row.theta_offset_rad,
-                    after: trans(0.0, 0.0, row.d_m) * tx_rx(row.a_m, row.alpha_rad),
+                    after: Link::dh(row.d_m, row.a_m, row.alpha_rad),
                 })
                 .collect(),
         }
     }
 
     fn from_modified_dh(rows: &[DhParameters]) -> Self {
-        // Rx(α) · Tx(a) == Tx(a) · Rx(α): both act along or about x.
-        let before = |row: &DhParameters| tx_rx(row.a_m, row.alpha_rad);
-        let first = rows.first().map_or_else(IsometryMatrix3::identity, before);
+        // Joint k's `Tz(dₖ)` and joint k+1's `Rx(αₖ) · Tx(aₖ)` (== `Tx(aₖ) · Rx(αₖ)`: both act
+        // along or about x) form one `Tz · Tx · Rx` link.
+        let first = rows.first().map_or_else(IsometryMatrix3::identity, |row| {
+            tx_rx(row.a_m, row.alpha_rad)
+        });
         let joints = rows
             .iter()
             .enumerate()
             .map(|(k, row)| {
-                let along_z = trans(0.0, 0.0, row.d_m);
-                let after = match rows.get(k + 1) {
-                    Some(next) => along_z * before(next),
-                    None => along_z,
-                };
+                let (a_m, alpha_rad) = rows
+                    .get(k + 1)
+                    .map_or((0.0, 0.0), |next| (next.a_m, next.alpha_rad));
                 CompiledJoint {
                     theta_offset_rad: row.theta_offset_rad,
-                    after,
+                    after: Link::dh(row.d_m, a_m, alpha_rad),
                 }
             })
             .collect();
@@ -269,22 +367,29 @@ impl Chain {
         let joints = (0..parent_from_joint.len())
             .map(|k| CompiledJoint {
                 theta_offset_rad: 0.0,
-                after: parent_from_joint
-                    .get(k + 1)
-                    .copied()
-                    .unwrap_or_else(IsometryMatrix3::identity),
+                after: Link::General(
+                    parent_from_joint
+                        .get(k + 1)
+                        .copied()
+                        .unwrap_or_else(IsometryMatrix3::identity),
+                ),
             })
             .collect();
         Self { first, joints }
     }
 
-    /// This chain expressed in `frame` with `tool` attached: `frame_from_base · chain · flange_from_tcp`.
+    /// This chain expressed in `frame` with `tool` attached:
+    /// `frame_from_base · chain · flange_from_tcp`.
     #[must_use]
     pub fn with_frame_and_tool(mut self, frame: OutputFrame, tool: &TcpOffset) -> Self {
         self.first = frame.frame_from_base() * self.first;
-        match self.joints.last_mut() {
-            Some(last) => last.after *= tool.flange_from_tcp(),
-            None => self.first *= tool.flange_from_tcp(),
+        if *tool != TcpOffset::FLANGE {
+            match self.joints.last_mut() {
+                Some(last) => {
+                    last.after = Link::General(last.after.to_isometry() * tool.flange_from_tcp());
+                }
+                None => self.first *= tool.flange_from_tcp(),
+            }
         }
         self
     }
@@ -312,28 +417,32 @@ impl Chain {
         Ok(self.pose_unchecked(q_rad))
     }
 
-    /// `frame_from_tcp` for joint angles the caller has already validated (count and finiteness).
-    ///
-    /// # Panics
-    /// If `q_rad` is shorter than the joint count.
+    /// `frame_from_tcp` for joint angles the caller has already validated (count and
+    /// finiteness). Angles beyond the joint count are ignored; a short slice ends the chain early.
     #[must_use]
     pub fn pose_unchecked(&self, q_rad: &[f64]) -> Pose {
-        let mut rotation = *self.first.rotation.matrix();
-        let mut translation_m = self.first.translation.vector;
-        for (joint, &q) in self.joints.iter().zip(q_rad) {
-            // Post-multiply by Rz(θ): only the first two columns change.
-            let (s, c) = (q + joint.theta_offset_rad).sin_cos();
-            let x_axis = rotation.column(0).into_owned();
-            let y_axis = rotation.column(1).into_owned();
-            rotation.set_column(0, &(x_axis * c + y_axis * s));
-            rotation.set_column(1, &(y_axis * c - x_axis * s));
-            // Post-multiply by the fixed transform.
-            translation_m += rotation * joint.after.translation.vector;
-            rotation *= joint.after.rotation.matrix();
+        let r0 = self.first.rotation.matrix();
+        let mut axes: [[f64; 3]; 3] = std::array::from_fn(|j| [r0[(0, j)], r0[(1, j)], r0[(2, j)]]);
+        let mut t: [f64; 3] = self.first.translation.vector.into();
+        for (joints, q_batch) in self
+            .joints
+            .chunks(trig::BATCH)
+            .zip(q_rad.chunks(trig::BATCH))
+        {
+            let mut angles = [0.0; trig::BATCH];
+            for ((angle, joint), q) in angles.iter_mut().zip(joints).zip(q_batch) {
+                *angle = q + joint.theta_offset_rad;
+            }
+            let (sin, cos) = trig::sin_cos_batch(&angles);
+            // Only as many joints as angles were given.
+            for ((joint, s), c) in joints.iter().take(q_batch.len()).zip(sin).zip(cos) {
+                advance(&mut axes, &mut t, s, c, &joint.after);
+            }
         }
+        let [x, y, z] = axes;
         Pose {
-            position_m: translation_m,
-            rotation,
+            position_m: Vector3::from(t),
+            rotation: Matrix3::new(x[0], y[0], z[0], x[1], y[1], z[1], x[2], y[2], z[2]),
         }
     }
 }

@@ -9,6 +9,7 @@
 //! - [`orientation`]: rotation matrix, quaternion, roll/pitch/yaw and UR rotation vector
 //!   conversions, and the orientation error measures.
 //! - [`kinematics`]: DH tables, tool and output frame, compiled chains, forward kinematics.
+//! - [`trig`]: batched, vectorisable sine and cosine for the kinematics hot path.
 //! - [`model`]: the Universal Robots catalog, custom arms, factory calibration
 //!   (`calibration.conf`, `ur_calibration` YAML) and [`model::RobotModel`].
 //! - [`codec`]: the core's types to and from CSV and JSON field sets.
@@ -19,3 +20,4 @@ pub mod codec;
 pub mod kinematics;
 pub mod model;
 pub mod orientation;
+pub mod trig;

@@ -17,6 +17,8 @@ use std::f64::consts::{PI, TAU};
 
 use nalgebra::{Matrix3, Quaternion, Rotation3, UnitQuaternion, Vector3};
 
+use crate::trig;
+
 /// Below this value of `cos(pitch)` the roll/yaw split is ill-defined (gimbal lock) and
 /// [`rpy_from_matrix`] sets yaw to zero; the rotation rebuilt from the angles then differs from the
 /// original by at most about twice this value.
@@ -71,27 +73,32 @@ pub fn matrix_from_rpy(rpy: Rpy) -> Matrix3<f64> {
 /// distance from the lock.
 #[must_use]
 pub fn rpy_from_matrix(m: &Matrix3<f64>) -> Rpy {
-    let cos_pitch = m[(0, 0)].hypot(m[(1, 0)]);
-    // `+ 0.0` turns −0.0 into 0.0, so exact poses print without a stray sign.
-    let pitch_rad = (-m[(2, 0)]).atan2(cos_pitch) + 0.0;
-    let (sin_yaw, cos_yaw, yaw_rad) = if cos_pitch > GIMBAL_LOCK_COS_PITCH {
-        (
-            m[(1, 0)] / cos_pitch,
-            m[(0, 0)] / cos_pitch,
-            wrap_angle(m[(1, 0)].atan2(m[(0, 0)])),
-        )
+    // Entries of a rotation are at most 1 in magnitude: no overflow without `hypot`.
+    let cos_pitch = (m[(0, 0)] * m[(0, 0)] + m[(1, 0)] * m[(1, 0)]).sqrt();
+    let locked = cos_pitch <= GIMBAL_LOCK_COS_PITCH;
+    let (sin_yaw, cos_yaw) = if locked {
+        (0.0, 1.0)
     } else {
-        (0.0, 1.0, 0.0)
+        (m[(1, 0)] / cos_pitch, m[(0, 0)] / cos_pitch)
     };
     // Rz(−yaw) · R = Ry(pitch) · Rx(roll), whose row 1 is [0, cos(roll), −sin(roll)].
-    let roll_rad = wrap_angle(
-        (sin_yaw * m[(0, 2)] - cos_yaw * m[(1, 2)])
-            .atan2(cos_yaw * m[(1, 1)] - sin_yaw * m[(0, 1)]),
+    let [roll_rad, pitch_rad, yaw_rad] = trig::atan2_batch(
+        &[
+            sin_yaw * m[(0, 2)] - cos_yaw * m[(1, 2)],
+            -m[(2, 0)],
+            if locked { 0.0 } else { m[(1, 0)] },
+        ],
+        &[
+            cos_yaw * m[(1, 1)] - sin_yaw * m[(0, 1)],
+            cos_pitch,
+            if locked { 1.0 } else { m[(0, 0)] },
+        ],
     );
     Rpy {
-        roll_rad,
-        pitch_rad,
-        yaw_rad,
+        roll_rad: wrap_angle(roll_rad),
+        // `+ 0.0` turns −0.0 into 0.0, so exact poses print without a stray sign.
+        pitch_rad: pitch_rad + 0.0,
+        yaw_rad: wrap_angle(yaw_rad),
     }
 }
 

@@ -84,6 +84,25 @@ pub enum ModelError {
     },
 }
 
+/// The error for joint `index` (0-based) whose `value` failed [`RobotModel::check_joints`]; kept
+/// out of the per-sample path.
+#[cold]
+fn joint_error(index: usize, value: f64, limits: &JointLimits) -> KinematicsError {
+    if value.is_finite() {
+        KinematicsError::OutOfLimits {
+            joint: index + 1,
+            value_rad: value,
+            min_rad: limits.min_rad.unwrap_or(f64::NEG_INFINITY),
+            max_rad: limits.max_rad.unwrap_or(f64::INFINITY),
+        }
+    } else {
+        KinematicsError::NonFinite {
+            joint: index + 1,
+            value,
+        }
+    }
+}
+
 /// Everything forward kinematics needs for one robot: its arm, its own calibration, its tool and
 /// the frame poses are reported in, compiled once into a [`Chain`].
 #[derive(Debug, Clone)]
@@ -166,19 +185,8 @@ impl RobotModel {
             });
         }
         for (index, (&value, limits)) in q_rad.iter().zip(&self.arm.joint_limits).enumerate() {
-            if !value.is_finite() {
-                return Err(KinematicsError::NonFinite {
-                    joint: index + 1,
-                    value,
-                });
-            }
-            if !limits.contains(value) {
-                return Err(KinematicsError::OutOfLimits {
-                    joint: index + 1,
-                    value_rad: value,
-                    min_rad: limits.min_rad.unwrap_or(f64::NEG_INFINITY),
-                    max_rad: limits.max_rad.unwrap_or(f64::INFINITY),
-                });
+            if !(value.is_finite() && limits.contains(value)) {
+                return Err(joint_error(index, value, limits));
             }
         }
         Ok(())

@@ -13,8 +13,10 @@ use serde::Serialize;
 
 use crate::codec::PoseFields;
 use crate::codec::joint_csv::{JointCsvReader, PoseCsvWriter};
+use crate::config::{Overrides, ServiceConfig};
 use crate::kinematics::{OutputFrame, TcpOffset};
 use crate::model::{Calibration, RobotModel, catalog, custom};
+use crate::service;
 
 /// armtwin: live digital twin for robot arms.
 #[derive(Debug, Parser)]
@@ -32,6 +34,25 @@ pub enum Command {
     Fk(FkArgs),
     /// List the built-in robot models with their DH parameters and joint limits.
     Models(ModelsArgs),
+    /// Run the live twin service on Zenoh (peer on tcp/127.0.0.1:7447 by default).
+    Serve(ServeArgs),
+}
+
+/// `armtwin serve` arguments, in Zenoh's own style; they override the configuration file.
+#[derive(Debug, Args)]
+pub struct ServeArgs {
+    /// The configuration file (TOML); without it, the built-in `config/armtwin.toml`.
+    #[arg(short = 'c', long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Zenoh mode: peer, client or router.
+    #[arg(short = 'm', long)]
+    pub mode: Option<String>,
+    /// Endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable; replaces the file's list).
+    #[arg(short = 'l', long = "listen", value_name = "ENDPOINT")]
+    pub listen: Vec<String>,
+    /// Endpoint to connect to, e.g. tcp/10.0.0.5:7447 (repeatable; replaces the file's list).
+    #[arg(short = 'e', long = "connect", value_name = "ENDPOINT")]
+    pub connect: Vec<String>,
 }
 
 /// Which robot: model, its calibration, its tool, and the output frame. Shared by every command
@@ -108,6 +129,50 @@ pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Fk(args) => run_fk(&args),
         Command::Models(args) => run_models(&args),
+        Command::Serve(args) => run_serve(&args),
+    }
+}
+
+fn run_serve(args: &ServeArgs) -> Result<()> {
+    let overrides = Overrides {
+        mode: args.mode.clone(),
+        listen: args.listen.clone(),
+        connect: args.connect.clone(),
+    };
+    let config = ServiceConfig::load(args.config.as_deref(), &overrides)?;
+    tracing::info!(config = %config.source_name, "configuration loaded");
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    runtime.block_on(async {
+        service::serve(config, shutdown_signal()).await?;
+        Ok(())
+    })
+}
+
+/// Completes on Ctrl-C (SIGINT) or SIGTERM.
+async fn shutdown_signal() {
+    let interrupt = tokio::signal::ctrl_c();
+    #[cfg(unix)]
+    {
+        let mut terminate =
+            match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+                Ok(signal) => signal,
+                Err(e) => {
+                    tracing::warn!(error = %e, "cannot listen for SIGTERM; Ctrl-C still works");
+                    let _ = interrupt.await;
+                    return;
+                }
+            };
+        tokio::select! {
+            _ = interrupt => tracing::info!("SIGINT received"),
+            _ = terminate.recv() => tracing::info!("SIGTERM received"),
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = interrupt.await;
     }
 }
 

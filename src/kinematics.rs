@@ -12,7 +12,9 @@
 
 use std::f64::consts::FRAC_PI_2;
 
-use nalgebra::{IsometryMatrix3, Matrix3, Rotation3, Translation3, Vector3};
+use nalgebra::{
+    IsometryMatrix3, Matrix3, Quaternion, Rotation3, Translation3, UnitQuaternion, Vector3,
+};
 use thiserror::Error;
 
 use crate::orientation::{self, Rpy};
@@ -465,6 +467,29 @@ pub struct PoseReadout {
     pub rpy: Rpy,
     /// Unit quaternion `[qx, qy, qz, qw]`, `qw ≥ 0`.
     pub quaternion_xyzw: [f64; 4],
+}
+
+impl PoseReadout {
+    /// The readout of a position (m) and an orientation quaternion (canonicalised here).
+    #[must_use]
+    pub fn from_position_quaternion(
+        position_m: [f64; 3],
+        orientation: &UnitQuaternion<f64>,
+    ) -> Self {
+        let orientation = orientation::canonical(*orientation);
+        Self {
+            position_m,
+            rpy: orientation::rpy_from_matrix(&orientation::matrix_from_quaternion(&orientation)),
+            quaternion_xyzw: orientation::quaternion_to_xyzw(&orientation),
+        }
+    }
+
+    /// The orientation as a unit quaternion.
+    #[must_use]
+    pub fn quaternion(&self) -> UnitQuaternion<f64> {
+        let [x, y, z, w] = self.quaternion_xyzw;
+        UnitQuaternion::new_unchecked(Quaternion::new(w, x, y, z))
+    }
 }
 
 impl Pose {

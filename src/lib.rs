@@ -12,12 +12,25 @@
 //! - [`trig`]: batched, vectorisable sine and cosine for the kinematics hot path.
 //! - [`model`]: the Universal Robots catalog, custom arms, factory calibration
 //!   (`calibration.conf`, `ur_calibration` YAML) and [`model::RobotModel`].
-//! - [`codec`]: the core's types to and from CSV and JSON field sets.
+//! - [`sample`]: decoded joint and measured-pose samples, whatever their source.
+//! - [`metrics`]: deviation of one paired sample; cumulative and exact sliding-window statistics.
+//! - [`align`]: pairing measured poses with joint samples in source time.
+//! - [`pipeline`]: the per-robot twin core every mode runs: samples in, poses, deviations,
+//!   metrics and events out to a [`pipeline::Sink`].
+//! - [`codec`]: the core's types to and from CSV and the service's JSON wire messages.
+//! - [`config`]: the service's TOML configuration and command-line overrides.
+//! - [`service`]: `armtwin serve`, the pipeline on a Zenoh mesh.
 //! - [`cli`]: the `armtwin` command line (the outer ring, with `main.rs`).
 
+pub mod align;
 pub mod cli;
 pub mod codec;
+pub mod config;
 pub mod kinematics;
+pub mod metrics;
 pub mod model;
 pub mod orientation;
+pub mod pipeline;
+pub mod sample;
+pub mod service;
 pub mod trig;

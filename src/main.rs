@@ -6,6 +6,14 @@ use clap::Parser;
 
 fn main() -> ExitCode {
     let cli = armtwin::cli::Cli::parse();
+    // Logs go to stderr, so `fk --csv` output on stdout stays clean; RUST_LOG overrides.
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("armtwin=info,zenoh=warn")),
+        )
+        .init();
     match armtwin::cli::run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(error) => {

@@ -1,0 +1,931 @@
+//! The pure core between "a decoded sample" and "a pose plus updated metrics", shared by every
+//! mode: the Zenoh service, offline validation and replay all feed it the same way.
+//!
+//! Owns, per robot: the model, the joint/measured alignment, pose sequence numbers, deviation
+//! statistics (cumulative and windowed), alarms, counters and the last values for the state
+//! view. Results go to a [`Sink`]; the pipeline never awaits, never touches the network or the
+//! filesystem, and never panics on input.
+//!
+//! Stamp rules (per robot, source time): joint stamps must increase strictly, and so must
+//! measured stamps; a sample that goes back or repeats a stamp is rejected (`out_of_order`,
+//! `duplicate_stamp`), because a twin cannot tell which of two readings at one instant is true.
+//! A gateway `seq` that skips numbers raises a `gap` event (samples lost upstream); one that goes
+//! back or repeats rejects the sample.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use nalgebra::{IsometryMatrix3, Matrix3, Rotation3, Vector3};
+
+use crate::align::{self, AlignConfig, Aligner, Bracket, Pending, UnpairedReason};
+use crate::kinematics::{KinematicsError, OutputFrame, PoseReadout};
+use crate::metrics::{CumulativeStats, Deviation, StatsSet, WindowStats};
+use crate::model::RobotModel;
+use crate::orientation;
+use crate::sample::JointSample;
+
+/// Alarm thresholds of one robot; a threshold of `None` disables that alarm.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AlarmConfig {
+    /// Position deviation (m) above which the position alarm arms.
+    pub position_m: Option<f64>,
+    /// Rotation angle (rad) above which the orientation alarm arms.
+    pub angle_rad: Option<f64>,
+    /// How long (s of source time) a deviation must stay above (or, to recover, at or below) its
+    /// threshold before the alarm fires (or recovers).
+    pub hold_s: f64,
+}
+
+impl Default for AlarmConfig {
+    fn default() -> Self {
+        Self {
+            position_m: None,
+            angle_rad: None,
+            hold_s: 0.0,
+        }
+    }
+}
+
+/// Another stream of measured poses for a robot (motion capture, a laser tracker, another
+/// gateway), with the fixed transform from the sensor's frame to the robot's base frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SensorStream {
+    /// The Zenoh key expression it arrives on.
+    pub key_expr: String,
+    /// `base_from_sensor`.
+    pub base_from_sensor: IsometryMatrix3<f64>,
+}
+
+/// Everything configured for one robot.
+#[derive(Debug, Clone)]
+pub struct RobotSettings {
+    /// Model, calibration, tool and output frame (shared between robots using the default).
+    pub model: Arc<RobotModel>,
+    /// Alarm thresholds.
+    pub alarm: AlarmConfig,
+    /// Extra measured-pose streams.
+    pub sensors: Vec<SensorStream>,
+}
+
+/// Settings shared by every robot.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PipelineConfig {
+    /// Length of the metrics window (s of source time).
+    pub window_s: f64,
+    /// Most samples one robot's window holds, whatever the rate (bounds memory).
+    pub window_max_samples: usize,
+    /// Time alignment limits.
+    pub align: AlignConfig,
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        Self {
+            window_s: 10.0,
+            window_max_samples: 100_000,
+            align: AlignConfig::default(),
+        }
+    }
+}
+
+/// Which stream a measured pose came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MeasuredStream {
+    /// `…/measured/<robot>` or the `measured` part of a joint message: the robot's base frame.
+    Robot,
+    /// The robot's configured sensor stream with this index.
+    Sensor(usize),
+}
+
+/// What an event reports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EventKind {
+    /// Input rejected.
+    Rejected,
+    /// A deviation stayed above its threshold.
+    Alarm,
+    /// An alarm's deviation came back to or below its threshold.
+    Recovered,
+    /// A gap in a stream (joint stamps or gateway sequence numbers).
+    Gap,
+    /// A measured pose that could not be paired with the twin.
+    Unpaired,
+}
+
+impl EventKind {
+    /// The wire name.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Rejected => "rejected",
+            Self::Alarm => "alarm",
+            Self::Recovered => "recovered",
+            Self::Gap => "gap",
+            Self::Unpaired => "unpaired",
+        }
+    }
+}
+
+/// Machine-readable details of an event.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum EventDetail {
+    /// Input rejected for this cause (a stable snake-case name).
+    Rejected {
+        /// E.g. `joint_count`, `out_of_order`, `quaternion_norm`.
+        cause: &'static str,
+    },
+    /// An alarm on a metric, or its recovery.
+    Alarm {
+        /// `position` or `angle`.
+        metric: &'static str,
+        /// The deviation that decided (m or rad).
+        value: f64,
+        /// The threshold (m or rad).
+        threshold: f64,
+    },
+    /// Joint samples further apart than `max_gap_s`.
+    StampGap {
+        /// Spacing (s).
+        gap_s: f64,
+    },
+    /// Gateway sequence numbers skipped.
+    SeqGap {
+        /// The sequence number expected.
+        expected: u64,
+        /// The one received.
+        got: u64,
+    },
+    /// A measured pose left unpaired.
+    Unpaired {
+        /// The cause, e.g. `joint_gap`, `wait_expired`.
+        cause: &'static str,
+        /// The measured pose's stamp (s).
+        measured_s: f64,
+    },
+}
+
+/// One event for a robot's events key.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Event<'a> {
+    /// Robot id.
+    pub robot: &'a str,
+    /// Source time (s) of the sample concerned.
+    pub stamp_s: f64,
+    /// What happened.
+    pub kind: EventKind,
+    /// A sentence for people.
+    pub reason: String,
+    /// The key the input arrived on, where an input is concerned.
+    pub key: Option<&'a str>,
+    /// Details for machines.
+    pub detail: EventDetail,
+}
+
+/// A robot's metrics at one instant.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MetricsSnapshot {
+    /// Robot id.
+    pub robot: String,
+    /// Newest source time (s) seen for the robot.
+    pub stamp_s: f64,
+    /// Measured poses paired with the twin.
+    pub paired: u64,
+    /// Measured poses that could not be paired.
+    pub unpaired: u64,
+    /// Inputs rejected.
+    pub rejected: u64,
+    /// Since start or the last reset.
+    pub cumulative: StatsSet,
+    /// Over the last `window_s` seconds of source time.
+    pub window: StatsSet,
+    /// The window's length (s).
+    pub window_s: f64,
+}
+
+/// Where the pipeline's results go.
+pub trait Sink {
+    /// A robot is tracked from now on (declare its outputs, its liveliness token).
+    fn tracking(&mut self, robot: &str);
+    /// The twin pose of a valid joint sample.
+    fn pose(&mut self, robot: &str, stamp_s: f64, seq: u64, frame: OutputFrame, pose: &PoseReadout);
+    /// Twin minus measured, for a paired measured pose.
+    fn deviation(&mut self, robot: &str, stamp_s: f64, deviation: &Deviation);
+    /// An event.
+    fn event(&mut self, event: &Event<'_>);
+    /// A metrics snapshot.
+    fn metrics(&mut self, snapshot: &MetricsSnapshot);
+}
+
+/// A robot's last values, for the state view.
+#[derive(Debug, Clone)]
+pub struct RobotState<'a> {
+    /// Robot id.
+    pub robot: &'a str,
+    /// Its model (model, calibration, tool, frame).
+    pub model: &'a RobotModel,
+    /// Last valid joint sample: stamp (s) and angles (rad).
+    pub last_joints: Option<(f64, &'a [f64])>,
+    /// Last twin pose: stamp (s) and pose.
+    pub last_twin: Option<(f64, &'a PoseReadout)>,
+    /// Last measured pose (in the output frame): stamp (s) and pose.
+    pub last_measured: Option<(f64, &'a PoseReadout)>,
+    /// Current metrics.
+    pub metrics: MetricsSnapshot,
+    /// Whether the position / angle alarms are active.
+    pub alarms_active: [bool; 2],
+}
+
+/// A measured pose waiting in the aligner.
+#[derive(Debug, Clone)]
+struct Waiting {
+    pose: PoseReadout,
+    key: String,
+}
+
+#[derive(Debug, Clone, Copy, Default)]
+struct AlarmState {
+    active: bool,
+    /// When the deviation started disagreeing with `active` (s), if it does.
+    since_s: Option<f64>,
+}
+
+struct RobotTwin {
+    settings: RobotSettings,
+    aligner: Aligner<Waiting>,
+    cumulative: CumulativeStats,
+    window: WindowStats,
+    paired: u64,
+    unpaired: u64,
+    rejected: u64,
+    next_pose_seq: u64,
+    last_gateway_seq: Option<u64>,
+    last_joint_s: Option<f64>,
+    last_joints: Vec<f64>,
+    last_twin: Option<(f64, PoseReadout)>,
+    last_measured_s: Option<f64>,
+    last_measured: Option<(f64, PoseReadout)>,
+    newest_s: f64,
+    alarms: [AlarmState; 2],
+    /// New results since the last periodic metrics.
+    dirty: bool,
+    scratch_q: Vec<f64>,
+}
+
+/// The multi-robot twin core.
+pub struct Pipeline {
+    config: PipelineConfig,
+    default_settings: Option<RobotSettings>,
+    settings: HashMap<String, RobotSettings>,
+    robots: HashMap<String, RobotTwin>,
+    rejected_unknown: u64,
+}
+
+/// Why a robot is not tracked.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct UnknownRobot;
+
+impl Pipeline {
+    /// A pipeline with per-robot `settings`, and `default_settings` for robots not listed
+    /// (`None`: robots not listed are rejected).
+    #[must_use]
+    pub fn new(
+        config: PipelineConfig,
+        default_settings: Option<RobotSettings>,
+        settings: HashMap<String, RobotSettings>,
+    ) -> Self {
+        Self {
+            config,
+            default_settings,
+            settings,
+            robots: HashMap::new(),
+            rejected_unknown: 0,
+        }
+    }
+
+    /// The shared settings.
+    #[must_use]
+    pub fn config(&self) -> &PipelineConfig {
+        &self.config
+    }
+
+    /// The settings a robot gets (its own, else the default), if it may be tracked.
+    #[must_use]
+    pub fn settings_for(&self, robot: &str) -> Option<&RobotSettings> {
+        self.settings.get(robot).or(self.default_settings.as_ref())
+    }
+
+    /// Configured robots (with their own settings), tracked or not.
+    pub fn configured_robots(&self) -> impl Iterator<Item = (&str, &RobotSettings)> {
+        self.settings.iter().map(|(id, s)| (id.as_str(), s))
+    }
+
+    /// Ids of the robots tracked so far.
+    pub fn tracked_robots(&self) -> impl Iterator<Item = &str> {
+        self.robots.keys().map(String::as_str)
+    }
+
+    /// Whether `robot` is tracked.
+    #[must_use]
+    pub fn is_tracked(&self, robot: &str) -> bool {
+        self.robots.contains_key(robot)
+    }
+
+    /// Inputs rejected because their robot is neither configured nor covered by a default.
+    #[must_use]
+    pub fn rejected_unknown(&self) -> u64 {
+        self.rejected_unknown
+    }
+
+    /// Starts tracking `robot` if it is not yet; fails for a robot that may not be tracked.
+    pub fn track(&mut self, robot: &str, sink: &mut impl Sink) -> Result<(), UnknownRobot> {
+        if self.robots.contains_key(robot) {
+            return Ok(());
+        }
+        let settings = self.settings_for(robot).cloned().ok_or(UnknownRobot)?;
+        let twin = RobotTwin {
+            aligner: Aligner::new(self.config.align),
+            cumulative: CumulativeStats::new(),
+            window: WindowStats::new(self.config.window_s, self.config.window_max_samples),
+            paired: 0,
+            unpaired: 0,
+            rejected: 0,
+            next_pose_seq: 0,
+            last_gateway_seq: None,
+            last_joint_s: None,
+            last_joints: Vec::with_capacity(settings.model.joint_count()),
+            last_twin: None,
+            last_measured_s: None,
+            last_measured: None,
+            newest_s: f64::NEG_INFINITY,
+            alarms: [AlarmState::default(); 2],
+            dirty: false,
+            scratch_q: Vec::with_capacity(settings.model.joint_count()),
+            settings,
+        };
+        self.robots.insert(robot.to_owned(), twin);
+        sink.tracking(robot);
+        Ok(())
+    }
+
+    /// Rejects an input for `robot` that could not be decoded (or was refused before reaching
+    /// the pipeline): one event, one count.
+    pub fn reject(
+        &mut self,
+        robot: &str,
+        key: &str,
+        stamp_s: f64,
+        cause: &'static str,
+        reason: String,
+        sink: &mut impl Sink,
+    ) {
+        if self.track(robot, sink).is_err() {
+            self.rejected_unknown += 1;
+        } else if let Some(twin) = self.robots.get_mut(robot) {
+            twin.rejected += 1;
+            twin.dirty = true;
+        }
+        sink.event(&Event {
+            robot,
+            stamp_s,
+            kind: EventKind::Rejected,
+            reason,
+            key: Some(key),
+            detail: EventDetail::Rejected { cause },
+        });
+    }
+
+    /// Rejects an input for a robot that is neither configured nor covered by a default.
+    pub fn reject_unknown_robot(
+        &mut self,
+        robot: &str,
+        key: &str,
+        stamp_s: f64,
+        sink: &mut impl Sink,
+    ) {
+        self.rejected_unknown += 1;
+        sink.event(&Event {
+            robot,
+            stamp_s,
+            kind: EventKind::Rejected,
+            reason: format!("robot '{robot}' is not configured and unknown robots are rejected"),
+            key: Some(key),
+            detail: EventDetail::Rejected {
+                cause: "unknown_robot",
+            },
+        });
+    }
+
+    /// A decoded joint sample of `robot`, stamped `stamp_s` (the message's own stamp, else the
+    /// transport's). Valid ones yield exactly one twin pose; an embedded measured pose pairs
+    /// with it exactly.
+    pub fn joints(
+        &mut self,
+        robot: &str,
+        key: &str,
+        stamp_s: f64,
+        sample: &JointSample,
+        sink: &mut impl Sink,
+    ) {
+        if self.track(robot, sink).is_err() {
+            self.reject_unknown_robot(robot, key, stamp_s, sink);
+            return;
+        }
+        let Some(twin) = self.robots.get_mut(robot) else {
+            return;
+        };
+        twin.newest_s = twin.newest_s.max(stamp_s);
+        twin.dirty = true;
+        match twin.accept_joints(robot, key, stamp_s, sample, sink) {
+            Ok(pose) => {
+                if let Some(measured) = &sample.measured {
+                    let measured = twin.to_output_frame(measured, MeasuredStream::Robot);
+                    if twin.accept_measured_stamp(robot, key, stamp_s, sink) {
+                        twin.pair(robot, stamp_s, &pose, measured, sink);
+                    }
+                }
+                twin.pair_ready(robot, sink);
+            }
+            Err(()) => {
+                // The joints were refused; a measured pose that came with them is still valid
+                // input and goes through the aligner like any other.
+                if let Some(measured) = &sample.measured {
+                    let measured = twin.to_output_frame(measured, MeasuredStream::Robot);
+                    twin.measured(robot, key, stamp_s, measured, sink);
+                }
+            }
+        }
+    }
+
+    /// A decoded measured pose of `robot` from `stream`, stamped `stamp_s`.
+    pub fn measured(
+        &mut self,
+        robot: &str,
+        key: &str,
+        stream: MeasuredStream,
+        stamp_s: f64,
+        pose: &PoseReadout,
+        sink: &mut impl Sink,
+    ) {
+        if self.track(robot, sink).is_err() {
+            self.reject_unknown_robot(robot, key, stamp_s, sink);
+            return;
+        }
+        let Some(twin) = self.robots.get_mut(robot) else {
+            return;
+        };
+        twin.newest_s = twin.newest_s.max(stamp_s);
+        twin.dirty = true;
+        let pose = twin.to_output_frame(pose, stream);
+        twin.measured(robot, key, stamp_s, pose, sink);
+    }
+
+    /// Sends metrics of every robot with new results since the last call (the periodic
+    /// publication while data flows).
+    pub fn publish_due_metrics(&mut self, sink: &mut impl Sink) {
+        for (robot, twin) in &mut self.robots {
+            if twin.dirty {
+                twin.dirty = false;
+                sink.metrics(&twin.snapshot(robot));
+            }
+        }
+    }
+
+    /// The current metrics of `robot`.
+    #[must_use]
+    pub fn metrics(&self, robot: &str) -> Option<MetricsSnapshot> {
+        self.robots.get(robot).map(|twin| twin.snapshot(robot))
+    }
+
+    /// Resets `robot`'s statistics and counters; returns (and sends) the final snapshot before
+    /// the reset.
+    pub fn reset(&mut self, robot: &str, sink: &mut impl Sink) -> Option<MetricsSnapshot> {
+        let twin = self.robots.get_mut(robot)?;
+        let last = twin.snapshot(robot);
+        twin.cumulative.reset();
+        twin.window.reset();
+        twin.paired = 0;
+        twin.unpaired = 0;
+        twin.rejected = 0;
+        twin.alarms = [AlarmState::default(); 2];
+        sink.metrics(&last);
+        Some(last)
+    }
+
+    /// The state view of `robot`.
+    #[must_use]
+    pub fn state<'a>(&'a self, robot: &'a str) -> Option<RobotState<'a>> {
+        let twin = self.robots.get(robot)?;
+        Some(RobotState {
+            robot,
+            model: &twin.settings.model,
+            last_joints: twin
+                .last_joint_s
+                .map(|stamp_s| (stamp_s, twin.last_joints.as_slice())),
+            last_twin: twin.last_twin.as_ref().map(|(s, p)| (*s, p)),
+            last_measured: twin.last_measured.as_ref().map(|(s, p)| (*s, p)),
+            metrics: twin.snapshot(robot),
+            alarms_active: [twin.alarms[0].active, twin.alarms[1].active],
+        })
+    }
+
+    /// The pose of joint angles `q_rad` under `robot`'s model (tracked or only configured).
+    #[must_use]
+    pub fn fk(&self, robot: &str, q_rad: &[f64]) -> Option<Result<PoseReadout, KinematicsError>> {
+        let model = match self.robots.get(robot) {
+            Some(twin) => &twin.settings.model,
+            None => &self.settings_for(robot)?.model,
+        };
+        Some(model.pose(q_rad).map(|pose| pose.readout()))
+    }
+
+    /// End of input: waiting measured poses become unpaired, and every robot's final metrics go
+    /// out.
+    pub fn finish(&mut self, sink: &mut impl Sink) {
+        for (robot, twin) in &mut self.robots {
+            for (pending, reason) in twin.aligner.finish() {
+                twin.unpaired_event(robot, &pending, reason, sink);
+            }
+            twin.dirty = false;
+            sink.metrics(&twin.snapshot(robot));
+        }
+    }
+}
+
+impl RobotTwin {
+    fn reject(
+        &mut self,
+        robot: &str,
+        key: &str,
+        stamp_s: f64,
+        cause: &'static str,
+        reason: String,
+        sink: &mut impl Sink,
+    ) {
+        self.rejected += 1;
+        sink.event(&Event {
+            robot,
+            stamp_s,
+            kind: EventKind::Rejected,
+            reason,
+            key: Some(key),
+            detail: EventDetail::Rejected { cause },
+        });
+    }
+
+    /// Validates and evaluates a joint sample: its twin pose is sent and returned.
+    fn accept_joints(
+        &mut self,
+        robot: &str,
+        key: &str,
+        stamp_s: f64,
+        sample: &JointSample,
+        sink: &mut impl Sink,
+    ) -> Result<PoseReadout, ()> {
+        if !stamp_s.is_finite() {
+            self.reject(
+                robot,
+                key,
+                stamp_s,
+                "non_finite",
+                format!("stamp {stamp_s} is not finite"),
+                sink,
+            );
+            return Err(());
+        }
+        if let Err(error) = self.settings.model.check_joints(&sample.q_rad) {
+            let cause = match error {
+                KinematicsError::JointCount { .. } => "joint_count",
+                KinematicsError::NonFinite { .. } => "non_finite",
+                KinematicsError::OutOfLimits { .. } => "joint_limits",
+            };
+            self.reject(robot, key, stamp_s, cause, error.to_string(), sink);
+            return Err(());
+        }
+        if let Some(last_s) = self.last_joint_s
+            && stamp_s <= last_s
+        {
+            let (cause, relation) = if stamp_s < last_s {
+                ("out_of_order", "older than")
+            } else {
+                ("duplicate_stamp", "equal to")
+            };
+            self.reject(
+                robot,
+                key,
+                stamp_s,
+                cause,
+                format!("joint stamp {stamp_s} s is {relation} the previous one ({last_s} s)"),
+                sink,
+            );
+            return Err(());
+        }
+        if let Some(seq) = sample.seq {
+            if let Some(last) = self.last_gateway_seq {
+                if seq <= last {
+                    self.reject(
+                        robot,
+                        key,
+                        stamp_s,
+                        "seq_not_increasing",
+                        format!("seq {seq} does not follow the previous seq {last}"),
+                        sink,
+                    );
+                    return Err(());
+                }
+                if seq != last + 1 {
+                    sink.event(&Event {
+                        robot,
+                        stamp_s,
+                        kind: EventKind::Gap,
+                        reason: format!(
+                            "gateway seq jumped from {last} to {seq}: {} samples missing upstream",
+                            seq - last - 1
+                        ),
+                        key: Some(key),
+                        detail: EventDetail::SeqGap {
+                            expected: last + 1,
+                            got: seq,
+                        },
+                    });
+                }
+            }
+            self.last_gateway_seq = Some(seq);
+        }
+        let max_gap_s = self.aligner.config().max_gap_s;
+        if let Some(last_s) = self.last_joint_s
+            && stamp_s - last_s > max_gap_s
+        {
+            let gap_s = stamp_s - last_s;
+            sink.event(&Event {
+                robot,
+                stamp_s,
+                kind: EventKind::Gap,
+                reason: format!("no joint sample for {gap_s} s (max_gap_s = {max_gap_s})"),
+                key: Some(key),
+                detail: EventDetail::StampGap { gap_s },
+            });
+        }
+        let pose = self
+            .settings
+            .model
+            .chain()
+            .pose_unchecked(&sample.q_rad)
+            .readout();
+        let seq = self.next_pose_seq;
+        self.next_pose_seq += 1;
+        sink.pose(robot, stamp_s, seq, self.settings.model.frame(), &pose);
+        self.aligner.push_joints(stamp_s, &sample.q_rad, pose);
+        self.last_joint_s = Some(stamp_s);
+        self.last_joints.clear();
+        self.last_joints.extend_from_slice(&sample.q_rad);
+        self.last_twin = Some((stamp_s, pose));
+        Ok(pose)
+    }
+
+    /// Measured stamps must increase strictly; rejects (and returns false) otherwise.
+    fn accept_measured_stamp(
+        &mut self,
+        robot: &str,
+        key: &str,
+        stamp_s: f64,
+        sink: &mut impl Sink,
+    ) -> bool {
+        if !stamp_s.is_finite() {
+            self.reject(
+                robot,
+                key,
+                stamp_s,
+                "non_finite",
+                format!("stamp {stamp_s} is not finite"),
+                sink,
+            );
+            return false;
+        }
+        if let Some(last_s) = self.last_measured_s
+            && stamp_s <= last_s
+        {
+            let (cause, relation) = if stamp_s < last_s {
+                ("out_of_order", "older than")
+            } else {
+                ("duplicate_stamp", "equal to")
+            };
+            self.reject(
+                robot,
+                key,
+                stamp_s,
+                cause,
+                format!("measured stamp {stamp_s} s is {relation} the previous one ({last_s} s)"),
+                sink,
+            );
+            return false;
+        }
+        self.last_measured_s = Some(stamp_s);
+        true
+    }
+
+    fn measured(
+        &mut self,
+        robot: &str,
+        key: &str,
+        stamp_s: f64,
+        pose: PoseReadout,
+        sink: &mut impl Sink,
+    ) {
+        if !self.accept_measured_stamp(robot, key, stamp_s, sink) {
+            return;
+        }
+        self.resolve(robot, key, stamp_s, pose, sink);
+    }
+
+    /// Pairs a measured pose through the aligner, or queues it, or reports it unpaired.
+    fn resolve(
+        &mut self,
+        robot: &str,
+        key: &str,
+        stamp_s: f64,
+        pose: PoseReadout,
+        sink: &mut impl Sink,
+    ) {
+        let twin_pose = match self.aligner.bracket(stamp_s) {
+            Bracket::Exact(twin) => *twin,
+            Bracket::Between { q0, q1, fraction } => {
+                align::interpolate(q0, q1, fraction, &mut self.scratch_q);
+                self.settings
+                    .model
+                    .chain()
+                    .pose_unchecked(&self.scratch_q)
+                    .readout()
+            }
+            Bracket::Later => {
+                let waiting = Waiting {
+                    pose,
+                    key: key.to_owned(),
+                };
+                for (pending, reason) in self.aligner.wait(stamp_s, waiting) {
+                    self.unpaired_event(robot, &pending, reason, sink);
+                }
+                return;
+            }
+            Bracket::Unpaired(reason) => {
+                let pending = Pending {
+                    stamp_s,
+                    item: Waiting {
+                        pose,
+                        key: key.to_owned(),
+                    },
+                };
+                self.unpaired_event(robot, &pending, reason, sink);
+                return;
+            }
+        };
+        self.pair(robot, stamp_s, &twin_pose, pose, sink);
+    }
+
+    /// Pairs the measured poses that the newest joint sample now brackets.
+    fn pair_ready(&mut self, robot: &str, sink: &mut impl Sink) {
+        for pending in self.aligner.take_ready() {
+            let Pending { stamp_s, item } = pending;
+            self.resolve(robot, &item.key, stamp_s, item.pose, sink);
+        }
+    }
+
+    fn unpaired_event(
+        &mut self,
+        robot: &str,
+        pending: &Pending<Waiting>,
+        reason: UnpairedReason,
+        sink: &mut impl Sink,
+    ) {
+        self.unpaired += 1;
+        self.dirty = true;
+        sink.event(&Event {
+            robot,
+            stamp_s: pending.stamp_s,
+            kind: EventKind::Unpaired,
+            reason: format!(
+                "measured pose at t = {} s unpaired: {}",
+                pending.stamp_s,
+                reason.describe(self.aligner.config())
+            ),
+            key: Some(&pending.item.key),
+            detail: EventDetail::Unpaired {
+                cause: reason.kind(),
+                measured_s: pending.stamp_s,
+            },
+        });
+    }
+
+    fn pair(
+        &mut self,
+        robot: &str,
+        stamp_s: f64,
+        twin_pose: &PoseReadout,
+        measured: PoseReadout,
+        sink: &mut impl Sink,
+    ) {
+        let deviation = Deviation::between(twin_pose, &measured);
+        sink.deviation(robot, stamp_s, &deviation);
+        let magnitudes = deviation.magnitudes();
+        self.cumulative.add(&magnitudes);
+        self.window.add(stamp_s, &magnitudes);
+        self.paired += 1;
+        self.last_measured = Some((stamp_s, measured));
+        let alarm = self.settings.alarm;
+        let checks = [
+            ("position", alarm.position_m, deviation.position_m, "m"),
+            ("angle", alarm.angle_rad, deviation.angle_rad, "rad"),
+        ];
+        for (index, (metric, threshold, value, unit)) in checks.into_iter().enumerate() {
+            let Some(threshold) = threshold else {
+                continue;
+            };
+            let state = &mut self.alarms[index];
+            let disagrees = (value > threshold) != state.active;
+            if !disagrees {
+                state.since_s = None;
+                continue;
+            }
+            let since_s = *state.since_s.get_or_insert(stamp_s);
+            if stamp_s - since_s < alarm.hold_s {
+                continue;
+            }
+            state.active = !state.active;
+            state.since_s = None;
+            let (kind, reason) = if state.active {
+                (
+                    EventKind::Alarm,
+                    format!(
+                        "{metric} deviation {value} {unit} above {threshold} {unit} for at least {} s",
+                        alarm.hold_s
+                    ),
+                )
+            } else {
+                (
+                    EventKind::Recovered,
+                    format!(
+                        "{metric} deviation {value} {unit} back at or below {threshold} {unit} for at least {} s",
+                        alarm.hold_s
+                    ),
+                )
+            };
+            sink.event(&Event {
+                robot,
+                stamp_s,
+                kind,
+                reason,
+                key: None,
+                detail: EventDetail::Alarm {
+                    metric,
+                    value,
+                    threshold,
+                },
+            });
+        }
+    }
+
+    /// A measured pose from `stream` in the model's output frame.
+    fn to_output_frame(&self, pose: &PoseReadout, stream: MeasuredStream) -> PoseReadout {
+        let frame = self.settings.model.frame();
+        let sensor = match stream {
+            MeasuredStream::Robot => None,
+            MeasuredStream::Sensor(index) => self
+                .settings
+                .sensors
+                .get(index)
+                .map(|sensor| sensor.base_from_sensor),
+        };
+        if sensor.is_none() && frame == OutputFrame::Base {
+            return *pose;
+        }
+        let frame_from_measured =
+            frame.frame_from_base() * sensor.unwrap_or_else(IsometryMatrix3::identity);
+        transform(&frame_from_measured, pose)
+    }
+
+    fn snapshot(&self, robot: &str) -> MetricsSnapshot {
+        MetricsSnapshot {
+            robot: robot.to_owned(),
+            stamp_s: if self.newest_s.is_finite() {
+                self.newest_s
+            } else {
+                0.0
+            },
+            paired: self.paired,
+            unpaired: self.unpaired,
+            rejected: self.rejected,
+            cumulative: self.cumulative.snapshot(),
+            window: self.window.snapshot(),
+            window_s: self.window.window_s(),
+        }
+    }
+}
+
+/// `target_from_source · pose`.
+fn transform(target_from_source: &IsometryMatrix3<f64>, pose: &PoseReadout) -> PoseReadout {
+    let position = target_from_source * nalgebra::Point3::from(Vector3::from(pose.position_m));
+    let rotation: Matrix3<f64> = target_from_source.rotation.matrix()
+        * orientation::matrix_from_quaternion(&pose.quaternion());
+    let quaternion =
+        orientation::quaternion_from_matrix(Rotation3::from_matrix_unchecked(rotation).matrix());
+    PoseReadout::from_position_quaternion(position.coords.into(), &quaternion)
+}

@@ -1,0 +1,653 @@
+"""End-to-end tests of ``armtwin serve`` over Zenoh, against docs/protocol.md.
+
+Each test starts the real binary on a private loopback port, connects one Python Zenoh peer,
+streams real UR10e recordings (tests/data) and checks every output against an independent
+numpy/scipy computation (ur_reference.py). Expected values never come from armtwin itself.
+
+Run: ``.venv/bin/python -m pytest tests/python/test_service.py -q`` (``-s`` shows the figures).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import time
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import ur_reference as ur
+from armtwin_service import PREFIX, ArmtwinProcess, TwinClient, reply_payloads, wait_until
+from conftest import DATA_DIR
+
+MODEL = "ur10e"
+CONFIG = """\
+[service]
+metrics_period_ms = 50
+
+[robots.default]
+model = "ur10e"
+"""
+WATCHDOG_S = 420.0  # hard limit per test: the process is killed, every blocked call returns
+
+MEASURED_KEYS = ("x", "y", "z", "qx", "qy", "qz", "qw")
+STAT_NAMES = ("position", "x", "y", "z", "quat_distance", "angle", "roll", "pitch", "yaw")
+TOL_POS = 1e-12
+TOL_QUAT = 1e-12
+TOL_EULER = 1e-9
+TOL_STATS = 1e-9
+TOL_ANGLE = 1e-7  # acos loses precision near 1
+
+
+# ----------------------------------------------------------------------------------------------
+# fixture
+# ----------------------------------------------------------------------------------------------
+
+
+class Twin:
+    def __init__(self, proc: ArmtwinProcess, client: TwinClient):
+        self.proc = proc
+        self.client = client
+        self.collector = client.collector
+
+
+@pytest.fixture
+def twin(armtwin_bin, tmp_path):
+    proc = ArmtwinProcess(armtwin_bin, tmp_path, CONFIG, WATCHDOG_S)
+    proc.start()
+    client = None
+    try:
+        client = TwinClient(proc.endpoint)
+        yield Twin(proc, client)
+    finally:
+        code, took = proc.stop()
+        if client is not None:
+            client.close()
+    if proc.watchdog_fired:
+        pytest.fail(f"watchdog: armtwin killed after {WATCHDOG_S} s\n{proc.logs()}")
+    if took is None and proc.sigint_at is not None and code is None:
+        pytest.fail(f"armtwin did not exit within 15 s of SIGINT (killed)\n{proc.logs()}")
+    if code != 0:
+        pytest.fail(f"armtwin exited with code {code} after SIGINT\n{proc.logs()}")
+
+
+# ----------------------------------------------------------------------------------------------
+# independent reference computations
+# ----------------------------------------------------------------------------------------------
+
+
+def wrap_pi(a):
+    """Wrap to (−π, π]."""
+    w = np.mod(np.asarray(a, float) + math.pi, 2 * math.pi) - math.pi
+    return np.where(w == -math.pi, math.pi, w)
+
+
+def reference_poses(q):
+    """(pos (N,3), quat xyzw canonical (N,4), rpy (N,3)) of FK in the base frame, flange TCP."""
+    T = ur.fk(MODEL, np.asarray(q, float))
+    R = T[:, :3, :3]
+    return T[:, :3, 3], ur.canonical_quat(R), ur.rpy(R)
+
+
+def measured_arrays(meas):
+    """meas (N,7) x,y,z,qx,qy,qz,qw → (pos, normalised quat, rpy from that quat)."""
+    meas = np.asarray(meas, float)
+    quat = meas[:, 3:7] / np.linalg.norm(meas[:, 3:7], axis=1, keepdims=True)
+    R = Rotation.from_quat(quat).as_matrix()
+    return meas[:, :3], quat, ur.rpy(R)
+
+
+def reference_deviations(q, meas):
+    """dict of (N,) arrays: dx dy dz position quat_distance angle droll dpitch dyaw."""
+    tpos, tquat, trpy = reference_poses(q)
+    mpos, mquat, mrpy = measured_arrays(meas)
+    d = tpos - mpos
+    dot = np.abs(np.sum(tquat * mquat, axis=1))
+    de = wrap_pi(trpy - mrpy)
+    return {
+        "dx": d[:, 0],
+        "dy": d[:, 1],
+        "dz": d[:, 2],
+        "position": np.linalg.norm(d, axis=1),
+        "quat_distance": 1.0 - dot,
+        "angle": 2.0 * np.arccos(np.minimum(dot, 1.0)),
+        "droll": de[:, 0],
+        "dpitch": de[:, 1],
+        "dyaw": de[:, 2],
+    }
+
+
+def reference_stats(dev):
+    """The cumulative metrics' statistics (over absolute values) of reference deviations."""
+    series = {
+        "position": dev["position"],
+        "x": dev["dx"],
+        "y": dev["dy"],
+        "z": dev["dz"],
+        "quat_distance": dev["quat_distance"],
+        "angle": dev["angle"],
+        "roll": dev["droll"],
+        "pitch": dev["dpitch"],
+        "yaw": dev["dyaw"],
+    }
+    out = {}
+    for name, v in series.items():
+        a = np.abs(np.asarray(v, float))
+        out[name] = {
+            "mae": float(a.mean()),
+            "rmse": float(math.sqrt(np.mean(a * a))),
+            "max": float(a.max()),
+        }
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# soft checks: report every mismatch of a test at once
+# ----------------------------------------------------------------------------------------------
+
+
+class Checks:
+    def __init__(self):
+        self.failures: list[str] = []
+
+    def true(self, cond, what):
+        if not cond:
+            self.failures.append(what)
+        return bool(cond)
+
+    def equal(self, actual, expected, what):
+        return self.true(actual == expected, f"{what}: expected {expected!r}, got {actual!r}")
+
+    def close(self, actual, expected, tol, what):
+        a = np.asarray(actual, float)
+        e = np.asarray(expected, float)
+        if a.shape != e.shape:
+            return self.true(False, f"{what}: shape {a.shape} != expected {e.shape}")
+        err = np.abs(a - e)
+        if err.size and not np.all(err <= tol):
+            i = int(np.nanargmax(np.where(np.isnan(err), np.inf, err)))
+            bad = int(np.sum(~(err <= tol)))
+            return self.true(
+                False,
+                f"{what}: {bad}/{err.size} beyond {tol:g}; worst index {i}: "
+                f"got {a.flat[i]!r}, expected {e.flat[i]!r} (|err| {err.flat[i]:.3g})",
+            )
+        return True
+
+    def angles_close(self, actual, expected, tol, what):
+        a = np.asarray(actual, float)
+        e = np.asarray(expected, float)
+        if a.shape != e.shape:
+            return self.true(False, f"{what}: shape {a.shape} != expected {e.shape}")
+        return self.close(wrap_pi(a - e), np.zeros_like(a), tol, what + " (wrapped difference)")
+
+    def done(self, logs: str = ""):
+        if self.failures:
+            text = "\n".join(f"- {f}" for f in self.failures)
+            pytest.fail(f"{len(self.failures)} mismatch(es) with docs/protocol.md:\n{text}\n{logs}")
+
+
+def check_poses(checks, poses, robot, t_expected, q, label):
+    """Twin poses in arrival order: seq 0..N-1, t, frame, and the reference FK."""
+    n = len(q)
+    checks.equal(len(poses), n, f"{label}: number of twin poses")
+    checks.equal([p.get("seq") for p in poses], list(range(len(poses))), f"{label}: pose seq")
+    checks.true(all(p.get("robot") == robot for p in poses), f"{label}: every pose names robot {robot!r}")
+    checks.true(all(p.get("frame") == "base" for p in poses), f"{label}: every pose has frame 'base'")
+    if len(poses) != n:
+        # Compare what can be matched by stamp, so the report also says whether the values are right.
+        by_t = {p["t"]: p for p in poses}
+        idx = [i for i, t in enumerate(t_expected) if t in by_t]
+        missing = [i for i in range(n) if t_expected[i] not in by_t]
+        checks.true(not missing, f"{label}: no pose for rows {missing[:20]}{'…' if len(missing) > 20 else ''}")
+        poses = [by_t[t_expected[i]] for i in idx]
+    else:
+        idx = list(range(n))
+        checks.close([p["t"] for p in poses], [t_expected[i] for i in idx], 0.0, f"{label}: pose t")
+    if not idx:
+        return
+    pos, quat, rpy = reference_poses(np.asarray(q)[idx])
+    got = lambda keys: np.array([[p[k] for k in keys] for p in poses], float)  # noqa: E731
+    checks.close(got(("x", "y", "z")), pos, TOL_POS, f"{label}: pose position vs reference FK")
+    checks.close(got(("qx", "qy", "qz", "qw")), quat, TOL_QUAT, f"{label}: pose quaternion vs reference FK")
+    checks.angles_close(got(("roll", "pitch", "yaw")), rpy, TOL_EULER, f"{label}: pose roll/pitch/yaw vs reference")
+
+
+def check_deviations(checks, devs, robot, t_expected, q, meas, label):
+    """Deviations (any order), matched to rows by their stamp."""
+    n = len(t_expected)
+    checks.equal(len(devs), n, f"{label}: number of deviations")
+    checks.true(all(d.get("robot") == robot for d in devs), f"{label}: every deviation names robot {robot!r}")
+    by_t = {}
+    for d in devs:
+        checks.true(d["t"] not in by_t, f"{label}: two deviations at t={d['t']}")
+        by_t[d["t"]] = d
+    unknown = sorted(set(by_t) - set(t_expected))
+    checks.true(not unknown, f"{label}: deviations at unexpected stamps {unknown[:10]}")
+    idx = [i for i, t in enumerate(t_expected) if t in by_t]
+    missing = [t_expected[i] for i in range(n) if t_expected[i] not in by_t]
+    checks.true(not missing, f"{label}: no deviation at stamps {missing[:10]}")
+    if not idx:
+        return
+    ref = reference_deviations(np.asarray(q)[idx], np.asarray(meas)[idx])
+    rows = [by_t[t_expected[i]] for i in idx]
+    for key, tol in (
+        ("dx", TOL_POS), ("dy", TOL_POS), ("dz", TOL_POS), ("position", TOL_POS),
+        ("quat_distance", TOL_QUAT), ("angle", TOL_ANGLE),
+        ("droll", TOL_EULER), ("dpitch", TOL_EULER), ("dyaw", TOL_EULER),
+    ):
+        checks.close([r[key] for r in rows], ref[key], tol, f"{label}: deviation {key}")
+
+
+def check_metrics(checks, metrics, robot, paired, rejected, ref_stats, label, unpaired=0, t=None):
+    """``t``: the newest source time sent for the robot (protocol: metrics ``t``)."""
+    if not checks.true(metrics is not None, f"{label}: no final metrics message"):
+        return
+    checks.equal(metrics.get("robot"), robot, f"{label}: metrics robot")
+    if t is not None:
+        checks.equal(metrics.get("t"), t, f"{label}: metrics t (newest source time)")
+    checks.equal(metrics.get("paired"), paired, f"{label}: metrics paired")
+    checks.equal(metrics.get("unpaired"), unpaired, f"{label}: metrics unpaired")
+    checks.equal(metrics.get("rejected"), rejected, f"{label}: metrics rejected")
+    cum = metrics.get("cumulative") or {}
+    checks.equal(cum.get("n"), paired, f"{label}: metrics cumulative.n")
+    for name in STAT_NAMES:
+        tol = TOL_ANGLE if name == "angle" else TOL_STATS
+        got = cum.get(name)
+        if not checks.true(isinstance(got, dict), f"{label}: metrics cumulative.{name} missing"):
+            continue
+        for s in ("mae", "rmse", "max"):
+            checks.close(got.get(s, np.nan), ref_stats[name][s], tol, f"{label}: cumulative.{name}.{s}")
+
+
+# ----------------------------------------------------------------------------------------------
+# data
+# ----------------------------------------------------------------------------------------------
+
+
+def load_fmpy():
+    with open(DATA_DIR / "fmpy_inputs.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    q = np.array([[float(r[f"q{i}"]) for i in range(1, 7)] for r in rows])
+    meas = np.array([[float(r[k]) for k in MEASURED_KEYS] for r in rows])
+    return q, meas
+
+
+def naive_field(text):
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def load_lasttest_naive():
+    """What a naive gateway makes of each data line: comma split, float() where it parses."""
+    lines = (DATA_DIR / "ur10e_lasttest.csv").read_text().splitlines()
+    out = []
+    for line in lines[1:]:
+        fields = [naive_field(s) for s in line.split(",")][:14]
+        out.append(fields)
+    return out
+
+
+def joint_message(t, q, meas):
+    return {
+        "t": t,
+        "q": [float(v) for v in q],
+        "measured": {k: (float(v) if not isinstance(v, str) else v) for k, v in zip(MEASURED_KEYS, meas)},
+    }
+
+
+def final_metrics(tw: Twin, robot, predicate, timeout=10.0):
+    """The metrics message satisfying ``predicate``; if none comes within ``timeout``, SIGINT the
+    service and take the last metrics message it published (its shutdown snapshot)."""
+    msg = tw.collector.wait_message("metrics", robot, predicate, timeout)
+    if msg is not None:
+        return msg, "periodic"
+    tw.proc.stop()
+    time.sleep(0.2)
+    return tw.collector.last("metrics", robot), "after SIGINT"
+
+
+def wait_outputs(tw: Twin, robot, poses, devs, events=0, timeout=60.0, quiet_s=3.0):
+    """Wait until the expected counts arrive, or nothing new arrives for ``quiet_s`` s (so a
+    shortfall is reported quickly), bounded by ``timeout``."""
+    c = tw.collector
+    deadline = time.monotonic() + timeout
+    last_total, last_change = -1, time.monotonic()
+    while time.monotonic() < deadline:
+        counts = (c.count("pose", robot), c.count("deviation", robot), c.count("events", robot))
+        if counts[0] >= poses and counts[1] >= devs and counts[2] >= events:
+            time.sleep(0.3)  # let any surplus arrive, so "exactly" is meaningful
+            return
+        total = sum(counts)
+        if total != last_total:
+            last_total, last_change = total, time.monotonic()
+        elif time.monotonic() - last_change > quiet_s:
+            return
+        time.sleep(0.02)
+
+
+# ----------------------------------------------------------------------------------------------
+# 1. fmpy_inputs.csv with embedded measured poses
+# ----------------------------------------------------------------------------------------------
+
+
+def test_fmpy_inputs_stream(twin):
+    robot = "fmpy"
+    q, meas = load_fmpy()
+    n = len(q)
+    assert n == 54
+    t = [i * 0.1 for i in range(n)]
+    client = twin.client
+    client.ready([robot])
+    pub = client.joints(robot)
+    for i in range(n):
+        client.put_json(pub, joint_message(t[i], q[i], meas[i]))
+    wait_outputs(twin, robot, n, n, timeout=60)
+
+    checks = Checks()
+    poses = twin.collector.messages("pose", robot)
+    devs = twin.collector.messages("deviation", robot)
+    check_poses(checks, poses, robot, t, q, "fmpy")
+    check_deviations(checks, devs, robot, t, q, meas, "fmpy")
+    events = twin.collector.messages("events", robot)
+    checks.equal([e.get("kind") for e in events], [], "fmpy: events")
+
+    ref = reference_deviations(q, meas)
+    stats = reference_stats(ref)
+    metrics, how = final_metrics(twin, robot, lambda m: m.get("paired") == n)
+    check_metrics(checks, metrics, robot, n, 0, stats, f"fmpy ({how} metrics)", t=t[-1])
+
+    p, qd = stats["position"], stats["quat_distance"]
+    print(
+        f"\n[fmpy_inputs.csv] {n} rows: position MAE {p['mae'] * 1e3:.4f} mm, RMSE {p['rmse'] * 1e3:.4f} mm, "
+        f"max {p['max'] * 1e3:.4f} mm; quat distance MAE {qd['mae']:.3e}, RMSE {qd['rmse']:.3e}, "
+        f"max {qd['max']:.3e}; final metrics: {how}"
+    )
+    checks.done(twin.proc.logs())
+
+
+# ----------------------------------------------------------------------------------------------
+# 2. ur10e_lasttest.csv through a naive gateway (7 corrupted rows)
+# ----------------------------------------------------------------------------------------------
+
+
+def test_lasttest_naive_gateway(twin):
+    robot = "lasttest"
+    rows = load_lasttest_naive()
+    n = len(rows)
+    assert n == 29061
+    t = [i * 0.002 for i in range(n)]
+    assert all(b > a for a, b in zip(t, t[1:]))
+    q = [r[1:7] for r in rows]
+    assert all(isinstance(v, float) for qq in q for v in qq), "every joint field parses"
+    meas = [r[7:14] for r in rows]
+    bad = [i for i, m in enumerate(meas) if any(isinstance(v, str) for v in m)]
+    assert len(bad) == 7
+    bad_fields = [[k for k, v in zip(MEASURED_KEYS, meas[i]) if isinstance(v, str)] for i in bad]
+    assert all(len(f) == 1 for f in bad_fields)
+    good = [i for i in range(n) if i not in set(bad)]
+
+    client = twin.client
+    client.ready([robot])
+    pub = client.joints(robot)
+    payloads = [json.dumps(joint_message(t[i], q[i], meas[i])) for i in range(n)]
+    start = time.monotonic()
+    for payload in payloads:
+        pub.put(payload)
+    sent = time.monotonic()
+    wait_outputs(twin, robot, n, len(good), events=7, timeout=300, quiet_s=5.0)
+    c = twin.collector
+    pose_items = c.items("pose", robot)
+    last_out = max((i.at for i in c.items(robot=robot) if i.stream in ("pose", "deviation", "events")), default=sent)
+    put_s = sent - start
+    e2e_s = last_out - start
+    print(
+        f"\n[ur10e_lasttest.csv] {n} joint messages published in {put_s:.2f} s ({n / put_s:,.0f} msg/s); "
+        f"last output received {e2e_s:.2f} s after the first put ({n / e2e_s:,.0f} msg/s end to end); "
+        f"received {len(pose_items)} poses, {c.count('deviation', robot)} deviations, "
+        f"{c.count('events', robot)} events"
+    )
+
+    checks = Checks()
+    q_arr = np.array(q, float)
+    poses = [i.json() for i in pose_items]
+    check_poses(checks, poses, robot, t, q_arr, "lasttest")
+
+    events = c.messages("events", robot)
+    rejected = [e for e in events if e.get("kind") == "rejected"]
+    checks.equal(len(rejected), 7, "lasttest: number of rejected events")
+    others = sorted({e.get("kind") for e in events} - {"rejected", "alarm", "recovered"})
+    checks.equal(others, [], "lasttest: unexpected event kinds")
+    for j, e in enumerate(rejected[:7]):
+        field = f"measured.{bad_fields[j][0]}"
+        checks.equal((e.get("detail") or {}).get("cause"), "wrong_type", f"lasttest: rejected #{j} cause")
+        checks.equal(e.get("key"), f"{PREFIX}/joints/{robot}", f"lasttest: rejected #{j} key")
+        checks.equal(e.get("robot"), robot, f"lasttest: rejected #{j} robot")
+        checks.true(field in json.dumps(e), f"lasttest: rejected #{j} (row {bad[j]}) names {field}: {e}")
+
+    meas_good = np.array([meas[i] for i in good], float)
+    q_good = q_arr[good]
+    t_good = [t[i] for i in good]
+    devs = c.messages("deviation", robot)
+    check_deviations(checks, devs, robot, t_good, q_good, meas_good, "lasttest")
+
+    stats = reference_stats(reference_deviations(q_good, meas_good))
+    metrics, how = final_metrics(
+        twin, robot, lambda m: m.get("paired") == len(good) and m.get("rejected") == 7
+    )
+    check_metrics(checks, metrics, robot, len(good), 7, stats, f"lasttest ({how} metrics)", t=t[-1])
+    p, qd = stats["position"], stats["quat_distance"]
+    print(
+        f"[ur10e_lasttest.csv] reference over {len(good)} valid rows: position MAE {p['mae'] * 1e3:.4f} mm, "
+        f"RMSE {p['rmse'] * 1e3:.4f} mm, max {p['max'] * 1e3:.4f} mm; quat distance MAE {qd['mae']:.3e}, "
+        f"RMSE {qd['rmse']:.3e}, max {qd['max']:.3e}; final metrics: {how}"
+    )
+    checks.done(twin.proc.logs())
+
+
+# ----------------------------------------------------------------------------------------------
+# 3. bad input over the wire
+# ----------------------------------------------------------------------------------------------
+
+
+def test_bad_input_interleaved(twin):
+    robot = "bad"
+    q, meas = load_fmpy()
+    client = twin.client
+    client.ready([robot], measured=True)
+    jp, mp = client.joints(robot), client.measured(robot)
+    jkey, mkey = f"{PREFIX}/joints/{robot}", f"{PREFIX}/measured/{robot}"
+
+    def jmsg(i, t):
+        return {"t": t, "q": [float(v) for v in q[i]]}
+
+    def mmsg(i, t, **extra):
+        m = {"t": t, **{k: float(v) for k, v in zip(MEASURED_KEYS, meas[i])}}
+        m.update(extra)
+        return m
+
+    quat = meas[2, 3:7] / np.linalg.norm(meas[2, 3:7]) * 1.2
+    rpy_fields = dict(zip(("roll", "pitch", "yaw"), measured_arrays(meas[2:3])[2][0].tolist()))
+    # (publisher, payload, expected: "pose" | "deviation" | (cause, key))
+    # Causes: not_json, joint_count, out_of_order, duplicate_stamp are named in protocol.md;
+    # the doc's cause list ends in "…" and does not name the quaternion-norm and two-forms causes:
+    # quaternion_norm / orientation_forms are the names armtwin reports (kind() in codec/wire.rs).
+    plan = [
+        (jp, jmsg(0, 0.0), "pose"),
+        (jp, b"this is { not JSON", ("not_json", jkey)),
+        (jp, jmsg(1, 0.1), "pose"),
+        (jp, {"t": 0.15, "q": [float(v) for v in q[1][:5]]}, ("joint_count", jkey)),
+        (jp, jmsg(2, 0.2), "pose"),
+        (mp, mmsg(2, 0.2, **dict(zip(("qx", "qy", "qz", "qw"), quat.tolist()))), ("quaternion_norm", mkey)),
+        (mp, mmsg(2, 0.2, **rpy_fields), ("orientation_forms", mkey)),
+        (mp, mmsg(2, 0.2), "deviation"),
+        (jp, jmsg(3, 0.3), "pose"),
+        (jp, jmsg(4, 0.25), ("out_of_order", jkey)),
+        (jp, jmsg(4, 0.4), "pose"),
+        (jp, jmsg(5, 0.4), ("duplicate_stamp", jkey)),
+        (jp, jmsg(5, 0.5), "pose"),
+    ]
+    for pub, payload, _ in plan:
+        pub.put(payload if isinstance(payload, bytes) else json.dumps(payload))
+    want_rejects = [e for _, _, e in plan if isinstance(e, tuple)]
+    want_poses = [p["t"] for _, p, e in plan if e == "pose"]
+    wait_outputs(twin, robot, len(want_poses), 1, events=len(want_rejects), timeout=30)
+
+    checks = Checks()
+    poses = twin.collector.messages("pose", robot)
+    check_poses(checks, poses, robot, want_poses, q[[0, 1, 2, 3, 4, 5]], "bad input")
+    devs = twin.collector.messages("deviation", robot)
+    check_deviations(checks, devs, robot, [0.2], q[[2]], meas[[2]], "bad input")
+    events = twin.collector.messages("events", robot)
+    got = sorted(
+        ((e.get("detail") or {}).get("cause"), e.get("key")) for e in events if e.get("kind") == "rejected"
+    )
+    checks.equal(got, sorted(want_rejects), "bad input: rejected events (cause, key)")
+    checks.equal(
+        [e.get("kind") for e in events if e.get("kind") != "rejected"], [], "bad input: other events"
+    )
+    metrics, how = final_metrics(
+        twin, robot, lambda m: m.get("rejected") == len(want_rejects) and m.get("paired") == 1
+    )
+    if checks.true(metrics is not None, "bad input: no metrics"):
+        checks.equal(metrics.get("rejected"), len(want_rejects), f"bad input: metrics rejected ({how})")
+        checks.equal(metrics.get("paired"), 1, f"bad input: metrics paired ({how})")
+        checks.equal(metrics.get("t"), max(want_poses), f"bad input: metrics t (newest source time, {how})")
+    checks.done(twin.proc.logs())
+
+
+# ----------------------------------------------------------------------------------------------
+# 4. queries
+# ----------------------------------------------------------------------------------------------
+
+
+def test_queries(twin):
+    robots = ("r1", "plant-a/cell-3/ur10e-07")
+    q, meas = load_fmpy()
+    n = 20
+    client = twin.client
+    client.ready(robots)
+    for r in robots:
+        pub = client.joints(r)
+        for i in range(n):
+            client.put_json(pub, joint_message(i * 0.1, q[i], meas[i]))
+    for r in robots:
+        wait_outputs(twin, r, n, n, timeout=30)
+    for r in robots:
+        assert twin.collector.wait_message("metrics", r, lambda m: m.get("paired") == n, 10), r
+    checks = Checks()
+    stats = reference_stats(reference_deviations(q[:n], meas[:n]))
+    last_pos, last_quat, last_rpy = reference_poses(q[n - 1 : n])
+
+    # state of every robot
+    oks, errs = reply_payloads(client.get(f"{PREFIX}/state/**"))
+    checks.equal(errs, [], "get twin/state/**: error replies")
+    checks.equal(sorted(k for k, _ in oks), sorted(f"{PREFIX}/state/{r}" for r in robots), "get twin/state/**: reply keys")
+    for key, st in oks:
+        r = key.split("/", 2)[2]
+        checks.equal(st.get("robot"), r, f"state {r}: robot")
+        checks.equal(st.get("model"), MODEL, f"state {r}: model")
+        checks.equal(st.get("calibration"), None, f"state {r}: calibration")
+        checks.equal(st.get("tool"), [0.0] * 6, f"state {r}: tool")
+        checks.equal(st.get("frame"), "base", f"state {r}: frame")
+        checks.equal(st.get("joints"), {"t": (n - 1) * 0.1, "q": q[n - 1].tolist()}, f"state {r}: joints")
+        tw = st.get("twin") or {}
+        checks.equal(tw.get("t"), (n - 1) * 0.1, f"state {r}: twin.t")
+        checks.close([tw.get(k, np.nan) for k in ("x", "y", "z")], last_pos[0], TOL_POS, f"state {r}: twin position")
+        checks.close([tw.get(k, np.nan) for k in ("qx", "qy", "qz", "qw")], last_quat[0], TOL_QUAT, f"state {r}: twin quat")
+        ms = st.get("measured") or {}
+        checks.equal(ms.get("t"), (n - 1) * 0.1, f"state {r}: measured.t")
+        checks.close([ms.get(k, np.nan) for k in ("x", "y", "z")], meas[n - 1, :3], TOL_POS, f"state {r}: measured position")
+        check_metrics(checks, st.get("metrics"), r, n, 0, stats, f"state {r}: metrics", t=(n - 1) * 0.1)
+
+    # a site's robots only
+    oks, _ = reply_payloads(client.get(f"{PREFIX}/state/plant-a/**"))
+    checks.equal([k for k, _ in oks], [f"{PREFIX}/state/plant-a/cell-3/ur10e-07"], "get twin/state/plant-a/**")
+
+    # liveliness tokens
+    alive = sorted(str(r.ok.key_expr) for r in client.session.liveliness().get(f"{PREFIX}/alive/**", timeout=10) if r.ok)
+    checks.equal(alive, sorted(f"{PREFIX}/alive/{r}" for r in robots), "liveliness twin/alive/**")
+
+    # FK on demand
+    qfk = [0.3, -1.2, 1.1, -0.4, 1.0, 2.5]
+    pos, quat, rpy = reference_poses([qfk])
+    for r in robots:
+        for label, body in (("rad", {"q": qfk}), ("deg", {"q": np.degrees(qfk).tolist(), "unit": "deg"})):
+            oks, errs = reply_payloads(client.get(f"{PREFIX}/fk/{r}", payload=json.dumps(body)))
+            checks.equal(errs, [], f"fk {r} ({label}): error replies")
+            if checks.equal(len(oks), 1, f"fk {r} ({label}): replies"):
+                p = oks[0][1]
+                checks.equal(p.get("seq"), 0, f"fk {r} ({label}): seq")
+                checks.equal(p.get("robot"), r, f"fk {r} ({label}): robot")
+                checks.equal(p.get("frame"), "base", f"fk {r} ({label}): frame")
+                tol = TOL_POS if label == "rad" else 1e-12
+                checks.close([p.get(k, np.nan) for k in ("x", "y", "z")], pos[0], tol, f"fk {r} ({label}): position")
+                checks.close([p.get(k, np.nan) for k in ("qx", "qy", "qz", "qw")], quat[0], TOL_QUAT, f"fk {r} ({label}): quat")
+                checks.angles_close([p.get(k, np.nan) for k in ("roll", "pitch", "yaw")], rpy[0], TOL_EULER, f"fk {r} ({label}): rpy")
+    oks, errs = reply_payloads(client.get(f"{PREFIX}/fk/r1", payload=json.dumps({"q": qfk[:5]})))
+    checks.equal(len(oks), 0, "fk with 5 joints: ok replies")
+    checks.true(len(errs) == 1 and isinstance(errs[0].get("error"), str), f"fk with 5 joints: one {{'error'}} reply, got {errs}")
+
+    # reset
+    before = twin.collector.count("metrics", "r1")
+    oks, errs = reply_payloads(client.get(f"{PREFIX}/reset/r1"))
+    checks.equal(errs, [], "reset r1: error replies")
+    if checks.equal(len(oks), 1, "reset r1: replies"):
+        snap = oks[0][1]
+        check_metrics(checks, snap, "r1", n, 0, stats, "reset r1: reply (final snapshot)", t=(n - 1) * 0.1)
+        published = twin.collector.wait_message(
+            "metrics", "r1", lambda m: m == snap, 5.0
+        ) if wait_until(lambda: twin.collector.count("metrics", "r1") > before, 5.0) else None
+        checks.true(published is not None, "reset r1: the snapshot is also published on twin/metrics/r1")
+    oks, _ = reply_payloads(client.get(f"{PREFIX}/state/r1"))
+    if checks.equal(len(oks), 1, "state r1 after reset: replies"):
+        m = oks[0][1].get("metrics") or {}
+        checks.equal(m.get("paired"), 0, "state r1 after reset: metrics.paired")
+        checks.equal(m.get("rejected"), 0, "state r1 after reset: metrics.rejected")
+        cum = m.get("cumulative") or {}
+        checks.equal(cum.get("n"), 0, "state r1 after reset: cumulative.n")
+        checks.true(
+            all(cum.get(s, {}).get(k) == 0 for s in STAT_NAMES for k in ("mae", "rmse", "max")),
+            f"state r1 after reset: every statistic 0, got {cum}",
+        )
+    oks, _ = reply_payloads(client.get(f"{PREFIX}/state/plant-a/cell-3/ur10e-07"))
+    if checks.equal(len(oks), 1, "state of the other robot after reset r1: replies"):
+        checks.equal((oks[0][1].get("metrics") or {}).get("paired"), n, "other robot keeps its metrics")
+    checks.done(twin.proc.logs())
+
+
+# ----------------------------------------------------------------------------------------------
+# 5. shutdown
+# ----------------------------------------------------------------------------------------------
+
+
+def test_shutdown_final_metrics(twin):
+    robots = ("s1", "site/s2")
+    q, meas = load_fmpy()
+    n = 10
+    client = twin.client
+    client.ready(robots)
+    for r in robots:
+        pub = client.joints(r)
+        for i in range(n):
+            client.put_json(pub, joint_message(i * 0.1, q[i], meas[i]))
+    for r in robots:
+        assert twin.collector.wait_message("metrics", r, lambda m: m.get("paired") == n, 15), r
+    time.sleep(0.3)
+    stats = reference_stats(reference_deviations(q[:n], meas[:n]))
+    code, took = twin.proc.stop(timeout=15.0)
+    checks = Checks()
+    checks.true(took is not None, f"armtwin exits within 15 s of SIGINT (exit code {code}, took {took})")
+    checks.equal(code, 0, "exit code after SIGINT")
+    time.sleep(0.3)
+    sigint_at = twin.proc.sigint_at
+    for r in robots:
+        after = [i.json() for i in twin.collector.items("metrics", r) if i.at >= sigint_at]
+        if checks.true(after, f"{r}: a final metrics message after SIGINT"):
+            check_metrics(checks, after[-1], r, n, 0, stats, f"{r}: final metrics", t=(n - 1) * 0.1)
+    print(f"\n[shutdown] exit code {code} {took:.3f} s after SIGINT" if took is not None else "")
+    checks.done(twin.proc.logs())

@@ -13,9 +13,11 @@ use serde::Serialize;
 
 use crate::codec::PoseFields;
 use crate::codec::joint_csv::{JointCsvReader, PoseCsvWriter};
-use crate::config::{Overrides, ServiceConfig};
+use crate::codec::recording;
+use crate::config::{Overrides, ServiceConfig, ZenohSection};
 use crate::kinematics::{OutputFrame, TcpOffset};
 use crate::model::{Calibration, RobotModel, catalog, custom};
+use crate::replay::{self, ReplaySettings};
 use crate::service;
 
 /// armtwin: live digital twin for robot arms.
@@ -36,6 +38,45 @@ pub enum Command {
     Models(ModelsArgs),
     /// Run the live twin service on Zenoh (peer on tcp/127.0.0.1:7447 by default).
     Serve(ServeArgs),
+    /// Publish a recording (CSV) to the mesh as a gateway would, for `armtwin serve` to twin.
+    Replay(ReplayArgs),
+}
+
+/// `armtwin replay` arguments.
+#[derive(Debug, Args)]
+pub struct ReplayArgs {
+    /// The recording: the seed's CSV, a ROS 2 export or a UR RTDE recording.
+    pub recording: PathBuf,
+    /// Robot id to publish as (may span several key chunks, e.g. plant-a/cell-3/ur10e-07).
+    #[arg(long)]
+    pub robot: String,
+    /// Playback speed relative to the recording's time (2.0 = twice as fast).
+    #[arg(long, default_value_t = 1.0, conflicts_with = "max_rate")]
+    pub speed: f64,
+    /// Publish as fast as the transport takes it.
+    #[arg(long)]
+    pub max_rate: bool,
+    /// Seconds between rows, ignoring the recording's time column (e.g. 0.1 for the seed's
+    /// `fmpy_inputs.csv`, whose time column is a row index).
+    #[arg(long, value_name = "SECONDS")]
+    pub period: Option<f64>,
+    /// Key prefix of the service.
+    #[arg(long, default_value = "twin")]
+    pub prefix: String,
+    /// Zenoh mode: peer or client.
+    #[arg(short = 'm', long, default_value = "peer")]
+    pub mode: String,
+    /// Endpoint to connect to (repeatable).
+    #[arg(
+        short = 'e',
+        long = "connect",
+        value_name = "ENDPOINT",
+        default_value = "tcp/127.0.0.1:7447"
+    )]
+    pub connect: Vec<String>,
+    /// Endpoint to listen on (repeatable; none by default).
+    #[arg(short = 'l', long = "listen", value_name = "ENDPOINT")]
+    pub listen: Vec<String>,
 }
 
 /// `armtwin serve` arguments, in Zenoh's own style; they override the configuration file.
@@ -130,7 +171,75 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Fk(args) => run_fk(&args),
         Command::Models(args) => run_models(&args),
         Command::Serve(args) => run_serve(&args),
+        Command::Replay(args) => run_replay(&args),
     }
+}
+
+fn run_replay(args: &ReplayArgs) -> Result<()> {
+    if !(args.speed.is_finite() && args.speed > 0.0) {
+        bail!("--speed must be a positive number, got {}", args.speed);
+    }
+    if let Some(period) = args.period
+        && !(period.is_finite() && period > 0.0)
+    {
+        bail!("--period must be a positive number of seconds, got {period}");
+    }
+    let text = read_text(&args.recording)?;
+    let recording = recording::read(&text).with_context(|| args.recording.display().to_string())?;
+    let times = recording::source_times(&recording, args.period);
+    let malformed: Vec<_> = recording
+        .entries
+        .iter()
+        .filter_map(|e| e.as_ref().err())
+        .collect();
+    eprintln!(
+        "{}: {} ({} rows{}, {} malformed lines)",
+        args.recording.display(),
+        recording.format.describe(),
+        recording.entries.len(),
+        if recording.has_pose {
+            " with measured pose"
+        } else {
+            ", joints only"
+        },
+        malformed.len()
+    );
+    for line in malformed.iter().take(5) {
+        eprintln!("  line {}: {}", line.line, line.problem);
+    }
+    let settings = ReplaySettings {
+        zenoh: ZenohSection {
+            mode: args.mode.clone(),
+            listen: args.listen.clone(),
+            connect: args.connect.clone(),
+            file: None,
+            multicast_scouting: false,
+        },
+        key_prefix: args.prefix.clone(),
+        robot: args.robot.clone(),
+        speed: (!args.max_rate).then_some(args.speed),
+    };
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    let report = runtime.block_on(replay::replay(
+        &recording,
+        &times,
+        &settings,
+        shutdown_signal(),
+    ))?;
+    eprintln!(
+        "published {} messages ({} malformed lines as raw text){}",
+        report.published,
+        report.malformed,
+        if report.interrupted {
+            ", interrupted"
+        } else {
+            ""
+        }
+    );
+    Ok(())
 }
 
 fn run_serve(args: &ServeArgs) -> Result<()> {

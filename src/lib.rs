@@ -20,6 +20,7 @@
 //! - [`codec`]: the core's types to and from CSV and the service's JSON wire messages.
 //! - [`config`]: the service's TOML configuration and command-line overrides.
 //! - [`service`]: `armtwin serve`, the pipeline on a Zenoh mesh.
+//! - [`replay`]: `armtwin replay`, a recording published as a gateway would.
 //! - [`cli`]: the `armtwin` command line (the outer ring, with `main.rs`).
 
 pub mod align;
@@ -31,6 +32,7 @@ pub mod metrics;
 pub mod model;
 pub mod orientation;
 pub mod pipeline;
+pub mod replay;
 pub mod sample;
 pub mod service;
 pub mod trig;

@@ -1,5 +1,6 @@
 //! The `armtwin` binary: parses the command line and reports errors; all work is in the library.
 
+use std::io::IsTerminal;
 use std::process::ExitCode;
 
 use clap::Parser;
@@ -9,6 +10,7 @@ fn main() -> ExitCode {
     // Logs go to stderr, so `fk --csv` output on stdout stays clean; RUST_LOG overrides.
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal())
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("armtwin=info,zenoh=warn")),

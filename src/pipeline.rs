@@ -24,6 +24,11 @@ use crate::model::RobotModel;
 use crate::orientation;
 use crate::sample::JointSample;
 
+/// Largest deviation (m or rad) taken as a comparison (no arm reaches 100 m); beyond it a measured
+/// pose is refused as not belonging to the robot, which also keeps the statistics finite and
+/// exact.
+const MAX_DEVIATION: f64 = 100.0;
+
 /// Alarm thresholds of one robot; a threshold of `None` disables that alarm.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AlarmConfig {
@@ -440,7 +445,7 @@ impl Pipeline {
                 if let Some(measured) = &sample.measured {
                     let measured = twin.to_output_frame(measured, MeasuredStream::Robot);
                     if twin.accept_measured_stamp(robot, key, stamp_s, sink) {
-                        twin.pair(robot, stamp_s, &pose, measured, sink);
+                        twin.pair(robot, key, stamp_s, &pose, measured, sink);
                     }
                 }
                 twin.pair_ready(robot, sink);
@@ -778,7 +783,7 @@ impl RobotTwin {
                 return;
             }
         };
-        self.pair(robot, stamp_s, &twin_pose, pose, sink);
+        self.pair(robot, key, stamp_s, &twin_pose, pose, sink);
     }
 
     /// Pairs the measured poses that the newest joint sample now brackets.
@@ -818,14 +823,32 @@ impl RobotTwin {
     fn pair(
         &mut self,
         robot: &str,
+        key: &str,
         stamp_s: f64,
         twin_pose: &PoseReadout,
         measured: PoseReadout,
         sink: &mut impl Sink,
     ) {
         let deviation = Deviation::between(twin_pose, &measured);
-        sink.deviation(robot, stamp_s, &deviation);
         let magnitudes = deviation.magnitudes();
+        if !magnitudes
+            .iter()
+            .all(|v| v.is_finite() && *v <= MAX_DEVIATION)
+        {
+            self.reject(
+                robot,
+                key,
+                stamp_s,
+                "out_of_range",
+                format!(
+                    "measured pose {:?} m is {} m from the twin: not a pose of this robot",
+                    measured.position_m, deviation.position_m
+                ),
+                sink,
+            );
+            return;
+        }
+        sink.deviation(robot, stamp_s, &deviation);
         self.cumulative.add(&magnitudes);
         self.window.add(stamp_s, &magnitudes);
         self.paired += 1;

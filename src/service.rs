@@ -30,7 +30,7 @@ use zenoh::sample::Sample;
 use zenoh::session::Session;
 
 use crate::codec::wire;
-use crate::config::{Congestion, ServiceConfig};
+use crate::config::{Congestion, ServiceConfig, ZenohSection};
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
 use crate::pipeline::{Event, EventKind, MeasuredStream, MetricsSnapshot, Pipeline, Sink};
@@ -83,9 +83,8 @@ enum Input {
     Stop,
 }
 
-/// Builds the Zenoh configuration of `[zenoh]`.
-pub fn zenoh_config(config: &ServiceConfig) -> Result<zenoh::Config, ServiceError> {
-    let section = &config.zenoh;
+/// Builds the Zenoh configuration of a `[zenoh]` section.
+pub fn zenoh_config_of(section: &ZenohSection) -> Result<zenoh::Config, ServiceError> {
     let mut zenoh = match &section.file {
         Some(path) => zenoh::Config::from_file(path)
             .map_err(|e| ServiceError::ZenohConfig(format!("{}: {e}", path.display())))?,
@@ -115,7 +114,7 @@ pub async fn serve(
     config: ServiceConfig,
     shutdown: impl Future<Output = ()>,
 ) -> Result<ServeReport, ServiceError> {
-    let session = zenoh::open(zenoh_config(&config)?).await?;
+    let session = zenoh::open(zenoh_config_of(&config.zenoh)?).await?;
     info!(
         zid = %session.zid(),
         mode = %config.zenoh.mode,

@@ -9,9 +9,11 @@ use std::net::TcpListener;
 use std::path::Path;
 use std::time::Duration;
 
-use armtwin::config::{Overrides, ServiceConfig};
+use armtwin::codec::recording;
+use armtwin::config::{Overrides, ServiceConfig, ZenohSection};
 use armtwin::kinematics::PoseReadout;
 use armtwin::model::RobotModel;
+use armtwin::replay::{ReplaySettings, replay};
 use armtwin::service::{ServeReport, ServiceError, serve};
 use serde_json::{Value, json};
 use tokio::sync::oneshot;
@@ -22,9 +24,9 @@ use zenoh::pubsub::Subscriber;
 use zenoh::sample::{Locality, Sample, SampleKind};
 
 /// Every test must end by itself within this time.
-const TEST_LIMIT: Duration = Duration::from_secs(60);
+const TEST_LIMIT: Duration = Duration::from_secs(180);
 /// How long to wait for an expected message.
-const RECEIVE_LIMIT: Duration = Duration::from_secs(10);
+const RECEIVE_LIMIT: Duration = Duration::from_secs(30);
 
 fn free_port() -> u16 {
     TcpListener::bind("127.0.0.1:0")
@@ -34,6 +36,7 @@ fn free_port() -> u16 {
 }
 
 struct Harness {
+    endpoint: String,
     client: Session,
     shutdown: Option<oneshot::Sender<()>>,
     server: Option<JoinHandle<Result<ServeReport, ServiceError>>>,
@@ -114,6 +117,7 @@ async fn start(config_toml: &str) -> Harness {
         .is_ok()
     {}
     Harness {
+        endpoint,
         client,
         shutdown: Some(shutdown_tx),
         server: Some(server),
@@ -135,11 +139,13 @@ impl Harness {
     }
 
     /// Receives until `done` holds for the messages received so far.
+    /// Receives until `done` holds for the messages received so far. `done` is evaluated once
+    /// per burst (after draining what has arrived), so long streams stay linear.
     async fn receive_until(&mut self, what: &str, done: impl Fn(&[(String, Value)]) -> bool) {
         let deadline = tokio::time::Instant::now() + RECEIVE_LIMIT;
         while !done(&self.received) {
             let left = deadline.saturating_duration_since(tokio::time::Instant::now());
-            let sample = tokio::time::timeout(left, self.outputs.recv_async())
+            let first = tokio::time::timeout(left, self.outputs.recv_async())
                 .await
                 .unwrap_or_else(|_| {
                     panic!(
@@ -149,18 +155,25 @@ impl Harness {
                     )
                 })
                 .expect("subscriber open");
-            let key = sample.key_expr().as_str().to_owned();
-            // Our own inputs come back to us too; only outputs are collected.
-            if sample.kind() != SampleKind::Put
-                || key.starts_with("twin/joints/")
-                || key.starts_with("twin/measured/")
-            {
-                continue;
+            self.keep(&first);
+            while let Ok(Some(sample)) = self.outputs.try_recv() {
+                self.keep(&sample);
             }
-            let value: Value = serde_json::from_slice(&sample.payload().to_bytes())
-                .unwrap_or_else(|e| panic!("output on {key} is not JSON: {e}"));
-            self.received.push((key, value));
         }
+    }
+
+    fn keep(&mut self, sample: &Sample) {
+        let key = sample.key_expr().as_str();
+        // Our own inputs come back to us too; only outputs are collected.
+        if sample.kind() != SampleKind::Put
+            || key.starts_with("twin/joints/")
+            || key.starts_with("twin/measured/")
+        {
+            return;
+        }
+        let value: Value = serde_json::from_slice(&sample.payload().to_bytes())
+            .unwrap_or_else(|e| panic!("output on {key} is not JSON: {e}"));
+        self.received.push((key.to_owned(), value));
     }
 
     fn on(&self, key: &str) -> Vec<&Value> {
@@ -391,8 +404,8 @@ async fn bad_input_is_rejected_with_an_event_and_neighbours_are_processed() {
             (json!({"t": 100.0, "q": [0, 0, 0, 0, 0, 0], "unit": "grad"}).to_string().into_bytes(), "unit"),
             (vec![b' '; 70 * 1024], "too_large"),
         ];
-        // The joint cases, two stamp cases, three measured poses, one embedded measured pose.
-        let expected_rejections = invalid_joints.len() + 6;
+        // The joint cases, two stamp cases, four measured poses, one embedded measured pose.
+        let expected_rejections = invalid_joints.len() + 7;
         next_valid(&h, &mut t).await;
         for (payload, _) in invalid_joints.clone() {
             h.put_raw(key, payload).await;
@@ -406,6 +419,8 @@ async fn bad_input_is_rejected_with_an_event_and_neighbours_are_processed() {
         h.put(measured_key, &json!({"t": t, "x": 0, "y": 0, "z": 0, "qx": 0, "qy": 0, "qz": 0, "qw": 0})).await;
         h.put(measured_key, &json!({"t": t, "x": 0, "y": 0, "z": 0, "qx": 0, "qy": 0, "qz": 0, "qw": 1.2})).await;
         h.put(measured_key, &json!({"t": t, "x": 0, "y": 0, "z": 0, "qx": 0, "qy": 0, "qz": 0, "qw": 1, "roll": 0, "pitch": 0, "yaw": 0})).await;
+        // Well-formed, but a kilometre away: not a pose of this robot.
+        h.put(measured_key, &json!({"t": t, "x": 1000.0, "y": 0, "z": 0, "qx": 0, "qy": 0, "qz": 0, "qw": 1})).await;
         next_valid(&h, &mut t).await;
         // A valid joint sample with an invalid measured pose: the joints still count.
         let mut broken = measured_json(&pose, 0.0);
@@ -428,7 +443,14 @@ async fn bad_input_is_rejected_with_an_event_and_neighbours_are_processed() {
         for (_, cause) in &invalid_joints {
             assert!(causes.iter().any(|c| c == cause), "no {cause} rejection in {causes:?}");
         }
-        for cause in ["out_of_order", "duplicate_stamp", "quaternion_norm", "orientation_forms", "wrong_type"] {
+        for cause in [
+            "out_of_order",
+            "duplicate_stamp",
+            "quaternion_norm",
+            "orientation_forms",
+            "wrong_type",
+            "out_of_range",
+        ] {
             assert!(causes.iter().any(|c| c == cause), "no {cause} rejection in {causes:?}");
         }
         for event in h.on("twin/events/cell/bad") {
@@ -734,6 +756,60 @@ base_from_sensor = [1.0, -0.5, 0.2, 0.0, 0.0, 1.5707963267948966]
             *counts.entry(key.as_str()).or_default() += 1;
         }
         assert_eq!(counts.get("twin/pose/lab/r7"), Some(&1));
+        h.stop().await;
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn replaying_the_sample_recordings_twins_every_row() {
+    tokio::time::timeout(TEST_LIMIT, async {
+        let mut h = start(CONFIG).await;
+        let endpoint = h.endpoint.clone();
+        let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
+        let settings = |robot: &str| ReplaySettings {
+            zenoh: ZenohSection {
+                mode: "peer".to_owned(),
+                listen: Vec::new(),
+                connect: vec![endpoint.clone()],
+                file: None,
+                multicast_scouting: false,
+            },
+            key_prefix: "twin".to_owned(),
+            robot: robot.to_owned(),
+            speed: None,
+        };
+        // The seed's file: its time column is a row index; 0.1 s apart as the seed streamed it.
+        let text = std::fs::read_to_string(data.join("fmpy_inputs.csv")).expect("data");
+        let seed = recording::read(&text).expect("recognised");
+        let times = recording::source_times(&seed, Some(0.1));
+        let report = replay(&seed, &times, &settings("seed"), std::future::pending())
+            .await
+            .expect("replay");
+        assert_eq!(report.published, 54);
+        // The ROS 2 export: whole-second stamps spread over each second, 7 malformed lines.
+        let text = std::fs::read_to_string(data.join("ur10e_lasttest.csv")).expect("data");
+        let ros = recording::read(&text).expect("recognised");
+        let times = recording::source_times(&ros, None);
+        assert!(times.windows(2).all(|w| w[1] > w[0]), "strictly increasing");
+        let report = replay(&ros, &times, &settings("lasttest"), std::future::pending())
+            .await
+            .expect("replay");
+        assert_eq!((report.published, report.malformed), (29_061, 7));
+        h.receive_until("every row twinned", |r| {
+            let last = |key: &str| {
+                r.iter()
+                    .rev()
+                    .find(|(k, _)| k == key)
+                    .map(|(_, m)| (m["paired"].as_u64(), m["rejected"].as_u64()))
+            };
+            last("twin/metrics/seed") == Some((Some(54), Some(0)))
+                && last("twin/metrics/lasttest") == Some((Some(29_054), Some(7)))
+        })
+        .await;
+        assert_eq!(h.on("twin/pose/seed").len(), 54);
+        assert_eq!(h.on("twin/pose/lasttest").len(), 29_054);
         h.stop().await;
     })
     .await

@@ -3,6 +3,7 @@
 //! and writers.
 
 pub mod joint_csv;
+pub mod recording;
 pub mod wire;
 
 use serde::Serialize;

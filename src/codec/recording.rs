@@ -1,0 +1,434 @@
+//! Recordings of joint angles (and the controller's measured pose) as people have them, read into
+//! rows that become the service's joint messages.
+//!
+//! Recognised from the header:
+//! - the seed's form (`fmpy_inputs.csv`): `time, q1..q6` and optionally `x, y, z` with
+//!   `qx, qy, qz, qw` (preferred) or `roll, pitch, yaw`;
+//! - ROS 2 exports (`ur10e_lasttest.csv`): `header.stamp.sec` (and `.nanosec`), the six
+//!   `<joint>.position` columns, `tcp_pose.position.*`, `tcp_pose.orientation.*`;
+//! - Universal Robots RTDE recordings: `timestamp`, `actual_q_0..5`, `actual_TCP_pose_0..5`
+//!   (position and rotation vector), comma- or space-separated, other columns ignored.
+//!
+//! Each row turns into exactly the JSON message a gateway would publish
+//! ([`RecordingRow::to_message`]), so replaying a recording into the service and running it
+//! through the decoder offline are one path. Cells that are not numbers stay text and are refused
+//! by the decoder like any bad message; rows that cannot be split into the header's columns are
+//! kept as [`Malformed`].
+
+use serde_json::{Map, Value, json};
+use thiserror::Error;
+
+/// The recording layouts armtwin recognises.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Format {
+    /// `time, q1..q6[, x, y, z, qx, qy, qz, qw | roll, pitch, yaw]` (the seed's `FMPy` input).
+    Seed,
+    /// A ROS 2 export of `/joint_states` and the TCP pose.
+    Ros2,
+    /// A UR RTDE recording (`record.py`, `ur_rtde`).
+    Rtde,
+}
+
+impl Format {
+    /// A name for messages.
+    #[must_use]
+    pub fn describe(self) -> &'static str {
+        match self {
+            Self::Seed => "seed/FMPy form (time, q1..q6, x..qw)",
+            Self::Ros2 => "ROS 2 export (header.stamp, <joint>.position, tcp_pose.*)",
+            Self::Rtde => "UR RTDE recording (timestamp, actual_q_*, actual_TCP_pose_*)",
+        }
+    }
+}
+
+/// One cell: a number, or the text that did not parse as one.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Cell {
+    /// A number.
+    Number(f64),
+    /// Anything else, kept for the decoder to refuse by name.
+    Text(String),
+}
+
+impl Cell {
+    fn parse(text: &str) -> Self {
+        let text = text.trim();
+        text.parse()
+            .map_or_else(|_| Self::Text(text.to_owned()), Self::Number)
+    }
+
+    fn to_json(&self) -> Value {
+        match self {
+            Self::Number(n) => json!(n),
+            Self::Text(t) => json!(t),
+        }
+    }
+
+    /// The number, if it is one.
+    #[must_use]
+    pub fn number(&self) -> Option<f64> {
+        match self {
+            Self::Number(n) => Some(*n),
+            Self::Text(_) => None,
+        }
+    }
+}
+
+/// The measured-pose cells of a row, in their recorded orientation form.
+#[derive(Debug, Clone, PartialEq)]
+pub enum PoseCells {
+    /// `x, y, z, qx, qy, qz, qw`.
+    Quaternion([Cell; 7]),
+    /// `x, y, z, roll, pitch, yaw`.
+    Rpy([Cell; 6]),
+    /// `x, y, z, rx, ry, rz` (UR rotation vector).
+    RotationVector([Cell; 6]),
+}
+
+/// One recorded row.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RecordingRow {
+    /// 1-based line in the file.
+    pub line: u64,
+    /// The recorded time (s), if the row has a usable one.
+    pub stamp_s: Option<f64>,
+    /// Joint angles (rad), one cell each.
+    pub q: Vec<Cell>,
+    /// The measured pose, if the recording has one.
+    pub pose: Option<PoseCells>,
+}
+
+/// A line that does not split into the header's columns.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Malformed {
+    /// 1-based line in the file.
+    pub line: u64,
+    /// The line.
+    pub text: String,
+    /// What is wrong.
+    pub problem: String,
+}
+
+/// A whole recording.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Recording {
+    /// The layout recognised.
+    pub format: Format,
+    /// Whether rows carry a measured pose.
+    pub has_pose: bool,
+    /// Rows and malformed lines, in file order.
+    pub entries: Vec<Result<RecordingRow, Malformed>>,
+}
+
+/// Why a recording cannot be used at all.
+#[derive(Debug, Error)]
+pub enum RecordingError {
+    /// The file is empty.
+    #[error("the recording is empty")]
+    Empty,
+    /// The header matches no known layout.
+    #[error(
+        "header not recognised: expected the seed's 'time,q1..q6[,x,y,z,qx,qy,qz,qw]', a ROS 2 export ('header.stamp.sec', '<joint>.position', 'tcp_pose.*') or an RTDE recording ('timestamp', 'actual_q_0..5', 'actual_TCP_pose_0..5'); found: {header}"
+    )]
+    UnknownHeader {
+        /// The header line.
+        header: String,
+    },
+}
+
+const ROS_JOINTS: [&str; 6] = [
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+];
+
+/// Column indices of one layout.
+struct Layout {
+    format: Format,
+    stamp: Vec<usize>,
+    /// Seconds per unit of each stamp column (`header.stamp.nanosec` is 1e-9).
+    stamp_scale: Vec<f64>,
+    q: Vec<usize>,
+    pose: Option<(PoseForm, Vec<usize>)>,
+}
+
+#[derive(Clone, Copy)]
+enum PoseForm {
+    Quaternion,
+    Rpy,
+    RotationVector,
+}
+
+fn find_all(names: &[&str], wanted: &[String]) -> Option<Vec<usize>> {
+    wanted
+        .iter()
+        .map(|w| names.iter().position(|n| n.eq_ignore_ascii_case(w)))
+        .collect()
+}
+
+fn layout(names: &[&str]) -> Option<Layout> {
+    let strings = |items: &[&str]| items.iter().map(|s| (*s).to_owned()).collect::<Vec<_>>();
+    let q_seed = (1..=6).map(|j| format!("q{j}")).collect::<Vec<_>>();
+    if let Some(q) = find_all(names, &q_seed) {
+        let stamp = find_all(names, &strings(&["time"])).unwrap_or_default();
+        let pose = find_all(names, &strings(&["x", "y", "z", "qx", "qy", "qz", "qw"]))
+            .map(|c| (PoseForm::Quaternion, c))
+            .or_else(|| {
+                find_all(names, &strings(&["x", "y", "z", "roll", "pitch", "yaw"]))
+                    .map(|c| (PoseForm::Rpy, c))
+            });
+        return Some(Layout {
+            format: Format::Seed,
+            stamp_scale: vec![1.0; stamp.len()],
+            stamp,
+            q,
+            pose,
+        });
+    }
+    let q_ros = ROS_JOINTS
+        .iter()
+        .map(|j| format!("{j}.position"))
+        .collect::<Vec<_>>();
+    if let Some(q) = find_all(names, &q_ros) {
+        let (stamp, stamp_scale) = match find_all(
+            names,
+            &strings(&["header.stamp.sec", "header.stamp.nanosec"]),
+        ) {
+            Some(both) => (both, vec![1.0, 1e-9]),
+            None => (
+                find_all(names, &strings(&["header.stamp.sec"])).unwrap_or_default(),
+                vec![1.0],
+            ),
+        };
+        let pose_columns = [
+            "tcp_pose.position.x",
+            "tcp_pose.position.y",
+            "tcp_pose.position.z",
+            "tcp_pose.orientation.x",
+            "tcp_pose.orientation.y",
+            "tcp_pose.orientation.z",
+            "tcp_pose.orientation.w",
+        ];
+        return Some(Layout {
+            format: Format::Ros2,
+            stamp_scale,
+            stamp,
+            q,
+            pose: find_all(names, &strings(&pose_columns)).map(|c| (PoseForm::Quaternion, c)),
+        });
+    }
+    let q_rtde = (0..6).map(|j| format!("actual_q_{j}")).collect::<Vec<_>>();
+    if let Some(q) = find_all(names, &q_rtde) {
+        let stamp = find_all(names, &strings(&["timestamp"])).unwrap_or_default();
+        let pose_columns = (0..6)
+            .map(|j| format!("actual_TCP_pose_{j}"))
+            .collect::<Vec<_>>();
+        return Some(Layout {
+            format: Format::Rtde,
+            stamp_scale: vec![1.0; stamp.len()],
+            stamp,
+            q,
+            pose: find_all(names, &pose_columns).map(|c| (PoseForm::RotationVector, c)),
+        });
+    }
+    None
+}
+
+/// Splits a line: on commas when the header has them, else on runs of white space. Quoted
+/// cells are not special: a line that quotes commas does not split into the header's columns
+/// and is reported malformed, which is what such a line is.
+fn split(line: &str, comma: bool) -> Vec<&str> {
+    if comma {
+        line.split(',').map(str::trim).collect()
+    } else {
+        line.split_whitespace().collect()
+    }
+}
+
+/// Reads a recording.
+pub fn read(text: &str) -> Result<Recording, RecordingError> {
+    let mut lines = text.lines().enumerate();
+    let (_, header) = lines
+        .by_ref()
+        .find(|(_, l)| !l.trim().is_empty())
+        .ok_or(RecordingError::Empty)?;
+    let comma = header.contains(',');
+    let names = split(header.trim(), comma);
+    let layout = layout(&names).ok_or_else(|| RecordingError::UnknownHeader {
+        header: header.chars().take(200).collect(),
+    })?;
+    let mut entries = Vec::new();
+    for (index, raw) in lines {
+        let line = index as u64 + 1;
+        if raw.trim().is_empty() {
+            continue;
+        }
+        let cells = split(raw.trim(), comma);
+        if cells.len() != names.len() {
+            entries.push(Err(Malformed {
+                line,
+                text: raw.to_owned(),
+                problem: format!("{} columns, the header has {}", cells.len(), names.len()),
+            }));
+            continue;
+        }
+        let stamp_s = layout
+            .stamp
+            .iter()
+            .zip(&layout.stamp_scale)
+            .map(|(&c, scale)| Cell::parse(cells[c]).number().map(|v| v * scale))
+            .sum::<Option<f64>>()
+            .filter(|_| !layout.stamp.is_empty())
+            .filter(|t| t.is_finite());
+        let q = layout.q.iter().map(|&c| Cell::parse(cells[c])).collect();
+        let pose = layout.pose.as_ref().map(|(form, columns)| {
+            let cell = |i: usize| Cell::parse(cells[columns[i]]);
+            match form {
+                PoseForm::Quaternion => PoseCells::Quaternion(std::array::from_fn(cell)),
+                PoseForm::Rpy => PoseCells::Rpy(std::array::from_fn(cell)),
+                PoseForm::RotationVector => PoseCells::RotationVector(std::array::from_fn(cell)),
+            }
+        });
+        entries.push(Ok(RecordingRow {
+            line,
+            stamp_s,
+            q,
+            pose,
+        }));
+    }
+    Ok(Recording {
+        format: layout.format,
+        has_pose: layout.pose.is_some(),
+        entries,
+    })
+}
+
+impl RecordingRow {
+    /// The joint message a gateway would publish for this row at source time `t_s`.
+    #[must_use]
+    pub fn to_message(&self, t_s: f64) -> Value {
+        let mut message = Map::new();
+        message.insert("t".to_owned(), json!(t_s));
+        message.insert(
+            "q".to_owned(),
+            Value::Array(self.q.iter().map(Cell::to_json).collect()),
+        );
+        if let Some(pose) = &self.pose {
+            let (names, cells): (&[&str], &[Cell]) = match pose {
+                PoseCells::Quaternion(c) => (&["x", "y", "z", "qx", "qy", "qz", "qw"], c),
+                PoseCells::Rpy(c) => (&["x", "y", "z", "roll", "pitch", "yaw"], c),
+                PoseCells::RotationVector(c) => (&["x", "y", "z", "rx", "ry", "rz"], c),
+            };
+            let measured = names
+                .iter()
+                .zip(cells)
+                .map(|(name, cell)| ((*name).to_owned(), cell.to_json()))
+                .collect();
+            message.insert("measured".to_owned(), Value::Object(measured));
+        }
+        Value::Object(message)
+    }
+}
+
+/// Source times for every entry, strictly increasing where the recording allows.
+///
+/// With `period_s`, entry k is at `k · period_s`. Otherwise the recorded stamps are used; where a
+/// run of rows shares one stamp (a time column coarser than the row rate, as the whole seconds of
+/// ROS 2 exports), the run is spread evenly up to the next distinct stamp (the last run with the
+/// spacing of the one before it). Malformed lines and rows without a stamp take the previous
+/// entry's time plus the current spacing, so every entry keeps its place in file order.
+#[must_use]
+pub fn source_times(recording: &Recording, period_s: Option<f64>) -> Vec<f64> {
+    let count = recording.entries.len();
+    if let Some(period_s) = period_s {
+        return (0..count).map(|k| k as f64 * period_s).collect();
+    }
+    // Stamps as recorded, gaps filled from the previous one.
+    let raw: Vec<Option<f64>> = recording
+        .entries
+        .iter()
+        .map(|e| e.as_ref().ok().and_then(|r| r.stamp_s))
+        .collect();
+    let mut times = vec![0.0; count];
+    let mut spacing_s = 0.0;
+    let mut start = 0;
+    while start < count {
+        let Some(stamp) = raw[start] else {
+            times[start] = if start == 0 {
+                0.0
+            } else {
+                times[start - 1] + spacing_s
+            };
+            start += 1;
+            continue;
+        };
+        // The run of entries sharing this stamp (or lacking one) up to the next distinct stamp.
+        let mut end = start + 1;
+        #[allow(clippy::float_cmp, reason = "equal recorded stamps define the run")]
+        while end < count && raw[end].is_none_or(|s| s == stamp) {
+            end += 1;
+        }
+        if let Some(next) = raw.get(end).copied().flatten()
+            && next > stamp
+        {
+            spacing_s = (next - stamp) / (end - start) as f64;
+        }
+        for (k, time) in times[start..end].iter_mut().enumerate() {
+            *time = stamp + k as f64 * spacing_s;
+        }
+        start = end;
+    }
+    times
+}
+
+#[cfg(test)]
+#[allow(
+    clippy::float_cmp,
+    reason = "the spread stamps are exact binary fractions"
+)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn equal_stamps_are_spread_to_the_next_second() {
+        let text = "header.stamp.sec,shoulder_pan_joint.position,shoulder_lift_joint.position,elbow_joint.position,wrist_1_joint.position,wrist_2_joint.position,wrist_3_joint.position\n\
+                    10,0,0,0,0,0,0\n10,0,0,0,0,0,0\n10,0,0,0,0,0,0\n10,0,0,0,0,0,0\n11,0,0,0,0,0,0\n11,0,0,0,0,0,0\n";
+        let recording = read(text).expect("recognised");
+        assert_eq!(recording.format, Format::Ros2);
+        assert!(!recording.has_pose);
+        let times = source_times(&recording, None);
+        assert_eq!(times, [10.0, 10.25, 10.5, 10.75, 11.0, 11.25]);
+        assert_eq!(source_times(&recording, Some(0.1))[3], 0.30000000000000004);
+    }
+
+    #[test]
+    fn rtde_space_separated_with_extra_columns() {
+        let text = "timestamp target_q_0 actual_q_0 actual_q_1 actual_q_2 actual_q_3 actual_q_4 actual_q_5 actual_TCP_pose_0 actual_TCP_pose_1 actual_TCP_pose_2 actual_TCP_pose_3 actual_TCP_pose_4 actual_TCP_pose_5\n\
+                    1.000 9 0.1 0.2 0.3 0.4 0.5 0.6 -0.8 0.4 0.4 0.1 2.0 0.0\n1.002 9 0.1 0.2 0.3 0.4 0.5 0.6 -0.8 0.4 0.4 0.1 2.0 0.0 extra\n";
+        let recording = read(text).expect("recognised");
+        assert_eq!(recording.format, Format::Rtde);
+        let row = recording.entries[0].as_ref().expect("row");
+        let message = row.to_message(1.0);
+        assert_eq!(message["q"][0], json!(0.1));
+        assert_eq!(message["measured"]["rx"], json!(0.1));
+        let malformed = recording.entries[1].as_ref().expect_err("extra column");
+        assert_eq!(malformed.line, 3);
+    }
+
+    #[test]
+    fn text_cells_stay_text_and_quoted_lines_are_malformed() {
+        let text = "time,q1,q2,q3,q4,q5,q6,x,y,z,qx,qy,qz,qw\n1,0,0,0,0,0,0,1,2,3,0,0,0,1\n2,0,0,0,0,0,zz,1,2,3,0,0,0,1\n\"3,0,0,0,0,0,0,1,2,3,0,0,\"\"1,5\"\",1\"\n";
+        let recording = read(text).expect("recognised");
+        assert_eq!(recording.format, Format::Seed);
+        let row = recording.entries[1].as_ref().expect("row");
+        assert_eq!(row.to_message(2.0)["q"][5], json!("zz"));
+        assert!(recording.entries[2].is_err());
+        assert!(matches!(
+            read("a,b\n1,2\n"),
+            Err(RecordingError::UnknownHeader { .. })
+        ));
+    }
+}

@@ -1,0 +1,123 @@
+//! `armtwin replay`: publishes a recording to the mesh exactly as a gateway would — one joint
+//! message per row (with the row's measured pose embedded) on `<prefix>/joints/<robot>`, at the
+//! recorded pace, scaled, or as fast as the transport takes it.
+//!
+//! Owns pacing and publishing only; rows become messages in [`crate::codec::recording`], the
+//! same messages `validate` decodes offline. A line that does not split into the header's columns
+//! is published as its raw text, so the service rejects and counts it as validation does.
+
+use std::future::Future;
+use std::time::Duration;
+
+use tokio::time::Instant;
+use tracing::info;
+use zenoh::Wait;
+use zenoh::qos::CongestionControl;
+
+use crate::codec::recording::Recording;
+use crate::config::ZenohSection;
+use crate::service::{ServiceError, zenoh_config_of};
+
+/// How long to wait for a subscriber (the service) before giving up.
+const WAIT_FOR_SUBSCRIBER: Duration = Duration::from_secs(10);
+
+/// Replay options.
+#[derive(Debug, Clone)]
+pub struct ReplaySettings {
+    /// How to join the mesh.
+    pub zenoh: ZenohSection,
+    /// Key prefix (`twin`).
+    pub key_prefix: String,
+    /// The robot id to publish as.
+    pub robot: String,
+    /// Playback speed relative to the recording (`None`: as fast as possible).
+    pub speed: Option<f64>,
+}
+
+/// What a replay sent.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ReplayReport {
+    /// Messages published.
+    pub published: u64,
+    /// Of those, malformed lines sent as raw text.
+    pub malformed: u64,
+    /// Whether the replay was interrupted before the end.
+    pub interrupted: bool,
+}
+
+/// Publishes `recording` with source times `times_s` until done or `shutdown` completes.
+pub async fn replay(
+    recording: &Recording,
+    times_s: &[f64],
+    settings: &ReplaySettings,
+    shutdown: impl Future<Output = ()>,
+) -> Result<ReplayReport, ServiceError> {
+    let session = zenoh::open(zenoh_config_of(&settings.zenoh)?).await?;
+    let key = format!("{}/joints/{}", settings.key_prefix, settings.robot);
+    let publisher = session
+        .declare_publisher(key.clone())
+        .congestion_control(CongestionControl::Block)
+        .await?;
+    let deadline = Instant::now() + WAIT_FOR_SUBSCRIBER;
+    while !publisher.matching_status().await?.matching() {
+        if Instant::now() >= deadline {
+            let _ = session.close().await;
+            return Err(ServiceError::Worker(format!(
+                "nobody subscribes to {key} after {} s: is `armtwin serve` running and reachable ({:?})?",
+                WAIT_FOR_SUBSCRIBER.as_secs(),
+                settings.zenoh.connect
+            )));
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    info!(%key, rows = recording.entries.len(), "replaying");
+    let mut report = ReplayReport::default();
+    let start = Instant::now();
+    let first_s = times_s.first().copied().unwrap_or(0.0);
+    let total = recording.entries.len().max(1);
+    tokio::pin!(shutdown);
+    for (index, (entry, &t_s)) in recording.entries.iter().zip(times_s).enumerate() {
+        if let Some(speed) = settings.speed {
+            let due = start + Duration::from_secs_f64(((t_s - first_s) / speed).max(0.0));
+            tokio::select! {
+                () = tokio::time::sleep_until(due) => {}
+                () = &mut shutdown => { report.interrupted = true; break; }
+            }
+        } else if index % 1024 == 0 {
+            // Let Ctrl-C through even at full rate.
+            if tokio::time::timeout(Duration::ZERO, &mut shutdown)
+                .await
+                .is_ok()
+            {
+                report.interrupted = true;
+                break;
+            }
+        }
+        let payload = match entry {
+            Ok(row) => row.to_message(t_s).to_string().into_bytes(),
+            Err(malformed) => {
+                report.malformed += 1;
+                malformed.text.clone().into_bytes()
+            }
+        };
+        publisher.put(payload).wait()?;
+        report.published += 1;
+        if (index + 1) % (total / 10).max(1) == 0 {
+            info!(
+                progress = format!("{}%", (index + 1) * 100 / total),
+                published = report.published,
+                "replay"
+            );
+        }
+    }
+    publisher.undeclare().await?;
+    session.close().await?;
+    info!(
+        published = report.published,
+        malformed = report.malformed,
+        interrupted = report.interrupted,
+        seconds = start.elapsed().as_secs_f64(),
+        "replay done"
+    );
+    Ok(report)
+}

@@ -389,14 +389,7 @@ impl Pipeline {
             twin.rejected += 1;
             twin.dirty = true;
         }
-        sink.event(&Event {
-            robot,
-            stamp_s,
-            kind: EventKind::Rejected,
-            reason,
-            key: Some(key),
-            detail: EventDetail::Rejected { cause },
-        });
+        sink.event(&rejection(robot, key, stamp_s, cause, reason));
     }
 
     /// Rejects an input for a robot that is neither configured nor covered by a default.
@@ -408,16 +401,27 @@ impl Pipeline {
         sink: &mut impl Sink,
     ) {
         self.rejected_unknown += 1;
-        sink.event(&Event {
-            robot,
-            stamp_s,
-            kind: EventKind::Rejected,
-            reason: format!("robot '{robot}' is not configured and unknown robots are rejected"),
-            key: Some(key),
-            detail: EventDetail::Rejected {
-                cause: "unknown_robot",
-            },
-        });
+        let reason = format!("robot '{robot}' is not configured and unknown robots are rejected");
+        sink.event(&rejection(robot, key, stamp_s, "unknown_robot", reason));
+    }
+
+    /// The twin an input at `stamp_s` goes to, tracking the robot first; `None` (after a
+    /// rejection) for a robot that may not be tracked.
+    fn twin_for_input(
+        &mut self,
+        robot: &str,
+        key: &str,
+        stamp_s: f64,
+        sink: &mut impl Sink,
+    ) -> Option<&mut RobotTwin> {
+        if self.track(robot, sink).is_err() {
+            self.reject_unknown_robot(robot, key, stamp_s, sink);
+            return None;
+        }
+        let twin = self.robots.get_mut(robot)?;
+        twin.newest_s = twin.newest_s.max(stamp_s);
+        twin.dirty = true;
+        Some(twin)
     }
 
     /// A decoded joint sample of `robot`, stamped `stamp_s` (the message's own stamp, else the
@@ -431,15 +435,9 @@ impl Pipeline {
         sample: &JointSample,
         sink: &mut impl Sink,
     ) {
-        if self.track(robot, sink).is_err() {
-            self.reject_unknown_robot(robot, key, stamp_s, sink);
-            return;
-        }
-        let Some(twin) = self.robots.get_mut(robot) else {
+        let Some(twin) = self.twin_for_input(robot, key, stamp_s, sink) else {
             return;
         };
-        twin.newest_s = twin.newest_s.max(stamp_s);
-        twin.dirty = true;
         match twin.accept_joints(robot, key, stamp_s, sample, sink) {
             Ok(pose) => {
                 if let Some(measured) = &sample.measured {
@@ -471,15 +469,9 @@ impl Pipeline {
         pose: &PoseReadout,
         sink: &mut impl Sink,
     ) {
-        if self.track(robot, sink).is_err() {
-            self.reject_unknown_robot(robot, key, stamp_s, sink);
-            return;
-        }
-        let Some(twin) = self.robots.get_mut(robot) else {
+        let Some(twin) = self.twin_for_input(robot, key, stamp_s, sink) else {
             return;
         };
-        twin.newest_s = twin.newest_s.max(stamp_s);
-        twin.dirty = true;
         let pose = twin.to_output_frame(pose, stream);
         twin.measured(robot, key, stamp_s, pose, sink);
     }
@@ -567,14 +559,7 @@ impl RobotTwin {
         sink: &mut impl Sink,
     ) {
         self.rejected += 1;
-        sink.event(&Event {
-            robot,
-            stamp_s,
-            kind: EventKind::Rejected,
-            reason,
-            key: Some(key),
-            detail: EventDetail::Rejected { cause },
-        });
+        sink.event(&rejection(robot, key, stamp_s, cause, reason));
     }
 
     /// Validates and evaluates a joint sample: its twin pose is sent and returned.
@@ -586,17 +571,6 @@ impl RobotTwin {
         sample: &JointSample,
         sink: &mut impl Sink,
     ) -> Result<PoseReadout, ()> {
-        if !stamp_s.is_finite() {
-            self.reject(
-                robot,
-                key,
-                stamp_s,
-                "non_finite",
-                format!("stamp {stamp_s} is not finite"),
-                sink,
-            );
-            return Err(());
-        }
         if let Err(error) = self.settings.model.check_joints(&sample.q_rad) {
             let cause = match error {
                 KinematicsError::JointCount { .. } => "joint_count",
@@ -606,22 +580,8 @@ impl RobotTwin {
             self.reject(robot, key, stamp_s, cause, error.to_string(), sink);
             return Err(());
         }
-        if let Some(last_s) = self.last_joint_s
-            && stamp_s <= last_s
-        {
-            let (cause, relation) = if stamp_s < last_s {
-                ("out_of_order", "older than")
-            } else {
-                ("duplicate_stamp", "equal to")
-            };
-            self.reject(
-                robot,
-                key,
-                stamp_s,
-                cause,
-                format!("joint stamp {stamp_s} s is {relation} the previous one ({last_s} s)"),
-                sink,
-            );
+        if let Some((cause, reason)) = stamp_problem("joint", stamp_s, self.last_joint_s) {
+            self.reject(robot, key, stamp_s, cause, reason, sink);
             return Err(());
         }
         if let Some(seq) = sample.seq {
@@ -695,33 +655,8 @@ impl RobotTwin {
         stamp_s: f64,
         sink: &mut impl Sink,
     ) -> bool {
-        if !stamp_s.is_finite() {
-            self.reject(
-                robot,
-                key,
-                stamp_s,
-                "non_finite",
-                format!("stamp {stamp_s} is not finite"),
-                sink,
-            );
-            return false;
-        }
-        if let Some(last_s) = self.last_measured_s
-            && stamp_s <= last_s
-        {
-            let (cause, relation) = if stamp_s < last_s {
-                ("out_of_order", "older than")
-            } else {
-                ("duplicate_stamp", "equal to")
-            };
-            self.reject(
-                robot,
-                key,
-                stamp_s,
-                cause,
-                format!("measured stamp {stamp_s} s is {relation} the previous one ({last_s} s)"),
-                sink,
-            );
+        if let Some((cause, reason)) = stamp_problem("measured", stamp_s, self.last_measured_s) {
+            self.reject(robot, key, stamp_s, cause, reason, sink);
             return false;
         }
         self.last_measured_s = Some(stamp_s);
@@ -941,6 +876,49 @@ impl RobotTwin {
             window_s: self.window.window_s(),
         }
     }
+}
+
+/// The event for an input rejected for `cause`.
+fn rejection<'a>(
+    robot: &'a str,
+    key: &'a str,
+    stamp_s: f64,
+    cause: &'static str,
+    reason: String,
+) -> Event<'a> {
+    Event {
+        robot,
+        stamp_s,
+        kind: EventKind::Rejected,
+        reason,
+        key: Some(key),
+        detail: EventDetail::Rejected { cause },
+    }
+}
+
+/// Why `stamp_s` cannot follow `last_s` in a `stream` (stamps must be finite and increase
+/// strictly), as a rejection cause and a sentence.
+fn stamp_problem(
+    stream: &str,
+    stamp_s: f64,
+    last_s: Option<f64>,
+) -> Option<(&'static str, String)> {
+    if !stamp_s.is_finite() {
+        return Some((
+            "non_finite",
+            format!("{stream} stamp {stamp_s} is not finite"),
+        ));
+    }
+    let last_s = last_s.filter(|last_s| stamp_s <= *last_s)?;
+    let (cause, relation) = if stamp_s < last_s {
+        ("out_of_order", "older than")
+    } else {
+        ("duplicate_stamp", "equal to")
+    };
+    Some((
+        cause,
+        format!("{stream} stamp {stamp_s} s is {relation} the previous one ({last_s} s)"),
+    ))
 }
 
 /// `target_from_source · pose`.

@@ -388,31 +388,29 @@ impl Worker {
             Ok(decoded) => {
                 let stamp_s = decoded.sample.stamp_s.unwrap_or(fallback_s);
                 if let Some(error) = decoded.measured_error {
-                    debug!(%robot, %key, %error, "embedded measured pose rejected");
-                    self.pipeline.reject(
-                        robot,
-                        key,
-                        stamp_s,
-                        error.kind(),
-                        error.to_string(),
-                        &mut self.sink,
-                    );
+                    self.reject(robot, key, stamp_s, &error);
                 }
                 self.pipeline
                     .joints(robot, key, stamp_s, &decoded.sample, &mut self.sink);
             }
             Err(error) => {
-                debug!(%robot, %key, %error, "joint sample rejected");
-                self.pipeline.reject(
-                    robot,
-                    key,
-                    wire::stamp_hint(&payload).unwrap_or(fallback_s),
-                    error.kind(),
-                    error.to_string(),
-                    &mut self.sink,
-                );
+                let stamp_s = wire::stamp_hint(&payload).unwrap_or(fallback_s);
+                self.reject(robot, key, stamp_s, &error);
             }
         }
+    }
+
+    /// One rejection (event and count) for a message that did not decode.
+    fn reject(&mut self, robot: &str, key: &str, stamp_s: f64, error: &wire::WireError) {
+        debug!(%robot, %key, %error, "input rejected");
+        self.pipeline.reject(
+            robot,
+            key,
+            stamp_s,
+            error.kind(),
+            error.to_string(),
+            &mut self.sink,
+        );
     }
 
     fn measured(&mut self, robot: &str, stream: MeasuredStream, sample: &Sample) {
@@ -426,15 +424,8 @@ impl Worker {
                     .measured(robot, key, stream, stamp_s, &measured.pose, &mut self.sink);
             }
             Err(error) => {
-                debug!(%robot, %key, %error, "measured pose rejected");
-                self.pipeline.reject(
-                    robot,
-                    key,
-                    wire::stamp_hint(&payload).unwrap_or(fallback_s),
-                    error.kind(),
-                    error.to_string(),
-                    &mut self.sink,
-                );
+                let stamp_s = wire::stamp_hint(&payload).unwrap_or(fallback_s);
+                self.reject(robot, key, stamp_s, &error);
             }
         }
     }

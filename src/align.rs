@@ -31,6 +31,9 @@ pub struct AlignConfig {
     pub max_history: usize,
     /// Most measured poses waiting at once (bounds memory).
     pub max_pending: usize,
+    /// A stamp this much (s) behind its stream's previous one is taken as the gateway restarting
+    /// its clock (alignment and the metrics window start afresh), not as an out-of-order sample.
+    pub restart_s: f64,
 }
 
 impl Default for AlignConfig {
@@ -41,6 +44,7 @@ impl Default for AlignConfig {
             history_s: 2.0,
             max_history: 4096,
             max_pending: 1024,
+            restart_s: 5.0,
         }
     }
 }

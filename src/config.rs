@@ -159,6 +159,7 @@ struct AlignSection {
     history_s: f64,
     max_history: usize,
     max_pending: usize,
+    restart_s: f64,
 }
 
 impl Default for AlignSection {
@@ -170,6 +171,7 @@ impl Default for AlignSection {
             history_s: align.history_s,
             max_history: align.max_history,
             max_pending: align.max_pending,
+            restart_s: align.restart_s,
         }
     }
 }
@@ -364,6 +366,7 @@ fn check_service_and_align(
             history_s: positive("align.history_s", align.history_s)?,
             max_history: align.max_history.max(2),
             max_pending: align.max_pending.max(1),
+            restart_s: positive("align.restart_s", align.restart_s)?,
         })
     }
 }

@@ -115,6 +115,9 @@ pub enum EventKind {
     Gap,
     /// A measured pose that could not be paired with the twin.
     Unpaired,
+    /// The gateway's clock went back by more than `restart_s`: alignment and the metrics window
+    /// started afresh.
+    Restart,
 }
 
 impl EventKind {
@@ -127,6 +130,7 @@ impl EventKind {
             Self::Recovered => "recovered",
             Self::Gap => "gap",
             Self::Unpaired => "unpaired",
+            Self::Restart => "restart",
         }
     }
 }
@@ -159,6 +163,13 @@ pub enum EventDetail {
         expected: u64,
         /// The one received.
         got: u64,
+    },
+    /// A stream's clock went back.
+    Restart {
+        /// The stream's previous stamp (s).
+        from_s: f64,
+        /// The new stamp (s).
+        to_s: f64,
     },
     /// A measured pose left unpaired.
     Unpaired {
@@ -580,6 +591,7 @@ impl RobotTwin {
             self.reject(robot, key, stamp_s, cause, error.to_string(), sink);
             return Err(());
         }
+        self.restart_if_clock_went_back(robot, key, "joint", stamp_s, self.last_joint_s, sink);
         if let Some((cause, reason)) = stamp_problem("joint", stamp_s, self.last_joint_s) {
             self.reject(robot, key, stamp_s, cause, reason, sink);
             return Err(());
@@ -648,6 +660,48 @@ impl RobotTwin {
     }
 
     /// Measured stamps must increase strictly; rejects (and returns false) otherwise.
+    /// A stamp more than `restart_s` behind its stream's last one means the gateway restarted
+    /// its clock: waiting measured poses end unpaired, and alignment, stamp order and the metrics
+    /// window start afresh (cumulative metrics and counters continue), with a `restart` event.
+    fn restart_if_clock_went_back(
+        &mut self,
+        robot: &str,
+        key: &str,
+        stream: &str,
+        stamp_s: f64,
+        last_s: Option<f64>,
+        sink: &mut impl Sink,
+    ) {
+        let config = *self.aligner.config();
+        let Some(last_s) = last_s.filter(|last_s| stamp_s < last_s - config.restart_s) else {
+            return;
+        };
+        for (pending, reason) in self.aligner.finish() {
+            self.unpaired_event(robot, &pending, reason, sink);
+        }
+        self.aligner = Aligner::new(config);
+        self.window.reset();
+        self.last_joint_s = None;
+        self.last_measured_s = None;
+        self.last_gateway_seq = None;
+        self.newest_s = stamp_s;
+        sink.event(&Event {
+            robot,
+            stamp_s,
+            kind: EventKind::Restart,
+            reason: format!(
+                "{stream} stamp went back from {last_s} s to {stamp_s} s (more than restart_s = {} s): \
+                 taken as a gateway clock restart; alignment and the metrics window start afresh",
+                config.restart_s
+            ),
+            key: Some(key),
+            detail: EventDetail::Restart {
+                from_s: last_s,
+                to_s: stamp_s,
+            },
+        });
+    }
+
     fn accept_measured_stamp(
         &mut self,
         robot: &str,
@@ -655,6 +709,14 @@ impl RobotTwin {
         stamp_s: f64,
         sink: &mut impl Sink,
     ) -> bool {
+        self.restart_if_clock_went_back(
+            robot,
+            key,
+            "measured",
+            stamp_s,
+            self.last_measured_s,
+            sink,
+        );
         if let Some((cause, reason)) = stamp_problem("measured", stamp_s, self.last_measured_s) {
             self.reject(robot, key, stamp_s, cause, reason, sink);
             return false;

@@ -696,7 +696,7 @@ impl Sink for ZenohSink {
             EventKind::Rejected | EventKind::Alarm => {
                 warn!(robot = %event.robot, kind = event.kind.as_str(), reason = %event.reason, "event");
             }
-            EventKind::Recovered => {
+            EventKind::Recovered | EventKind::Restart => {
                 info!(robot = %event.robot, kind = event.kind.as_str(), reason = %event.reason, "event");
             }
             EventKind::Gap | EventKind::Unpaired => {

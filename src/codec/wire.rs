@@ -843,6 +843,7 @@ impl EventMessage {
                 threshold,
             } => json!({ "metric": metric, "value": value, "threshold": threshold }),
             EventDetail::StampGap { gap_s } => json!({ "gap_s": gap_s }),
+            EventDetail::Restart { from_s, to_s } => json!({ "from_s": from_s, "to_s": to_s }),
             EventDetail::SeqGap { expected, got } => json!({ "expected": expected, "got": got }),
             EventDetail::Unpaired { cause, measured_s } => {
                 json!({ "cause": cause, "measured_s": measured_s })

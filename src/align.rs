@@ -9,7 +9,8 @@
 //! - a measured pose at `t` pairs with the joint sample stamped exactly `t`, else with the joint
 //!   angles interpolated linearly between the two samples around `t`, provided they are at most
 //!   `max_gap_s` apart;
-//! - one newer than every joint sample waits for the next joint sample; it gives up (unpaired)
+//! - one newer than every joint sample (or arriving before any) waits for the next joint sample;
+//!   it gives up (unpaired)
 //!   when a measured pose more than `max_wait_s` newer arrives, when more than `max_pending`
 //!   wait, or when the stream ends;
 //! - one older than the kept history (`history_s`, at most `max_history` samples) is unpaired.
@@ -74,7 +75,7 @@ pub enum Bracket<'a> {
 pub enum UnpairedReason {
     /// Older than the oldest joint sample kept.
     BeforeHistory {
-        /// The oldest joint stamp kept (s), or NaN when no joint sample was ever received.
+        /// The oldest joint stamp kept (s).
         oldest_joint_s: f64,
     },
     /// The joint samples around it are too far apart.
@@ -107,9 +108,6 @@ impl UnpairedReason {
     #[must_use]
     pub fn describe(&self, config: &AlignConfig) -> String {
         match self {
-            Self::BeforeHistory { oldest_joint_s } if oldest_joint_s.is_nan() => {
-                "no joint sample received yet".to_owned()
-            }
             Self::BeforeHistory { oldest_joint_s } => {
                 format!(
                     "older than the joint history (oldest joint sample at t = {oldest_joint_s} s)"
@@ -214,9 +212,8 @@ impl<T> Aligner<T> {
     #[must_use]
     pub fn bracket(&self, stamp_s: f64) -> Bracket<'_> {
         let (Some(&oldest), Some(&newest)) = (self.stamps_s.front(), self.stamps_s.back()) else {
-            return Bracket::Unpaired(UnpairedReason::BeforeHistory {
-                oldest_joint_s: f64::NAN,
-            });
+            // No joint sample yet (or since a restart): wait for one, like any newer pose.
+            return Bracket::Later;
         };
         if stamp_s > newest {
             return Bracket::Later;
@@ -251,7 +248,9 @@ impl<T> Aligner<T> {
     /// make room or because this one is more than `max_wait_s` newer.
     pub fn wait(&mut self, stamp_s: f64, item: T) -> Vec<(Pending<T>, UnpairedReason)> {
         let mut given_up = self.expire(stamp_s - self.config.max_wait_s);
-        self.pending.push_back(Pending { stamp_s, item });
+        // Streams of one robot (controller, sensors) have their own stamps: keep the queue sorted.
+        let position = self.pending.partition_point(|p| p.stamp_s <= stamp_s);
+        self.pending.insert(position, Pending { stamp_s, item });
         while self.pending.len() > self.config.max_pending {
             if let Some(oldest) = self.pending.pop_front() {
                 given_up.push((oldest, UnpairedReason::PendingOverflow));

@@ -547,6 +547,28 @@ impl WindowStats {
         true
     }
 
+    /// Moves the window's end to source time `now_s` without adding a sample: samples stamped at
+    /// or before `now_s − window_s` leave (so a window whose inputs stopped empties as time goes
+    /// on). Times earlier than the newest stamp seen change nothing.
+    pub fn advance_to(&mut self, now_s: f64) {
+        if !now_s.is_finite() || now_s <= self.newest_stamp_s {
+            return;
+        }
+        self.newest_stamp_s = now_s;
+        let oldest_kept_after_s = now_s - self.window_s;
+        while self
+            .samples
+            .front()
+            .is_some_and(|oldest| oldest.stamp_s <= oldest_kept_after_s)
+        {
+            self.evict_front();
+        }
+        trim_capacity(&mut self.samples);
+        for deque in &mut self.maxima {
+            trim_capacity(deque);
+        }
+    }
+
     /// The statistics of the samples now in the window.
     #[must_use]
     pub fn snapshot(&self) -> StatsSet {

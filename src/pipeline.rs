@@ -251,6 +251,15 @@ pub struct RobotState<'a> {
     pub alarms_active: [bool; 2],
 }
 
+/// Why a joint sample was refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Refusal {
+    /// Its joints are invalid (count, finiteness, limits).
+    Joints,
+    /// Its stamp or gateway seq does not follow the previous sample's.
+    Order,
+}
+
 /// A measured pose waiting in the aligner.
 #[derive(Debug, Clone)]
 struct Waiting {
@@ -278,7 +287,9 @@ struct RobotTwin {
     last_joint_s: Option<f64>,
     last_joints: Vec<f64>,
     last_twin: Option<(f64, PoseReadout)>,
-    last_measured_s: Option<f64>,
+    /// Last accepted measured stamp per stream: index 0 the robot's own (controller) stream,
+    /// `i + 1` sensor `i`.
+    last_measured_s: Vec<Option<f64>>,
     last_measured: Option<(f64, PoseReadout)>,
     newest_s: f64,
     alarms: [AlarmState; 2],
@@ -370,7 +381,7 @@ impl Pipeline {
             last_joint_s: None,
             last_joints: Vec::with_capacity(settings.model.joint_count()),
             last_twin: None,
-            last_measured_s: None,
+            last_measured_s: Vec::new(),
             last_measured: None,
             newest_s: f64::NEG_INFINITY,
             alarms: [AlarmState::default(); 2],
@@ -417,7 +428,8 @@ impl Pipeline {
     }
 
     /// The twin an input at `stamp_s` goes to, tracking the robot first; `None` (after a
-    /// rejection) for a robot that may not be tracked.
+    /// rejection) for a robot that may not be tracked. Source time moves on only once the input
+    /// is accepted.
     fn twin_for_input(
         &mut self,
         robot: &str,
@@ -430,7 +442,6 @@ impl Pipeline {
             return None;
         }
         let twin = self.robots.get_mut(robot)?;
-        twin.newest_s = twin.newest_s.max(stamp_s);
         twin.dirty = true;
         Some(twin)
     }
@@ -451,20 +462,26 @@ impl Pipeline {
         };
         match twin.accept_joints(robot, key, stamp_s, sample, sink) {
             Ok(pose) => {
+                // Older waiting poses first, so statistics and alarms see stamps in order.
+                twin.pair_ready(robot, sink);
                 if let Some(measured) = &sample.measured {
                     let measured = twin.to_output_frame(measured, MeasuredStream::Robot);
-                    if twin.accept_measured_stamp(robot, key, stamp_s, sink) {
+                    if twin.accept_measured_stamp(robot, key, MeasuredStream::Robot, stamp_s, sink)
+                    {
                         twin.pair(robot, key, stamp_s, &pose, measured, sink);
                     }
                 }
-                twin.pair_ready(robot, sink);
             }
-            Err(()) => {
+            Err(Refusal::Order) => {
+                // Resent or out of order: its measured part shares the stamp and is not counted
+                // a second time.
+            }
+            Err(Refusal::Joints) => {
                 // The joints were refused; a measured pose that came with them is still valid
                 // input and goes through the aligner like any other.
                 if let Some(measured) = &sample.measured {
                     let measured = twin.to_output_frame(measured, MeasuredStream::Robot);
-                    twin.measured(robot, key, stamp_s, measured, sink);
+                    twin.measured(robot, key, MeasuredStream::Robot, stamp_s, measured, sink);
                 }
             }
         }
@@ -484,7 +501,7 @@ impl Pipeline {
             return;
         };
         let pose = twin.to_output_frame(pose, stream);
-        twin.measured(robot, key, stamp_s, pose, sink);
+        twin.measured(robot, key, stream, stamp_s, pose, sink);
     }
 
     /// Sends metrics of every robot with new results since the last call (the periodic
@@ -514,7 +531,8 @@ impl Pipeline {
         twin.paired = 0;
         twin.unpaired = 0;
         twin.rejected = 0;
-        twin.alarms = [AlarmState::default(); 2];
+        // Alarms stay as they are: clearing one silently would leave dashboards waiting for a
+        // `recovered` that never comes.
         sink.metrics(&last);
         Some(last)
     }
@@ -581,7 +599,7 @@ impl RobotTwin {
         stamp_s: f64,
         sample: &JointSample,
         sink: &mut impl Sink,
-    ) -> Result<PoseReadout, ()> {
+    ) -> Result<PoseReadout, Refusal> {
         if let Err(error) = self.settings.model.check_joints(&sample.q_rad) {
             let cause = match error {
                 KinematicsError::JointCount { .. } => "joint_count",
@@ -589,12 +607,12 @@ impl RobotTwin {
                 KinematicsError::OutOfLimits { .. } => "joint_limits",
             };
             self.reject(robot, key, stamp_s, cause, error.to_string(), sink);
-            return Err(());
+            return Err(Refusal::Joints);
         }
         self.restart_if_clock_went_back(robot, key, "joint", stamp_s, self.last_joint_s, sink);
         if let Some((cause, reason)) = stamp_problem("joint", stamp_s, self.last_joint_s) {
             self.reject(robot, key, stamp_s, cause, reason, sink);
-            return Err(());
+            return Err(Refusal::Order);
         }
         if let Some(seq) = sample.seq {
             if let Some(last) = self.last_gateway_seq {
@@ -607,7 +625,7 @@ impl RobotTwin {
                         format!("seq {seq} does not follow the previous seq {last}"),
                         sink,
                     );
-                    return Err(());
+                    return Err(Refusal::Order);
                 }
                 if seq != last + 1 {
                     sink.event(&Event {
@@ -642,6 +660,7 @@ impl RobotTwin {
                 detail: EventDetail::StampGap { gap_s },
             });
         }
+        self.advance_time(stamp_s);
         let pose = self
             .settings
             .model
@@ -682,7 +701,11 @@ impl RobotTwin {
         self.aligner = Aligner::new(config);
         self.window.reset();
         self.last_joint_s = None;
-        self.last_measured_s = None;
+        self.last_measured_s.clear();
+        // A hold timer started on the old clock would wait for the new one to catch up.
+        for alarm in &mut self.alarms {
+            alarm.since_s = None;
+        }
         self.last_gateway_seq = None;
         self.newest_s = stamp_s;
         sink.event(&Event {
@@ -702,38 +725,54 @@ impl RobotTwin {
         });
     }
 
+    /// Measured stamps must increase strictly within each stream; rejects (and returns false)
+    /// otherwise.
     fn accept_measured_stamp(
         &mut self,
         robot: &str,
         key: &str,
+        stream: MeasuredStream,
         stamp_s: f64,
         sink: &mut impl Sink,
     ) -> bool {
-        self.restart_if_clock_went_back(
-            robot,
-            key,
-            "measured",
-            stamp_s,
-            self.last_measured_s,
-            sink,
-        );
-        if let Some((cause, reason)) = stamp_problem("measured", stamp_s, self.last_measured_s) {
+        let slot = match stream {
+            MeasuredStream::Robot => 0,
+            MeasuredStream::Sensor(index) => index + 1,
+        };
+        let last_s = self.last_measured_s.get(slot).copied().flatten();
+        self.restart_if_clock_went_back(robot, key, "measured", stamp_s, last_s, sink);
+        let last_s = self.last_measured_s.get(slot).copied().flatten();
+        if let Some((cause, reason)) = stamp_problem("measured", stamp_s, last_s) {
             self.reject(robot, key, stamp_s, cause, reason, sink);
             return false;
         }
-        self.last_measured_s = Some(stamp_s);
+        if self.last_measured_s.len() <= slot {
+            self.last_measured_s.resize(slot + 1, None);
+        }
+        self.last_measured_s[slot] = Some(stamp_s);
+        self.advance_time(stamp_s);
         true
+    }
+
+    /// Source time moved on to `stamp_s` (an accepted sample): the metrics' time and window
+    /// follow, so a window whose pairs stopped empties as time goes on.
+    fn advance_time(&mut self, stamp_s: f64) {
+        if stamp_s > self.newest_s {
+            self.newest_s = stamp_s;
+            self.window.advance_to(stamp_s);
+        }
     }
 
     fn measured(
         &mut self,
         robot: &str,
         key: &str,
+        stream: MeasuredStream,
         stamp_s: f64,
         pose: PoseReadout,
         sink: &mut impl Sink,
     ) {
-        if !self.accept_measured_stamp(robot, key, stamp_s, sink) {
+        if !self.accept_measured_stamp(robot, key, stream, stamp_s, sink) {
             return;
         }
         self.resolve(robot, key, stamp_s, pose, sink);

@@ -77,8 +77,11 @@ pub async fn replay(
     let total = recording.entries.len().max(1);
     tokio::pin!(shutdown);
     for (index, (entry, &t_s)) in recording.entries.iter().zip(times_s).enumerate() {
-        if let Some(speed) = settings.speed {
-            let due = start + Duration::from_secs_f64(((t_s - first_s) / speed).max(0.0));
+        let due = settings.speed.and_then(|speed| {
+            let delay = Duration::try_from_secs_f64(((t_s - first_s) / speed).max(0.0)).ok()?;
+            start.checked_add(delay)
+        });
+        if let Some(due) = due {
             tokio::select! {
                 () = tokio::time::sleep_until(due) => {}
                 () = &mut shutdown => { report.interrupted = true; break; }

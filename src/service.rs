@@ -339,13 +339,14 @@ impl Worker {
         report
     }
 
-    /// The robot id in `key` after `<prefix>/<stream>/`, if any.
+    /// The robot id in `key` after `<prefix>/<stream>/`, if it is a plain key (a put on a
+    /// wildcard key expression names no robot, and must not become one).
     fn robot_of<'k>(&self, key: &'k str, stream: &str) -> Option<&'k str> {
         key.strip_prefix(self.prefix.as_str())?
             .strip_prefix('/')?
             .strip_prefix(stream)?
             .strip_prefix('/')
-            .filter(|robot| !robot.is_empty())
+            .filter(|robot| !robot.is_empty() && !robot.contains(['*', '$']))
     }
 
     fn handle(&mut self, input: Input) {
@@ -378,12 +379,13 @@ impl Worker {
             return;
         };
         let fallback_s = transport_stamp_s(sample);
+        let payload = sample.payload().to_bytes();
         let Some(settings) = self.pipeline.settings_for(robot) else {
+            let stamp_s = wire::stamp_hint(&payload).unwrap_or(fallback_s);
             self.pipeline
-                .reject_unknown_robot(robot, key, fallback_s, &mut self.sink);
+                .reject_unknown_robot(robot, key, stamp_s, &mut self.sink);
             return;
         };
-        let payload = sample.payload().to_bytes();
         match wire::decode_joints(&payload, settings.model.joint_count()) {
             Ok(decoded) => {
                 let stamp_s = decoded.sample.stamp_s.unwrap_or(fallback_s);
@@ -417,6 +419,12 @@ impl Worker {
         let key = sample.key_expr().as_str();
         let fallback_s = transport_stamp_s(sample);
         let payload = sample.payload().to_bytes();
+        if self.pipeline.settings_for(robot).is_none() {
+            let stamp_s = wire::stamp_hint(&payload).unwrap_or(fallback_s);
+            self.pipeline
+                .reject_unknown_robot(robot, key, stamp_s, &mut self.sink);
+            return;
+        }
         match wire::decode_measured(&payload) {
             Ok(measured) => {
                 let stamp_s = measured.stamp_s.unwrap_or(fallback_s);
@@ -491,7 +499,7 @@ impl Worker {
 
     fn fk(&self, query: &Query) {
         let key = query.key_expr().as_str();
-        let Some(robot) = self.robot_of(key, "fk").filter(|r| !r.contains('*')) else {
+        let Some(robot) = self.robot_of(key, "fk") else {
             Self::reply_err(
                 query,
                 "ask one robot: <prefix>/fk/<robot id> with {\"q\": [...]}",

@@ -297,6 +297,9 @@ async fn several_robots_poses_deviations_metrics_and_fleet_queries() {
                 h.put(&format!("twin/joints/{robot}"), &message).await;
             }
         }
+        // A put on a wildcard key names no robot: nothing is tracked for it.
+        h.put("twin/joints/**", &json!({"t": 0.0, "q": q_at(0)}))
+            .await;
         h.receive_until("150 poses and 150 deviations", |r| {
             r.iter()
                 .filter(|(k, _)| k.starts_with("twin/pose/"))

@@ -354,7 +354,11 @@ pub fn source_times(recording: &Recording, period_s: Option<f64>) -> Vec<f64> {
         .collect();
     let mut times = vec![0.0; count];
     let mut spacing_s = 0.0;
-    let mut start = 0;
+    // Entries before the first stamp (a truncated first line, a units row) take that stamp, so
+    // that pacing starts from the recording's own time.
+    let mut start = raw.iter().position(Option::is_some).unwrap_or(count);
+    let first_s = raw.get(start).copied().flatten().unwrap_or(0.0);
+    times[..start].fill(first_s);
     while start < count {
         let Some(stamp) = raw[start] else {
             times[start] = if start == 0 {
@@ -402,6 +406,14 @@ mod tests {
         let times = source_times(&recording, None);
         assert_eq!(times, [10.0, 10.25, 10.5, 10.75, 11.0, 11.25]);
         assert_eq!(source_times(&recording, Some(0.1))[3], 0.30000000000000004);
+    }
+
+    #[test]
+    fn a_leading_line_without_stamp_takes_the_first_stamp() {
+        let text = "time,q1,q2,q3,q4,q5,q6\nunits,rad,rad,rad,rad,rad,rad\n1700000000.0,0,0,0,0,0,0\n1700000000.5,0,0,0,0,0,0\n";
+        let recording = read(text).expect("recognised");
+        let times = source_times(&recording, None);
+        assert_eq!(times, [1_700_000_000.0, 1_700_000_000.0, 1_700_000_000.5]);
     }
 
     #[test]

@@ -3,6 +3,7 @@
 use std::fmt::Write;
 
 use armtwin::kinematics::{OutputFrame, Pose, TcpOffset};
+use armtwin::model::calibration::YAML_SEGMENTS;
 use armtwin::model::{Calibration, ModelError, RobotModel, catalog, custom};
 use armtwin::orientation::{Rpy, rpy_from_matrix};
 use nalgebra::{Matrix3, Vector3};
@@ -145,17 +146,7 @@ fn yaml_from_deltas(model: &str, deltas: &Deltas) -> String {
         .collect();
     let d: Vec<f64> = (0..6).map(|i| arm.dh[i].d_m + deltas.d[i]).collect();
     let mut text = String::from("kinematics:\n");
-    for (i, segment) in [
-        "shoulder",
-        "upper_arm",
-        "forearm",
-        "wrist_1",
-        "wrist_2",
-        "wrist_3",
-    ]
-    .iter()
-    .enumerate()
-    {
+    for (i, segment) in YAML_SEGMENTS.iter().enumerate() {
         let values = if i == 0 {
             origin(0.0, 0.0, deltas.theta[0], d[0])
         } else {

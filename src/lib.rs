@@ -24,6 +24,7 @@
 //! - [`cli`]: the `armtwin` command line (the outer ring, with `main.rs`).
 
 pub mod align;
+#[cfg(feature = "cli")]
 pub mod cli;
 pub mod codec;
 pub mod config;
@@ -32,7 +33,9 @@ pub mod metrics;
 pub mod model;
 pub mod orientation;
 pub mod pipeline;
+#[cfg(feature = "cli")]
 pub mod replay;
 pub mod sample;
+#[cfg(feature = "cli")]
 pub mod service;
 pub mod trig;

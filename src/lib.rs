@@ -18,6 +18,8 @@
 //! - [`pipeline`]: the per-robot twin core every mode runs: samples in, poses, deviations,
 //!   metrics and events out to a [`pipeline::Sink`].
 //! - [`codec`]: the core's types to and from CSV and the service's JSON wire messages.
+//! - [`ingest`]: a gateway message's bytes into the pipeline, shared by the service and
+//!   `validate`.
 //! - [`config`]: the service's TOML configuration and command-line overrides.
 //! - [`service`]: `armtwin serve`, the pipeline on a Zenoh mesh.
 //! - [`replay`]: `armtwin replay`, a recording published as a gateway would.
@@ -28,6 +30,7 @@ pub mod align;
 pub mod cli;
 pub mod codec;
 pub mod config;
+pub mod ingest;
 pub mod kinematics;
 pub mod metrics;
 pub mod model;

@@ -224,8 +224,14 @@ pub trait Sink {
     fn tracking(&mut self, robot: &str);
     /// The twin pose of a valid joint sample.
     fn pose(&mut self, robot: &str, stamp_s: f64, seq: u64, frame: OutputFrame, pose: &PoseReadout);
-    /// Twin minus measured, for a paired measured pose.
-    fn deviation(&mut self, robot: &str, stamp_s: f64, deviation: &Deviation);
+    /// Twin minus measured, for a paired measured pose (given in the output frame).
+    fn deviation(
+        &mut self,
+        robot: &str,
+        stamp_s: f64,
+        measured: &PoseReadout,
+        deviation: &Deviation,
+    );
     /// An event.
     fn event(&mut self, event: &Event<'_>);
     /// A metrics snapshot.
@@ -884,7 +890,7 @@ impl RobotTwin {
             );
             return;
         }
-        sink.deviation(robot, stamp_s, &deviation);
+        sink.deviation(robot, stamp_s, &measured, &deviation);
         self.cumulative.add(&magnitudes);
         self.window.add(stamp_s, &magnitudes);
         self.paired += 1;

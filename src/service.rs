@@ -31,6 +31,7 @@ use zenoh::session::Session;
 
 use crate::codec::wire;
 use crate::config::{Congestion, ServiceConfig, ZenohSection};
+use crate::ingest;
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
 use crate::pipeline::{Event, EventKind, MeasuredStream, MetricsSnapshot, Pipeline, Sink};
@@ -378,64 +379,26 @@ impl Worker {
             warn!(%key, "joint sample without a robot id in its key: ignored");
             return;
         };
-        let fallback_s = transport_stamp_s(sample);
-        let payload = sample.payload().to_bytes();
-        let Some(settings) = self.pipeline.settings_for(robot) else {
-            let stamp_s = wire::stamp_hint(&payload).unwrap_or(fallback_s);
-            self.pipeline
-                .reject_unknown_robot(robot, key, stamp_s, &mut self.sink);
-            return;
-        };
-        match wire::decode_joints(&payload, settings.model.joint_count()) {
-            Ok(decoded) => {
-                let stamp_s = decoded.sample.stamp_s.unwrap_or(fallback_s);
-                if let Some(error) = decoded.measured_error {
-                    self.reject(robot, key, stamp_s, &error);
-                }
-                self.pipeline
-                    .joints(robot, key, stamp_s, &decoded.sample, &mut self.sink);
-            }
-            Err(error) => {
-                let stamp_s = wire::stamp_hint(&payload).unwrap_or(fallback_s);
-                self.reject(robot, key, stamp_s, &error);
-            }
-        }
-    }
-
-    /// One rejection (event and count) for a message that did not decode.
-    fn reject(&mut self, robot: &str, key: &str, stamp_s: f64, error: &wire::WireError) {
-        debug!(%robot, %key, %error, "input rejected");
-        self.pipeline.reject(
+        ingest::joint_message(
+            &mut self.pipeline,
             robot,
             key,
-            stamp_s,
-            error.kind(),
-            error.to_string(),
+            &sample.payload().to_bytes(),
+            transport_stamp_s(sample),
             &mut self.sink,
         );
     }
 
     fn measured(&mut self, robot: &str, stream: MeasuredStream, sample: &Sample) {
-        let key = sample.key_expr().as_str();
-        let fallback_s = transport_stamp_s(sample);
-        let payload = sample.payload().to_bytes();
-        if self.pipeline.settings_for(robot).is_none() {
-            let stamp_s = wire::stamp_hint(&payload).unwrap_or(fallback_s);
-            self.pipeline
-                .reject_unknown_robot(robot, key, stamp_s, &mut self.sink);
-            return;
-        }
-        match wire::decode_measured(&payload) {
-            Ok(measured) => {
-                let stamp_s = measured.stamp_s.unwrap_or(fallback_s);
-                self.pipeline
-                    .measured(robot, key, stream, stamp_s, &measured.pose, &mut self.sink);
-            }
-            Err(error) => {
-                let stamp_s = wire::stamp_hint(&payload).unwrap_or(fallback_s);
-                self.reject(robot, key, stamp_s, &error);
-            }
-        }
+        ingest::measured_message(
+            &mut self.pipeline,
+            robot,
+            sample.key_expr().as_str(),
+            stream,
+            &sample.payload().to_bytes(),
+            transport_stamp_s(sample),
+            &mut self.sink,
+        );
     }
 
     /// Tracked robots whose `<prefix>/<stream>/<robot>` key the query's key expression covers.
@@ -671,7 +634,13 @@ impl Sink for ZenohSink {
         self.poses += 1;
     }
 
-    fn deviation(&mut self, robot: &str, stamp_s: f64, deviation: &Deviation) {
+    fn deviation(
+        &mut self,
+        robot: &str,
+        stamp_s: f64,
+        _measured: &PoseReadout,
+        deviation: &Deviation,
+    ) {
         let Some(outputs) = self.outputs.get(robot) else {
             return;
         };

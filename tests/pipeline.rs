@@ -34,7 +34,13 @@ impl Sink for Recorder {
     ) {
         self.poses.push((stamp_s, seq));
     }
-    fn deviation(&mut self, _robot: &str, stamp_s: f64, _deviation: &Deviation) {
+    fn deviation(
+        &mut self,
+        _robot: &str,
+        stamp_s: f64,
+        _measured: &PoseReadout,
+        _deviation: &Deviation,
+    ) {
         self.deviations.push(stamp_s);
     }
     fn event(&mut self, event: &Event<'_>) {

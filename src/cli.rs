@@ -7,18 +7,23 @@ use std::fs::File;
 use std::io::{self, BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 
+use std::sync::Arc;
+
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand, ValueEnum};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use serde::Serialize;
 
 use crate::codec::PoseFields;
 use crate::codec::joint_csv::{JointCsvReader, PoseCsvWriter};
-use crate::codec::recording;
+use crate::codec::recording::{self, ColumnMap, PoseForm, Recording};
 use crate::config::{Overrides, ServiceConfig, ZenohSection};
 use crate::kinematics::{OutputFrame, TcpOffset};
 use crate::model::{Calibration, RobotModel, catalog, custom};
+use crate::pipeline::RobotSettings;
 use crate::replay::{self, ReplaySettings};
 use crate::service;
+use crate::validate;
 
 /// armtwin: live digital twin for robot arms.
 #[derive(Debug, Parser)]
@@ -40,13 +45,75 @@ pub enum Command {
     Serve(ServeArgs),
     /// Publish a recording (CSV) to the mesh as a gateway would, for `armtwin serve` to twin.
     Replay(ReplayArgs),
+    /// Run a recording through the twin offline: report (JSON, Markdown), per-row CSV and plots;
+    /// exits 3 when --max-position-error or --max-angle-error is exceeded.
+    Validate(ValidateArgs),
+}
+
+/// Which recording and how to read it; shared by `replay` and `validate`.
+#[derive(Debug, Args)]
+pub struct RecordingArgs {
+    /// The recording: the seed's CSV, a ROS 2 export or a UR RTDE recording (recognised from the
+    /// header), or any CSV with --joint-columns.
+    pub recording: PathBuf,
+    /// Seconds between rows, ignoring the recording's time column (e.g. 0.1 for the seed's
+    /// `fmpy_inputs.csv`, whose time column is a row index).
+    #[arg(long, value_name = "SECONDS")]
+    pub period: Option<f64>,
+    /// Joint angle columns, in joint order, for a header armtwin does not recognise (or to
+    /// override what it recognises): `--joint-columns j1,j2,j3,j4,j5,j6`.
+    #[arg(long, value_name = "NAMES", value_delimiter = ',')]
+    pub joint_columns: Vec<String>,
+    /// With --joint-columns: the time column.
+    #[arg(long, value_name = "NAME", requires = "joint_columns")]
+    pub time_column: Option<String>,
+    /// With --time-column: its unit.
+    #[arg(long, value_enum, default_value_t = TimeUnit::S)]
+    pub time_unit: TimeUnit,
+    /// With --joint-columns: the measured pose columns, `x,y,z` then the orientation columns of
+    /// --pose-form.
+    #[arg(
+        long,
+        value_name = "NAMES",
+        value_delimiter = ',',
+        requires = "joint_columns"
+    )]
+    pub pose_columns: Vec<String>,
+    /// With --pose-columns: the orientation form.
+    #[arg(long, value_enum, default_value_t = PoseFormArg::Quaternion)]
+    pub pose_form: PoseFormArg,
+}
+
+/// `--time-unit` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum TimeUnit {
+    /// Seconds.
+    S,
+    /// Milliseconds.
+    Ms,
+    /// Microseconds.
+    Us,
+    /// Nanoseconds.
+    Ns,
+}
+
+/// `--pose-form` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum PoseFormArg {
+    /// `qx,qy,qz,qw`.
+    Quaternion,
+    /// `roll,pitch,yaw` (rad).
+    Rpy,
+    /// A UR rotation vector `rx,ry,rz` (rad).
+    Rotvec,
 }
 
 /// `armtwin replay` arguments.
 #[derive(Debug, Args)]
 pub struct ReplayArgs {
-    /// The recording: the seed's CSV, a ROS 2 export or a UR RTDE recording.
-    pub recording: PathBuf,
+    /// The recording.
+    #[command(flatten)]
+    pub input: RecordingArgs,
     /// Robot id to publish as (may span several key chunks, e.g. plant-a/cell-3/ur10e-07).
     #[arg(long)]
     pub robot: String,
@@ -56,10 +123,6 @@ pub struct ReplayArgs {
     /// Publish as fast as the transport takes it.
     #[arg(long)]
     pub max_rate: bool,
-    /// Seconds between rows, ignoring the recording's time column (e.g. 0.1 for the seed's
-    /// `fmpy_inputs.csv`, whose time column is a row index).
-    #[arg(long, value_name = "SECONDS")]
-    pub period: Option<f64>,
     /// Key prefix of the service.
     #[arg(long, default_value = "twin")]
     pub prefix: String,
@@ -77,6 +140,31 @@ pub struct ReplayArgs {
     /// Endpoint to listen on (repeatable; none by default).
     #[arg(short = 'l', long = "listen", value_name = "ENDPOINT")]
     pub listen: Vec<String>,
+}
+
+/// `armtwin validate` arguments.
+#[derive(Debug, Args)]
+pub struct ValidateArgs {
+    /// The recording.
+    #[command(flatten)]
+    pub input: RecordingArgs,
+    /// The robot the recording is of.
+    #[command(flatten)]
+    pub robot: RobotArgs,
+    /// A service configuration whose alignment, window and default alarm settings to use
+    /// (default: the built-in one, as `armtwin serve`).
+    #[arg(short = 'c', long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Directory for the report (default: `<recording name>-validation`).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Fail (exit 3) if the largest position error exceeds this many metres.
+    #[arg(long, value_name = "METRES")]
+    pub max_position_error: Option<f64>,
+    /// Fail (exit 3) if the largest rotation angle between twin and measured exceeds this many
+    /// radians.
+    #[arg(long, value_name = "RADIANS")]
+    pub max_angle_error: Option<f64>,
 }
 
 /// `armtwin serve` arguments, in Zenoh's own style; they override the configuration file.
@@ -172,41 +260,84 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Models(args) => run_models(&args),
         Command::Serve(args) => run_serve(&args),
         Command::Replay(args) => run_replay(&args),
+        Command::Validate(args) => run_validate(&args),
     }
+}
+
+impl RecordingArgs {
+    /// Reads the recording and its source times, and says on stderr what was recognised.
+    fn load(&self) -> Result<(Recording, Vec<f64>)> {
+        if let Some(period) = self.period
+            && !(period.is_finite() && period > 0.0)
+        {
+            bail!("--period must be a positive number of seconds, got {period}");
+        }
+        let map = (!self.joint_columns.is_empty()).then(|| ColumnMap {
+            time: self.time_column.clone(),
+            time_scale_s: match self.time_unit {
+                TimeUnit::S => 1.0,
+                TimeUnit::Ms => 1e-3,
+                TimeUnit::Us => 1e-6,
+                TimeUnit::Ns => 1e-9,
+            },
+            joints: self.joint_columns.clone(),
+            pose: (!self.pose_columns.is_empty()).then(|| {
+                let form = match self.pose_form {
+                    PoseFormArg::Quaternion => PoseForm::Quaternion,
+                    PoseFormArg::Rpy => PoseForm::Rpy,
+                    PoseFormArg::Rotvec => PoseForm::RotationVector,
+                };
+                (form, self.pose_columns.clone())
+            }),
+        });
+        let text = read_text(&self.recording)?;
+        let recording = recording::read_with(&text, map.as_ref())
+            .with_context(|| self.recording.display().to_string())?;
+        let times = recording::source_times(&recording, self.period);
+        let malformed: Vec<_> = recording
+            .entries
+            .iter()
+            .filter_map(|e| e.as_ref().err())
+            .collect();
+        eprintln!(
+            "{}: {} ({} rows{}, {} malformed lines)",
+            self.recording.display(),
+            recording.format.describe(),
+            recording.entries.len(),
+            if recording.has_pose {
+                " with measured pose"
+            } else {
+                ", joints only"
+            },
+            malformed.len()
+        );
+        for line in malformed.iter().take(5) {
+            eprintln!("  line {}: {}", line.line, line.problem);
+        }
+        if malformed.len() > 5 {
+            eprintln!("  … and {} more", malformed.len() - 5);
+        }
+        Ok((recording, times))
+    }
+}
+
+/// A progress bar on stderr for `total` steps; hidden when stderr is not a terminal.
+fn progress_bar(total: usize, what: &str) -> ProgressBar {
+    let bar = ProgressBar::with_draw_target(Some(total as u64), ProgressDrawTarget::stderr());
+    bar.set_style(
+        ProgressStyle::with_template(&format!(
+            "{what} {{bar:40}} {{pos}}/{{len}} rows ({{per_sec}}, {{eta}} left)"
+        ))
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar
 }
 
 fn run_replay(args: &ReplayArgs) -> Result<()> {
     if !(args.speed.is_finite() && args.speed > 0.0) {
         bail!("--speed must be a positive number, got {}", args.speed);
     }
-    if let Some(period) = args.period
-        && !(period.is_finite() && period > 0.0)
-    {
-        bail!("--period must be a positive number of seconds, got {period}");
-    }
-    let text = read_text(&args.recording)?;
-    let recording = recording::read(&text).with_context(|| args.recording.display().to_string())?;
-    let times = recording::source_times(&recording, args.period);
-    let malformed: Vec<_> = recording
-        .entries
-        .iter()
-        .filter_map(|e| e.as_ref().err())
-        .collect();
-    eprintln!(
-        "{}: {} ({} rows{}, {} malformed lines)",
-        args.recording.display(),
-        recording.format.describe(),
-        recording.entries.len(),
-        if recording.has_pose {
-            " with measured pose"
-        } else {
-            ", joints only"
-        },
-        malformed.len()
-    );
-    for line in malformed.iter().take(5) {
-        eprintln!("  line {}: {}", line.line, line.problem);
-    }
+    let (recording, times) = args.input.load()?;
     let settings = ReplaySettings {
         zenoh: ZenohSection {
             mode: args.mode.clone(),
@@ -223,12 +354,19 @@ fn run_replay(args: &ReplayArgs) -> Result<()> {
         .enable_all()
         .build()
         .context("cannot start the async runtime")?;
+    let bar = progress_bar(recording.entries.len(), "replay");
     let report = runtime.block_on(replay::replay(
         &recording,
         &times,
         &settings,
         shutdown_signal(),
+        |done| {
+            if done % 256 == 0 {
+                bar.set_position(done as u64);
+            }
+        },
     ))?;
+    bar.finish_and_clear();
     eprintln!(
         "published {} messages ({} malformed lines as raw text){}",
         report.published,
@@ -239,6 +377,97 @@ fn run_replay(args: &ReplayArgs) -> Result<()> {
             ""
         }
     );
+    Ok(())
+}
+
+/// Exit status of `validate` when a gate limit is exceeded.
+pub const EXIT_GATE_FAILED: u8 = 3;
+
+/// `validate` ran, but a `--max-…-error` limit was exceeded.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct GateFailed(pub String);
+
+fn run_validate(args: &ValidateArgs) -> Result<()> {
+    for (flag, value) in [
+        ("--max-position-error", args.max_position_error),
+        ("--max-angle-error", args.max_angle_error),
+    ] {
+        if let Some(v) = value
+            && !(v.is_finite() && v >= 0.0)
+        {
+            bail!("{flag} must be a non-negative number, got {v}");
+        }
+    }
+    let model = args.robot.load()?;
+    let config = ServiceConfig::load(args.config.as_deref(), &Overrides::default())?;
+    let (recording, times) = args.input.load()?;
+    let alarm = config
+        .default_robot
+        .as_ref()
+        .map(|robot| robot.alarm)
+        .unwrap_or_default();
+    let model = Arc::new(model);
+    let settings = RobotSettings {
+        model: Arc::clone(&model),
+        alarm,
+        sensors: Vec::new(),
+    };
+    let bar = progress_bar(recording.entries.len(), "validate");
+    let validation = validate::validate(&recording, &times, config.pipeline, settings, |done| {
+        if done % 1024 == 0 {
+            bar.set_position(done as u64);
+        }
+    });
+    bar.finish_and_clear();
+    let out = args.out.clone().unwrap_or_else(|| {
+        let stem = args
+            .input
+            .recording
+            .file_stem()
+            .map_or_else(|| "recording".into(), |s| s.to_string_lossy().into_owned());
+        PathBuf::from(format!("{stem}-validation"))
+    });
+    let recording_name = args.input.recording.display().to_string();
+    let context = validate::report::Context {
+        recording: &recording_name,
+        model: &model,
+        max_position_error_m: args.max_position_error,
+        max_angle_error_rad: args.max_angle_error,
+    };
+    let (report, written) = validate::report::write_all(&out, &validation, &context)
+        .with_context(|| format!("cannot write the report into {}", out.display()))?;
+    let position = &report.cumulative.position;
+    eprintln!(
+        "{} rows: {} twin poses, {} paired, {} rejected, {} unpaired",
+        report.rows, report.poses, report.paired, report.rejected, report.unpaired
+    );
+    if report.paired > 0 {
+        eprintln!(
+            "position error: MAE {:.4} mm, RMSE {:.4} mm, max {:.4} mm; rotation angle MAE {:.4e} rad, max {:.4e} rad",
+            position.mae * 1e3,
+            position.rmse * 1e3,
+            position.max * 1e3,
+            report.cumulative.angle.mae,
+            report.cumulative.angle.max
+        );
+    }
+    for rejection in report.rejections.iter().take(5) {
+        eprintln!(
+            "  rejected line {} ({}): {}",
+            rejection.line, rejection.cause, rejection.reason
+        );
+    }
+    if report.rejections.len() > 5 {
+        eprintln!(
+            "  … {} rejections in all, listed in report.json",
+            report.rejections.len()
+        );
+    }
+    eprintln!("wrote {} files into {}", written.len(), out.display());
+    if !report.gate.passed {
+        return Err(GateFailed(report.gate.failures.join("; ")).into());
+    }
     Ok(())
 }
 

@@ -23,6 +23,8 @@
 //! - [`config`]: the service's TOML configuration and command-line overrides.
 //! - [`service`]: `armtwin serve`, the pipeline on a Zenoh mesh.
 //! - [`replay`]: `armtwin replay`, a recording published as a gateway would.
+//! - [`validate`]: `armtwin validate`, a recording through the pipeline offline, with its report
+//!   and plots.
 //! - [`cli`]: the `armtwin` command line (the outer ring, with `main.rs`).
 
 pub mod align;
@@ -42,3 +44,4 @@ pub mod sample;
 #[cfg(feature = "cli")]
 pub mod service;
 pub mod trig;
+pub mod validate;

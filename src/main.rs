@@ -19,6 +19,10 @@ fn main() -> ExitCode {
     match armtwin::cli::run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(error) => {
+            if let Some(gate) = error.downcast_ref::<armtwin::cli::GateFailed>() {
+                eprintln!("armtwin: gate failed: {gate}");
+                return ExitCode::from(armtwin::cli::EXIT_GATE_FAILED);
+            }
             eprintln!("armtwin: error: {error:#}");
             ExitCode::FAILURE
         }

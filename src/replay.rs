@@ -45,12 +45,14 @@ pub struct ReplayReport {
     pub interrupted: bool,
 }
 
-/// Publishes `recording` with source times `times_s` until done or `shutdown` completes.
+/// Publishes `recording` with source times `times_s` until done or `shutdown` completes, calling
+/// `progress` with the number of messages published.
 pub async fn replay(
     recording: &Recording,
     times_s: &[f64],
     settings: &ReplaySettings,
     shutdown: impl Future<Output = ()>,
+    mut progress: impl FnMut(usize),
 ) -> Result<ReplayReport, ServiceError> {
     let session = zenoh::open(zenoh_config_of(&settings.zenoh)?).await?;
     let key = format!("{}/joints/{}", settings.key_prefix, settings.robot);
@@ -74,7 +76,6 @@ pub async fn replay(
     let mut report = ReplayReport::default();
     let start = Instant::now();
     let first_s = times_s.first().copied().unwrap_or(0.0);
-    let total = recording.entries.len().max(1);
     tokio::pin!(shutdown);
     for (index, (entry, &t_s)) in recording.entries.iter().zip(times_s).enumerate() {
         let due = settings.speed.and_then(|speed| {
@@ -105,13 +106,7 @@ pub async fn replay(
         };
         publisher.put(payload).wait()?;
         report.published += 1;
-        if (index + 1) % (total / 10).max(1) == 0 {
-            info!(
-                progress = format!("{}%", (index + 1) * 100 / total),
-                published = report.published,
-                "replay"
-            );
-        }
+        progress(index + 1);
     }
     publisher.undeclare().await?;
     session.close().await?;

@@ -10,11 +10,13 @@ use std::path::Path;
 use std::time::Duration;
 
 use armtwin::codec::recording;
+use armtwin::codec::wire::MetricsMessage;
 use armtwin::config::{Overrides, ServiceConfig, ZenohSection};
 use armtwin::kinematics::PoseReadout;
 use armtwin::model::RobotModel;
 use armtwin::replay::{ReplaySettings, replay};
 use armtwin::service::{ServeReport, ServiceError, serve};
+use armtwin::validate::validate;
 use serde_json::{Value, json};
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
@@ -787,18 +789,30 @@ async fn replaying_the_sample_recordings_twins_every_row() {
         let text = std::fs::read_to_string(data.join("fmpy_inputs.csv")).expect("data");
         let seed = recording::read(&text).expect("recognised");
         let times = recording::source_times(&seed, Some(0.1));
-        let report = replay(&seed, &times, &settings("seed"), std::future::pending())
-            .await
-            .expect("replay");
+        let report = replay(
+            &seed,
+            &times,
+            &settings("seed"),
+            std::future::pending(),
+            |_| {},
+        )
+        .await
+        .expect("replay");
         assert_eq!(report.published, 54);
         // The ROS 2 export: whole-second stamps spread over each second, 7 malformed lines.
         let text = std::fs::read_to_string(data.join("ur10e_lasttest.csv")).expect("data");
         let ros = recording::read(&text).expect("recognised");
         let times = recording::source_times(&ros, None);
         assert!(times.windows(2).all(|w| w[1] > w[0]), "strictly increasing");
-        let report = replay(&ros, &times, &settings("lasttest"), std::future::pending())
-            .await
-            .expect("replay");
+        let report = replay(
+            &ros,
+            &times,
+            &settings("lasttest"),
+            std::future::pending(),
+            |_| {},
+        )
+        .await
+        .expect("replay");
         assert_eq!((report.published, report.malformed), (29_061, 7));
         h.receive_until("every row twinned", |r| {
             let last = |key: &str| {
@@ -813,6 +827,26 @@ async fn replaying_the_sample_recordings_twins_every_row() {
         .await;
         assert_eq!(h.on("twin/pose/seed").len(), 54);
         assert_eq!(h.on("twin/pose/lasttest").len(), 29_054);
+        // Offline validation of the same recordings gives exactly the service's metrics.
+        let config = ServiceConfig::parse(CONFIG, "test", Path::new("."), &Overrides::default())
+            .expect("config");
+        let robot = config.default_robot.clone().expect("default robot");
+        for (name, recording, times) in [
+            ("seed", &seed, recording::source_times(&seed, Some(0.1))),
+            ("lasttest", &ros, recording::source_times(&ros, None)),
+        ] {
+            let offline = validate(recording, &times, config.pipeline, robot.clone(), |_| {});
+            let offline =
+                serde_json::to_value(MetricsMessage::new(&offline.metrics)).expect("json");
+            let live = h
+                .on(&format!("twin/metrics/{name}"))
+                .last()
+                .cloned()
+                .expect("metrics");
+            for field in ["paired", "unpaired", "rejected", "cumulative", "window"] {
+                assert_eq!(live[field], offline[field], "{name}: {field}");
+            }
+        }
         h.stop().await;
     })
     .await

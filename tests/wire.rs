@@ -269,7 +269,7 @@ fn angle_strings_are_not_coerced() {
     );
     assert_eq!(
         error.to_string(),
-        "field 'q3': expected a number, got a string"
+        "field 'q3': expected a number, got the string \"1.2\""
     );
     rejected(joints(r#"{"q": [1, "2"]}"#, 2), "wrong_type", "q[1]");
     rejected(joints(r#"{"q": [1, null]}"#, 2), "wrong_type", "q[1]");

@@ -27,6 +27,8 @@ pub enum Format {
     Ros2,
     /// A UR RTDE recording (`record.py`, `ur_rtde`).
     Rtde,
+    /// Columns named on the command line ([`ColumnMap`]).
+    Mapped,
 }
 
 impl Format {
@@ -37,6 +39,7 @@ impl Format {
             Self::Seed => "seed/FMPy form (time, q1..q6, x..qw)",
             Self::Ros2 => "ROS 2 export (header.stamp, <joint>.position, tcp_pose.*)",
             Self::Rtde => "UR RTDE recording (timestamp, actual_q_*, actual_TCP_pose_*)",
+            Self::Mapped => "columns mapped on the command line",
         }
     }
 }
@@ -51,10 +54,14 @@ pub enum Cell {
 }
 
 impl Cell {
+    /// A finite number, or the text as written (`nan` and `inf` stay text: JSON has no such
+    /// numbers, and the decoder's message then quotes what the file holds).
     fn parse(text: &str) -> Self {
         let text = text.trim();
-        text.parse()
-            .map_or_else(|_| Self::Text(text.to_owned()), Self::Number)
+        match text.parse::<f64>() {
+            Ok(number) if number.is_finite() => Self::Number(number),
+            _ => Self::Text(text.to_owned()),
+        }
     }
 
     fn to_json(&self) -> Value {
@@ -126,6 +133,24 @@ pub enum RecordingError {
     /// The file is empty.
     #[error("the recording is empty")]
     Empty,
+    /// A column named in a [`ColumnMap`] is not in the header.
+    #[error("column '{column}' is not in the header; the header has: {header}")]
+    MissingColumn {
+        /// The column asked for.
+        column: String,
+        /// The header's column names.
+        header: String,
+    },
+    /// A [`ColumnMap`] names the wrong number of pose columns for its form.
+    #[error("a {form:?} pose has {expected} columns, {got} were named")]
+    PoseColumnCount {
+        /// The form.
+        form: PoseForm,
+        /// Columns the form has.
+        expected: usize,
+        /// Columns named.
+        got: usize,
+    },
     /// The header matches no known layout.
     #[error(
         "header not recognised: expected the seed's 'time,q1..q6[,x,y,z,qx,qy,qz,qw]', a ROS 2 export ('header.stamp.sec', '<joint>.position', 'tcp_pose.*') or an RTDE recording ('timestamp', 'actual_q_0..5', 'actual_TCP_pose_0..5'); found: {header}"
@@ -155,11 +180,40 @@ struct Layout {
     pose: Option<(PoseForm, Vec<usize>)>,
 }
 
-#[derive(Clone, Copy)]
-enum PoseForm {
+/// The orientation form of a recording's measured pose columns.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PoseForm {
+    /// `x, y, z, qx, qy, qz, qw`.
     Quaternion,
+    /// `x, y, z, roll, pitch, yaw` (rad).
     Rpy,
+    /// `x, y, z, rx, ry, rz` (UR rotation vector, rad).
     RotationVector,
+}
+
+impl PoseForm {
+    /// How many columns the form has.
+    #[must_use]
+    pub fn column_count(self) -> usize {
+        match self {
+            Self::Quaternion => 7,
+            Self::Rpy | Self::RotationVector => 6,
+        }
+    }
+}
+
+/// Columns named explicitly, for a recording whose header armtwin does not recognise (or to
+/// override what it recognises).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ColumnMap {
+    /// The time column, if any.
+    pub time: Option<String>,
+    /// Seconds per unit of the time column (1e-3 for milliseconds).
+    pub time_scale_s: f64,
+    /// The joint angle columns, in joint order.
+    pub joints: Vec<String>,
+    /// The measured pose columns and their form, if any.
+    pub pose: Option<(PoseForm, Vec<String>)>,
 }
 
 fn find_all(names: &[&str], wanted: &[String]) -> Option<Vec<usize>> {
@@ -248,8 +302,60 @@ fn split(line: &str, comma: bool) -> Vec<&str> {
     }
 }
 
-/// Reads a recording.
+/// The layout a [`ColumnMap`] names.
+fn mapped_layout(names: &[&str], map: &ColumnMap) -> Result<Layout, RecordingError> {
+    let index_of = |column: &String| {
+        names
+            .iter()
+            .position(|n| n.eq_ignore_ascii_case(column))
+            .ok_or_else(|| RecordingError::MissingColumn {
+                column: column.clone(),
+                header: names.join(", ").chars().take(400).collect(),
+            })
+    };
+    let stamp = map
+        .time
+        .iter()
+        .map(index_of)
+        .collect::<Result<Vec<_>, _>>()?;
+    let q = map
+        .joints
+        .iter()
+        .map(index_of)
+        .collect::<Result<Vec<_>, _>>()?;
+    let pose = match &map.pose {
+        None => None,
+        Some((form, columns)) => {
+            if columns.len() != form.column_count() {
+                return Err(RecordingError::PoseColumnCount {
+                    form: *form,
+                    expected: form.column_count(),
+                    got: columns.len(),
+                });
+            }
+            Some((
+                *form,
+                columns.iter().map(index_of).collect::<Result<_, _>>()?,
+            ))
+        }
+    };
+    Ok(Layout {
+        format: Format::Mapped,
+        stamp_scale: vec![map.time_scale_s; stamp.len()],
+        stamp,
+        q,
+        pose,
+    })
+}
+
+/// Reads a recording whose layout is recognised from its header.
 pub fn read(text: &str) -> Result<Recording, RecordingError> {
+    read_with(text, None)
+}
+
+/// Reads a recording, with the columns named by `map` when given (else recognised from the
+/// header).
+pub fn read_with(text: &str, map: Option<&ColumnMap>) -> Result<Recording, RecordingError> {
     let mut lines = text.lines().enumerate();
     let (_, header) = lines
         .by_ref()
@@ -257,9 +363,12 @@ pub fn read(text: &str) -> Result<Recording, RecordingError> {
         .ok_or(RecordingError::Empty)?;
     let comma = header.contains(',');
     let names = split(header.trim(), comma);
-    let layout = layout(&names).ok_or_else(|| RecordingError::UnknownHeader {
-        header: header.chars().take(200).collect(),
-    })?;
+    let layout = match map {
+        Some(map) => mapped_layout(&names, map)?,
+        None => layout(&names).ok_or_else(|| RecordingError::UnknownHeader {
+            header: header.chars().take(200).collect(),
+        })?,
+    };
     let mut entries = Vec::new();
     for (index, raw) in lines {
         let line = index as u64 + 1;

@@ -222,7 +222,7 @@ pub fn stamp_hint(payload: &[u8]) -> Option<f64> {
 /// assert!((sample.q_rad[0] - std::f64::consts::FRAC_PI_2).abs() < 1e-15);
 /// let error = decode_joints(br#"{"q": [0, "1.2"]}"#, 2).unwrap_err();
 /// assert_eq!(error.kind(), "wrong_type");
-/// assert_eq!(error.to_string(), "field 'q[1]': expected a number, got a string");
+/// assert_eq!(error.to_string(), "field 'q[1]': expected a number, got the string \"1.2\"");
 /// # Ok::<(), armtwin::codec::wire::WireError>(())
 /// ```
 pub fn decode_joints(payload: &[u8], joint_count: usize) -> Result<DecodedJoints, WireError> {
@@ -392,6 +392,14 @@ fn wrong_type(field: String, expected: &'static str, value: &Value) -> WireError
         expected,
         got: match value {
             Value::Number(number) => format!("the number {number}"),
+            // The text itself (cut short), so a log or a report shows what the gateway sent.
+            Value::String(text) if text.chars().count() <= 40 => format!("the string {text:?}"),
+            Value::String(text) => {
+                format!(
+                    "the string {:?}…",
+                    text.chars().take(40).collect::<String>()
+                )
+            }
             other => json_type(other).to_owned(),
         },
     }

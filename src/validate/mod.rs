@@ -1,0 +1,276 @@
+//! `armtwin validate`: a recording run offline through exactly the code the live service runs.
+//!
+//! Each row becomes the joint message a gateway would publish ([`RecordingRow::to_message`]),
+//! each malformed line its raw text, and both go through [`ingest::joint_message`] into a
+//! [`Pipeline`] configured like the service's. What comes out is collected per row, so the
+//! report can name the line of every rejection and plot every pair. This module owns the run and
+//! its result; [`report`] writes the files and [`svg`] draws the plots. It does no I/O itself.
+
+pub mod report;
+pub mod svg;
+
+use std::collections::HashMap;
+
+use crate::codec::recording::{Format, Recording};
+use crate::ingest;
+use crate::kinematics::{OutputFrame, PoseReadout};
+use crate::metrics::{Deviation, StatsSet};
+use crate::pipeline::{
+    Event, EventDetail, EventKind, MetricsSnapshot, Pipeline, PipelineConfig, RobotSettings, Sink,
+};
+
+/// One recording row's outcome.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RowOutcome {
+    /// 1-based line in the file.
+    pub line: u64,
+    /// Source time given to the row (s).
+    pub stamp_s: f64,
+    /// The twin pose, if the row's joints were valid.
+    pub twin: Option<PoseReadout>,
+    /// The measured pose (output frame) and twin-minus-measured, if the row was paired.
+    pub paired: Option<(PoseReadout, Deviation)>,
+    /// Causes of the rejections this row raised (empty when it was accepted whole).
+    pub rejected: Vec<&'static str>,
+}
+
+/// One rejected input, with where it came from.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Rejection {
+    /// 1-based line in the file.
+    pub line: u64,
+    /// Stable cause name, as on the service's events key.
+    pub cause: &'static str,
+    /// A sentence for people.
+    pub reason: String,
+}
+
+/// Counts of the non-rejection events the pipeline raised.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct EventCounts {
+    /// Deviations that stayed above a configured alarm threshold.
+    pub alarms: u64,
+    /// Alarms that recovered.
+    pub recoveries: u64,
+    /// Gaps in joint stamps or gateway sequence numbers.
+    pub gaps: u64,
+    /// Measured poses that could not be paired.
+    pub unpaired: u64,
+    /// Clock restarts.
+    pub restarts: u64,
+}
+
+/// The result of validating one recording.
+#[derive(Debug, Clone)]
+pub struct Validation {
+    /// The layout recognised.
+    pub format: Format,
+    /// Whether the recording carries measured poses.
+    pub has_pose: bool,
+    /// The output frame of every pose.
+    pub frame: OutputFrame,
+    /// One entry per data line (rows and malformed lines), in file order.
+    pub rows: Vec<RowOutcome>,
+    /// Every rejection, in file order.
+    pub rejections: Vec<Rejection>,
+    /// Lines that did not split into the header's columns (also among `rejections`).
+    pub malformed_lines: Vec<u64>,
+    /// Other events.
+    pub events: EventCounts,
+    /// Final metrics, exactly as the service publishes them at the end of a stream.
+    pub metrics: MetricsSnapshot,
+}
+
+impl Validation {
+    /// Rows whose joints yielded a twin pose.
+    #[must_use]
+    pub fn poses(&self) -> usize {
+        self.rows.iter().filter(|r| r.twin.is_some()).count()
+    }
+}
+
+/// Collects the pipeline's results per row.
+struct Collector {
+    frame: OutputFrame,
+    /// Index of the row being fed.
+    current: usize,
+    rows: Vec<RowOutcome>,
+    /// Row index of each source time given, to place results that arrive later (a measured pose
+    /// that waited for joints).
+    row_of_stamp: HashMap<u64, usize>,
+    rejections: Vec<Rejection>,
+    events: EventCounts,
+    metrics: Option<MetricsSnapshot>,
+}
+
+impl Collector {
+    fn row_at(&mut self, stamp_s: f64) -> &mut RowOutcome {
+        let index = self
+            .row_of_stamp
+            .get(&stamp_s.to_bits())
+            .copied()
+            .unwrap_or(self.current);
+        &mut self.rows[index]
+    }
+}
+
+impl Sink for Collector {
+    fn tracking(&mut self, _robot: &str) {}
+
+    fn pose(
+        &mut self,
+        _robot: &str,
+        stamp_s: f64,
+        _seq: u64,
+        frame: OutputFrame,
+        pose: &PoseReadout,
+    ) {
+        self.frame = frame;
+        self.row_at(stamp_s).twin = Some(*pose);
+    }
+
+    fn deviation(
+        &mut self,
+        _robot: &str,
+        stamp_s: f64,
+        measured: &PoseReadout,
+        deviation: &Deviation,
+    ) {
+        self.row_at(stamp_s).paired = Some((*measured, *deviation));
+    }
+
+    fn event(&mut self, event: &Event<'_>) {
+        match (event.kind, event.detail) {
+            (EventKind::Rejected, EventDetail::Rejected { cause }) => {
+                // A rejection always concerns the input being fed.
+                let row = &mut self.rows[self.current];
+                row.rejected.push(cause);
+                let line = row.line;
+                self.rejections.push(Rejection {
+                    line,
+                    cause,
+                    reason: event.reason.clone(),
+                });
+            }
+            (EventKind::Alarm, _) => self.events.alarms += 1,
+            (EventKind::Recovered, _) => self.events.recoveries += 1,
+            (EventKind::Gap, _) => self.events.gaps += 1,
+            (EventKind::Unpaired, _) => self.events.unpaired += 1,
+            (EventKind::Restart, _) => self.events.restarts += 1,
+            (EventKind::Rejected, _) => {}
+        }
+    }
+
+    fn metrics(&mut self, snapshot: &MetricsSnapshot) {
+        self.metrics = Some(snapshot.clone());
+    }
+}
+
+/// The robot id a validation runs as (it appears in the report's metrics).
+pub const ROBOT_ID: &str = "recording";
+
+/// Runs `recording`, whose entries have source times `times_s`, through a pipeline with
+/// `config` and `settings`, calling `progress` with the number of entries done.
+///
+/// # Panics
+/// If `times_s` is shorter than the recording's entries (use
+/// [`crate::codec::recording::source_times`]).
+#[must_use]
+pub fn validate(
+    recording: &Recording,
+    times_s: &[f64],
+    config: PipelineConfig,
+    settings: RobotSettings,
+    mut progress: impl FnMut(usize),
+) -> Validation {
+    assert!(
+        times_s.len() >= recording.entries.len(),
+        "a source time per entry"
+    );
+    let frame = settings.model.frame();
+    let mut pipeline = Pipeline::new(
+        config,
+        None,
+        HashMap::from([(ROBOT_ID.to_owned(), settings)]),
+    );
+    let mut collector = Collector {
+        frame,
+        current: 0,
+        rows: Vec::with_capacity(recording.entries.len()),
+        row_of_stamp: HashMap::with_capacity(recording.entries.len()),
+        rejections: Vec::new(),
+        events: EventCounts::default(),
+        metrics: None,
+    };
+    let key = format!("twin/joints/{ROBOT_ID}");
+    let mut malformed_lines = Vec::new();
+    let mut message = Vec::new();
+    for (index, (entry, &stamp_s)) in recording.entries.iter().zip(times_s).enumerate() {
+        let line = match entry {
+            Ok(row) => row.line,
+            Err(malformed) => malformed.line,
+        };
+        collector.current = collector.rows.len();
+        collector.rows.push(RowOutcome {
+            line,
+            stamp_s,
+            twin: None,
+            paired: None,
+            rejected: Vec::new(),
+        });
+        collector
+            .row_of_stamp
+            .entry(stamp_s.to_bits())
+            .or_insert(collector.current);
+        // The bytes a gateway (or `armtwin replay`) would publish for this entry.
+        message.clear();
+        match entry {
+            Ok(row) => message.extend_from_slice(row.to_message(stamp_s).to_string().as_bytes()),
+            Err(malformed) => {
+                malformed_lines.push(malformed.line);
+                message.extend_from_slice(malformed.text.as_bytes());
+            }
+        }
+        let rejections_before = collector.rejections.len();
+        ingest::joint_message(
+            &mut pipeline,
+            ROBOT_ID,
+            &key,
+            &message,
+            stamp_s,
+            &mut collector,
+        );
+        if let Err(malformed) = entry {
+            // The service sees only the message; the file also knows why the line is bad.
+            for rejection in &mut collector.rejections[rejections_before..] {
+                rejection.reason = format!(
+                    "malformed line ({}); as a message: {}",
+                    malformed.problem, rejection.reason
+                );
+            }
+        }
+        progress(index + 1);
+    }
+    pipeline.finish(&mut collector);
+    // A recording without data lines never tracks the robot: its metrics are all zero.
+    let metrics = collector.metrics.take().unwrap_or_else(|| MetricsSnapshot {
+        robot: ROBOT_ID.to_owned(),
+        stamp_s: 0.0,
+        paired: 0,
+        unpaired: 0,
+        rejected: 0,
+        cumulative: StatsSet::default(),
+        window: StatsSet::default(),
+        window_s: config.window_s,
+    });
+    Validation {
+        format: recording.format,
+        has_pose: recording.has_pose,
+        frame: collector.frame,
+        rows: collector.rows,
+        rejections: collector.rejections,
+        malformed_lines,
+        events: collector.events,
+        metrics,
+    }
+}

@@ -1,0 +1,611 @@
+//! The files of a validation: `report.json`, `report.md`, the per-row `rows.csv` and the SVG
+//! plots. Building each is pure (strings and writers); [`write_all`] puts them in a directory.
+//!
+//! `report.json`'s `cumulative` object is the service's metrics `cumulative`, serialised by the
+//! same type ([`StatsSetJson`]), so a dashboard or a CI script reads both the same way.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::io::{self, Write};
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use super::svg::{self, Series};
+use super::{EventCounts, Rejection, Validation};
+use crate::codec::PoseFields;
+use crate::codec::wire::StatsSetJson;
+use crate::kinematics::PoseReadout;
+use crate::metrics::{Deviation, METRIC_NAMES};
+use crate::model::RobotModel;
+
+/// What the validation was run on, for the report.
+#[derive(Debug, Clone)]
+pub struct Context<'a> {
+    /// The recording's path as given.
+    pub recording: &'a str,
+    /// The model, calibration, tool and frame used.
+    pub model: &'a RobotModel,
+    /// Gate on the largest position error (m), if given.
+    pub max_position_error_m: Option<f64>,
+    /// Gate on the largest rotation angle (rad), if given.
+    pub max_angle_error_rad: Option<f64>,
+}
+
+/// The robot description in the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct RobotJson {
+    /// Model name.
+    pub model: String,
+    /// The calibration file, if one was used.
+    pub calibration: Option<String>,
+    /// Tool offset `[x, y, z, rx, ry, rz]` (m, rotation vector in rad).
+    pub tool: [f64; 6],
+    /// Output frame (`base` or `base_link`).
+    pub frame: &'static str,
+}
+
+/// `malformed`: lines that did not split into the header's columns.
+#[derive(Debug, Clone, Serialize)]
+pub struct MalformedJson {
+    /// How many.
+    pub count: usize,
+    /// Their 1-based line numbers, all of them.
+    pub lines: Vec<u64>,
+}
+
+/// One rejection in the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct RejectionJson {
+    /// 1-based line.
+    pub line: u64,
+    /// Stable cause, as on the service's events key.
+    pub cause: &'static str,
+    /// A sentence for people.
+    pub reason: String,
+}
+
+/// The pass/fail gate.
+#[derive(Debug, Clone, Serialize)]
+pub struct GateJson {
+    /// `--max-position-error` (m), if given.
+    pub max_position_error_m: Option<f64>,
+    /// `--max-angle-error` (rad), if given.
+    pub max_angle_error_rad: Option<f64>,
+    /// Whether every given limit held.
+    pub passed: bool,
+    /// A sentence per limit exceeded.
+    pub failures: Vec<String>,
+}
+
+/// `events`: counts of the pipeline's other events.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct EventsJson {
+    /// Alarms raised (with the service's default thresholds).
+    pub alarms: u64,
+    /// Alarms recovered.
+    pub recoveries: u64,
+    /// Gaps.
+    pub gaps: u64,
+    /// Unpaired measured poses.
+    pub unpaired: u64,
+    /// Clock restarts.
+    pub restarts: u64,
+}
+
+impl From<EventCounts> for EventsJson {
+    fn from(e: EventCounts) -> Self {
+        Self {
+            alarms: e.alarms,
+            recoveries: e.recoveries,
+            gaps: e.gaps,
+            unpaired: e.unpaired,
+            restarts: e.restarts,
+        }
+    }
+}
+
+/// `report.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct ReportJson {
+    /// The recording's path.
+    pub recording: String,
+    /// The layout recognised.
+    pub format: &'static str,
+    /// The robot used.
+    pub robot: RobotJson,
+    /// Data lines (rows and malformed lines).
+    pub rows: usize,
+    /// Rows that yielded a twin pose.
+    pub poses: usize,
+    /// Measured poses paired with the twin.
+    pub paired: u64,
+    /// Measured poses that could not be paired.
+    pub unpaired: u64,
+    /// Inputs rejected (a row whose joints and measured pose are both bad counts twice).
+    pub rejected: u64,
+    /// Rejections per cause.
+    pub rejected_by_cause: BTreeMap<&'static str, usize>,
+    /// Malformed lines.
+    pub malformed: MalformedJson,
+    /// Every rejection.
+    pub rejections: Vec<RejectionJson>,
+    /// Other events.
+    pub events: EventsJson,
+    /// Source time span (s) of the rows.
+    pub t_first: f64,
+    /// Last source time (s).
+    pub t_last: f64,
+    /// Statistics over every paired row: the service's metrics `cumulative`.
+    pub cumulative: StatsSetJson,
+    /// Mean signed deviation `twin − measured` (m) over the paired rows.
+    pub mean_offset_m: [f64; 3],
+    /// The gate.
+    pub gate: GateJson,
+    /// The armtwin version that computed this.
+    pub armtwin_version: &'static str,
+}
+
+fn statistic(validation: &Validation, name: &str) -> crate::metrics::Stats {
+    let index = METRIC_NAMES
+        .iter()
+        .position(|n| *n == name)
+        .expect("a metric name from METRIC_NAMES");
+    validation.metrics.cumulative.stats[index]
+}
+
+fn paired(validation: &Validation) -> impl Iterator<Item = (f64, &PoseReadout, &Deviation)> {
+    validation
+        .rows
+        .iter()
+        .filter_map(|r| r.paired.as_ref().map(|(m, d)| (r.stamp_s, m, d)))
+}
+
+/// The gate's verdict.
+fn gate(validation: &Validation, context: &Context<'_>) -> GateJson {
+    let mut failures = Vec::new();
+    let position = statistic(validation, "position").max;
+    let angle = statistic(validation, "angle").max;
+    if let Some(limit) = context.max_position_error_m
+        && position > limit
+    {
+        failures.push(format!(
+            "largest position error {:.3} mm exceeds --max-position-error {:.3} mm",
+            position * 1e3,
+            limit * 1e3
+        ));
+    }
+    if let Some(limit) = context.max_angle_error_rad
+        && angle > limit
+    {
+        failures.push(format!(
+            "largest rotation angle {angle:.3e} rad exceeds --max-angle-error {limit:.3e} rad"
+        ));
+    }
+    let any_limit = context.max_position_error_m.is_some() || context.max_angle_error_rad.is_some();
+    if any_limit && validation.metrics.paired == 0 {
+        failures.push("no row was paired, so no limit can be checked".to_owned());
+    }
+    GateJson {
+        max_position_error_m: context.max_position_error_m,
+        max_angle_error_rad: context.max_angle_error_rad,
+        passed: failures.is_empty(),
+        failures,
+    }
+}
+
+/// Builds `report.json`'s content.
+#[must_use]
+pub fn report_json(validation: &Validation, context: &Context<'_>) -> ReportJson {
+    let tool = context.model.tool();
+    let mut rejected_by_cause = BTreeMap::new();
+    for rejection in &validation.rejections {
+        *rejected_by_cause.entry(rejection.cause).or_insert(0) += 1;
+    }
+    let mut sum = [0.0; 3];
+    let mut count = 0.0;
+    for (_, _, d) in paired(validation) {
+        sum[0] += d.dx_m;
+        sum[1] += d.dy_m;
+        sum[2] += d.dz_m;
+        count += 1.0;
+    }
+    let mean_offset_m = if count > 0.0 {
+        sum.map(|s| s / count)
+    } else {
+        [0.0; 3]
+    };
+    ReportJson {
+        recording: context.recording.to_owned(),
+        format: validation.format.describe(),
+        robot: RobotJson {
+            model: context.model.arm().name.clone(),
+            calibration: context.model.calibration().map(|c| c.source_name.clone()),
+            tool: [
+                tool.position_m[0],
+                tool.position_m[1],
+                tool.position_m[2],
+                tool.rotation_vector_rad[0],
+                tool.rotation_vector_rad[1],
+                tool.rotation_vector_rad[2],
+            ],
+            frame: validation.frame.as_str(),
+        },
+        rows: validation.rows.len(),
+        poses: validation.poses(),
+        paired: validation.metrics.paired,
+        unpaired: validation.metrics.unpaired,
+        rejected: validation.metrics.rejected,
+        rejected_by_cause,
+        malformed: MalformedJson {
+            count: validation.malformed_lines.len(),
+            lines: validation.malformed_lines.clone(),
+        },
+        rejections: validation
+            .rejections
+            .iter()
+            .map(|r: &Rejection| RejectionJson {
+                line: r.line,
+                cause: r.cause,
+                reason: r.reason.clone(),
+            })
+            .collect(),
+        events: validation.events.into(),
+        t_first: validation.rows.first().map_or(0.0, |r| r.stamp_s),
+        t_last: validation.rows.last().map_or(0.0, |r| r.stamp_s),
+        cumulative: StatsSetJson::from(&validation.metrics.cumulative),
+        mean_offset_m,
+        gate: gate(validation, context),
+        armtwin_version: env!("CARGO_PKG_VERSION"),
+    }
+}
+
+/// Column names of `rows.csv`.
+fn rows_header() -> Vec<String> {
+    let mut names = vec!["line".to_owned(), "t".to_owned()];
+    for prefix in ["twin", "measured"] {
+        names.extend(PoseFields::NAMES.iter().map(|n| format!("{prefix}_{n}")));
+    }
+    names.extend(
+        [
+            "dx_m",
+            "dy_m",
+            "dz_m",
+            "position_error_m",
+            "quat_distance",
+            "angle",
+            "droll_rad",
+            "dpitch_rad",
+            "dyaw_rad",
+            "rejected",
+        ]
+        .map(str::to_owned),
+    );
+    names
+}
+
+/// Writes `rows.csv`: one line per data line of the recording, empty cells where a value does
+/// not exist (no twin pose, not paired), and the rejection causes joined by `;`.
+pub fn write_rows_csv(validation: &Validation, out: &mut impl Write) -> io::Result<()> {
+    writeln!(out, "{}", rows_header().join(","))?;
+    let mut line = String::new();
+    for row in &validation.rows {
+        line.clear();
+        let _ = write!(line, "{},{}", row.line, row.stamp_s);
+        let mut pose_cells = |pose: Option<&PoseReadout>| match pose {
+            Some(pose) => {
+                for v in PoseFields::from(pose).values() {
+                    let _ = write!(line, ",{v}");
+                }
+            }
+            None => line.push_str(&",".repeat(PoseFields::NAMES.len())),
+        };
+        pose_cells(row.twin.as_ref());
+        pose_cells(row.paired.as_ref().map(|(m, _)| m));
+        match &row.paired {
+            Some((_, d)) => {
+                for v in [
+                    d.dx_m,
+                    d.dy_m,
+                    d.dz_m,
+                    d.position_m,
+                    d.quat_distance,
+                    d.angle_rad,
+                    d.droll_rad,
+                    d.dpitch_rad,
+                    d.dyaw_rad,
+                ] {
+                    let _ = write!(line, ",{v}");
+                }
+            }
+            None => line.push_str(&",".repeat(9)),
+        }
+        let _ = write!(line, ",{}", row.rejected.join(";"));
+        writeln!(out, "{line}")?;
+    }
+    Ok(())
+}
+
+/// The plot files, in the order [`plots`] returns them.
+pub const PLOT_FILES: [&str; 4] = [
+    "position.svg",
+    "position_error.svg",
+    "quaternion_distance.svg",
+    "position_error_histogram.svg",
+];
+
+/// The plots: file name and SVG text.
+#[must_use]
+pub fn plots(validation: &Validation) -> Vec<(&'static str, String)> {
+    // Time axes start at the first row: recordings stamped in Unix time would otherwise label
+    // every tick with ten digits.
+    let t0 = validation.rows.first().map_or(0.0, |r| r.stamp_s);
+    let twin = |axis: usize| Series {
+        name: ["twin x", "twin y", "twin z"][axis],
+        points: validation
+            .rows
+            .iter()
+            .filter_map(|r| r.twin.map(|p| (r.stamp_s - t0, p.position_m[axis])))
+            .collect(),
+        dashed: true,
+    };
+    let measured = |axis: usize| Series {
+        name: ["measured x", "measured y", "measured z"][axis],
+        points: paired(validation)
+            .map(|(t, m, _)| (t - t0, m.position_m[axis]))
+            .collect(),
+        dashed: false,
+    };
+    let mut position_series = Vec::new();
+    for axis in 0..3 {
+        position_series.push(measured(axis));
+        position_series.push(twin(axis));
+    }
+    let error_mm: Vec<(f64, f64)> = paired(validation)
+        .map(|(t, _, d)| (t - t0, d.position_m * 1e3))
+        .collect();
+    let quat: Vec<(f64, f64)> = paired(validation)
+        .map(|(t, _, d)| (t - t0, d.quat_distance))
+        .collect();
+    let histogram_values: Vec<f64> = error_mm.iter().map(|p| p.1).collect();
+    vec![
+        (
+            PLOT_FILES[0],
+            svg::line_chart(
+                "TCP position: twin vs measured",
+                "time since the first row (s)",
+                "position (m)",
+                &position_series,
+            ),
+        ),
+        (
+            PLOT_FILES[1],
+            svg::line_chart(
+                "Position error |twin − measured|",
+                "time since the first row (s)",
+                "position error (mm)",
+                &[Series {
+                    name: "position error",
+                    points: error_mm,
+                    dashed: false,
+                }],
+            ),
+        ),
+        (
+            PLOT_FILES[2],
+            svg::line_chart(
+                "Quaternion distance 1 − |⟨q_twin, q_measured⟩|",
+                "time since the first row (s)",
+                "quaternion distance",
+                &[Series {
+                    name: "quaternion distance",
+                    points: quat,
+                    dashed: false,
+                }],
+            ),
+        ),
+        (
+            PLOT_FILES[3],
+            svg::histogram(
+                "Position error distribution",
+                "position error (mm)",
+                &histogram_values,
+                40,
+            ),
+        ),
+    ]
+}
+
+/// `report.md`: the seed-style table and a short reading of it.
+#[must_use]
+pub fn report_md(validation: &Validation, report: &ReportJson) -> String {
+    let mut md = String::new();
+    let _ = writeln!(md, "# Twin validation: `{}`\n", report.recording);
+    let calibration = report.robot.calibration.as_deref().map_or_else(
+        || "nominal (no calibration)".to_owned(),
+        |c| format!("`{c}`"),
+    );
+    let _ = writeln!(
+        md,
+        "- Recording: {} — {} data lines, {} twin poses, {} paired, {} rejected, {} unpaired\n\
+         - Robot: `{}`, calibration {calibration}, tool `{:?}`, frame `{}`\n\
+         - Source time {} s to {} s; armtwin {}\n",
+        report.format,
+        report.rows,
+        report.poses,
+        report.paired,
+        report.rejected,
+        report.unpaired,
+        report.robot.model,
+        report.robot.tool,
+        report.robot.frame,
+        report.t_first,
+        report.t_last,
+        report.armtwin_version,
+    );
+    let _ = writeln!(md, "| Metric | MAE | RMSE | Max |\n|---|---:|---:|---:|");
+    // (metric, title, unit shown: value × 1000 in mm or mrad, or `None` for the unitless
+    // quaternion distance in scientific notation)
+    let rows: [(&str, &str, Option<&str>); 9] = [
+        ("position", "Position error", Some("mm")),
+        ("x", "  |dx|", Some("mm")),
+        ("y", "  |dy|", Some("mm")),
+        ("z", "  |dz|", Some("mm")),
+        ("quat_distance", "Quaternion distance", None),
+        ("angle", "Rotation angle", Some("mrad")),
+        ("roll", "  |droll|", Some("mrad")),
+        ("pitch", "  |dpitch|", Some("mrad")),
+        ("yaw", "  |dyaw|", Some("mrad")),
+    ];
+    for (name, title, unit) in rows {
+        let s = statistic(validation, name);
+        let cell = |v: f64| match unit {
+            Some(_) => format!("{:.4}", v * 1e3),
+            None => format!("{v:.3e}"),
+        };
+        let unit = unit.map_or_else(String::new, |u| format!(" ({u})"));
+        let _ = writeln!(
+            md,
+            "| {title}{unit} | {} | {} | {} |",
+            cell(s.mae),
+            cell(s.rmse),
+            cell(s.max)
+        );
+    }
+    md.push_str("\n## Reading\n\n");
+    md.push_str(&reading(validation, report));
+    md.push_str("\n## Plots\n\n");
+    for file in PLOT_FILES {
+        let _ = writeln!(md, "![{file}]({file})");
+    }
+    md
+}
+
+/// A few sentences a reviewer would write under the table.
+fn reading(validation: &Validation, report: &ReportJson) -> String {
+    let mut text = String::new();
+    if report.paired == 0 {
+        let _ = writeln!(
+            text,
+            "No row carried a usable measured pose, so only twin poses were computed (see `rows.csv`)."
+        );
+    } else {
+        let position = statistic(validation, "position");
+        let worst = validation
+            .rows
+            .iter()
+            .filter_map(|r| r.paired.map(|(_, d)| (r, d.position_m)))
+            .max_by(|a, b| a.1.total_cmp(&b.1));
+        let _ = write!(
+            text,
+            "The twin is on average {:.3} mm from the measured TCP (RMSE {:.3} mm)",
+            position.mae * 1e3,
+            position.rmse * 1e3
+        );
+        if let Some((row, value)) = worst {
+            let _ = write!(
+                text,
+                "; the largest error, {:.3} mm, is at line {} (t = {} s)",
+                value * 1e3,
+                row.line,
+                row.stamp_s
+            );
+        }
+        text.push_str(".\n");
+        // Share of the mean squared error explained by a constant offset: near 1 means a
+        // systematic error (tool, calibration, frame), near 0 means noise or motion lag.
+        let offset = report.mean_offset_m;
+        let offset_sq = offset.iter().map(|v| v * v).sum::<f64>();
+        let mse = position.rmse * position.rmse;
+        if mse > 0.0 {
+            let share = (offset_sq / mse).min(1.0);
+            let _ = writeln!(
+                text,
+                "A constant offset of ({:.3}, {:.3}, {:.3}) mm (twin − measured) accounts for {:.0} % of the mean squared error: {}",
+                offset[0] * 1e3,
+                offset[1] * 1e3,
+                offset[2] * 1e3,
+                share * 100.0,
+                if share > 0.8 {
+                    "the error is mostly systematic — check the tool offset, the calibration and the frame."
+                } else if share > 0.3 {
+                    "part systematic, part varying with the pose or time."
+                } else {
+                    "the error varies with the pose or time rather than being a fixed offset (timing, joint readings, unmodelled elasticity)."
+                }
+            );
+        }
+        let angle = statistic(validation, "angle");
+        let _ = writeln!(
+            text,
+            "Orientation agrees to {:.3} mrad on average ({:.4}°), at most {:.3} mrad.",
+            angle.mae * 1e3,
+            angle.mae.to_degrees(),
+            angle.max * 1e3
+        );
+    }
+    if report.rejected > 0 {
+        let causes: Vec<String> = report
+            .rejected_by_cause
+            .iter()
+            .map(|(cause, count)| format!("{count} × `{cause}`"))
+            .collect();
+        let lines: Vec<String> = report
+            .rejections
+            .iter()
+            .take(10)
+            .map(|r| r.line.to_string())
+            .collect();
+        let _ = writeln!(
+            text,
+            "{} inputs were rejected ({}), at lines {}{}; each is listed in `report.json`.",
+            report.rejected,
+            causes.join(", "),
+            lines.join(", "),
+            if report.rejections.len() > 10 {
+                ", …"
+            } else {
+                ""
+            }
+        );
+    }
+    if report.gate.max_position_error_m.is_some() || report.gate.max_angle_error_rad.is_some() {
+        if report.gate.passed {
+            text.push_str("The gate passed: every given limit held.\n");
+        } else {
+            let _ = writeln!(
+                text,
+                "The gate FAILED: {}.",
+                report.gate.failures.join("; ")
+            );
+        }
+    }
+    text
+}
+
+/// Writes every file into `dir` (created if needed); returns the paths written.
+pub fn write_all(
+    dir: &Path,
+    validation: &Validation,
+    context: &Context<'_>,
+) -> io::Result<(ReportJson, Vec<PathBuf>)> {
+    std::fs::create_dir_all(dir)?;
+    let report = report_json(validation, context);
+    let mut written = Vec::new();
+    let mut put = |name: &str, bytes: &[u8]| -> io::Result<()> {
+        let path = dir.join(name);
+        std::fs::write(&path, bytes)?;
+        written.push(path);
+        Ok(())
+    };
+    let json = serde_json::to_vec_pretty(&report).map_err(io::Error::other)?;
+    put("report.json", &json)?;
+    put("report.md", report_md(validation, &report).as_bytes())?;
+    let mut csv = Vec::new();
+    write_rows_csv(validation, &mut csv)?;
+    put("rows.csv", &csv)?;
+    for (name, text) in plots(validation) {
+        put(name, text.as_bytes())?;
+    }
+    Ok((report, written))
+}

@@ -841,7 +841,7 @@ async fn replaying_the_sample_recordings_twins_every_row() {
             let live = h
                 .on(&format!("twin/metrics/{name}"))
                 .last()
-                .cloned()
+                .copied()
                 .expect("metrics");
             for field in ["paired", "unpaired", "rejected", "cumulative", "window"] {
                 assert_eq!(live[field], offline[field], "{name}: {field}");

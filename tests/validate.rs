@@ -277,3 +277,40 @@ fn the_gate_sets_the_exit_status() {
     assert_eq!(unusable.status.code(), Some(1), "{unusable:?}");
     assert!(String::from_utf8_lossy(&unusable.stderr).contains("header not recognised"));
 }
+
+#[test]
+fn joints_only_recordings_yield_poses_and_no_gate_can_pass_without_pairs() {
+    let q = joined(&Q);
+    let text = format!("time,q1,q2,q3,q4,q5,q6\n0.0,{q}\n0.1,{q}\n0.2,{q}\n");
+    let v = run(&text, None);
+    assert_eq!((v.poses(), v.metrics.paired, v.metrics.rejected), (3, 0, 0));
+    assert!(!v.has_pose);
+    let model = settings().model;
+    let dir = tempfile::tempdir().expect("tmp");
+    let mut context = Context {
+        recording: "joints.csv",
+        model: &model,
+        max_position_error_m: None,
+        max_angle_error_rad: None,
+    };
+    let (json, _) = report::write_all(dir.path(), &v, &context).expect("written");
+    assert!(json.gate.passed);
+    let md = std::fs::read_to_string(dir.path().join("report.md")).expect("md");
+    assert!(md.contains("only twin poses were computed"), "{md}");
+    let csv = std::fs::read_to_string(dir.path().join("rows.csv")).expect("csv");
+    let expected = settings().model.pose(&Q).expect("fk").readout().position_m[0];
+    let second = csv
+        .lines()
+        .nth(1)
+        .expect("row")
+        .split(',')
+        .nth(2)
+        .expect("x");
+    assert_eq!(second.parse::<f64>().expect("number"), expected);
+    context.max_position_error_m = Some(1.0);
+    let (json, _) = report::write_all(dir.path(), &v, &context).expect("written");
+    assert!(
+        !json.gate.passed,
+        "a gate with nothing to check must not pass"
+    );
+}

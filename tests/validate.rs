@@ -306,7 +306,11 @@ fn joints_only_recordings_yield_poses_and_no_gate_can_pass_without_pairs() {
         .split(',')
         .nth(2)
         .expect("x");
-    assert_eq!(second.parse::<f64>().expect("number"), expected);
+    assert_eq!(
+        second.parse::<f64>().expect("number").to_bits(),
+        expected.to_bits(),
+        "written in shortest round-trip form"
+    );
     context.max_position_error_m = Some(1.0);
     let (json, _) = report::write_all(dir.path(), &v, &context).expect("written");
     assert!(

@@ -19,8 +19,11 @@
 //!   metrics and events out to a [`pipeline::Sink`].
 //! - [`codec`]: the core's types to and from CSV and the service's JSON wire messages.
 //! - [`config`]: the service's TOML configuration and command-line overrides.
+//! - [`fmi`]: the FMI 2.0 FMU's interface contract (variables, resource file), shared by
+//!   `armtwin fmu build` and the FMU library (`fmu/`).
 //! - [`service`]: `armtwin serve`, the pipeline on a Zenoh mesh.
 //! - [`replay`]: `armtwin replay`, a recording published as a gateway would.
+//! - [`fmu_package`]: `armtwin fmu build`, the FMU archive.
 //! - [`cli`]: the `armtwin` command line (the outer ring, with `main.rs`).
 
 pub mod align;
@@ -28,6 +31,9 @@ pub mod align;
 pub mod cli;
 pub mod codec;
 pub mod config;
+pub mod fmi;
+#[cfg(feature = "cli")]
+pub mod fmu_package;
 pub mod kinematics;
 pub mod metrics;
 pub mod model;

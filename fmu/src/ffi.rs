@@ -183,12 +183,14 @@ fn panic_message(panic: &(dyn std::any::Any + Send)) -> &str {
         .unwrap_or("panic")
 }
 
-/// The `len` elements at `pointer` (any pointer when `len` is 0).
+/// The `len` elements at `pointer` (any pointer when `len` is 0); a null pointer is rejected by
+/// `instance`.
 ///
 /// # Safety
 /// When `len > 0` and `pointer` is not null, `pointer` must be valid for reading `len` elements
 /// for `'a`.
 unsafe fn slice<'a, T>(
+    instance: &mut Instance,
     pointer: *const T,
     len: usize,
     function: &'static str,
@@ -198,18 +200,20 @@ unsafe fn slice<'a, T>(
         return Ok(&[]);
     }
     if pointer.is_null() || len > isize::MAX.unsigned_abs() / size_of::<T>().max(1) {
-        return Err(CallError::NullPointer { function, argument });
+        return Err(instance.reject(CallError::NullPointer { function, argument }));
     }
     // SAFETY: non-null, a sane length, and the caller guarantees `len` readable elements.
     Ok(unsafe { std::slice::from_raw_parts(pointer, len) })
 }
 
-/// The `len` writable elements at `pointer` (any pointer when `len` is 0).
+/// The `len` writable elements at `pointer` (any pointer when `len` is 0); a null pointer is
+/// rejected by `instance`.
 ///
 /// # Safety
 /// When `len > 0` and `pointer` is not null, `pointer` must be valid for writing `len` elements
 /// for `'a`, and not aliased.
 unsafe fn slice_mut<'a, T>(
+    instance: &mut Instance,
     pointer: *mut T,
     len: usize,
     function: &'static str,
@@ -219,25 +223,26 @@ unsafe fn slice_mut<'a, T>(
         return Ok(&mut []);
     }
     if pointer.is_null() || len > isize::MAX.unsigned_abs() / size_of::<T>().max(1) {
-        return Err(CallError::NullPointer { function, argument });
+        return Err(instance.reject(CallError::NullPointer { function, argument }));
     }
     // SAFETY: non-null, a sane length, and the caller guarantees `len` writable, unaliased
     // elements.
     Ok(unsafe { std::slice::from_raw_parts_mut(pointer, len) })
 }
 
-/// Writes `value` through `pointer`, an out-argument.
+/// Writes `value` through `pointer`, an out-argument; a null pointer is rejected by `instance`.
 ///
 /// # Safety
 /// A non-null `pointer` must be valid for writing one `T`.
 unsafe fn write_out<T>(
+    instance: &mut Instance,
     pointer: *mut T,
     value: T,
     function: &'static str,
     argument: &'static str,
 ) -> Result<(), CallError> {
     if pointer.is_null() {
-        return Err(CallError::NullPointer { function, argument });
+        return Err(instance.reject(CallError::NullPointer { function, argument }));
     }
     // SAFETY: non-null, and the caller guarantees it is writable.
     unsafe { pointer.write(value) };
@@ -380,8 +385,8 @@ pub unsafe extern "C" fn fmi2SetDebugLogging(
     const FUNCTION: &str = "fmi2SetDebugLogging";
     with_instance(c, FUNCTION, |instance| {
         // SAFETY: the caller guarantees `n_categories` readable pointers.
-        let pointers = unsafe { slice(categories, n_categories, FUNCTION, "categories") }
-            .map_err(|e| instance.reject(e))?;
+        let pointers =
+            unsafe { slice(instance, categories, n_categories, FUNCTION, "categories") }?;
         let names = pointers
             .iter()
             // SAFETY: each is null or NUL-terminated, by the caller's guarantee.
@@ -479,17 +484,10 @@ pub unsafe extern "C" fn fmi2GetReal(
 ) -> Fmi2Status {
     const FUNCTION: &str = "fmi2GetReal";
     with_instance(c, FUNCTION, |instance| {
-        // SAFETY: the caller guarantees `nvr` readable value references and writable values.
-        let (vrs, values) = unsafe {
-            (
-                slice(vr, nvr, FUNCTION, "vr"),
-                slice_mut(value, nvr, FUNCTION, "value"),
-            )
-        };
-        let (vrs, values) = (
-            vrs.map_err(|e| instance.reject(e))?,
-            values.map_err(|e| instance.reject(e))?,
-        );
+        // SAFETY: the caller guarantees `nvr` readable value references.
+        let vrs = unsafe { slice(instance, vr, nvr, FUNCTION, "vr") }?;
+        // SAFETY: the caller guarantees `nvr` writable values.
+        let values = unsafe { slice_mut(instance, value, nvr, FUNCTION, "value") }?;
         instance.get_real(vrs, values)?;
         Ok(Reply::Ok(None))
     })
@@ -508,17 +506,10 @@ pub unsafe extern "C" fn fmi2SetReal(
 ) -> Fmi2Status {
     const FUNCTION: &str = "fmi2SetReal";
     with_instance(c, FUNCTION, |instance| {
-        // SAFETY: the caller guarantees `nvr` readable value references and values.
-        let (vrs, values) = unsafe {
-            (
-                slice(vr, nvr, FUNCTION, "vr"),
-                slice(value, nvr, FUNCTION, "value"),
-            )
-        };
-        let (vrs, values) = (
-            vrs.map_err(|e| instance.reject(e))?,
-            values.map_err(|e| instance.reject(e))?,
-        );
+        // SAFETY: the caller guarantees `nvr` readable value references.
+        let vrs = unsafe { slice(instance, vr, nvr, FUNCTION, "vr") }?;
+        // SAFETY: the caller guarantees `nvr` readable values.
+        let values = unsafe { slice(instance, value, nvr, FUNCTION, "value") }?;
         instance.set_real(vrs, values)?;
         Ok(Reply::Ok(None))
     })
@@ -540,18 +531,14 @@ unsafe fn untyped(
 ) -> Fmi2Status {
     with_instance(c, function, |instance| {
         // SAFETY: the caller guarantees `nvr` readable value references.
-        let vrs = unsafe { slice(vr, nvr, function, "vr") }.map_err(|e| instance.reject(e))?;
+        let vrs = unsafe { slice(instance, vr, nvr, function, "vr") }?;
         if nvr > 0 && value_is_null {
             return Err(instance.reject(CallError::NullPointer {
                 function,
                 argument: "value",
             }));
         }
-        if setter {
-            instance.set_untyped(function, type_name, vrs)?;
-        } else {
-            instance.get_untyped(function, type_name, vrs)?;
-        }
+        instance.untyped(function, type_name, setter, vrs)?;
         Ok(Reply::Ok(None))
     })
 }
@@ -758,8 +745,7 @@ pub unsafe extern "C" fn fmi2GetRealStatus(
         match instance.real_status(kind)? {
             Some(time_s) => {
                 // SAFETY: null or writable, by the caller's guarantee.
-                unsafe { write_out(value, time_s, FUNCTION, "value") }
-                    .map_err(|e| instance.reject(e))?;
+                unsafe { write_out(instance, value, time_s, FUNCTION, "value") }?;
                 Ok(Reply::Ok(None))
             }
             None => Ok(not_available(FUNCTION, kind)),
@@ -782,9 +768,9 @@ pub unsafe extern "C" fn fmi2GetBooleanStatus(
     with_instance(c, FUNCTION, |instance| {
         match instance.boolean_status(kind)? {
             Some(flag) => {
+                let flag = Fmi2Boolean::from(flag);
                 // SAFETY: null or writable, by the caller's guarantee.
-                unsafe { write_out(value, Fmi2Boolean::from(flag), FUNCTION, "value") }
-                    .map_err(|e| instance.reject(e))?;
+                unsafe { write_out(instance, value, flag, FUNCTION, "value") }?;
                 Ok(Reply::Ok(None))
             }
             None => Ok(not_available(FUNCTION, kind)),

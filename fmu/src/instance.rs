@@ -560,29 +560,16 @@ impl Instance {
         })
     }
 
-    /// `fmi2GetInteger`, `fmi2GetBoolean`, `fmi2GetString`: this FMU has no such variables, so
-    /// any value reference is unknown.
-    pub fn get_untyped(
+    /// `fmi2Get`/`fmi2Set` of `Integer`, `Boolean` or `String` (`type_name`): this FMU has no
+    /// such variables, so any value reference is unknown.
+    pub fn untyped(
         &mut self,
         function: &'static str,
         type_name: &'static str,
+        setter: bool,
         value_references: &[u32],
     ) -> Result<(), CallError> {
-        self.call(function, GETTABLE, |_| {
-            value_references
-                .first()
-                .map_or(Ok(()), |&vr| Err(unknown(function, type_name, vr)))
-        })
-    }
-
-    /// `fmi2SetInteger`, `fmi2SetBoolean`, `fmi2SetString`: as [`Self::get_untyped`].
-    pub fn set_untyped(
-        &mut self,
-        function: &'static str,
-        type_name: &'static str,
-        value_references: &[u32],
-    ) -> Result<(), CallError> {
-        self.call(function, SETTABLE, |_| {
+        self.call(function, if setter { SETTABLE } else { GETTABLE }, |_| {
             value_references
                 .first()
                 .map_or(Ok(()), |&vr| Err(unknown(function, type_name, vr)))
@@ -827,10 +814,10 @@ mod tests {
     fn untyped_variables_do_not_exist() {
         let mut instance = initialized();
         instance
-            .get_untyped("fmi2GetInteger", "Integer", &[])
+            .untyped("fmi2GetInteger", "Integer", false, &[])
             .expect("nothing asked");
         let error = instance
-            .get_untyped("fmi2GetBoolean", "Boolean", &[0])
+            .untyped("fmi2GetBoolean", "Boolean", false, &[0])
             .expect_err("no Boolean");
         assert_eq!(
             error.to_string(),

@@ -45,6 +45,12 @@ pub enum FmuPackageError {
         /// The path given.
         path: String,
     },
+    /// The running executable's path is unknown.
+    #[error("cannot locate the running armtwin executable: {error}")]
+    Executable {
+        /// Why.
+        error: std::io::Error,
+    },
     /// The host platform has no FMI platform folder name here.
     #[error("armtwin fmu build runs on 64-bit Linux, macOS and Windows only")]
     Platform,
@@ -54,21 +60,22 @@ pub enum FmuPackageError {
         /// The path given.
         path: String,
     },
-    /// A file could not be read or written.
-    #[error("{path}: {source}")]
+    /// A file could not be read or written (the message carries the cause, so it is no
+    /// `source`: `anyhow` would print it twice).
+    #[error("cannot write {path}: {error}")]
     Io {
         /// The file.
         path: String,
         /// Why.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// The archive could not be written.
-    #[error("{path}: {source}")]
+    #[error("cannot write {path}: {error}")]
     Zip {
         /// The archive.
         path: String,
         /// Why.
-        source: zip::result::ZipError,
+        error: zip::result::ZipError,
     },
     /// The robot cannot be packaged.
     #[error(transparent)]
@@ -127,10 +134,8 @@ pub fn find_library(
         "{}{LIBRARY_STEM}.{}",
         platform.library_prefix, platform.extension
     );
-    let executable = std::env::current_exe().map_err(|source| FmuPackageError::Io {
-        path: "the running armtwin executable".to_owned(),
-        source,
-    })?;
+    let executable =
+        std::env::current_exe().map_err(|error| FmuPackageError::Executable { error })?;
     let folder = executable.parent().unwrap_or(Path::new("."));
     let candidate = folder.join(&file);
     if candidate.is_file() {
@@ -361,13 +366,13 @@ pub fn write_fmu(
     library: &[u8],
     platform: Platform,
 ) -> Result<(), FmuPackageError> {
-    let zip_error = |source| FmuPackageError::Zip {
+    let zip_error = |error| FmuPackageError::Zip {
         path: out.display().to_string(),
-        source,
+        error,
     };
-    let io_error = |source| FmuPackageError::Io {
+    let io_error = |error| FmuPackageError::Io {
         path: out.display().to_string(),
-        source,
+        error,
     };
     let file = std::fs::File::create(out).map_err(io_error)?;
     let mut archive = zip::ZipWriter::new(std::io::BufWriter::new(file));

@@ -13,13 +13,17 @@ from __future__ import annotations
 
 import os
 import shutil
+import subprocess
 import zipfile
+from ctypes import byref
 from pathlib import Path
 
 import numpy as np
 import pytest
 from fmpy import extract, read_model_description, simulate_fmu
-from fmpy.fmi2 import FMU2Slave
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+from fmpy.logging import addLoggerProxy
 from fmpy.validation import validate_fmu
 
 import ur_reference as ur
@@ -31,6 +35,13 @@ OUTPUTS = ["x", "y", "z", "roll", "pitch", "yaw", "qx", "qy", "qz", "qw"]
 JOINTS = [f"q{i}" for i in range(1, 7)]
 CALIBRATION = REPO_ROOT / "config" / "examples" / "calibration.conf"
 TCP = [0.012, -0.034, 0.156, 0.11, -0.22, 1.3]
+# The calibrated robot, as `armtwin fmu build` and `armtwin fk` options.
+CALIBRATED = (
+    "--model", "ur10e",
+    "--calibration", CALIBRATION,
+    "--tcp=" + ",".join(repr(v) for v in TCP),
+    "--frame", "base_link",
+)
 
 
 def build_fmu(out: Path, *args) -> Path:
@@ -105,13 +116,7 @@ def nominal_fmu(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def calibrated_fmu(tmp_path_factory) -> Path:
-    return build_fmu(
-        tmp_path_factory.mktemp("fmu") / "UR10e_calibrated.fmu",
-        "--model", "ur10e",
-        "--calibration", CALIBRATION,
-        "--tcp=" + ",".join(repr(v) for v in TCP),
-        "--frame", "base_link",
-    )
+    return build_fmu(tmp_path_factory.mktemp("fmu") / "UR10e_calibrated.fmu", *CALIBRATED)
 
 
 def test_fmpy_validation_finds_no_problem(nominal_fmu, calibrated_fmu):
@@ -155,13 +160,7 @@ def test_simulation_equals_armtwin_fk_and_the_numpy_reference(nominal_fmu):
 def test_calibrated_fmu_equals_calibrated_fk(calibrated_fmu):
     q = recorded_joints()
     result = simulate(calibrated_fmu, q)
-    fk = fk_csv(
-        q,
-        "--model", "ur10e",
-        "--calibration", CALIBRATION,
-        "--tcp=" + ",".join(repr(v) for v in TCP),
-        "--frame", "base_link",
-    )
+    fk = fk_csv(q, *CALIBRATED)
     difference = check_simulation_equals_fk(result, q, fk)
     calibration = ur.parse_calibration_conf(CALIBRATION.read_text())
     reference = ur.fk("ur10e", q, tcp=TCP, frame="base_link", calibration=calibration)
@@ -192,15 +191,13 @@ def test_outputs_are_right_at_t0_before_any_step(calibrated_fmu):
     unzipped = extract(str(calibrated_fmu))
     try:
         fmu = slave(unzipped, "t0")
-        fk_args = ("--model", "ur10e", "--calibration", CALIBRATION,
-                   "--tcp=" + ",".join(repr(v) for v in TCP), "--frame", "base_link")
         fmu.setupExperiment(startTime=0.0)
         fmu.enterInitializationMode()
         # Start values: every joint 0.
-        assert fmu.getReal(OUTPUT_VRS) == fk_csv(np.zeros((1, 6)), *fk_args)[0].tolist()
+        assert fmu.getReal(OUTPUT_VRS) == fk_csv(np.zeros((1, 6)), *CALIBRATED)[0].tolist()
         q = recorded_joints()[7]
         fmu.setReal(list(range(6)), q.tolist())
-        expected = fk_csv(q.reshape(1, 6), *fk_args)[0].tolist()
+        expected = fk_csv(q.reshape(1, 6), *CALIBRATED)[0].tolist()
         assert fmu.getReal(OUTPUT_VRS) == expected
         fmu.exitInitializationMode()
         assert fmu.getReal(OUTPUT_VRS) == expected
@@ -243,8 +240,6 @@ def test_two_instances_in_one_process_do_not_share_state(nominal_fmu):
 
 
 def test_invalid_calls_fail_with_the_fmus_message(nominal_fmu):
-    from fmpy.fmi1 import FMICallException
-
     unzipped = extract(str(nominal_fmu))
     messages = []
 
@@ -255,10 +250,6 @@ def test_invalid_calls_fail_with_the_fmus_message(nominal_fmu):
         md = read_model_description(unzipped)
         fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipped,
                         modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bad")
-        from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
-        from fmpy.logging import addLoggerProxy
-        from ctypes import byref
-
         callbacks = fmi2CallbackFunctions()
         callbacks.logger = fmi2CallbackLoggerTYPE(logger)
         addLoggerProxy(byref(callbacks))  # formats the "%s" argument as a C master would
@@ -303,8 +294,6 @@ def test_build_without_the_library_says_how_to_build_it(tmp_path):
         os.link(armtwin_path(), lonely)
     except OSError:
         shutil.copy2(armtwin_path(), lonely)
-    import subprocess
-
     res = subprocess.run([str(lonely), "fmu", "build", "--out", str(tmp_path / "x.fmu")],
                          capture_output=True, text=True, timeout=60)
     assert res.returncode != 0

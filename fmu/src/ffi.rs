@@ -161,15 +161,13 @@ fn with_instance(
         Err(panic) => {
             // SAFETY: as above; the closure that held the other reference has unwound.
             let component = unsafe { &mut *component };
-            component.instance.reject(CallError::Unsupported {
+            let error = component.instance.reject(CallError::Internal {
                 function,
-                reason: "internal error",
+                message: panic_message(&*panic).to_owned(),
             });
-            component.logger.log(
-                FMI2_FATAL,
-                LogCategory::StatusError,
-                &format!("{function}: internal error: {}", panic_message(&*panic)),
-            );
+            component
+                .logger
+                .log(FMI2_FATAL, LogCategory::StatusError, &error.to_string());
             FMI2_FATAL
         }
     }

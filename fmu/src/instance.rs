@@ -176,6 +176,14 @@ pub enum CallError {
         /// The value given.
         value: f64,
     },
+    /// A bug in this FMU: a panic, caught at the boundary (the call returns `fmi2Fatal`).
+    #[error("{function}: internal error: {message}")]
+    Internal {
+        /// The FMI function.
+        function: &'static str,
+        /// The panic's message.
+        message: String,
+    },
     /// `fmi2SetDebugLogging` named an unknown category.
     #[error("fmi2SetDebugLogging: unknown log category '{name}' (known: {known})")]
     LogCategory {

@@ -18,6 +18,8 @@ use crate::codec::PoseFields;
 use crate::codec::joint_csv::{JointCsvReader, PoseCsvWriter};
 use crate::codec::recording::{self, ColumnMap, PoseForm, Recording};
 use crate::config::{Overrides, ServiceConfig, ZenohSection};
+use crate::fmi::FmuSettings;
+use crate::fmu_package::{self, FmuContents, FmuPackageError};
 use crate::kinematics::{OutputFrame, TcpOffset};
 use crate::model::{Calibration, RobotModel, catalog, custom};
 use crate::pipeline::RobotSettings;
@@ -48,6 +50,39 @@ pub enum Command {
     /// Run a recording through the twin offline: report (JSON, Markdown), per-row CSV and plots;
     /// exits 3 when --max-position-error or --max-angle-error is exceeded.
     Validate(ValidateArgs),
+    /// FMI 2.0 co-simulation FMU of the forward kinematics.
+    Fmu(FmuArgs),
+}
+
+/// `armtwin fmu` arguments.
+#[derive(Debug, Args)]
+pub struct FmuArgs {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: FmuCommand,
+}
+
+/// `armtwin fmu` commands.
+#[derive(Debug, Subcommand)]
+pub enum FmuCommand {
+    /// Package one robot (catalog model, calibration, tool, frame) as an FMU file.
+    Build(FmuBuildArgs),
+}
+
+/// `armtwin fmu build` arguments.
+#[derive(Debug, Args)]
+pub struct FmuBuildArgs {
+    /// The robot (catalog models only; the tool becomes the `tcp_*` parameters' start values).
+    #[command(flatten)]
+    pub robot: RobotArgs,
+    /// The FMU file to write, e.g. `UR10e_FK.fmu`; its name without `.fmu` is the model
+    /// identifier.
+    #[arg(long, value_name = "FILE")]
+    pub out: PathBuf,
+    /// The FMU library (`libarmtwin_fmu.so`); by default the one next to this executable, built
+    /// by `cargo build --release -p armtwin-fmu`.
+    #[arg(long, value_name = "PATH")]
+    pub library: Option<PathBuf>,
 }
 
 /// Which recording and how to read it; shared by `replay` and `validate`.
@@ -261,6 +296,9 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Serve(args) => run_serve(&args),
         Command::Replay(args) => run_replay(&args),
         Command::Validate(args) => run_validate(&args),
+        Command::Fmu(FmuArgs {
+            command: FmuCommand::Build(args),
+        }) => run_fmu_build(&args),
     }
 }
 
@@ -331,6 +369,56 @@ fn progress_bar(total: usize, what: &str) -> ProgressBar {
         .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     bar
+}
+
+fn run_fmu_build(args: &FmuBuildArgs) -> Result<()> {
+    // The same checks and messages as `armtwin fk`.
+    let model = args.robot.load()?;
+    let calibration = args
+        .robot
+        .calibration
+        .as_deref()
+        .map(|path| -> Result<(String, String)> {
+            let name = path
+                .file_name()
+                .and_then(|name| name.to_str())
+                .with_context(|| format!("{}: not a file name in UTF-8", path.display()))?;
+            Ok((name.to_owned(), read_text(path)?))
+        })
+        .transpose()?;
+    let settings = FmuSettings {
+        guid: String::new(),
+        model: args.robot.model.to_ascii_lowercase(),
+        calibration_file: calibration.as_ref().map(|(name, _)| name.clone()),
+        frame: model.frame(),
+        tool: *model.tool(),
+    };
+    let platform = fmu_package::host_platform().ok_or(FmuPackageError::Platform)?;
+    let identifier = fmu_package::model_identifier(&args.out)?;
+    let contents = FmuContents::new(
+        &identifier,
+        settings,
+        calibration.as_ref().map(|(_, text)| text.as_str()),
+    )?;
+    let library_path = fmu_package::find_library(args.library.as_deref(), platform)?;
+    let library = std::fs::read(&library_path)
+        .with_context(|| format!("cannot read {}", library_path.display()))?;
+    fmu_package::write_fmu(&args.out, &contents, &library, platform)?;
+    let settings = &contents.settings;
+    eprintln!(
+        "wrote {}: {}, {}, frame {}, tcp {:?}; modelIdentifier {identifier}, GUID {} (library {})",
+        args.out.display(),
+        settings.model,
+        settings.calibration_file.as_deref().map_or_else(
+            || "nominal".to_owned(),
+            |name| format!("calibration {name}")
+        ),
+        settings.frame.as_str(),
+        settings.tool.to_ur_pose(),
+        settings.guid,
+        library_path.display()
+    );
+    Ok(())
 }
 
 fn run_replay(args: &ReplayArgs) -> Result<()> {

@@ -478,12 +478,11 @@ impl RobotSource<'_> {
                 .ok_or_else(|| self.invalid("tcp", "every value must be finite".to_owned()))?,
             None => TcpOffset::FLANGE,
         };
-        let frame = match self.pick(|s| s.frame.clone()).as_deref() {
-            None | Some("base") => OutputFrame::Base,
-            Some("base_link") => OutputFrame::BaseLink,
-            Some(other) => {
-                return Err(self.invalid("frame", format!("'{other}' is not base or base_link")));
-            }
+        let frame = match self.pick(|s| s.frame.clone()) {
+            None => OutputFrame::Base,
+            Some(name) => OutputFrame::from_name(&name).ok_or_else(|| {
+                self.invalid("frame", format!("'{name}' is not base or base_link"))
+            })?,
         };
         RobotModel::new(arm, calibration, tcp, frame).map_err(|e| self.model_error(e))
     }

@@ -78,6 +78,16 @@ impl OutputFrame {
         }
     }
 
+    /// The frame called `name` (`base` or `base_link`, as [`Self::as_str`] writes them).
+    #[must_use]
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "base" => Some(Self::Base),
+            "base_link" => Some(Self::BaseLink),
+            _ => None,
+        }
+    }
+
     /// `frame_from_base`: exact (no `sin(π)` rounding) for `base_link`.
     #[must_use]
     pub fn frame_from_base(self) -> IsometryMatrix3<f64> {

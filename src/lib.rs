@@ -21,10 +21,13 @@
 //! - [`ingest`]: a gateway message's bytes into the pipeline, shared by the service and
 //!   `validate`.
 //! - [`config`]: the service's TOML configuration and command-line overrides.
+//! - [`fmi`]: the FMI 2.0 FMU's interface contract (variables, resource file), shared by
+//!   `armtwin fmu build` and the FMU library (`fmu/`).
 //! - [`service`]: `armtwin serve`, the pipeline on a Zenoh mesh.
 //! - [`replay`]: `armtwin replay`, a recording published as a gateway would.
 //! - [`validate`]: `armtwin validate`, a recording through the pipeline offline, with its report
 //!   and plots.
+//! - [`fmu_package`]: `armtwin fmu build`, the FMU archive.
 //! - [`cli`]: the `armtwin` command line (the outer ring, with `main.rs`).
 
 pub mod align;
@@ -32,6 +35,9 @@ pub mod align;
 pub mod cli;
 pub mod codec;
 pub mod config;
+pub mod fmi;
+#[cfg(feature = "cli")]
+pub mod fmu_package;
 pub mod ingest;
 pub mod kinematics;
 pub mod metrics;

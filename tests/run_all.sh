@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Runs every armtwin test from a fresh clone: Rust (format, lints, unit, integration and doc tests)
-# and the Python tests (independent numpy/scipy reference), in a virtualenv this script creates.
+# Runs every armtwin test from a fresh clone: Rust (format, lints, unit, integration and doc tests,
+# every workspace member: the root crate and the FMU in fmu/) and the Python tests (independent
+# numpy/scipy reference, the FMU in FMPy), in a virtualenv this script creates.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -10,10 +11,10 @@ step "cargo fmt --check"
 cargo fmt --all -- --check
 
 step "cargo clippy (pedantic, warnings are errors)"
-cargo clippy --locked --all-targets -- -D warnings
+cargo clippy --locked --workspace --all-targets -- -D warnings
 
 step "cargo test"
-cargo test --locked
+cargo test --locked --workspace
 
 step "Python virtualenv (.venv) from tests/python/requirements.txt"
 venv=.venv
@@ -25,5 +26,7 @@ if [ "$(cat "$venv/.requirements.sha256" 2>/dev/null)" != "$want" ]; then
 fi
 
 step "pytest tests/python"
+# The FMU library on its own (core only, no zenoh), next to the armtwin binary that packages it.
+cargo build --locked -p armtwin-fmu
 cargo build --locked --bin armtwin
 ARMTWIN_BIN="$PWD/target/debug/armtwin" "$venv/bin/python" -m pytest tests/python -q

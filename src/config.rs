@@ -26,7 +26,7 @@ pub const DEFAULT_CONFIG_TOML: &str = include_str!("../config/armtwin.toml");
 #[derive(Debug, Error)]
 pub enum ConfigError {
     /// The file cannot be read.
-    #[error("cannot read {path}: {source}")]
+    #[error("cannot read {path}")]
     Read {
         /// The file.
         path: String,

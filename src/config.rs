@@ -52,7 +52,7 @@ pub enum ConfigError {
         problem: String,
     },
     /// A robot's model or calibration cannot be loaded.
-    #[error("{source_name}: robot '{robot}': {source}")]
+    #[error("{source_name}: robot '{robot}'")]
     Model {
         /// The file.
         source_name: String,

@@ -38,6 +38,8 @@ use crate::workload::{Workload, WorkloadError};
 const MATCH_TIMEOUT: Duration = Duration::from_secs(30);
 /// Pause between trials, so one trial's tail never overlaps the next.
 const PAUSE: Duration = Duration::from_millis(300);
+/// How long the warm-up waits without any new reply before it sends again.
+const STALL: Duration = Duration::from_secs(10);
 /// How long a failed trial's stragglers are awaited before the next trial starts.
 const SETTLE: Duration = Duration::from_secs(10);
 /// Slack on a trial's completion for the last replies' own latency.
@@ -438,11 +440,14 @@ impl Load {
         let _ = self.session.close().wait();
     }
 
-    /// Declares publishers and reply keys of robots up to (not including) `count`.
+    /// Declares publishers and reply keys of robots up to (not including) `count`. The memory
+    /// measurement declares no reply keys: it receives a few replies per robot, and the system
+    /// under test should not hold our declarations for it.
     fn declare_robots(&mut self, count: usize) -> Result<(), LoadError> {
-        let reply_streams: &[&str] = match self.args.target {
-            Target::Echo => &[net::POSE, net::DEVIATION],
-            Target::Armtwin => &[net::POSE, net::DEVIATION, net::METRICS, net::EVENTS],
+        let reply_streams: &[&str] = match (self.args.target, self.args.memory_base_robots) {
+            (_, Some(_)) => &[],
+            (Target::Echo, None) => &[net::POSE, net::DEVIATION],
+            (Target::Armtwin, None) => &[net::POSE, net::DEVIATION, net::METRICS, net::EVENTS],
         };
         for index in self.robots.len()..count {
             let robot = net::robot_id(index);
@@ -516,16 +521,19 @@ impl Load {
         Ok(())
     }
 
-    /// Sends one sample per robot of `robots` until every one is answered (a lost first sample,
-    /// sent before the system under test saw our subscribers, is sent again).
+    /// Sends one sample per robot of `robots` until every one is answered. The system under
+    /// test may take long to start tracking thousands of robots (Zenoh's declarations cost
+    /// O(robots) each), so this waits as long as answers keep coming; a round that stalls for
+    /// [`STALL`] is sent again (its first samples may have crossed our subscribers' declaration).
     fn warm_up(&mut self, robots: std::ops::Range<usize>) -> Result<(), LoadError> {
         let count = robots.len() as u64;
-        for _ in 0..5 {
+        for _ in 0..3 {
             let base = self.replies.counts();
             for robot in robots.clone() {
                 self.send(robot)?;
             }
-            let deadline = Instant::now() + Duration::from_secs(10) + Duration::from_millis(count);
+            let mut answered = 0;
+            let mut progress = Instant::now();
             loop {
                 let got = self.replies.counts().since(base);
                 if got.poses >= count && got.deviations >= count {
@@ -533,12 +541,19 @@ impl Load {
                     self.accounted = self.replies.counts();
                     return Ok(());
                 }
-                if Instant::now() >= deadline {
+                let now = Instant::now();
+                if got.poses + got.deviations > answered {
+                    answered = got.poses + got.deviations;
+                    progress = now;
+                } else if now - progress >= STALL {
                     break;
                 }
                 thread::sleep(Duration::from_millis(5));
             }
-            eprintln!("load: warm-up incomplete, sending again");
+            eprintln!(
+                "load: warm-up stalled at {answered} of {} replies, sending again",
+                2 * count
+            );
         }
         Err(LoadError::NoAnswer(format!(
             "the system under test did not answer all of {count} robots' first samples"

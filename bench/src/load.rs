@@ -3,7 +3,8 @@
 //! Publishes contract-shaped joint samples and, with each, the measured pose of the same stamp,
 //! for N robots, round robin, on a fixed schedule; counts the replies (twin poses and deviations,
 //! plus armtwin's metrics and events) and measures latency from the stamp each reply carries
-//! back: a sample's `t` is the load's own clock (seconds since it started) when it is sent, and
+//! back: a sample's `t` is the time it is sent (seconds since a clock origin shared by every load
+//! process of a run, so stamps keep increasing for a system under test that outlives one), and
 //! both the echo (the payload itself) and armtwin (`t` of the twin pose) return it unchanged.
 //!
 //! It declares every key it publishes (through its publishers) and every reply key it receives
@@ -17,7 +18,7 @@
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::thread;
-use std::time::{Duration, Instant};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use armtwin::service::ServiceError;
 use clap::{Args, ValueEnum};
@@ -103,6 +104,10 @@ pub struct LoadArgs {
     /// Seconds of the check.
     #[arg(long, default_value_t = 10.0)]
     pub check_duration: f64,
+    /// Unix time (s) that stamps count from: the orchestrator gives every load process the
+    /// same, so stamps keep increasing from one load process to the next (default: now).
+    #[arg(long)]
+    pub clock_origin: Option<f64>,
     /// Memory measurement instead of everything above: robots tracked for the baseline.
     #[arg(long)]
     pub memory_base_robots: Option<usize>,
@@ -159,6 +164,8 @@ impl Counts {
 #[derive(Debug)]
 struct Replies {
     start: Instant,
+    /// Seconds from the clock origin to `start`.
+    start_s: f64,
     poses: AtomicU64,
     deviations: AtomicU64,
     metrics: AtomicU64,
@@ -181,6 +188,11 @@ impl Replies {
         self.start.elapsed().as_nanos() as u64
     }
 
+    /// Now, in seconds since the clock origin: the stamp of a sample sent now.
+    fn now_s(&self) -> f64 {
+        self.start_s + self.start.elapsed().as_secs_f64()
+    }
+
     fn counts(&self) -> Counts {
         Counts {
             poses: self.poses.load(Ordering::Acquire),
@@ -195,11 +207,11 @@ impl Replies {
         if self.recording.load(Ordering::Relaxed)
             && let Ok(stamp) = serde_json::from_slice::<Stamp>(&sample.payload().to_bytes())
         {
-            let sent_ns = (stamp.t * 1e9) as u64;
+            let latency_s = self.start_s + now_ns as f64 / 1e9 - stamp.t;
             self.latencies_ns
                 .lock()
                 .unwrap_or_else(PoisonError::into_inner)
-                .push(now_ns.saturating_sub(sent_ns));
+                .push((latency_s * 1e9).max(0.0) as u64);
         }
         self.last_ns.fetch_max(now_ns, Ordering::AcqRel);
         self.poses.fetch_add(1, Ordering::Release);
@@ -216,7 +228,8 @@ impl Replies {
 pub struct Trial {
     /// Samples per second offered (each sample: one joint and one measured message).
     pub offered_rate: f64,
-    /// Samples sent.
+    /// Samples sent (fewer than the schedule's when the system fell more than the trial's
+    /// duration, at least a second, behind it and the trial was abandoned).
     pub samples: u64,
     /// Seconds the schedule lasts.
     pub duration_s: f64,
@@ -307,7 +320,7 @@ struct RobotKeys {
     joints: Publisher<'static>,
     measured: Publisher<'static>,
     _replies: Vec<KeyExpr<'static>>,
-    /// Samples sent so far (the next `seq`).
+    /// Samples sent so far (which joint configuration comes next).
     next_seq: u64,
     /// The last stamp sent (stamps increase strictly per robot).
     last_t_s: f64,
@@ -376,8 +389,13 @@ fn percentile_us(sorted_ns: &[u64], fraction: f64) -> f64 {
 impl Load {
     fn open(args: LoadArgs) -> Result<Self, LoadError> {
         let session = zenoh::open(net::peer_config(&[], &args.connect)?).wait()?;
+        let start = Instant::now();
+        let unix_s = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0.0, |d| d.as_secs_f64());
         let replies = Arc::new(Replies {
-            start: Instant::now(),
+            start,
+            start_s: unix_s - args.clock_origin.unwrap_or(unix_s),
             poses: AtomicU64::new(0),
             deviations: AtomicU64::new(0),
             metrics: AtomicU64::new(0),
@@ -504,7 +522,7 @@ impl Load {
 
     /// Sends one sample (a joint and a measured message with the same stamp) of `robot`.
     fn send(&mut self, robot: usize) -> Result<(), LoadError> {
-        let now_s = self.replies.start.elapsed().as_secs_f64();
+        let now_s = self.replies.now_s();
         let keys = &mut self.robots[robot];
         let stamp_s = if now_s > keys.last_t_s {
             now_s
@@ -579,17 +597,25 @@ impl Load {
         }
         let start = Instant::now();
         let start_ns = self.replies.elapsed_ns();
-        for index in 0..samples {
-            let due = start + Duration::from_secs_f64(index as f64 / rate);
+        // A system that falls this far behind the schedule is not keeping up: stop offering.
+        let give_up_lag = Duration::from_secs_f64(duration_s.max(1.0));
+        let mut sent = 0;
+        while sent < samples {
+            let due = start + Duration::from_secs_f64(sent as f64 / rate);
             let now = Instant::now();
             if due > now {
                 // Never spin: the system under test needs the cores.
                 thread::sleep(due - now);
+            } else if now - due > give_up_lag {
+                break;
             }
             let robot = self.cursor;
             self.cursor = (self.cursor + 1) % self.robots.len();
             self.send(robot)?;
+            sent += 1;
         }
+        let abandoned = sent < samples;
+        let samples = sent;
         let send_s = start.elapsed().as_secs_f64();
         let deadline_s = duration_s * (1.0 + self.args.tolerance) + COMPLETION_SLACK_S;
         let wait_until = start + Duration::from_secs_f64(deadline_s.max(send_s) + 1.0);
@@ -620,7 +646,7 @@ impl Load {
         self.accounted = now;
         let lost =
             samples.saturating_sub(replies.poses) + samples.saturating_sub(replies.deviations);
-        let sustained = lost == 0 && complete_s.is_some_and(|s| s <= deadline_s);
+        let sustained = !abandoned && lost == 0 && complete_s.is_some_and(|s| s <= deadline_s);
         let trial = Trial {
             offered_rate: rate,
             samples,

@@ -17,7 +17,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use serde::Serialize;
 
-use crate::load::{LoadReport, Target};
+use crate::load::{Latency, LoadReport, Target};
 use crate::net;
 
 /// How long a system under test may take to listen.
@@ -61,6 +61,9 @@ pub struct RunArgs {
     /// Latency run length, seconds (default 5; quick 0.5).
     #[arg(long)]
     pub latency_duration: Option<f64>,
+    /// Latency rounds per system, alternating between them (default 3; quick 1).
+    #[arg(long)]
+    pub latency_rounds: Option<u32>,
     /// Per-robot rate of the fleet check at the largest robot count, Hz (default 100; quick 10).
     #[arg(long)]
     pub fleet_hz: Option<f64>,
@@ -100,6 +103,8 @@ pub struct Settings {
     pub latency_rate: f64,
     /// Latency run seconds.
     pub latency_duration_s: f64,
+    /// Latency rounds per system.
+    pub latency_rounds: u32,
     /// Fleet check: Hz per robot.
     pub fleet_hz: f64,
     /// Fleet check: seconds (0: none).
@@ -134,6 +139,7 @@ impl Settings {
             bisect_steps: args.bisect_steps.unwrap_or(if quick { 1 } else { 4 }),
             latency_rate: pick(args.latency_rate, 1000.0, 200.0),
             latency_duration_s: pick(args.latency_duration, 5.0, 0.5),
+            latency_rounds: args.latency_rounds.unwrap_or(if quick { 1 } else { 3 }),
             fleet_hz: pick(args.fleet_hz, 100.0, 10.0),
             fleet_duration_s: pick(args.fleet_duration, 10.0, 0.5),
         }
@@ -157,10 +163,48 @@ pub struct Comparison {
     pub echo_cpu_us_per_sample: Option<f64>,
     /// Same for armtwin.
     pub armtwin_cpu_us_per_sample: Option<f64>,
-    /// The echo's load report.
+    /// The echo's latency.
+    pub echo_latency: LatencySummary,
+    /// armtwin's latency.
+    pub armtwin_latency: LatencySummary,
+    /// The echo's throughput search (and fleet check).
     pub echo: LoadReport,
-    /// armtwin's load report.
+    /// armtwin's throughput search (and fleet check).
     pub armtwin: LoadReport,
+}
+
+/// Latency over several rounds: each percentile is the median of the rounds' (a round that a
+/// burst of other work on the machine spoils does not decide the figure).
+#[derive(Debug, Clone, Serialize)]
+pub struct LatencySummary {
+    /// Median over the rounds of the 50th percentile (µs).
+    pub p50_us: f64,
+    /// Median of the 99th percentiles (µs).
+    pub p99_us: f64,
+    /// Median of the 99.9th percentiles (µs).
+    pub p999_us: f64,
+    /// Every round.
+    pub rounds: Vec<Latency>,
+}
+
+impl LatencySummary {
+    fn of(rounds: Vec<Latency>) -> Self {
+        let median = |pick: fn(&Latency) -> f64| {
+            let mut values: Vec<f64> = rounds.iter().map(pick).collect();
+            values.sort_by(f64::total_cmp);
+            match values.len() {
+                0 => f64::NAN,
+                n if n % 2 == 1 => values[n / 2],
+                n => f64::midpoint(values[n / 2 - 1], values[n / 2]),
+            }
+        };
+        Self {
+            p50_us: median(|l| l.p50_us),
+            p99_us: median(|l| l.p99_us),
+            p999_us: median(|l| l.p999_us),
+            rounds,
+        }
+    }
 }
 
 /// Whether armtwin sustains the fleet rate at the largest robot count.
@@ -327,6 +371,8 @@ fn service_config(robots: usize) -> String {
 
 struct Orchestrator {
     settings: Settings,
+    /// Unix time (s) every load process's stamps count from.
+    clock_origin_s: f64,
     bench: PathBuf,
     armtwin: PathBuf,
     work_dir: PathBuf,
@@ -392,15 +438,25 @@ impl Orchestrator {
         serde_json::from_slice(&output.stdout).context("reading the load generator's report")
     }
 
-    fn load_args(&self, robots: usize, fleet_rate: Option<f64>) -> Vec<String> {
+    /// Load arguments for `robots`: a latency run only, or the search (and the fleet check).
+    fn load_args(&self, robots: usize, latency: bool, fleet_rate: Option<f64>) -> Vec<String> {
         let s = &self.settings;
         let mut args: Vec<String> = vec![
             "--robots".into(),
             robots.to_string(),
-            "--latency-rate".into(),
-            s.latency_rate.to_string(),
-            "--latency-duration".into(),
-            s.latency_duration_s.to_string(),
+            "--clock-origin".into(),
+            self.clock_origin_s.to_string(),
+        ];
+        if latency {
+            args.extend([
+                "--latency-rate".into(),
+                s.latency_rate.to_string(),
+                "--latency-duration".into(),
+                s.latency_duration_s.to_string(),
+            ]);
+            return args;
+        }
+        args.extend([
             "--start-rate".into(),
             s.start_rate.to_string(),
             "--max-rate".into(),
@@ -409,7 +465,7 @@ impl Orchestrator {
             s.duration_s.to_string(),
             "--bisect-steps".into(),
             s.bisect_steps.to_string(),
-        ];
+        ]);
         if let Some(rate) = fleet_rate {
             args.extend([
                 "--check-rate".into(),
@@ -421,23 +477,35 @@ impl Orchestrator {
         args
     }
 
+    /// Both systems run side by side (each idle while the other is measured): latency rounds
+    /// alternate between them, so that both see the same machine; then each one's search.
     fn compare(&self, robots: usize, fleet_rate: Option<f64>) -> Result<Comparison> {
-        let args = self.load_args(robots, fleet_rate);
-        eprintln!("== {robots} robots: echo");
-        let sut = self.start_echo(robots)?;
-        let echo = self.load(&sut, Target::Echo, &args)?;
-        sut.stop();
-        eprintln!("== {robots} robots: armtwin serve");
-        let sut = self.start_armtwin(robots)?;
-        let armtwin = self.load(&sut, Target::Armtwin, &args)?;
-        sut.stop();
+        let echo_sut = self.start_echo(robots)?;
+        let armtwin_sut = self.start_armtwin(robots)?;
+        let latency_args = self.load_args(robots, true, None);
+        let mut echo_rounds = Vec::new();
+        let mut armtwin_rounds = Vec::new();
+        for round in 1..=self.settings.latency_rounds {
+            eprintln!("== {robots} robots: latency round {round}, echo then armtwin serve");
+            echo_rounds.extend(self.load(&echo_sut, Target::Echo, &latency_args)?.latency);
+            armtwin_rounds.extend(
+                self.load(&armtwin_sut, Target::Armtwin, &latency_args)?
+                    .latency,
+            );
+        }
+        let search_args = self.load_args(robots, false, fleet_rate);
+        eprintln!("== {robots} robots: echo throughput");
+        let echo = self.load(&echo_sut, Target::Echo, &search_args)?;
+        echo_sut.stop();
+        eprintln!("== {robots} robots: armtwin serve throughput");
+        let armtwin = self.load(&armtwin_sut, Target::Armtwin, &search_args)?;
+        armtwin_sut.stop();
         let throughput = |report: &LoadReport| {
             report
                 .search
                 .as_ref()
                 .map_or(0.0, |search| search.max_sustained_rate)
         };
-        let p99 = |report: &LoadReport| report.latency.as_ref().map_or(f64::NAN, |l| l.p99_us);
         let cpu_per_sample = |report: &LoadReport| {
             let search = report.search.as_ref()?;
             let best = search
@@ -447,14 +515,18 @@ impl Orchestrator {
                 .max_by(|a, b| a.offered_rate.total_cmp(&b.offered_rate))?;
             Some(best.sut_cpu_s? * 1e6 / best.samples as f64)
         };
+        let echo_latency = LatencySummary::of(echo_rounds);
+        let armtwin_latency = LatencySummary::of(armtwin_rounds);
         Ok(Comparison {
             robots,
             echo_throughput: throughput(&echo),
             armtwin_throughput: throughput(&armtwin),
             throughput_ratio: throughput(&armtwin) / throughput(&echo),
-            added_latency_p99_us: p99(&armtwin) - p99(&echo),
+            added_latency_p99_us: armtwin_latency.p99_us - echo_latency.p99_us,
             echo_cpu_us_per_sample: cpu_per_sample(&echo),
             armtwin_cpu_us_per_sample: cpu_per_sample(&armtwin),
+            echo_latency,
+            armtwin_latency,
             echo,
             armtwin,
         })
@@ -501,12 +573,8 @@ fn table(report: &Report) -> String {
         "| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"
     );
     for c in &report.by_robots {
-        let latency = |r: &LoadReport| {
-            r.latency.as_ref().map_or_else(
-                || "–".to_owned(),
-                |l| format!("{:.0} / {:.0} / {:.0}", l.p50_us, l.p99_us, l.p999_us),
-            )
-        };
+        let latency =
+            |l: &LatencySummary| format!("{:.0} / {:.0} / {:.0}", l.p50_us, l.p99_us, l.p999_us);
         let cpu = |v: Option<f64>| v.map_or_else(|| "–".to_owned(), |v| format!("{v:.1}"));
         let _ = writeln!(
             text,
@@ -515,8 +583,8 @@ fn table(report: &Report) -> String {
             fmt_rate(c.echo_throughput),
             fmt_rate(c.armtwin_throughput),
             c.throughput_ratio,
-            latency(&c.echo),
-            latency(&c.armtwin),
+            latency(&c.echo_latency),
+            latency(&c.armtwin_latency),
             c.added_latency_p99_us,
             cpu(c.echo_cpu_us_per_sample),
             cpu(c.armtwin_cpu_us_per_sample),
@@ -579,6 +647,9 @@ pub fn run(args: &RunArgs) -> Result<Report> {
     std::fs::create_dir_all(&work_dir)?;
     let orchestrator = Orchestrator {
         settings: settings.clone(),
+        clock_origin_s: SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0.0, |d| d.as_secs_f64()),
         bench,
         armtwin,
         work_dir: work_dir.clone(),

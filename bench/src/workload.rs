@@ -85,14 +85,16 @@ impl Workload {
         &self.configurations[(sample % self.configurations.len() as u64) as usize]
     }
 
-    /// The joint message of a robot's `sample`-th sample: `{"t":…,"seq":…,"q":[…]}`.
+    /// The joint message of a robot's `sample`-th sample: `{"t":…,"q":[…]}`. No gateway `seq`:
+    /// one load process follows another against the same system under test, and a `seq` that
+    /// started again would be refused.
     #[must_use]
     pub fn joints(&self, sample: u64, stamp_s: f64) -> String {
         let mut text = String::with_capacity(160);
         // Writing to a `String` cannot fail.
         let _ = write!(
             text,
-            r#"{{"t":{stamp_s},"seq":{sample},"q":{}}}"#,
+            r#"{{"t":{stamp_s},"q":{}}}"#,
             self.configuration(sample).joints_json
         );
         text
@@ -123,7 +125,7 @@ mod tests {
             let joints = wire::decode_joints(workload.joints(sample, 1.25).as_bytes(), 6)
                 .expect("joint message");
             assert_eq!(joints.sample.stamp_s, Some(1.25));
-            assert_eq!(joints.sample.seq, Some(sample));
+            assert_eq!(joints.sample.seq, None);
             let model = RobotModel::nominal("ur10e").expect("ur10e");
             model
                 .check_joints(&joints.sample.q_rad)

@@ -7,18 +7,17 @@ use std::process::Command;
 
 use serde_json::Value;
 
-/// The `armtwin` binary of this build profile, built if needed (`cargo test -p armtwin-bench`
-/// alone does not build the other package's binary).
+/// The `armtwin` binary of this build profile: `cargo test --workspace` builds it (armtwin's own
+/// integration tests need it). Building it from here would run a second cargo whose environment
+/// differs from the outer one's, and each would rebuild what the other built.
 fn armtwin_binary(bench: &Path) -> PathBuf {
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".to_owned());
-    let mut build = Command::new(cargo);
-    build.args(["build", "--quiet", "-p", "armtwin", "--bin", "armtwin"]);
-    if !cfg!(debug_assertions) {
-        build.arg("--release");
-    }
-    let status = build.status().expect("running cargo build");
-    assert!(status.success(), "building armtwin failed");
-    bench.with_file_name(format!("armtwin{}", std::env::consts::EXE_SUFFIX))
+    let armtwin = bench.with_file_name(format!("armtwin{}", std::env::consts::EXE_SUFFIX));
+    assert!(
+        armtwin.is_file(),
+        "{} is missing: run `cargo test --workspace` (or `cargo build` first)",
+        armtwin.display()
+    );
+    armtwin
 }
 
 fn number(value: &Value, path: &str) -> f64 {

@@ -10,10 +10,10 @@ step "cargo fmt --check"
 cargo fmt --all -- --check
 
 step "cargo clippy (pedantic, warnings are errors)"
-cargo clippy --locked --all-targets -- -D warnings
+cargo clippy --locked --workspace --all-targets -- -D warnings
 
 step "cargo test"
-cargo test --locked
+cargo test --locked --workspace
 
 step "Python virtualenv (.venv) from tests/python/requirements.txt"
 venv=.venv

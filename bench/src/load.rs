@@ -177,6 +177,9 @@ struct Replies {
     latencies_ns: Mutex<Vec<u64>>,
 }
 
+/// What a subscriber does with a reply.
+type OnReply = fn(&Replies, &Sample);
+
 /// The stamp of a reply.
 #[derive(Deserialize)]
 struct Stamp {
@@ -404,38 +407,25 @@ impl Load {
             recording: AtomicBool::new(false),
             latencies_ns: Mutex::new(Vec::new()),
         });
-        let mut subscribers = Vec::new();
-        let r = replies.clone();
-        subscribers.push(
-            session
-                .declare_subscriber(net::every_robot(net::POSE))
-                .callback(move |sample| r.pose(&sample))
-                .wait()?,
-        );
-        let r = replies.clone();
-        subscribers.push(
-            session
-                .declare_subscriber(net::every_robot(net::DEVIATION))
-                .callback(move |_| r.deviation())
-                .wait()?,
-        );
+        let mut streams: Vec<(&str, OnReply)> = vec![
+            (net::POSE, Replies::pose),
+            (net::DEVIATION, |replies, _| replies.deviation()),
+        ];
         if args.target == Target::Armtwin {
-            let r = replies.clone();
+            streams.push((net::METRICS, |replies, _| {
+                replies.metrics.fetch_add(1, Ordering::Relaxed);
+            }));
+            streams.push((net::EVENTS, |replies, _| {
+                replies.events.fetch_add(1, Ordering::Relaxed);
+            }));
+        }
+        let mut subscribers = Vec::new();
+        for (stream, on_reply) in streams {
+            let replies = replies.clone();
             subscribers.push(
                 session
-                    .declare_subscriber(net::every_robot(net::METRICS))
-                    .callback(move |_| {
-                        r.metrics.fetch_add(1, Ordering::Relaxed);
-                    })
-                    .wait()?,
-            );
-            let r = replies.clone();
-            subscribers.push(
-                session
-                    .declare_subscriber(net::every_robot(net::EVENTS))
-                    .callback(move |_| {
-                        r.events.fetch_add(1, Ordering::Relaxed);
-                    })
+                    .declare_subscriber(net::every_robot(stream))
+                    .callback(move |sample| on_reply(&replies, &sample))
                     .wait()?,
             );
         }

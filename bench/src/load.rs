@@ -73,6 +73,10 @@ pub struct LoadArgs {
     /// Its process id: its CPU time per trial and its resident memory are read from /proc.
     #[arg(long)]
     pub sut_pid: Option<u32>,
+    /// Send each sample as one joint message with its measured pose embedded (RTDE style)
+    /// instead of a joint and a measured message; the echo then returns one message per sample.
+    #[arg(long)]
+    pub embedded: bool,
     /// Robots (`fleet/r00000` …); the rate is spread over them round robin.
     #[arg(long, default_value_t = 1)]
     pub robots: usize,
@@ -510,7 +514,8 @@ impl Load {
         Ok(())
     }
 
-    /// Sends one sample (a joint and a measured message with the same stamp) of `robot`.
+    /// Sends one sample of `robot`: a joint and a measured message with the same stamp, or one
+    /// joint message with the measured pose embedded.
     fn send(&mut self, robot: usize) -> Result<(), LoadError> {
         let now_s = self.replies.now_s();
         let keys = &mut self.robots[robot];
@@ -522,11 +527,23 @@ impl Load {
         keys.last_t_s = stamp_s;
         let seq = keys.next_seq;
         keys.next_seq += 1;
-        keys.joints.put(self.workload.joints(seq, stamp_s)).wait()?;
-        keys.measured
-            .put(self.workload.measured(seq, stamp_s))
-            .wait()?;
+        if self.args.embedded {
+            keys.joints
+                .put(self.workload.joints_with_measured(seq, stamp_s))
+                .wait()?;
+        } else {
+            keys.joints.put(self.workload.joints(seq, stamp_s)).wait()?;
+            keys.measured
+                .put(self.workload.measured(seq, stamp_s))
+                .wait()?;
+        }
         Ok(())
+    }
+
+    /// Deviations expected per sample: one, except from the echo when the measured pose is
+    /// embedded in the joint message (it returns that one message on `pose`).
+    fn deviations_per_sample(&self) -> u64 {
+        u64::from(!(self.args.embedded && self.args.target == Target::Echo))
     }
 
     /// Sends one sample per robot of `robots` until every one is answered. The system under
@@ -544,7 +561,7 @@ impl Load {
             let mut progress = Instant::now();
             loop {
                 let got = self.replies.counts().since(base);
-                if got.poses >= count && got.deviations >= count {
+                if got.poses >= count && got.deviations >= count * self.deviations_per_sample() {
                     thread::sleep(PAUSE);
                     self.accounted = self.replies.counts();
                     return Ok(());
@@ -609,9 +626,10 @@ impl Load {
         let send_s = start.elapsed().as_secs_f64();
         let deadline_s = duration_s * (1.0 + self.args.tolerance) + COMPLETION_SLACK_S;
         let wait_until = start + Duration::from_secs_f64(deadline_s.max(send_s) + 1.0);
+        let deviations = samples * self.deviations_per_sample();
         let complete = |replies: Counts| {
             let got = replies.since(base);
-            got.poses >= samples && got.deviations >= samples
+            got.poses >= samples && got.deviations >= deviations
         };
         let mut complete_s = None;
         while Instant::now() < wait_until {
@@ -635,7 +653,7 @@ impl Load {
         let replies = now.since(base);
         self.accounted = now;
         let lost =
-            samples.saturating_sub(replies.poses) + samples.saturating_sub(replies.deviations);
+            samples.saturating_sub(replies.poses) + deviations.saturating_sub(replies.deviations);
         let sustained = !abandoned && lost == 0 && complete_s.is_some_and(|s| s <= deadline_s);
         let trial = Trial {
             offered_rate: rate,

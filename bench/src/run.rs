@@ -70,6 +70,10 @@ pub struct RunArgs {
     /// Seconds of the fleet check (default 10; quick 0.5; 0 skips it).
     #[arg(long)]
     pub fleet_duration: Option<f64>,
+    /// Send each sample as one joint message with the measured pose embedded (RTDE style), not
+    /// as a joint and a measured message.
+    #[arg(long)]
+    pub embedded: bool,
     /// The `armtwin` binary (default: next to this one).
     #[arg(long)]
     pub armtwin: Option<PathBuf>,
@@ -109,6 +113,8 @@ pub struct Settings {
     pub fleet_hz: f64,
     /// Fleet check: seconds (0: none).
     pub fleet_duration_s: f64,
+    /// Measured poses embedded in the joint messages.
+    pub embedded: bool,
 }
 
 impl Settings {
@@ -142,6 +148,7 @@ impl Settings {
             latency_rounds: args.latency_rounds.unwrap_or(if quick { 1 } else { 3 }),
             fleet_hz: pick(args.fleet_hz, 100.0, 10.0),
             fleet_duration_s: pick(args.fleet_duration, 10.0, 0.5),
+            embedded: args.embedded,
         }
     }
 }
@@ -447,6 +454,9 @@ impl Orchestrator {
             "--clock-origin".into(),
             self.clock_origin_s.to_string(),
         ];
+        if s.embedded {
+            args.push("--embedded".into());
+        }
         if latency {
             args.extend([
                 "--latency-rate".into(),

@@ -100,6 +100,20 @@ impl Workload {
         text
     }
 
+    /// The joint message with the same sample's measured pose embedded, as an RTDE gateway
+    /// sends both from one packet: `{"t":…,"q":[…],"measured":{"x":…,…,"qw":…}}`.
+    #[must_use]
+    pub fn joints_with_measured(&self, sample: u64, stamp_s: f64) -> String {
+        let configuration = self.configuration(sample);
+        let mut text = String::with_capacity(320);
+        let _ = write!(
+            text,
+            r#"{{"t":{stamp_s},"q":{},"measured":{{{}}}}}"#,
+            configuration.joints_json, configuration.measured_fields
+        );
+        text
+    }
+
     /// The measured pose that goes with the same sample: `{"t":…,"x":…,…,"qw":…}`.
     #[must_use]
     pub fn measured(&self, sample: u64, stamp_s: f64) -> String {
@@ -139,6 +153,11 @@ mod tests {
                 .sum::<f64>()
                 .sqrt();
             assert!((distance_m - 0.000_538_5).abs() < 1e-6, "{distance_m}");
+            let embedded =
+                wire::decode_joints(workload.joints_with_measured(sample, 1.25).as_bytes(), 6)
+                    .expect("joint message with its measured pose");
+            assert_eq!(embedded.sample.q_rad, joints.sample.q_rad);
+            assert_eq!(embedded.sample.measured, Some(measured.pose));
         }
     }
 }

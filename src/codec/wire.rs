@@ -226,6 +226,14 @@ pub fn stamp_hint(payload: &[u8]) -> Option<f64> {
 /// # Ok::<(), armtwin::codec::wire::WireError>(())
 /// ```
 pub fn decode_joints(payload: &[u8], joint_count: usize) -> Result<DecodedJoints, WireError> {
+    match fast::joints(payload, joint_count) {
+        Some(decoded) => Ok(decoded),
+        None => general_joints(payload, joint_count),
+    }
+}
+
+/// [`decode_joints`] for any message, naming what is wrong with an invalid one.
+fn general_joints(payload: &[u8], joint_count: usize) -> Result<DecodedJoints, WireError> {
     let fields = parse_object(payload, Schema::JointMessage)?;
     let stamp_s = stamp(&fields)?;
     let seq = optional(&fields, "seq").map(sequence_number).transpose()?;
@@ -269,6 +277,14 @@ pub fn decode_joints(payload: &[u8], joint_count: usize) -> Result<DecodedJoints
 /// Decodes a measured-pose message: position (m) and exactly one orientation form, the
 /// quaternion normalised (within 5 % of unit norm) and canonicalised to `qw ≥ 0`.
 pub fn decode_measured(payload: &[u8]) -> Result<MeasuredSample, WireError> {
+    match fast::measured(payload) {
+        Some(measured) => Ok(measured),
+        None => general_measured(payload),
+    }
+}
+
+/// [`decode_measured`] for any message, naming what is wrong with an invalid one.
+fn general_measured(payload: &[u8]) -> Result<MeasuredSample, WireError> {
     let fields = parse_object(payload, Schema::MeasuredPose { with_stamp: true })?;
     Ok(MeasuredSample {
         stamp_s: stamp(&fields)?,
@@ -471,6 +487,17 @@ fn pose_readout(fields: &Map<String, Value>, prefix: &str) -> Result<PoseReadout
     for (value, key) in values.iter_mut().zip(form.keys()) {
         *value = required(fields, prefix, key)?;
     }
+    pose_of(prefix, position_m, form, values)
+}
+
+/// The pose of a position (m) and the values of one orientation form (in the form's wire order;
+/// unused trailing values ignored).
+fn pose_of(
+    prefix: &str,
+    position_m: [f64; 3],
+    form: OrientationForm,
+    values: [f64; 4],
+) -> Result<PoseReadout, WireError> {
     let orientation = match form {
         OrientationForm::Quaternion => quaternion(prefix, values)?,
         OrientationForm::RollPitchYaw => {
@@ -719,6 +746,335 @@ impl<'de> Visitor<'de> for ValueSeed<'_> {
 }
 
 // ---------------------------------------------------------------------------------------------
+// The fast path: well-formed messages in their usual shapes, without building a `Value` tree.
+// ---------------------------------------------------------------------------------------------
+
+/// Decodes the messages gateways normally send straight into fixed slots, with borrowed keys and
+/// no allocation beyond the joint angles. It never reports an error: anything unusual (a field
+/// it does not handle, a `null`, a repeated field, a wrong type, a failed check) makes it give
+/// up, and the general decoder above reads the message again and names the problem exactly. So
+/// both paths agree by construction on every message the fast one accepts (tested below).
+mod fast {
+    use std::fmt;
+
+    use serde::de::{
+        self, DeserializeSeed, Deserializer, IgnoredAny, MapAccess, SeqAccess, Visitor,
+    };
+
+    use super::{DecodedJoints, MAX_PAYLOAD_BYTES, OrientationForm, joint_index, pose_of};
+    use crate::kinematics::PoseReadout;
+    use crate::sample::{JointSample, MeasuredSample};
+
+    /// Gives up: the general decoder takes over.
+    fn give_up<E: de::Error>() -> E {
+        E::custom("not on the fast path")
+    }
+
+    /// Parses `payload` as one JSON value with `seed`, requiring nothing after it.
+    fn parse<T>(payload: &[u8], seed: impl for<'de> DeserializeSeed<'de, Value = T>) -> Option<T> {
+        if payload.len() > MAX_PAYLOAD_BYTES {
+            return None;
+        }
+        let text = std::str::from_utf8(payload).ok()?;
+        let mut deserializer = serde_json::Deserializer::from_str(text);
+        let value = seed.deserialize(&mut deserializer).ok()?;
+        deserializer.end().ok()?;
+        Some(value)
+    }
+
+    /// Sets a slot once; a repeated field gives up.
+    fn once<T, E: de::Error>(slot: &mut Option<T>, value: T) -> Result<(), E> {
+        if slot.replace(value).is_some() {
+            return Err(give_up());
+        }
+        Ok(())
+    }
+
+    /// The fields of a measured pose object.
+    #[derive(Default)]
+    struct PoseSlots {
+        stamp_s: Option<f64>,
+        time_s: Option<f64>,
+        position_m: [Option<f64>; 3],
+        /// `qx, qy, qz, qw`, `roll, pitch, yaw` and `rx, ry, rz`, in [`OrientationForm::ALL`]
+        /// order.
+        forms: [[Option<f64>; 4]; 3],
+    }
+
+    impl PoseSlots {
+        /// The slot of a pose field, if `key` is one.
+        fn slot(&mut self, key: &str) -> Option<&mut Option<f64>> {
+            let [quaternion, rpy, rotation_vector] = &mut self.forms;
+            Some(match key {
+                "x" => &mut self.position_m[0],
+                "y" => &mut self.position_m[1],
+                "z" => &mut self.position_m[2],
+                "qx" => &mut quaternion[0],
+                "qy" => &mut quaternion[1],
+                "qz" => &mut quaternion[2],
+                "qw" => &mut quaternion[3],
+                "roll" => &mut rpy[0],
+                "pitch" => &mut rpy[1],
+                "yaw" => &mut rpy[2],
+                "rx" => &mut rotation_vector[0],
+                "ry" => &mut rotation_vector[1],
+                "rz" => &mut rotation_vector[2],
+                _ => return None,
+            })
+        }
+
+        /// The pose, if every position field and exactly one complete orientation form is
+        /// present and it passes the general decoder's checks.
+        fn pose(&self, prefix: &str) -> Option<PoseReadout> {
+            let [Some(x), Some(y), Some(z)] = self.position_m else {
+                return None;
+            };
+            let mut present = OrientationForm::ALL
+                .into_iter()
+                .zip(&self.forms)
+                .filter(|(_, values)| values.iter().any(Option::is_some));
+            let (form, values) = present.next()?;
+            if present.next().is_some() {
+                return None;
+            }
+            let mut numbers = [0.0; 4];
+            for (index, number) in numbers.iter_mut().enumerate().take(form.keys().len()) {
+                *number = values[index]?;
+            }
+            pose_of(prefix, [x, y, z], form, numbers).ok()
+        }
+    }
+
+    /// A measured pose object; `with_stamp` reads its `t`/`time` (a joint message's embedded
+    /// pose skips them, as the general decoder does).
+    struct PoseSeed {
+        with_stamp: bool,
+    }
+
+    impl<'de> DeserializeSeed<'de> for PoseSeed {
+        type Value = PoseSlots;
+
+        fn deserialize<D: Deserializer<'de>>(self, deserializer: D) -> Result<PoseSlots, D::Error> {
+            deserializer.deserialize_map(self)
+        }
+    }
+
+    impl<'de> Visitor<'de> for PoseSeed {
+        type Value = PoseSlots;
+
+        fn expecting(&self, formatter: &mut fmt::Formatter<'_>) -> fmt::Result {
+            formatter.write_str("a measured pose object")
+        }
+
+        fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<PoseSlots, A::Error> {
+            let mut slots = PoseSlots::default();
+            while let Some(key) = map.next_key::<Key<'de>>()? {
+                let slot = match key.as_str() {
+                    "t" if self.with_stamp => Some(&mut slots.stamp_s),
+                    "time" if self.with_stamp => Some(&mut slots.time_s),
+                    other => slots.slot(other),
+                };
+                if let Some(slot) = slot {
+                    let value = map.next_value::<f64>()?;
+                    once(slot, value)?;
+                } else {
+                    map.next_value::<IgnoredAny>()?;
+                }
+            }
+            Ok(slots)
+        }
+    }
+
+    /// The fields of a joint message.
+    struct JointSlots {
+        stamp_s: Option<f64>,
+        time_s: Option<f64>,
+        seq: Option<u64>,
+        degrees: Option<bool>,
+        q: Option<Vec<f64>>,
+        measured: Option<PoseSlots>,
+    }
+
+    struct JointSeed {
+        joint_count: usize,
+    }
+
+    impl<'de> DeserializeSeed<'de> for JointSeed {
+        type Value = JointSlots;
+
+        fn deserialize<D: Deserializer<'de>>(
+            self,
+            deserializer: D,
+        ) -> Result<JointSlots, D::Error> {
+            deserializer.deserialize_map(self)
+        }
+    }
+
+    impl<'de> Visitor<'de> for JointSeed {
+        type Value = JointSlots;
+
+        fn expecting(&self, formatter: &mut fmt::Formatter<'_>) -> fmt::Result {
+            formatter.write_str("a joint message object")
+        }
+
+        fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<JointSlots, A::Error> {
+            let mut slots = JointSlots {
+                stamp_s: None,
+                time_s: None,
+                seq: None,
+                degrees: None,
+                q: None,
+                measured: None,
+            };
+            while let Some(key) = map.next_key::<Key<'de>>()? {
+                match key.as_str() {
+                    "t" => once(&mut slots.stamp_s, map.next_value()?)?,
+                    "time" => once(&mut slots.time_s, map.next_value()?)?,
+                    "seq" => once(&mut slots.seq, map.next_value()?)?,
+                    "unit" => {
+                        let degrees = match map.next_value::<Key<'de>>()?.as_str() {
+                            "rad" => false,
+                            "deg" => true,
+                            _ => return Err(give_up()),
+                        };
+                        once(&mut slots.degrees, degrees)?;
+                    }
+                    "q" => {
+                        let q = map.next_value_seed(AnglesSeed {
+                            joint_count: self.joint_count,
+                        })?;
+                        once(&mut slots.q, q)?;
+                    }
+                    "measured" => {
+                        let pose = map.next_value_seed(PoseSeed { with_stamp: false })?;
+                        once(&mut slots.measured, pose)?;
+                    }
+                    // The flat `q1..qn` form: the general decoder.
+                    other if joint_index(other).is_some() => return Err(give_up()),
+                    _ => {
+                        map.next_value::<IgnoredAny>()?;
+                    }
+                }
+            }
+            Ok(slots)
+        }
+    }
+
+    /// The `q` array: exactly `joint_count` numbers.
+    struct AnglesSeed {
+        joint_count: usize,
+    }
+
+    impl<'de> DeserializeSeed<'de> for AnglesSeed {
+        type Value = Vec<f64>;
+
+        fn deserialize<D: Deserializer<'de>>(self, deserializer: D) -> Result<Vec<f64>, D::Error> {
+            deserializer.deserialize_seq(self)
+        }
+    }
+
+    impl<'de> Visitor<'de> for AnglesSeed {
+        type Value = Vec<f64>;
+
+        fn expecting(&self, formatter: &mut fmt::Formatter<'_>) -> fmt::Result {
+            formatter.write_str("an array of joint angles")
+        }
+
+        fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Vec<f64>, A::Error> {
+            let mut angles = Vec::with_capacity(self.joint_count);
+            while let Some(angle) = seq.next_element::<f64>()? {
+                if angles.len() == self.joint_count {
+                    return Err(give_up());
+                }
+                angles.push(angle);
+            }
+            Ok(angles)
+        }
+    }
+
+    /// An object key or a short string: borrowed from the payload when it has no escapes.
+    enum Key<'de> {
+        Borrowed(&'de str),
+        Owned(String),
+    }
+
+    impl Key<'_> {
+        fn as_str(&self) -> &str {
+            match self {
+                Self::Borrowed(key) => key,
+                Self::Owned(key) => key,
+            }
+        }
+    }
+
+    impl<'de> de::Deserialize<'de> for Key<'de> {
+        fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+            struct KeyVisitor;
+            impl<'de> Visitor<'de> for KeyVisitor {
+                type Value = Key<'de>;
+
+                fn expecting(&self, formatter: &mut fmt::Formatter<'_>) -> fmt::Result {
+                    formatter.write_str("a string")
+                }
+
+                fn visit_borrowed_str<E: de::Error>(self, key: &'de str) -> Result<Key<'de>, E> {
+                    Ok(Key::Borrowed(key))
+                }
+
+                fn visit_str<E: de::Error>(self, key: &str) -> Result<Key<'de>, E> {
+                    Ok(Key::Owned(key.to_owned()))
+                }
+            }
+            deserializer.deserialize_str(KeyVisitor)
+        }
+    }
+
+    /// A joint message in its usual shape, or `None` for the general decoder.
+    pub(super) fn joints(payload: &[u8], joint_count: usize) -> Option<DecodedJoints> {
+        let slots = parse(payload, JointSeed { joint_count })?;
+        let stamp_s = match (slots.stamp_s, slots.time_s) {
+            (Some(_), Some(_)) => return None,
+            (stamp_s, time_s) => stamp_s.or(time_s),
+        };
+        let mut q_rad = slots.q?;
+        if q_rad.len() != joint_count || !q_rad.iter().all(|angle| angle.is_finite()) {
+            return None;
+        }
+        if slots.degrees == Some(true) {
+            for angle in &mut q_rad {
+                *angle = angle.to_radians();
+            }
+        }
+        let measured = match &slots.measured {
+            Some(pose) => Some(pose.pose("measured.")?),
+            None => None,
+        };
+        Some(DecodedJoints {
+            sample: JointSample {
+                stamp_s,
+                seq: slots.seq,
+                q_rad,
+                measured,
+            },
+            measured_error: None,
+        })
+    }
+
+    /// A measured pose in its usual shape, or `None` for the general decoder.
+    pub(super) fn measured(payload: &[u8]) -> Option<MeasuredSample> {
+        let slots = parse(payload, PoseSeed { with_stamp: true })?;
+        let stamp_s = match (slots.stamp_s, slots.time_s) {
+            (Some(_), Some(_)) => return None,
+            (stamp_s, time_s) => stamp_s.or(time_s),
+        };
+        Some(MeasuredSample {
+            stamp_s,
+            pose: slots.pose("")?,
+        })
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
 // Encoding
 // ---------------------------------------------------------------------------------------------
 
@@ -730,7 +1086,11 @@ impl<'de> Visitor<'de> for ValueSeed<'_> {
 /// structs, string keys, no custom implementations).
 #[must_use]
 pub fn to_json_bytes<T: Serialize>(value: &T) -> Vec<u8> {
-    serde_json::to_vec(value).expect("armtwin's wire messages always serialise")
+    // Room for a pose or deviation message at once (about 300 bytes): growing from serde_json's
+    // small default copied each message twice.
+    let mut bytes = Vec::with_capacity(512);
+    serde_json::to_writer(&mut bytes, value).expect("armtwin's wire messages always serialise");
+    bytes
 }
 
 /// A twin (or measured) pose: `{robot, t, seq, frame, x, y, z, roll, pitch, yaw, qx, qy, qz, qw}`.
@@ -1071,6 +1431,114 @@ impl StateMessage {
 #[allow(clippy::float_cmp, reason = "decoded values are copied, not computed")]
 mod tests {
     use super::*;
+
+    /// Both decoders agree on every message the fast one accepts, and the fast one accepts the
+    /// usual shapes.
+    fn assert_paths_agree(payload: &str, joint_count: usize) -> bool {
+        let bytes = payload.as_bytes();
+        let fast_joints = fast::joints(bytes, joint_count);
+        if let Some(fast) = &fast_joints {
+            assert_eq!(
+                Ok(fast),
+                general_joints(bytes, joint_count).as_ref(),
+                "{payload}"
+            );
+        }
+        let fast_measured = fast::measured(bytes);
+        if let Some(fast) = &fast_measured {
+            assert_eq!(Ok(fast), general_measured(bytes).as_ref(), "{payload}");
+        }
+        fast_joints.is_some() || fast_measured.is_some()
+    }
+
+    #[test]
+    fn the_fast_path_takes_usual_messages_and_agrees_with_the_general_one() {
+        let usual = [
+            r#"{"t": 12.5, "q": [-0.693, -0.833, 0.951, 1.149, 1.515, 1.739]}"#,
+            r#"{"q":[1,2,3,-1,0,1e-3],"seq":7,"time":3}"#,
+            r#"{"t":1,"unit":"deg","q":[90,-45,10,0,0,359.5],"extra":{"a":[1e400]}}"#,
+            r#"{"t":2,"q":[0,0,0,0,0,0],"measured":{"t":9,"x":1,"y":2,"z":3,"qx":0,"qy":0,"qz":0,"qw":1.02}}"#,
+            r#"{"t":2,"q":[0,0,0,0,0,0],"measured":{"x":1,"y":2,"z":3,"rx":0.1,"ry":2,"rz":0.3}}"#,
+            r#"{"t": 12.5, "x": -0.807, "y": 0.436, "z": 0.42, "qx": -0.408, "qy": -0.9, "qz": -0.014, "qw": 0.152}"#,
+            r#"{"time": 12.5, "x": -0.807, "y": 0.436, "z": 0.42, "roll": -3.038, "pitch": -0.289, "yaw": 2.275}"#,
+            r#"{"x": -0.807, "y": 0.436, "z": 0.42, "rx": 0.92, "ry": 2.03, "rz": 0.03, "note": "x"}"#,
+            r#"{"\u0074": 1.5, "q": [1, 2, 3, 4, 5, 6]}"#,
+        ];
+        for payload in usual {
+            assert!(
+                assert_paths_agree(payload, 6),
+                "fast path refused {payload}"
+            );
+        }
+        // Unusual or invalid: the general decoder decides (and names the problem).
+        let unusual = [
+            r#"{"t": null, "q": [0, 0, 0, 0, 0, 0]}"#,
+            r#"{"t": 1, "time": 1, "q": [0, 0, 0, 0, 0, 0]}"#,
+            r#"{"t": 1, "t": 2, "q": [0, 0, 0, 0, 0, 0]}"#,
+            r#"{"t": 1, "q1": 0, "q2": 0, "q3": 0, "q4": 0, "q5": 0, "q6": 0}"#,
+            r#"{"t": 1, "q": [0, 0, 0, 0, 0]}"#,
+            r#"{"t": 1, "q": [0, 0, 0, 0, 0, 0, 0]}"#,
+            r#"{"t": 1, "q": [0, 0, "0", 0, 0, 0]}"#,
+            r#"{"t": 1, "q": [0, 0, 0, 0, 0, 1e400]}"#,
+            r#"{"t": 1, "seq": -1, "q": [0, 0, 0, 0, 0, 0]}"#,
+            r#"{"t": 1, "seq": 1.5, "q": [0, 0, 0, 0, 0, 0]}"#,
+            r#"{"t": 1, "unit": "grad", "q": [0, 0, 0, 0, 0, 0]}"#,
+            r#"{"t": 1, "q": [0, 0, 0, 0, 0, 0], "measured": {"x": 1, "y": 2, "z": 3}}"#,
+            r#"{"t": 1, "q": [0, 0, 0, 0, 0, 0], "measured": {"x": 1, "y": 2, "z": 3, "qx": 0, "qy": 0, "qz": 0, "qw": 2}}"#,
+            r#"{"t": 1, "q": [0, 0, 0, 0, 0, 0], "measured": null}"#,
+            r#"{"t": 1, "x": 1, "y": 2, "z": 3, "qx": 0, "qy": 0, "qz": 0, "qw": 1, "roll": 0, "pitch": 0, "yaw": 0}"#,
+            r#"{"t": 1, "x": 1, "y": 2, "z": 3, "qx": 0, "qy": 0, "qw": 1}"#,
+            r#"{"t": 1, "x": 1, "y": 2, "z": 3, "rx": 1e200, "ry": 0, "rz": 0}"#,
+            r#"{"t": 1, "q": [0, 0, 0, 0, 0, 0]} trailing"#,
+            "[1, 2]",
+        ];
+        for payload in unusual {
+            assert!(!assert_paths_agree(payload, 6), "fast path took {payload}");
+        }
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn both_paths_agree_on_generated_messages(
+            q in proptest::collection::vec(-6.0_f64..6.0, 5..8),
+            stamp in proptest::option::of(-1e3_f64..1e6),
+            seq in proptest::option::of(0_u64..u64::MAX),
+            degrees in proptest::option::of(proptest::bool::ANY),
+            pose in proptest::array::uniform7(-2.0_f64..2.0),
+            form in 0_usize..4,
+            integers in proptest::bool::ANY,
+        ) {
+            let number = |v: f64| if integers { format!("{}", v.round()) } else { format!("{v:e}") };
+            let mut fields = Vec::new();
+            if let Some(stamp) = stamp {
+                fields.push(format!(r#""t":{}"#, number(stamp)));
+            }
+            if let Some(seq) = seq {
+                fields.push(format!(r#""seq":{seq}"#));
+            }
+            if let Some(degrees) = degrees {
+                fields.push(format!(r#""unit":"{}""#, if degrees { "deg" } else { "rad" }));
+            }
+            let q_text: Vec<String> = q.iter().map(|&v| number(v)).collect();
+            fields.push(format!(r#""q":[{}]"#, q_text.join(",")));
+            let [x, y, z, a, b, c, d] = pose;
+            let orientation = match form {
+                0 => format!(r#""qx":{a},"qy":{b},"qz":{c},"qw":{d}"#),
+                1 => format!(r#""roll":{a},"pitch":{b},"yaw":{c}"#),
+                2 => format!(r#""rx":{a},"ry":{b},"rz":{c}"#),
+                _ => String::new(),
+            };
+            let pose_text = format!(r#""x":{},"y":{y},"z":{z},{orientation}"#, number(x));
+            fields.push(format!(r#""measured":{{{pose_text}}}"#));
+            let joints = format!("{{{}}}", fields.join(","));
+            assert_paths_agree(&joints, 6);
+            let measured = match stamp {
+                Some(stamp) => format!(r#"{{"time":{stamp},{pose_text}}}"#),
+                None => format!("{{{pose_text}}}"),
+            };
+            assert_paths_agree(&measured, 6);
+        }
+    }
 
     #[test]
     fn joint_index_accepts_only_plain_positive_numbers() {

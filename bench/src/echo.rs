@@ -1,0 +1,112 @@
+//! `armtwin-bench echo`: the best plain-Zenoh echo of armtwin's message pattern, the baseline
+//! every armtwin figure is divided by.
+//!
+//! One wildcard subscriber per input stream republishes each payload unchanged, straight from
+//! Zenoh's receive callback (no queue, no thread hop, no decoding), through a publisher declared
+//! up front per robot: `joints/<robot>` → `pose/<robot>`, `measured/<robot>` → `deviation/<robot>`.
+//! Each robot's input keys are declared (`declare_keyexpr`) so Zenoh caches their routes, as
+//! armtwin does; `--naive` leaves them undeclared to measure what that costs.
+//!
+//! Runs until its standard input closes (or it is killed); prints `ready` once declared.
+
+use std::collections::HashMap;
+use std::io::{Read, Write};
+use std::sync::Arc;
+
+use armtwin::service::ServiceError;
+use clap::Args;
+use thiserror::Error;
+use zenoh::Wait;
+use zenoh::key_expr::KeyExpr;
+use zenoh::pubsub::Publisher;
+use zenoh::qos::CongestionControl;
+use zenoh::sample::Sample;
+use zenoh::session::Session;
+
+use crate::net;
+
+/// `armtwin-bench echo` arguments.
+#[derive(Debug, Args)]
+pub struct EchoArgs {
+    /// Endpoint to listen on (repeatable).
+    #[arg(short = 'l', long = "listen", value_name = "ENDPOINT", required = true)]
+    pub listen: Vec<String>,
+    /// Robots to declare publishers for (`fleet/r00000` …).
+    #[arg(long, default_value_t = 1)]
+    pub robots: usize,
+    /// Do not declare the robots' input keys (the naive echo the service issue measured).
+    #[arg(long)]
+    pub naive: bool,
+}
+
+/// Why the echo stopped with an error.
+#[derive(Debug, Error)]
+pub enum EchoError {
+    /// The Zenoh configuration was refused.
+    #[error(transparent)]
+    Config(#[from] ServiceError),
+    /// Zenoh failed.
+    #[error("zenoh: {0}")]
+    Zenoh(#[from] zenoh::Error),
+    /// Standard input or output failed.
+    #[error("stdio: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// Publishers of one output stream, by robot id.
+type Routes = HashMap<Box<str>, Publisher<'static>>;
+
+fn routes(session: &Session, robots: usize, output: &str) -> Result<Routes, zenoh::Error> {
+    (0..robots)
+        .map(|index| {
+            let robot = net::robot_id(index);
+            let publisher = session
+                .declare_publisher(net::key(output, &robot))
+                .congestion_control(CongestionControl::Block)
+                .wait()?;
+            Ok((robot.into_boxed_str(), publisher))
+        })
+        .collect()
+}
+
+/// Republishes `sample`'s payload on its robot's publisher of `routes`.
+fn forward(routes: &Routes, input: &str, sample: &Sample) {
+    let robot = net::robot_of(sample.key_expr().as_str(), input);
+    if let Some(publisher) = robot.and_then(|robot| routes.get(robot)) {
+        // Only fails when the session is closing.
+        let _ = publisher.put(sample.payload().clone()).wait();
+    }
+}
+
+/// Runs the echo until standard input closes.
+pub fn run(args: &EchoArgs) -> Result<(), EchoError> {
+    let session = zenoh::open(net::peer_config(&args.listen, &[])?).wait()?;
+    let mut declared: Vec<KeyExpr<'static>> = Vec::new();
+    if !args.naive {
+        for index in 0..args.robots {
+            let robot = net::robot_id(index);
+            for input in [net::JOINTS, net::MEASURED] {
+                declared.push(session.declare_keyexpr(net::key(input, &robot)).wait()?);
+            }
+        }
+    }
+    let mut subscribers = Vec::new();
+    for (input, output) in [(net::JOINTS, net::POSE), (net::MEASURED, net::DEVIATION)] {
+        let routes = Arc::new(routes(&session, args.robots, output)?);
+        subscribers.push(
+            session
+                .declare_subscriber(net::every_robot(input))
+                .callback(move |sample| forward(&routes, input, &sample))
+                .wait()?,
+        );
+    }
+    let mut stdout = std::io::stdout();
+    writeln!(stdout, "ready")?;
+    stdout.flush()?;
+    // Until the orchestrator closes our standard input.
+    std::io::stdin().read_to_end(&mut Vec::new())?;
+    drop(subscribers);
+    drop(declared);
+    session.close().wait()?;
+    Ok(())
+}

@@ -1,0 +1,802 @@
+//! `armtwin-bench load`: the load generator, in a process of its own.
+//!
+//! Publishes contract-shaped joint samples and, with each, the measured pose of the same stamp,
+//! for N robots, round robin, on a fixed schedule; counts the replies (twin poses and deviations,
+//! plus armtwin's metrics and events) and measures latency from the stamp each reply carries
+//! back: a sample's `t` is the time it is sent (seconds since a clock origin shared by every load
+//! process of a run, so stamps keep increasing for a system under test that outlives one), and
+//! both the echo (the payload itself) and armtwin (`t` of the twin pose) return it unchanged.
+//!
+//! It declares every key it publishes (through its publishers) and every reply key it receives
+//! (`declare_keyexpr`), so it does not pay Zenoh's per-key route computation itself.
+//!
+//! What it runs, in order, each optional: a latency run at a fixed moderate rate; the search for
+//! the highest sustained rate (doubling until a trial fails, then bisecting); a check at one
+//! fixed rate; or (alone) the memory measurement of a system under test. Results go to standard
+//! output as one JSON object; progress to standard error.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::thread;
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use armtwin::service::ServiceError;
+use clap::{Args, ValueEnum};
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+use zenoh::Wait;
+use zenoh::key_expr::KeyExpr;
+use zenoh::pubsub::{Publisher, Subscriber};
+use zenoh::qos::CongestionControl;
+use zenoh::sample::Sample;
+use zenoh::session::Session;
+
+use crate::net;
+use crate::procfs::{self, ProcError};
+use crate::workload::{Workload, WorkloadError};
+
+/// How long to wait for the system under test to subscribe.
+const MATCH_TIMEOUT: Duration = Duration::from_secs(30);
+/// Pause between trials, so one trial's tail never overlaps the next.
+const PAUSE: Duration = Duration::from_millis(300);
+/// How long the warm-up waits without any new reply before it sends again.
+const STALL: Duration = Duration::from_secs(10);
+/// How long a failed trial's stragglers are awaited before the next trial starts.
+const SETTLE: Duration = Duration::from_secs(10);
+/// Slack on a trial's completion for the last replies' own latency.
+const COMPLETION_SLACK_S: f64 = 0.01;
+
+/// Which system the load talks to, which decides the replies it expects.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Target {
+    /// The plain echo: the payloads come back on `pose` and `deviation`.
+    Echo,
+    /// `armtwin serve`: twin poses, deviations, metrics and events.
+    Armtwin,
+}
+
+/// `armtwin-bench load` arguments.
+#[derive(Debug, Clone, Args)]
+pub struct LoadArgs {
+    /// Endpoint of the system under test.
+    #[arg(
+        short = 'e',
+        long = "connect",
+        value_name = "ENDPOINT",
+        required = true
+    )]
+    pub connect: Vec<String>,
+    /// The system under test.
+    #[arg(long, value_enum)]
+    pub target: Target,
+    /// Its process id: its CPU time per trial and its resident memory are read from /proc.
+    #[arg(long)]
+    pub sut_pid: Option<u32>,
+    /// Send each sample as one joint message with its measured pose embedded (RTDE style)
+    /// instead of a joint and a measured message; the echo then returns one message per sample.
+    #[arg(long)]
+    pub embedded: bool,
+    /// Robots (`fleet/r00000` …); the rate is spread over them round robin.
+    #[arg(long, default_value_t = 1)]
+    pub robots: usize,
+    /// Latency run: samples per second (0: no latency run).
+    #[arg(long, default_value_t = 0.0)]
+    pub latency_rate: f64,
+    /// Latency run: seconds.
+    #[arg(long, default_value_t = 5.0)]
+    pub latency_duration: f64,
+    /// Throughput search: first rate tried, samples per second (0: no search).
+    #[arg(long, default_value_t = 0.0)]
+    pub start_rate: f64,
+    /// Throughput search: highest rate tried.
+    #[arg(long, default_value_t = 2_000_000.0)]
+    pub max_rate: f64,
+    /// Throughput search: seconds per trial.
+    #[arg(long, default_value_t = 2.0)]
+    pub duration: f64,
+    /// Throughput search: bisection steps after the first failing rate.
+    #[arg(long, default_value_t = 4)]
+    pub bisect_steps: u32,
+    /// A trial is sustained when every reply arrived within this fraction of its duration
+    /// after it should have ended.
+    #[arg(long, default_value_t = 0.05)]
+    pub tolerance: f64,
+    /// A check at one rate after the search (0: none), samples per second.
+    #[arg(long, default_value_t = 0.0)]
+    pub check_rate: f64,
+    /// Seconds of the check.
+    #[arg(long, default_value_t = 10.0)]
+    pub check_duration: f64,
+    /// Unix time (s) that stamps count from: the orchestrator gives every load process the
+    /// same, so stamps keep increasing from one load process to the next (default: now).
+    #[arg(long)]
+    pub clock_origin: Option<f64>,
+    /// Memory measurement instead of everything above: robots tracked for the baseline.
+    #[arg(long)]
+    pub memory_base_robots: Option<usize>,
+    /// Memory measurement: samples each robot sends.
+    #[arg(long, default_value_t = 4)]
+    pub memory_samples: u64,
+}
+
+/// Why the load generator failed.
+#[derive(Debug, Error)]
+pub enum LoadError {
+    /// The Zenoh configuration was refused.
+    #[error(transparent)]
+    Config(#[from] ServiceError),
+    /// Zenoh failed.
+    #[error("zenoh: {0}")]
+    Zenoh(#[from] zenoh::Error),
+    /// The payloads could not be built.
+    #[error(transparent)]
+    Workload(#[from] WorkloadError),
+    /// The system under test could not be read.
+    #[error(transparent)]
+    Proc(#[from] ProcError),
+    /// The system under test never answered.
+    #[error("{0}")]
+    NoAnswer(String),
+}
+
+/// Reply counts.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Counts {
+    /// Twin poses (echo: republished joint samples).
+    pub poses: u64,
+    /// Deviations (echo: republished measured poses).
+    pub deviations: u64,
+    /// Metrics messages (armtwin).
+    pub metrics: u64,
+    /// Events (armtwin; none expected).
+    pub events: u64,
+}
+
+impl Counts {
+    fn since(self, base: Self) -> Self {
+        Self {
+            poses: self.poses - base.poses,
+            deviations: self.deviations - base.deviations,
+            metrics: self.metrics - base.metrics,
+            events: self.events - base.events,
+        }
+    }
+}
+
+/// What the receive callbacks share with the sender.
+#[derive(Debug)]
+struct Replies {
+    start: Instant,
+    /// Seconds from the clock origin to `start`.
+    start_s: f64,
+    poses: AtomicU64,
+    deviations: AtomicU64,
+    metrics: AtomicU64,
+    events: AtomicU64,
+    /// Arrival of the newest pose or deviation (ns since `start`).
+    last_ns: AtomicU64,
+    /// Whether twin poses' latencies are being recorded.
+    recording: AtomicBool,
+    latencies_ns: Mutex<Vec<u64>>,
+}
+
+/// What a subscriber does with a reply.
+type OnReply = fn(&Replies, &Sample);
+
+/// The stamp of a reply.
+#[derive(Deserialize)]
+struct Stamp {
+    t: f64,
+}
+
+impl Replies {
+    fn elapsed_ns(&self) -> u64 {
+        self.start.elapsed().as_nanos() as u64
+    }
+
+    /// Now, in seconds since the clock origin: the stamp of a sample sent now.
+    fn now_s(&self) -> f64 {
+        self.start_s + self.start.elapsed().as_secs_f64()
+    }
+
+    fn counts(&self) -> Counts {
+        Counts {
+            poses: self.poses.load(Ordering::Acquire),
+            deviations: self.deviations.load(Ordering::Acquire),
+            metrics: self.metrics.load(Ordering::Relaxed),
+            events: self.events.load(Ordering::Relaxed),
+        }
+    }
+
+    fn pose(&self, sample: &Sample) {
+        let now_ns = self.elapsed_ns();
+        if self.recording.load(Ordering::Relaxed)
+            && let Ok(stamp) = serde_json::from_slice::<Stamp>(&sample.payload().to_bytes())
+        {
+            let latency_s = self.start_s + now_ns as f64 / 1e9 - stamp.t;
+            self.latencies_ns
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .push((latency_s * 1e9).max(0.0) as u64);
+        }
+        self.last_ns.fetch_max(now_ns, Ordering::AcqRel);
+        self.poses.fetch_add(1, Ordering::Release);
+    }
+
+    fn deviation(&self) {
+        self.last_ns.fetch_max(self.elapsed_ns(), Ordering::AcqRel);
+        self.deviations.fetch_add(1, Ordering::Release);
+    }
+}
+
+/// One run at a fixed rate.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Trial {
+    /// Samples per second offered (each sample: one joint and one measured message).
+    pub offered_rate: f64,
+    /// Samples sent (fewer than the schedule's when the system fell more than the trial's
+    /// duration, at least a second, behind it and the trial was abandoned).
+    pub samples: u64,
+    /// Seconds the schedule lasts.
+    pub duration_s: f64,
+    /// Seconds sending took (more than `duration_s`: the load could not keep the schedule).
+    pub send_s: f64,
+    /// Seconds from the first send to the last expected reply, if they all arrived in time.
+    pub complete_s: Option<f64>,
+    /// Replies counted (after the settle time for an incomplete trial).
+    pub replies: Counts,
+    /// Expected poses and deviations that never arrived.
+    pub lost: u64,
+    /// `samples / complete_s`.
+    pub achieved_rate: Option<f64>,
+    /// CPU seconds the system under test used during the trial.
+    pub sut_cpu_s: Option<f64>,
+    /// Every reply arrived, within the tolerance of the schedule.
+    pub sustained: bool,
+}
+
+/// Latency of the twin poses at a fixed rate (µs, nearest rank).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Latency {
+    /// The run.
+    pub trial: Trial,
+    /// Poses timed.
+    pub count: usize,
+    /// Median.
+    pub p50_us: f64,
+    /// 99th percentile.
+    pub p99_us: f64,
+    /// 99.9th percentile.
+    pub p999_us: f64,
+    /// Largest.
+    pub max_us: f64,
+}
+
+/// The throughput search.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Search {
+    /// Highest offered rate sustained (samples per second; 0: none).
+    pub max_sustained_rate: f64,
+    /// Every trial, in order.
+    pub trials: Vec<Trial>,
+}
+
+/// Resident memory of the system under test.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Memory {
+    /// Robots tracked at the baseline.
+    pub base_robots: usize,
+    /// Robots tracked at the end.
+    pub robots: usize,
+    /// Samples each robot sent.
+    pub samples_per_robot: u64,
+    /// RSS before any sample (KiB).
+    pub rss_start_kib: u64,
+    /// RSS with `base_robots` tracked (KiB).
+    pub rss_base_kib: u64,
+    /// RSS with `robots` tracked (KiB).
+    pub rss_full_kib: u64,
+    /// `(rss_full − rss_base) / (robots − base_robots)`, bytes.
+    pub bytes_per_robot: f64,
+}
+
+/// Everything a load run measured: its standard output.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LoadReport {
+    /// The system under test.
+    pub target: Target,
+    /// Robots.
+    pub robots: usize,
+    /// Seconds until every robot's first sample was answered.
+    pub warmup_s: f64,
+    /// The latency run.
+    pub latency: Option<Latency>,
+    /// The throughput search.
+    pub search: Option<Search>,
+    /// The check at a fixed rate.
+    pub check: Option<Trial>,
+    /// The memory measurement.
+    pub memory: Option<Memory>,
+    /// Replies over the whole run.
+    pub totals: Counts,
+}
+
+/// One robot's publishers and the reply keys it declared.
+struct RobotKeys {
+    joints: Publisher<'static>,
+    measured: Publisher<'static>,
+    _replies: Vec<KeyExpr<'static>>,
+    /// Samples sent so far (which joint configuration comes next).
+    next_seq: u64,
+    /// The last stamp sent (stamps increase strictly per robot).
+    last_t_s: f64,
+}
+
+struct Load {
+    args: LoadArgs,
+    session: Session,
+    workload: Workload,
+    replies: Arc<Replies>,
+    robots: Vec<RobotKeys>,
+    subscribers: Vec<Subscriber<()>>,
+    /// The next robot (round robin over all trials).
+    cursor: usize,
+    /// Replies already accounted to earlier trials.
+    accounted: Counts,
+}
+
+/// Runs the load and returns its report.
+pub fn run(args: LoadArgs) -> Result<LoadReport, LoadError> {
+    let mut load = Load::open(args)?;
+    let robots = load.args.robots;
+    let mut report = LoadReport {
+        target: load.args.target,
+        robots,
+        warmup_s: 0.0,
+        latency: None,
+        search: None,
+        check: None,
+        memory: None,
+        totals: Counts::default(),
+    };
+    if let Some(base_robots) = load.args.memory_base_robots {
+        report.memory = Some(load.memory(base_robots.clamp(1, robots))?);
+    } else {
+        load.declare_robots(robots)?;
+        load.wait_for_subscriber()?;
+        let started = Instant::now();
+        load.warm_up(0..robots)?;
+        report.warmup_s = started.elapsed().as_secs_f64();
+        if load.args.latency_rate > 0.0 {
+            report.latency = Some(load.latency()?);
+        }
+        if load.args.start_rate > 0.0 {
+            report.search = Some(load.search()?);
+        }
+        if load.args.check_rate > 0.0 {
+            eprintln!("load: check at {} samples/s", load.args.check_rate);
+            report.check =
+                Some(load.trial(load.args.check_rate, load.args.check_duration, false)?);
+        }
+    }
+    report.totals = load.replies.counts();
+    load.close();
+    Ok(report)
+}
+
+fn percentile_us(sorted_ns: &[u64], fraction: f64) -> f64 {
+    if sorted_ns.is_empty() {
+        return f64::NAN;
+    }
+    let rank = ((fraction * sorted_ns.len() as f64).ceil() as usize).clamp(1, sorted_ns.len());
+    sorted_ns[rank - 1] as f64 / 1e3
+}
+
+impl Load {
+    fn open(args: LoadArgs) -> Result<Self, LoadError> {
+        let session = zenoh::open(net::peer_config(&[], &args.connect)?).wait()?;
+        let start = Instant::now();
+        let unix_s = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0.0, |d| d.as_secs_f64());
+        let replies = Arc::new(Replies {
+            start,
+            start_s: unix_s - args.clock_origin.unwrap_or(unix_s),
+            poses: AtomicU64::new(0),
+            deviations: AtomicU64::new(0),
+            metrics: AtomicU64::new(0),
+            events: AtomicU64::new(0),
+            last_ns: AtomicU64::new(0),
+            recording: AtomicBool::new(false),
+            latencies_ns: Mutex::new(Vec::new()),
+        });
+        let mut streams: Vec<(&str, OnReply)> = vec![
+            (net::POSE, Replies::pose),
+            (net::DEVIATION, |replies, _| replies.deviation()),
+        ];
+        if args.target == Target::Armtwin {
+            streams.push((net::METRICS, |replies, _| {
+                replies.metrics.fetch_add(1, Ordering::Relaxed);
+            }));
+            streams.push((net::EVENTS, |replies, _| {
+                replies.events.fetch_add(1, Ordering::Relaxed);
+            }));
+        }
+        let mut subscribers = Vec::new();
+        for (stream, on_reply) in streams {
+            let replies = replies.clone();
+            subscribers.push(
+                session
+                    .declare_subscriber(net::every_robot(stream))
+                    .callback(move |sample| on_reply(&replies, &sample))
+                    .wait()?,
+            );
+        }
+        Ok(Self {
+            workload: Workload::ur10e()?,
+            args,
+            session,
+            replies,
+            robots: Vec::new(),
+            subscribers,
+            cursor: 0,
+            accounted: Counts::default(),
+        })
+    }
+
+    fn close(self) {
+        drop(self.robots);
+        drop(self.subscribers);
+        // Failing to close a session at exit changes nothing measured.
+        let _ = self.session.close().wait();
+    }
+
+    /// Declares publishers and reply keys of robots up to (not including) `count`. The memory
+    /// measurement declares no reply keys: it receives a few replies per robot, and the system
+    /// under test should not hold our declarations for it.
+    fn declare_robots(&mut self, count: usize) -> Result<(), LoadError> {
+        let reply_streams: &[&str] = match (self.args.target, self.args.memory_base_robots) {
+            (_, Some(_)) => &[],
+            (Target::Echo, None) => &[net::POSE, net::DEVIATION],
+            (Target::Armtwin, None) => &[net::POSE, net::DEVIATION, net::METRICS, net::EVENTS],
+        };
+        for index in self.robots.len()..count {
+            let robot = net::robot_id(index);
+            let publisher = |stream: &str| {
+                self.session
+                    .declare_publisher(net::key(stream, &robot))
+                    .congestion_control(CongestionControl::Block)
+                    .wait()
+            };
+            let joints = publisher(net::JOINTS)?;
+            let measured = publisher(net::MEASURED)?;
+            let replies = reply_streams
+                .iter()
+                .map(|stream| {
+                    self.session
+                        .declare_keyexpr(net::key(stream, &robot))
+                        .wait()
+                })
+                .collect::<Result<_, _>>()?;
+            self.robots.push(RobotKeys {
+                joints,
+                measured,
+                _replies: replies,
+                next_seq: 0,
+                last_t_s: f64::NEG_INFINITY,
+            });
+        }
+        Ok(())
+    }
+
+    /// Waits until the system under test subscribes to both input streams.
+    fn wait_for_subscriber(&self) -> Result<(), LoadError> {
+        let deadline = Instant::now() + MATCH_TIMEOUT;
+        let first = self
+            .robots
+            .first()
+            .ok_or_else(|| LoadError::NoAnswer("no robots".to_owned()))?;
+        for publisher in [&first.joints, &first.measured] {
+            while !publisher.matching_status().wait()?.matching() {
+                if Instant::now() >= deadline {
+                    return Err(LoadError::NoAnswer(format!(
+                        "nobody subscribes to {} after {} s",
+                        publisher.key_expr(),
+                        MATCH_TIMEOUT.as_secs()
+                    )));
+                }
+                thread::sleep(Duration::from_millis(20));
+            }
+        }
+        // The subscriber's declaration and ours cross on the link; let ours land too.
+        thread::sleep(Duration::from_millis(200));
+        Ok(())
+    }
+
+    /// Sends one sample of `robot`: a joint and a measured message with the same stamp, or one
+    /// joint message with the measured pose embedded.
+    fn send(&mut self, robot: usize) -> Result<(), LoadError> {
+        let now_s = self.replies.now_s();
+        let keys = &mut self.robots[robot];
+        let stamp_s = if now_s > keys.last_t_s {
+            now_s
+        } else {
+            keys.last_t_s + 1e-9
+        };
+        keys.last_t_s = stamp_s;
+        let seq = keys.next_seq;
+        keys.next_seq += 1;
+        if self.args.embedded {
+            keys.joints
+                .put(self.workload.joints_with_measured(seq, stamp_s))
+                .wait()?;
+        } else {
+            keys.joints.put(self.workload.joints(seq, stamp_s)).wait()?;
+            keys.measured
+                .put(self.workload.measured(seq, stamp_s))
+                .wait()?;
+        }
+        Ok(())
+    }
+
+    /// Deviations expected per sample: one, except from the echo when the measured pose is
+    /// embedded in the joint message (it returns that one message on `pose`).
+    fn deviations_per_sample(&self) -> u64 {
+        u64::from(!(self.args.embedded && self.args.target == Target::Echo))
+    }
+
+    /// Sends one sample per robot of `robots` until every one is answered. The system under
+    /// test may take long to start tracking thousands of robots (Zenoh's declarations cost
+    /// O(robots) each), so this waits as long as answers keep coming; a round that stalls for
+    /// [`STALL`] is sent again (its first samples may have crossed our subscribers' declaration).
+    fn warm_up(&mut self, robots: std::ops::Range<usize>) -> Result<(), LoadError> {
+        let count = robots.len() as u64;
+        for _ in 0..3 {
+            let base = self.replies.counts();
+            for robot in robots.clone() {
+                self.send(robot)?;
+            }
+            let mut answered = 0;
+            let mut progress = Instant::now();
+            loop {
+                let got = self.replies.counts().since(base);
+                if got.poses >= count && got.deviations >= count * self.deviations_per_sample() {
+                    thread::sleep(PAUSE);
+                    self.accounted = self.replies.counts();
+                    return Ok(());
+                }
+                let now = Instant::now();
+                if got.poses + got.deviations > answered {
+                    answered = got.poses + got.deviations;
+                    progress = now;
+                } else if now - progress >= STALL {
+                    break;
+                }
+                thread::sleep(Duration::from_millis(5));
+            }
+            eprintln!(
+                "load: warm-up stalled at {answered} of {} replies, sending again",
+                2 * count
+            );
+        }
+        Err(LoadError::NoAnswer(format!(
+            "the system under test did not answer all of {count} robots' first samples"
+        )))
+    }
+
+    fn sut_cpu_s(&self) -> Option<f64> {
+        self.args.sut_pid.and_then(|pid| procfs::cpu_s(pid).ok())
+    }
+
+    /// Sends `rate × duration_s` samples on schedule and waits for their replies.
+    fn trial(&mut self, rate: f64, duration_s: f64, record: bool) -> Result<Trial, LoadError> {
+        let samples = (rate * duration_s).round().max(1.0) as u64;
+        let base = self.accounted;
+        let cpu_before = self.sut_cpu_s();
+        if record {
+            self.replies
+                .latencies_ns
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .clear();
+            self.replies.recording.store(true, Ordering::Relaxed);
+        }
+        let start = Instant::now();
+        let start_ns = self.replies.elapsed_ns();
+        // A system that falls this far behind the schedule is not keeping up: stop offering.
+        let give_up_lag = Duration::from_secs_f64(duration_s.max(1.0));
+        let mut sent = 0;
+        while sent < samples {
+            let due = start + Duration::from_secs_f64(sent as f64 / rate);
+            let now = Instant::now();
+            if due > now {
+                // Never spin: the system under test needs the cores.
+                thread::sleep(due - now);
+            } else if now - due > give_up_lag {
+                break;
+            }
+            let robot = self.cursor;
+            self.cursor = (self.cursor + 1) % self.robots.len();
+            self.send(robot)?;
+            sent += 1;
+        }
+        let abandoned = sent < samples;
+        let samples = sent;
+        let send_s = start.elapsed().as_secs_f64();
+        let deadline_s = duration_s * (1.0 + self.args.tolerance) + COMPLETION_SLACK_S;
+        let wait_until = start + Duration::from_secs_f64(deadline_s.max(send_s) + 1.0);
+        let deviations = samples * self.deviations_per_sample();
+        let complete = |replies: Counts| {
+            let got = replies.since(base);
+            got.poses >= samples && got.deviations >= deviations
+        };
+        let mut complete_s = None;
+        while Instant::now() < wait_until {
+            if complete(self.replies.counts()) {
+                let last_ns = self.replies.last_ns.load(Ordering::Acquire);
+                complete_s = Some(last_ns.saturating_sub(start_ns) as f64 / 1e9);
+                break;
+            }
+            thread::sleep(Duration::from_millis(1));
+        }
+        self.replies.recording.store(false, Ordering::Relaxed);
+        let cpu_after = self.sut_cpu_s();
+        if complete_s.is_none() {
+            // Let the stragglers arrive, so that they do not count for the next trial.
+            let settle_until = Instant::now() + SETTLE;
+            while Instant::now() < settle_until && !complete(self.replies.counts()) {
+                thread::sleep(Duration::from_millis(10));
+            }
+        }
+        let now = self.replies.counts();
+        let replies = now.since(base);
+        self.accounted = now;
+        let lost =
+            samples.saturating_sub(replies.poses) + deviations.saturating_sub(replies.deviations);
+        let sustained = !abandoned && lost == 0 && complete_s.is_some_and(|s| s <= deadline_s);
+        let trial = Trial {
+            offered_rate: rate,
+            samples,
+            duration_s,
+            send_s,
+            complete_s,
+            replies,
+            lost,
+            achieved_rate: complete_s.map(|s| samples as f64 / s),
+            sut_cpu_s: cpu_before.zip(cpu_after).map(|(b, a)| a - b),
+            sustained,
+        };
+        eprintln!(
+            "load: {rate:.0}/s × {duration_s} s to {robots} robots: {} (sent in {send_s:.3} s, complete {}, lost {lost})",
+            if sustained {
+                "sustained"
+            } else {
+                "NOT sustained"
+            },
+            complete_s.map_or_else(|| "never".to_owned(), |s| format!("{s:.3} s")),
+            robots = self.robots.len(),
+        );
+        thread::sleep(PAUSE);
+        Ok(trial)
+    }
+
+    fn latency(&mut self) -> Result<Latency, LoadError> {
+        let trial = self.trial(self.args.latency_rate, self.args.latency_duration, true)?;
+        let mut sorted = std::mem::take(
+            &mut *self
+                .replies
+                .latencies_ns
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner),
+        );
+        sorted.sort_unstable();
+        Ok(Latency {
+            trial,
+            count: sorted.len(),
+            p50_us: percentile_us(&sorted, 0.5),
+            p99_us: percentile_us(&sorted, 0.99),
+            p999_us: percentile_us(&sorted, 0.999),
+            max_us: percentile_us(&sorted, 1.0),
+        })
+    }
+
+    /// Doubles the rate until a trial fails (halves it while the first ones fail), then
+    /// bisects between the best sustained rate and the lowest failing one.
+    fn search(&mut self) -> Result<Search, LoadError> {
+        let duration_s = self.args.duration;
+        let max_rate = self.args.max_rate;
+        let mut trials = Vec::new();
+        let mut sustained = 0.0_f64;
+        let mut failed = f64::INFINITY;
+        let mut rate = self.args.start_rate.min(max_rate);
+        loop {
+            let trial = self.trial(rate, duration_s, false)?;
+            let ok = trial.sustained;
+            trials.push(trial);
+            if ok {
+                sustained = rate;
+                if rate >= max_rate || failed.is_finite() {
+                    break;
+                }
+                rate = (rate * 2.0).min(max_rate);
+            } else {
+                failed = rate;
+                if sustained > 0.0 || rate < 20.0 {
+                    break;
+                }
+                rate /= 2.0;
+            }
+        }
+        if failed.is_finite() && sustained > 0.0 {
+            for _ in 0..self.args.bisect_steps {
+                let rate = f64::midpoint(sustained, failed).round();
+                let trial = self.trial(rate, duration_s, false)?;
+                if trial.sustained {
+                    sustained = rate;
+                } else {
+                    failed = rate;
+                }
+                trials.push(trial);
+            }
+        }
+        Ok(Search {
+            max_sustained_rate: sustained,
+            trials,
+        })
+    }
+
+    /// RSS of the system under test with `base_robots` tracked, then with every robot tracked,
+    /// each robot having sent the same number of samples; keys are declared only for the robots
+    /// in play, as gateways would.
+    fn memory(&mut self, base_robots: usize) -> Result<Memory, LoadError> {
+        let pid = self
+            .args
+            .sut_pid
+            .ok_or_else(|| LoadError::NoAnswer("memory needs --sut-pid".to_owned()))?;
+        let robots = self.args.robots;
+        let samples = self.args.memory_samples.max(1);
+        self.declare_robots(base_robots)?;
+        self.wait_for_subscriber()?;
+        let rss_start_kib = procfs::rss_kib(pid)?;
+        let settle = Duration::from_secs(1);
+        for _ in 0..samples {
+            self.warm_up(0..base_robots)?;
+        }
+        thread::sleep(settle);
+        let rss_base_kib = procfs::rss_kib(pid)?;
+        eprintln!("load: memory baseline {rss_base_kib} KiB with {base_robots} robots");
+        self.declare_robots(robots)?;
+        for round in 0..samples {
+            self.warm_up(base_robots..robots)?;
+            eprintln!("load: memory round {}/{samples} done", round + 1);
+        }
+        thread::sleep(settle);
+        let rss_full_kib = procfs::rss_kib(pid)?;
+        let added = robots.saturating_sub(base_robots).max(1);
+        Ok(Memory {
+            base_robots,
+            robots,
+            samples_per_robot: samples,
+            rss_start_kib,
+            rss_base_kib,
+            rss_full_kib,
+            bytes_per_robot: (rss_full_kib as f64 - rss_base_kib as f64) * 1024.0 / added as f64,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn percentiles_are_nearest_rank() {
+        let sorted: Vec<u64> = (1..=1000).map(|v| v * 1000).collect();
+        assert!((percentile_us(&sorted, 0.5) - 500.0).abs() < 1e-9);
+        assert!((percentile_us(&sorted, 0.99) - 990.0).abs() < 1e-9);
+        assert!((percentile_us(&sorted, 0.999) - 999.0).abs() < 1e-9);
+        assert!((percentile_us(&sorted, 1.0) - 1000.0).abs() < 1e-9);
+        assert!(percentile_us(&[], 0.5).is_nan());
+    }
+}

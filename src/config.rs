@@ -134,6 +134,8 @@ struct ServiceSection {
     reject_unknown: bool,
     congestion: Congestion,
     queue_capacity: usize,
+    events_per_s: f64,
+    events_burst: u32,
 }
 
 impl Default for ServiceSection {
@@ -147,6 +149,28 @@ impl Default for ServiceSection {
             reject_unknown: false,
             congestion: Congestion::Block,
             queue_capacity: 65_536,
+            events_per_s: EventBudget::default().per_s,
+            events_burst: EventBudget::default().burst,
+        }
+    }
+}
+
+/// How many events per robot the service publishes: a token bucket of `burst` events refilled at
+/// `per_s`. Rejected, gap and unpaired events beyond it are counted, not published; alarms,
+/// recoveries and restarts always go out.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EventBudget {
+    /// Sustained events per second per robot.
+    pub per_s: f64,
+    /// Events a robot may publish at once.
+    pub burst: u32,
+}
+
+impl Default for EventBudget {
+    fn default() -> Self {
+        Self {
+            per_s: 20.0,
+            burst: 100,
         }
     }
 }
@@ -214,6 +238,8 @@ pub struct ServiceConfig {
     pub congestion: Congestion,
     /// Capacity of the queue from Zenoh's receive thread to the worker.
     pub queue_capacity: usize,
+    /// How many events per robot are published.
+    pub event_budget: EventBudget,
     /// Reject robots that are not configured (else they get `[robots.default]`).
     pub reject_unknown: bool,
     /// The pipeline's shared settings.
@@ -299,6 +325,10 @@ impl ServiceConfig {
             metrics_period: Duration::from_millis(service.metrics_period_ms),
             congestion: service.congestion,
             queue_capacity: service.queue_capacity,
+            event_budget: EventBudget {
+                per_s: service.events_per_s,
+                burst: service.events_burst,
+            },
             reject_unknown: service.reject_unknown,
             pipeline: PipelineConfig {
                 window_s: service.window_s,
@@ -351,6 +381,13 @@ fn check_service_and_align(
         if service.metrics_period_ms == 0 {
             return Err(invalid(
                 "service.metrics_period_ms",
+                "must be at least 1".to_owned(),
+            ));
+        }
+        positive("service.events_per_s", service.events_per_s)?;
+        if service.events_burst == 0 {
+            return Err(invalid(
+                "service.events_burst",
                 "must be at least 1".to_owned(),
             ));
         }

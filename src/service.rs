@@ -30,7 +30,7 @@ use zenoh::sample::Sample;
 use zenoh::session::Session;
 
 use crate::codec::wire;
-use crate::config::{Congestion, ServiceConfig, ZenohSection};
+use crate::config::{Congestion, EventBudget, ServiceConfig, ZenohSection};
 use crate::ingest;
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
@@ -133,7 +133,12 @@ pub async fn serve(
         config.robots.clone(),
     );
     let worker = Worker {
-        sink: ZenohSink::new(session.clone(), prefix.clone(), config.congestion),
+        sink: ZenohSink::new(
+            session.clone(),
+            prefix.clone(),
+            config.congestion,
+            config.event_budget,
+        ),
         pipeline,
         rx,
         prefix: prefix.clone(),
@@ -519,10 +524,54 @@ struct ZenohSink {
     outputs: HashMap<String, RobotOutputs>,
     poses: u64,
     publish_errors: u64,
+    event_budget: EventBudget,
+    /// Per tracked robot; robots that are not tracked (unknown and rejected) share the entry
+    /// under the empty id, so a flood of made-up ids cannot grow it.
+    event_buckets: HashMap<String, EventBucket>,
+}
+
+/// A token bucket of events (wall-clock time: it protects subscribers and logs, not statistics).
+#[derive(Debug, Clone, Copy)]
+struct EventBucket {
+    tokens: f64,
+    refilled: Instant,
+    suppressed: u64,
+}
+
+impl EventBucket {
+    fn full(budget: EventBudget, now: Instant) -> Self {
+        Self {
+            tokens: f64::from(budget.burst),
+            refilled: now,
+            suppressed: 0,
+        }
+    }
+
+    /// Whether an event may go out now (`always` for the ones that must: alarms, recoveries,
+    /// restarts); if not, it is counted as suppressed.
+    fn admit(&mut self, budget: EventBudget, now: Instant, always: bool) -> bool {
+        let elapsed_s = now.saturating_duration_since(self.refilled).as_secs_f64();
+        self.tokens = (self.tokens + elapsed_s * budget.per_s).min(f64::from(budget.burst));
+        self.refilled = now;
+        if self.tokens >= 1.0 {
+            self.tokens -= 1.0;
+            true
+        } else if always {
+            true
+        } else {
+            self.suppressed += 1;
+            false
+        }
+    }
 }
 
 impl ZenohSink {
-    fn new(session: Session, prefix: String, congestion: Congestion) -> Self {
+    fn new(
+        session: Session,
+        prefix: String,
+        congestion: Congestion,
+        event_budget: EventBudget,
+    ) -> Self {
         Self {
             session,
             prefix,
@@ -533,6 +582,8 @@ impl ZenohSink {
             outputs: HashMap::new(),
             poses: 0,
             publish_errors: 0,
+            event_budget,
+            event_buckets: HashMap::new(),
         }
     }
 
@@ -653,7 +704,33 @@ impl Sink for ZenohSink {
     }
 
     fn event(&mut self, event: &Event<'_>) {
-        let payload = wire::to_json_bytes(&wire::EventMessage::new(event));
+        let always = matches!(
+            event.kind,
+            EventKind::Alarm | EventKind::Recovered | EventKind::Restart
+        );
+        let bucket_id = if self.outputs.contains_key(event.robot) {
+            event.robot
+        } else {
+            ""
+        };
+        let now = Instant::now();
+        let budget = self.event_budget;
+        let bucket = match self.event_buckets.get_mut(bucket_id) {
+            Some(bucket) => bucket,
+            None => self
+                .event_buckets
+                .entry(bucket_id.to_owned())
+                .or_insert_with(|| EventBucket::full(budget, now)),
+        };
+        if !bucket.admit(budget, now, always) {
+            if bucket.suppressed == 1 {
+                warn!(robot = %event.robot, per_s = budget.per_s, burst = budget.burst, "event rate limit reached: further events are counted, not published");
+            }
+            return;
+        }
+        let mut message = wire::EventMessage::new(event);
+        message.suppressed = std::mem::take(&mut bucket.suppressed);
+        let payload = wire::to_json_bytes(&message);
         if let Some(outputs) = self.outputs.get(event.robot) {
             Self::put(&outputs.events, payload, &mut self.publish_errors);
         } else {

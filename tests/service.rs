@@ -852,3 +852,43 @@ async fn replaying_the_sample_recordings_twins_every_row() {
     .await
     .expect("test finished in time");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_flood_of_bad_input_is_counted_but_its_events_are_rate_limited() {
+    tokio::time::timeout(TEST_LIMIT, async {
+        let config = CONFIG.replace(
+            "window_s = 1.0\n",
+            "window_s = 1.0\nevents_per_s = 0.5\nevents_burst = 5\n",
+        );
+        let mut h = start(&config).await;
+        let key = "twin/joints/flood";
+        for _ in 0..50 {
+            h.put_raw(key, b"not json".to_vec()).await;
+        }
+        h.receive_until("50 rejections counted", |r| {
+            r.iter()
+                .rev()
+                .find(|(k, _)| k == "twin/metrics/flood")
+                .is_some_and(|(_, m)| m["rejected"] == 50)
+        })
+        .await;
+        assert_eq!(
+            h.on("twin/events/flood").len(),
+            5,
+            "the burst, then nothing"
+        );
+        // A token comes back after 2 s: the next event says how many were held back.
+        tokio::time::sleep(Duration::from_millis(2100)).await;
+        h.put_raw(key, b"not json".to_vec()).await;
+        h.receive_until("the event after the pause", |r| {
+            r.iter().filter(|(k, _)| k == "twin/events/flood").count() == 6
+        })
+        .await;
+        let events = h.on("twin/events/flood");
+        assert_eq!(events[5]["suppressed"], 45, "{}", events[5]);
+        assert!(events[..5].iter().all(|e| e.get("suppressed").is_none()));
+        h.stop().await;
+    })
+    .await
+    .expect("test finished in time");
+}

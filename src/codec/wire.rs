@@ -1197,6 +1197,18 @@ pub struct EventMessage {
     /// `unpaired` → `{cause, measured_s}`.
     #[serde(skip_serializing_if = "Value::is_null")]
     pub detail: Value,
+    /// Events of this robot the rate limit kept back since its previous published event (counted,
+    /// not published; omitted when 0).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub suppressed: u64,
+}
+
+#[allow(
+    clippy::trivially_copy_pass_by_ref,
+    reason = "serde's skip_serializing_if passes a reference"
+)]
+fn is_zero(n: &u64) -> bool {
+    *n == 0
 }
 
 impl EventMessage {
@@ -1224,6 +1236,7 @@ impl EventMessage {
             reason: event.reason.clone(),
             key: event.key.map(str::to_owned),
             detail,
+            suppressed: 0,
         }
     }
 }

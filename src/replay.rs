@@ -14,7 +14,7 @@ use tracing::info;
 use zenoh::Wait;
 use zenoh::qos::CongestionControl;
 
-use crate::codec::recording::Recording;
+use crate::codec::recording::{self, Recording};
 use crate::config::ZenohSection;
 use crate::service::{ServiceError, zenoh_config_of};
 
@@ -97,14 +97,10 @@ pub async fn replay(
                 break;
             }
         }
-        let payload = match entry {
-            Ok(row) => row.to_message(t_s).to_string().into_bytes(),
-            Err(malformed) => {
-                report.malformed += 1;
-                malformed.text.clone().into_bytes()
-            }
-        };
-        publisher.put(payload).wait()?;
+        if entry.is_err() {
+            report.malformed += 1;
+        }
+        publisher.put(recording::payload(entry, t_s)).wait()?;
         report.published += 1;
         progress(index + 1);
     }

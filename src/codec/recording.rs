@@ -442,6 +442,17 @@ impl RecordingRow {
     }
 }
 
+/// The bytes a gateway publishes for one entry at source time `t_s`: a row's joint message, or a
+/// malformed line's raw text (which the service rejects and counts, as it would from a gateway).
+/// `armtwin replay` publishes exactly these bytes and `armtwin validate` decodes exactly these.
+#[must_use]
+pub fn payload(entry: &Result<RecordingRow, Malformed>, t_s: f64) -> Vec<u8> {
+    match entry {
+        Ok(row) => row.to_message(t_s).to_string().into_bytes(),
+        Err(malformed) => malformed.text.clone().into_bytes(),
+    }
+}
+
 /// Source times for every entry, strictly increasing where the recording allows.
 ///
 /// With `period_s`, entry k is at `k · period_s`. Otherwise the recorded stamps are used; where a

@@ -1,7 +1,7 @@
 //! `armtwin validate`: a recording run offline through exactly the code the live service runs.
 //!
-//! Each row becomes the joint message a gateway would publish ([`RecordingRow::to_message`]),
-//! each malformed line its raw text, and both go through [`ingest::joint_message`] into a
+//! Each entry becomes the bytes a gateway would publish ([`recording::payload`]: a row's joint
+//! message, a malformed line's raw text), which go through [`ingest::joint_message`] into a
 //! [`Pipeline`] configured like the service's. What comes out is collected per row, so the
 //! report can name the line of every rejection and plot every pair. This module owns the run and
 //! its result; [`report`] writes the files and [`svg`] draws the plots. It does no I/O itself.
@@ -11,7 +11,7 @@ pub mod svg;
 
 use std::collections::HashMap;
 
-use crate::codec::recording::{Format, Recording};
+use crate::codec::recording::{self, Format, Recording};
 use crate::ingest;
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::{Deviation, StatsSet};
@@ -204,7 +204,6 @@ pub fn validate(
     };
     let key = format!("twin/joints/{ROBOT_ID}");
     let mut malformed_lines = Vec::new();
-    let mut message = Vec::new();
     for (index, (entry, &stamp_s)) in recording.entries.iter().zip(times_s).enumerate() {
         let line = match entry {
             Ok(row) => row.line,
@@ -222,21 +221,15 @@ pub fn validate(
             .row_of_stamp
             .entry(stamp_s.to_bits())
             .or_insert(collector.current);
-        // The bytes a gateway (or `armtwin replay`) would publish for this entry.
-        message.clear();
-        match entry {
-            Ok(row) => message.extend_from_slice(row.to_message(stamp_s).to_string().as_bytes()),
-            Err(malformed) => {
-                malformed_lines.push(malformed.line);
-                message.extend_from_slice(malformed.text.as_bytes());
-            }
+        if let Err(malformed) = entry {
+            malformed_lines.push(malformed.line);
         }
         let rejections_before = collector.rejections.len();
         ingest::joint_message(
             &mut pipeline,
             ROBOT_ID,
             &key,
-            &message,
+            &recording::payload(entry, stamp_s),
             stamp_s,
             &mut collector,
         );

@@ -411,12 +411,14 @@ impl Pipeline {
         reason: String,
         sink: &mut impl Sink,
     ) {
-        if self.track(robot, sink).is_err() {
-            self.rejected_unknown += 1;
-        } else if let Some(twin) = self.robots.get_mut(robot) {
-            twin.rejected += 1;
+        if self.track(robot, sink).is_ok()
+            && let Some(twin) = self.robots.get_mut(robot)
+        {
             twin.dirty = true;
+            twin.reject(robot, key, stamp_s, cause, reason, sink);
+            return;
         }
+        self.rejected_unknown += 1;
         sink.event(&rejection(robot, key, stamp_s, cause, reason));
     }
 

@@ -10,7 +10,7 @@ use std::future::Future;
 use std::time::Duration;
 
 use tokio::time::Instant;
-use tracing::info;
+use tracing::{info, warn};
 use zenoh::Wait;
 use zenoh::qos::CongestionControl;
 
@@ -20,6 +20,9 @@ use crate::service::{ServiceError, zenoh_config_of};
 
 /// How long to wait for a subscriber (the service) before giving up.
 const WAIT_FOR_SUBSCRIBER: Duration = Duration::from_secs(10);
+
+/// How long to wait at the end for the service to take what was published.
+const DRAIN_LIMIT: Duration = Duration::from_secs(120);
 
 /// Replay options.
 #[derive(Debug, Clone)]
@@ -43,6 +46,20 @@ pub struct ReplayReport {
     pub malformed: u64,
     /// Whether the replay was interrupted before the end.
     pub interrupted: bool,
+}
+
+/// Waits until the service has taken every message published so far: closing the session drops
+/// whatever its transmit queue still holds, and a service slower than the replay leaves some there.
+/// A query for the robot's state travels behind the puts on the same link and is answered after
+/// them, so its final reply is a barrier. Without an `armtwin serve` answering it returns at once.
+async fn drain(session: &zenoh::Session, settings: &ReplaySettings) {
+    let key = format!("{}/state/{}", settings.key_prefix, settings.robot);
+    match session.get(&key).timeout(DRAIN_LIMIT).await {
+        Ok(replies) => while replies.recv_async().await.is_ok() {},
+        Err(e) => {
+            warn!(error = %e, %key, "could not wait for the service to take every message");
+        }
+    }
 }
 
 /// Publishes `recording` with source times `times_s` until done or `shutdown` completes, calling
@@ -104,6 +121,7 @@ pub async fn replay(
         report.published += 1;
         progress(index + 1);
     }
+    drain(&session, settings).await;
     publisher.undeclare().await?;
     session.close().await?;
     info!(

@@ -133,7 +133,6 @@ struct ServiceSection {
     window_max_samples: usize,
     reject_unknown: bool,
     congestion: Congestion,
-    queue_capacity: usize,
     events_per_s: f64,
     events_burst: u32,
 }
@@ -148,7 +147,6 @@ impl Default for ServiceSection {
             window_max_samples: pipeline.window_max_samples,
             reject_unknown: false,
             congestion: Congestion::Block,
-            queue_capacity: 65_536,
             events_per_s: EventBudget::default().per_s,
             events_burst: EventBudget::default().burst,
         }
@@ -236,8 +234,6 @@ pub struct ServiceConfig {
     pub metrics_period: Duration,
     /// Congestion policy of every output.
     pub congestion: Congestion,
-    /// Capacity of the queue from Zenoh's receive thread to the worker.
-    pub queue_capacity: usize,
     /// How many events per robot are published.
     pub event_budget: EventBudget,
     /// Reject robots that are not configured (else they get `[robots.default]`).
@@ -324,7 +320,6 @@ impl ServiceConfig {
             key_prefix: service.key_prefix,
             metrics_period: Duration::from_millis(service.metrics_period_ms),
             congestion: service.congestion,
-            queue_capacity: service.queue_capacity,
             event_budget: EventBudget {
                 per_s: service.events_per_s,
                 burst: service.events_burst,
@@ -391,10 +386,10 @@ fn check_service_and_align(
                 "must be at least 1".to_owned(),
             ));
         }
-        if service.queue_capacity == 0 || service.window_max_samples == 0 {
+        if service.window_max_samples == 0 {
             return Err(invalid(
-                "service",
-                "queue_capacity and window_max_samples must be at least 1".to_owned(),
+                "service.window_max_samples",
+                "must be at least 1".to_owned(),
             ));
         }
         Ok(AlignConfig {

@@ -512,14 +512,24 @@ impl Pipeline {
         twin.measured(robot, key, stream, stamp_s, pose, sink);
     }
 
-    /// Sends metrics of every robot with new results since the last call (the periodic
-    /// publication while data flows).
-    pub fn publish_due_metrics(&mut self, sink: &mut impl Sink) {
-        for (robot, twin) in &mut self.robots {
-            if twin.dirty {
-                twin.dirty = false;
-                sink.metrics(&twin.snapshot(robot));
-            }
+    /// Robots with new results since their last metrics (the periodic publication while data
+    /// flows sends theirs, with [`publish_metrics_if_due`](Self::publish_metrics_if_due)).
+    #[must_use]
+    pub fn robots_with_due_metrics(&self) -> Vec<String> {
+        self.robots
+            .iter()
+            .filter(|(_, twin)| twin.dirty)
+            .map(|(robot, _)| robot.clone())
+            .collect()
+    }
+
+    /// Sends `robot`'s metrics if it has new results since its last ones.
+    pub fn publish_metrics_if_due(&mut self, robot: &str, sink: &mut impl Sink) {
+        if let Some(twin) = self.robots.get_mut(robot)
+            && twin.dirty
+        {
+            twin.dirty = false;
+            sink.metrics(&twin.snapshot(robot));
         }
     }
 

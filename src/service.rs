@@ -1,21 +1,21 @@
 //! `armtwin serve`: the pipeline on a Zenoh mesh.
 //!
 //! Owns the session, the wildcard subscriptions and queryables, the per-robot publishers and
-//! liveliness tokens, and the ordered teardown. Zenoh's callbacks only enqueue the sample (or
-//! query) into a bounded channel; one worker thread decodes, runs the [`Pipeline`] and publishes,
-//! so FK never runs on Zenoh's receive thread and the pipeline needs no lock.
+//! liveliness tokens, and the ordered teardown. Samples and queries are handled in Zenoh's
+//! callbacks, under one lock (see [`SharedTwin`]); a control thread declares newly tracked
+//! robots' entities, publishes the periodic metrics and finishes the pipeline at shutdown.
 //!
-//! Flow control: inputs are received reliably; when the worker falls behind and the queue is
-//! full, the callback waits for room (as Zenoh's own FIFO handler does), which backpressures the
-//! transport and, through it, the gateways: nothing valid is dropped. Outputs use the configured
-//! congestion control (`block` by default: a slow subscriber slows the twin; after Zenoh's
-//! `wait_before_close` a subscriber that stopped reading is disconnected; `drop`: the twin never
-//! waits and a slow subscriber misses outputs).
+//! Flow control: inputs are received reliably; while a callback works, Zenoh does not read its
+//! link, which backpressures the transport and, through it, the gateways: nothing valid is
+//! dropped. Outputs use the configured congestion control (`block` by default: a slow subscriber
+//! slows the twin; after Zenoh's `wait_before_close` a subscriber that stopped reading is
+//! disconnected; `drop`: the twin never waits and a slow subscriber misses outputs).
 
 use std::collections::HashMap;
 use std::future::Future;
 use std::sync::Arc;
-use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, sync_channel};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, channel};
+use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use thiserror::Error;
@@ -48,15 +48,28 @@ pub enum ServiceError {
     /// Zenoh failed (opening the session, declaring, …).
     #[error("zenoh: {0}")]
     Zenoh(#[from] zenoh::Error),
-    /// The worker thread failed.
-    #[error("worker: {0}")]
+    /// A sensor's key expression covers one of armtwin's own outputs: its own puts would feed
+    /// back into it.
+    #[error(
+        "robot '{robot}': sensor key expression '{key_expr}' intersects armtwin's output '{output}'"
+    )]
+    SensorKeyLoop {
+        /// The robot the sensor belongs to.
+        robot: String,
+        /// The sensor's key expression.
+        key_expr: String,
+        /// The output key expression it intersects.
+        output: String,
+    },
+    /// The control thread failed.
+    #[error("control thread: {0}")]
     Worker(String),
 }
 
 /// Totals reported when the service stops.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct ServeReport {
-    /// Inputs taken from the queue.
+    /// Inputs (samples and queries) processed.
     pub inputs: u64,
     /// Twin poses published.
     pub poses: u64,
@@ -64,24 +77,6 @@ pub struct ServeReport {
     pub robots: usize,
     /// Outputs Zenoh refused to send.
     pub publish_errors: u64,
-}
-
-/// Wraps a query of one queryable into the worker's input.
-type QueryInput = fn(Query) -> Input;
-
-/// Everything that reaches the worker.
-enum Input {
-    Joints(Sample),
-    Measured(Sample),
-    Sensor {
-        robot: Arc<str>,
-        index: usize,
-        sample: Sample,
-    },
-    State(Query),
-    Fk(Query),
-    Reset(Query),
-    Stop,
 }
 
 /// Builds the Zenoh configuration of a `[zenoh]` section.
@@ -124,38 +119,33 @@ pub async fn serve(
         prefix = %config.key_prefix,
         "armtwin serving"
     );
-    let (tx, rx) = sync_channel::<Input>(config.queue_capacity);
     let prefix = config.key_prefix.clone();
-
-    let pipeline = Pipeline::new(
-        config.pipeline,
-        config.default_robot.clone(),
-        config.robots.clone(),
-    );
-    let worker = Worker {
-        sink: ZenohSink::new(
-            session.clone(),
-            prefix.clone(),
-            config.congestion,
-            config.event_budget,
-        ),
-        pipeline,
-        rx,
+    let (control_tx, control_rx) = channel::<Control>();
+    let declarer = Declarer {
+        session: session.clone(),
         prefix: prefix.clone(),
-        metrics_period: config.metrics_period,
-        inputs: 0,
+        congestion: congestion_of(config.congestion),
     };
-    let worker = std::thread::Builder::new()
-        .name("armtwin-worker".to_owned())
-        .spawn(move || worker.run())
-        .map_err(|e| ServiceError::Worker(e.to_string()))?;
+    let twin = Arc::new(SharedTwin {
+        prefix: prefix.clone(),
+        state: Mutex::new(TwinState {
+            pipeline: Pipeline::new(
+                config.pipeline,
+                config.default_robot.clone(),
+                config.robots.clone(),
+            ),
+            sink: ZenohSink::new(declarer.clone(), control_tx.clone(), config.event_budget),
+            inputs: 0,
+            stopped: false,
+        }),
+    });
+    let control = Control::thread(twin.clone(), declarer, control_rx, config.metrics_period)?;
 
-    let intake = declare_intake(&session, &prefix, &config, &tx).await;
-    let intake = match intake {
+    let intake = match declare_intake(&session, &prefix, &config, &twin).await {
         Ok(intake) => intake,
         Err(e) => {
-            let _ = tx.send(Input::Stop);
-            let _ = tokio::task::spawn_blocking(move || worker.join()).await;
+            let _ = control_tx.send(Control::Stop);
+            let _ = tokio::task::spawn_blocking(move || control.join()).await;
             let _ = session.close().await;
             return Err(e);
         }
@@ -164,26 +154,24 @@ pub async fn serve(
     shutdown.await;
     info!("shutting down: stopping intake");
     intake.undeclare().await;
-    // Everything enqueued before this point is processed before the worker stops.
-    let stop_tx = tx.clone();
-    drop(tx);
-    let _ = tokio::task::spawn_blocking(move || {
-        // Fails only if the worker already stopped, which is what we want anyway.
-        let _ = stop_tx.send(Input::Stop);
-    })
-    .await;
+    // Samples that arrive after this are ignored: the control thread finishes the pipeline.
+    let _ = control_tx.send(Control::Stop);
     let report = match tokio::time::timeout(
         TEARDOWN_STEP * 4,
-        tokio::task::spawn_blocking(move || worker.join()),
+        tokio::task::spawn_blocking(move || control.join()),
     )
     .await
     {
         Ok(Ok(Ok(report))) => report,
-        Ok(Ok(Err(_))) => return Err(ServiceError::Worker("the worker panicked".to_owned())),
+        Ok(Ok(Err(_))) => {
+            return Err(ServiceError::Worker(
+                "the control thread panicked".to_owned(),
+            ));
+        }
         Ok(Err(e)) => return Err(ServiceError::Worker(e.to_string())),
         Err(_) => {
             return Err(ServiceError::Worker(
-                "the worker did not stop in time".to_owned(),
+                "the control thread did not stop in time".to_owned(),
             ));
         }
     };
@@ -203,7 +191,7 @@ pub async fn serve(
     Ok(report)
 }
 
-/// The subscribers and queryables that feed the worker.
+/// The subscribers and queryables that feed the twin.
 struct Intake {
     subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
     queryables: Vec<zenoh::query::Queryable<()>>,
@@ -224,66 +212,52 @@ impl Intake {
     }
 }
 
-fn enqueue(tx: &SyncSender<Input>, input: Input) {
-    // Waits while the queue is full: backpressure instead of loss. Fails only after the worker
-    // stopped, when inputs are no longer wanted.
-    let _ = tx.send(input);
-}
-
 async fn declare_intake(
     session: &Session,
     prefix: &str,
     config: &ServiceConfig,
-    tx: &SyncSender<Input>,
+    twin: &Arc<SharedTwin>,
 ) -> Result<Intake, ServiceError> {
     let mut subscribers = Vec::new();
     let mut queryables = Vec::new();
-    let joints_tx = tx.clone();
+    let joints = twin.clone();
     subscribers.push(
         session
             .declare_subscriber(format!("{prefix}/joints/**"))
-            .callback(move |sample| enqueue(&joints_tx, Input::Joints(sample)))
+            .callback(move |sample| joints.joints(&sample))
             .await?,
     );
-    let measured_tx = tx.clone();
+    let measured = twin.clone();
     subscribers.push(
         session
             .declare_subscriber(format!("{prefix}/measured/**"))
-            .callback(move |sample| enqueue(&measured_tx, Input::Measured(sample)))
+            .callback(move |sample| measured.measured(&sample))
             .await?,
     );
     for (robot, settings) in &config.robots {
         for (index, sensor) in settings.sensors.iter().enumerate() {
-            let sensor_tx = tx.clone();
+            check_sensor_key(prefix, robot, &sensor.key_expr)?;
+            let sensor_twin = twin.clone();
             let robot: Arc<str> = Arc::from(robot.as_str());
             subscribers.push(
                 session
                     .declare_subscriber(sensor.key_expr.clone())
-                    .callback(move |sample| {
-                        enqueue(
-                            &sensor_tx,
-                            Input::Sensor {
-                                robot: robot.clone(),
-                                index,
-                                sample,
-                            },
-                        );
-                    })
+                    .callback(move |sample| sensor_twin.sensor(&robot, index, &sample))
                     .await?,
             );
         }
     }
-    let queries: [(&str, QueryInput); 3] = [
-        ("state", Input::State),
-        ("fk", Input::Fk),
-        ("reset", Input::Reset),
+    let queries: [(&str, QueryHandler); 3] = [
+        ("state", TwinState::state),
+        ("fk", TwinState::fk),
+        ("reset", TwinState::reset),
     ];
-    for (stream, wrap) in queries {
-        let query_tx = tx.clone();
+    for (stream, handler) in queries {
+        let query_twin = twin.clone();
         queryables.push(
             session
                 .declare_queryable(format!("{prefix}/{stream}/**"))
-                .callback(move |query| enqueue(&query_tx, wrap(query)))
+                .callback(move |query| query_twin.query(&query, handler))
                 .await?,
         );
     }
@@ -291,6 +265,23 @@ async fn declare_intake(
         subscribers,
         queryables,
     })
+}
+
+/// Refuses a sensor key expression that would receive armtwin's own outputs: a local put is
+/// delivered in the publishing thread, which already holds the twin's lock.
+fn check_sensor_key(prefix: &str, robot: &str, key_expr: &str) -> Result<(), ServiceError> {
+    let sensor = KeyExpr::try_from(key_expr)?;
+    for stream in Stream::ALL {
+        let output = KeyExpr::try_from(format!("{prefix}/{}/**", stream.as_str()))?;
+        if sensor.intersects(&output) {
+            return Err(ServiceError::SensorKeyLoop {
+                robot: robot.to_owned(),
+                key_expr: key_expr.to_owned(),
+                output: output.to_string(),
+            });
+        }
+    }
+    Ok(())
 }
 
 fn unix_now_s() -> f64 {
@@ -306,104 +297,120 @@ fn transport_stamp_s(sample: &Sample) -> f64 {
         .map_or_else(unix_now_s, |t| t.get_time().as_secs_f64())
 }
 
-struct Worker {
-    sink: ZenohSink,
-    pipeline: Pipeline,
-    rx: Receiver<Input>,
-    prefix: String,
-    metrics_period: Duration,
-    inputs: u64,
+/// The robot id in `key` after `<prefix>/<stream>/`, if it is a plain key (a put on a wildcard
+/// key expression names no robot, and must not become one).
+fn robot_of<'k>(prefix: &str, key: &'k str, stream: &str) -> Option<&'k str> {
+    key.strip_prefix(prefix)?
+        .strip_prefix('/')?
+        .strip_prefix(stream)?
+        .strip_prefix('/')
+        .filter(|robot| !robot.is_empty() && !robot.contains(['*', '$']))
 }
 
-impl Worker {
-    fn run(mut self) -> ServeReport {
-        let mut next_metrics = Instant::now() + self.metrics_period;
-        loop {
-            let wait = next_metrics.saturating_duration_since(Instant::now());
-            match self.rx.recv_timeout(wait) {
-                Ok(Input::Stop) | Err(RecvTimeoutError::Disconnected) => break,
-                Ok(input) => {
-                    self.inputs += 1;
-                    self.handle(input);
-                }
-                Err(RecvTimeoutError::Timeout) => {}
-            }
-            let now = Instant::now();
-            if now >= next_metrics {
-                self.pipeline.publish_due_metrics(&mut self.sink);
-                next_metrics = now + self.metrics_period;
-            }
-        }
-        self.pipeline.finish(&mut self.sink);
-        let report = ServeReport {
-            inputs: self.inputs,
-            poses: self.sink.poses,
-            robots: self.sink.outputs.len(),
-            publish_errors: self.sink.publish_errors,
-        };
-        self.sink.undeclare_all();
-        report
+/// Answers one kind of query with the twin locked.
+type QueryHandler = fn(&mut TwinState, &Query);
+
+/// The twin shared by Zenoh's callbacks and the control thread.
+///
+/// Samples are processed in Zenoh's receive callback itself, as the plain echo does: decode, FK,
+/// statistics and the outputs' `put` take a few microseconds, and doing them there saves a queue,
+/// a thread wake-up and a copy per sample. Backpressure is Zenoh's own: while the callback works,
+/// its link is not read. Callbacks of different links take turns on the lock. Nothing that can
+/// wait on the network runs under it except `put` (with `block` congestion control, as the echo):
+/// declarations are made on the control thread.
+struct SharedTwin {
+    prefix: String,
+    state: Mutex<TwinState>,
+}
+
+impl SharedTwin {
+    fn lock(&self) -> MutexGuard<'_, TwinState> {
+        // A panic in a callback leaves the pipeline as consistent as each step left it; keep going.
+        self.state.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
-    /// The robot id in `key` after `<prefix>/<stream>/`, if it is a plain key (a put on a
-    /// wildcard key expression names no robot, and must not become one).
-    fn robot_of<'k>(&self, key: &'k str, stream: &str) -> Option<&'k str> {
-        key.strip_prefix(self.prefix.as_str())?
-            .strip_prefix('/')?
-            .strip_prefix(stream)?
-            .strip_prefix('/')
-            .filter(|robot| !robot.is_empty() && !robot.contains(['*', '$']))
-    }
-
-    fn handle(&mut self, input: Input) {
-        match input {
-            Input::Joints(sample) => self.joints(&sample),
-            Input::Measured(sample) => {
-                let key = sample.key_expr().as_str();
-                let Some(robot) = self.robot_of(key, "measured") else {
-                    warn!(%key, "measured pose without a robot id in its key: ignored");
-                    return;
-                };
-                self.measured(robot, MeasuredStream::Robot, &sample);
-            }
-            Input::Sensor {
-                robot,
-                index,
-                sample,
-            } => self.measured(&robot, MeasuredStream::Sensor(index), &sample),
-            Input::State(query) => self.state(&query),
-            Input::Fk(query) => self.fk(&query),
-            Input::Reset(query) => self.reset(&query),
-            Input::Stop => {}
-        }
-    }
-
-    fn joints(&mut self, sample: &Sample) {
+    fn joints(&self, sample: &Sample) {
         let key = sample.key_expr().as_str();
-        let Some(robot) = self.robot_of(key, "joints") else {
+        let Some(robot) = robot_of(&self.prefix, key, "joints") else {
             warn!(%key, "joint sample without a robot id in its key: ignored");
             return;
         };
+        let payload = sample.payload().to_bytes();
+        let stamp_s = transport_stamp_s(sample);
+        let mut guard = self.lock();
+        let Some(state) = guard.running() else {
+            return;
+        };
         ingest::joint_message(
-            &mut self.pipeline,
+            &mut state.pipeline,
             robot,
             key,
-            &sample.payload().to_bytes(),
-            transport_stamp_s(sample),
-            &mut self.sink,
+            &payload,
+            stamp_s,
+            &mut state.sink,
         );
     }
 
-    fn measured(&mut self, robot: &str, stream: MeasuredStream, sample: &Sample) {
+    fn measured(&self, sample: &Sample) {
+        let key = sample.key_expr().as_str();
+        let Some(robot) = robot_of(&self.prefix, key, "measured") else {
+            warn!(%key, "measured pose without a robot id in its key: ignored");
+            return;
+        };
+        self.measured_pose(robot, MeasuredStream::Robot, sample);
+    }
+
+    fn sensor(&self, robot: &str, index: usize, sample: &Sample) {
+        self.measured_pose(robot, MeasuredStream::Sensor(index), sample);
+    }
+
+    fn measured_pose(&self, robot: &str, stream: MeasuredStream, sample: &Sample) {
+        let payload = sample.payload().to_bytes();
+        let stamp_s = transport_stamp_s(sample);
+        let mut guard = self.lock();
+        let Some(state) = guard.running() else {
+            return;
+        };
         ingest::measured_message(
-            &mut self.pipeline,
+            &mut state.pipeline,
             robot,
             sample.key_expr().as_str(),
             stream,
-            &sample.payload().to_bytes(),
-            transport_stamp_s(sample),
-            &mut self.sink,
+            &payload,
+            stamp_s,
+            &mut state.sink,
         );
+    }
+
+    fn query(&self, query: &Query, handler: QueryHandler) {
+        let mut guard = self.lock();
+        if let Some(state) = guard.running() {
+            handler(state, query);
+        }
+    }
+}
+
+/// The pipeline, its outputs and the totals; behind [`SharedTwin`]'s lock.
+struct TwinState {
+    pipeline: Pipeline,
+    sink: ZenohSink,
+    inputs: u64,
+    /// Set once the pipeline is finished: late callbacks are ignored.
+    stopped: bool,
+}
+
+impl TwinState {
+    /// The state for one more input, unless the service stopped.
+    fn running(&mut self) -> Option<&mut Self> {
+        if self.stopped {
+            return None;
+        }
+        self.inputs += 1;
+        Some(self)
+    }
+
+    fn prefix(&self) -> &str {
+        &self.sink.declarer.prefix
     }
 
     /// Tracked robots whose `<prefix>/<stream>/<robot>` key the query's key expression covers.
@@ -412,7 +419,7 @@ impl Worker {
             .pipeline
             .tracked_robots()
             .filter_map(|robot| {
-                let key = KeyExpr::try_from(format!("{}/{stream}/{robot}", self.prefix)).ok()?;
+                let key = KeyExpr::try_from(format!("{}/{stream}/{robot}", self.prefix())).ok()?;
                 query
                     .key_expr()
                     .intersects(&key)
@@ -436,7 +443,7 @@ impl Worker {
         }
     }
 
-    fn state(&self, query: &Query) {
+    fn state(&mut self, query: &Query) {
         for (robot, key) in self.matching_robots(query, "state") {
             if let Some(state) = self.pipeline.state(&robot) {
                 Self::reply(
@@ -465,9 +472,9 @@ impl Worker {
         }
     }
 
-    fn fk(&self, query: &Query) {
+    fn fk(&mut self, query: &Query) {
         let key = query.key_expr().as_str();
-        let Some(robot) = self.robot_of(key, "fk") else {
+        let Some(robot) = robot_of(self.prefix(), key, "fk") else {
             Self::reply_err(
                 query,
                 "ask one robot: <prefix>/fk/<robot id> with {\"q\": [...]}",
@@ -505,6 +512,95 @@ impl Worker {
     }
 }
 
+/// Robots whose metrics one turn of the lock publishes: a fleet's metrics go out in short turns,
+/// so samples wait behind a few robots' snapshots, never behind the whole fleet's.
+const METRICS_PER_TURN: usize = 16;
+
+/// Publishes the metrics of every robot with new results, a few robots per turn of the lock.
+fn publish_due_metrics(twin: &SharedTwin) {
+    let due = twin.lock().pipeline.robots_with_due_metrics();
+    for robots in due.chunks(METRICS_PER_TURN) {
+        let mut guard = twin.lock();
+        let state = &mut *guard;
+        for robot in robots {
+            state
+                .pipeline
+                .publish_metrics_if_due(robot, &mut state.sink);
+        }
+    }
+}
+
+/// What the control thread is asked to do.
+enum Control {
+    /// Declare a newly tracked robot's publishers, token and input keys.
+    Track(String),
+    /// Finish the pipeline, undeclare everything and stop.
+    Stop,
+}
+
+impl Control {
+    /// Starts the thread that declares robots' Zenoh entities (never on Zenoh's own threads),
+    /// publishes the periodic metrics, and finishes the pipeline at the end.
+    fn thread(
+        twin: Arc<SharedTwin>,
+        declarer: Declarer,
+        rx: Receiver<Self>,
+        metrics_period: Duration,
+    ) -> Result<std::thread::JoinHandle<ServeReport>, ServiceError> {
+        std::thread::Builder::new()
+            .name("armtwin-control".to_owned())
+            .spawn(move || Self::run(&twin, &declarer, &rx, metrics_period))
+            .map_err(|e| ServiceError::Worker(e.to_string()))
+    }
+
+    fn run(
+        twin: &SharedTwin,
+        declarer: &Declarer,
+        rx: &Receiver<Self>,
+        metrics_period: Duration,
+    ) -> ServeReport {
+        let mut next_metrics = Instant::now() + metrics_period;
+        loop {
+            let wait = next_metrics.saturating_duration_since(Instant::now());
+            match rx.recv_timeout(wait) {
+                Ok(Self::Stop) | Err(RecvTimeoutError::Disconnected) => break,
+                Ok(Self::Track(robot)) => {
+                    // Declared without the lock: samples keep flowing meanwhile (their outputs
+                    // go out with an undeclared key until the publishers exist).
+                    match declarer.declare(&robot) {
+                        Ok(outputs) => {
+                            info!(%robot, "tracking robot");
+                            twin.lock().sink.outputs.insert(robot, outputs);
+                        }
+                        Err(e) => warn!(%robot, error = %e, "cannot declare the robot's outputs"),
+                    }
+                }
+                Err(RecvTimeoutError::Timeout) => {}
+            }
+            let now = Instant::now();
+            if now >= next_metrics {
+                publish_due_metrics(twin);
+                next_metrics = now + metrics_period;
+            }
+        }
+        let (report, outputs) = {
+            let mut guard = twin.lock();
+            let state = &mut *guard;
+            state.stopped = true;
+            state.pipeline.finish(&mut state.sink);
+            let report = ServeReport {
+                inputs: state.inputs,
+                poses: state.sink.poses,
+                robots: state.pipeline.tracked_robots().count(),
+                publish_errors: state.sink.publish_errors,
+            };
+            (report, std::mem::take(&mut state.sink.outputs))
+        };
+        declarer.undeclare_all(outputs);
+        report
+    }
+}
+
 /// Per-robot Zenoh entities.
 struct RobotOutputs {
     pose: Publisher<'static>,
@@ -516,11 +612,122 @@ struct RobotOutputs {
     inputs: Vec<KeyExpr<'static>>,
 }
 
-/// Publishes the pipeline's results on Zenoh.
-struct ZenohSink {
+/// The output streams of a robot.
+#[derive(Debug, Clone, Copy)]
+enum Stream {
+    Pose,
+    Deviation,
+    Metrics,
+    Events,
+}
+
+impl Stream {
+    const ALL: [Self; 4] = [Self::Pose, Self::Deviation, Self::Metrics, Self::Events];
+
+    fn as_str(self) -> &'static str {
+        match self {
+            Self::Pose => "pose",
+            Self::Deviation => "deviation",
+            Self::Metrics => "metrics",
+            Self::Events => "events",
+        }
+    }
+
+    fn publisher(self, outputs: &RobotOutputs) -> &Publisher<'static> {
+        match self {
+            Self::Pose => &outputs.pose,
+            Self::Deviation => &outputs.deviation,
+            Self::Metrics => &outputs.metrics,
+            Self::Events => &outputs.events,
+        }
+    }
+}
+
+fn congestion_of(congestion: Congestion) -> CongestionControl {
+    match congestion {
+        Congestion::Block => CongestionControl::Block,
+        Congestion::Drop => CongestionControl::Drop,
+    }
+}
+
+/// Declares and undeclares robots' Zenoh entities.
+#[derive(Clone)]
+struct Declarer {
     session: Session,
     prefix: String,
     congestion: CongestionControl,
+}
+
+impl Declarer {
+    fn key(&self, stream: &str, robot: &str) -> String {
+        format!("{}/{stream}/{robot}", self.prefix)
+    }
+
+    fn publisher(&self, stream: Stream, robot: &str) -> zenoh::Result<Publisher<'static>> {
+        self.session
+            .declare_publisher(self.key(stream.as_str(), robot))
+            .congestion_control(self.congestion)
+            .wait()
+    }
+
+    fn declare(&self, robot: &str) -> zenoh::Result<RobotOutputs> {
+        let mut inputs = Vec::new();
+        for stream in ["joints", "measured"] {
+            inputs.push(
+                self.session
+                    .declare_keyexpr(self.key(stream, robot))
+                    .wait()?,
+            );
+        }
+        let token = self
+            .session
+            .liveliness()
+            .declare_token(self.key("alive", robot))
+            .wait()?;
+        Ok(RobotOutputs {
+            pose: self.publisher(Stream::Pose, robot)?,
+            deviation: self.publisher(Stream::Deviation, robot)?,
+            metrics: self.publisher(Stream::Metrics, robot)?,
+            events: self.publisher(Stream::Events, robot)?,
+            token: Some(token),
+            inputs,
+        })
+    }
+
+    fn undeclare_all(&self, outputs: HashMap<String, RobotOutputs>) {
+        for (robot, outputs) in outputs {
+            let RobotOutputs {
+                pose,
+                deviation,
+                metrics,
+                events,
+                token,
+                inputs,
+            } = outputs;
+            for publisher in [pose, deviation, metrics, events] {
+                if let Err(e) = publisher.undeclare().wait() {
+                    warn!(%robot, error = %e, "undeclaring a publisher failed");
+                }
+            }
+            if let Some(token) = token
+                && let Err(e) = token.undeclare().wait()
+            {
+                warn!(%robot, error = %e, "undeclaring the liveliness token failed");
+            }
+            for key in inputs {
+                if let Err(e) = self.session.undeclare(key).wait() {
+                    warn!(%robot, error = %e, "undeclaring a key expression failed");
+                }
+            }
+        }
+    }
+}
+
+/// Publishes the pipeline's results on Zenoh.
+struct ZenohSink {
+    declarer: Declarer,
+    /// Asks the control thread to declare newly tracked robots.
+    control: Sender<Control>,
     outputs: HashMap<String, RobotOutputs>,
     poses: u64,
     publish_errors: u64,
@@ -566,19 +773,10 @@ impl EventBucket {
 }
 
 impl ZenohSink {
-    fn new(
-        session: Session,
-        prefix: String,
-        congestion: Congestion,
-        event_budget: EventBudget,
-    ) -> Self {
+    fn new(declarer: Declarer, control: Sender<Control>, event_budget: EventBudget) -> Self {
         Self {
-            session,
-            prefix,
-            congestion: match congestion {
-                Congestion::Block => CongestionControl::Block,
-                Congestion::Drop => CongestionControl::Drop,
-            },
+            declarer,
+            control,
             outputs: HashMap::new(),
             poses: 0,
             publish_errors: 0,
@@ -587,82 +785,31 @@ impl ZenohSink {
         }
     }
 
-    fn publisher(&self, stream: &str, robot: &str) -> zenoh::Result<Publisher<'static>> {
-        self.session
-            .declare_publisher(format!("{}/{stream}/{robot}", self.prefix))
-            .congestion_control(self.congestion)
-            .wait()
-    }
-
-    fn declare(&self, robot: &str) -> zenoh::Result<RobotOutputs> {
-        let mut inputs = Vec::new();
-        for stream in ["joints", "measured"] {
-            inputs.push(
-                self.session
-                    .declare_keyexpr(format!("{}/{stream}/{robot}", self.prefix))
-                    .wait()?,
-            );
-        }
-        let token = self
-            .session
-            .liveliness()
-            .declare_token(format!("{}/alive/{robot}", self.prefix))
-            .wait()?;
-        Ok(RobotOutputs {
-            pose: self.publisher("pose", robot)?,
-            deviation: self.publisher("deviation", robot)?,
-            metrics: self.publisher("metrics", robot)?,
-            events: self.publisher("events", robot)?,
-            token: Some(token),
-            inputs,
-        })
-    }
-
-    fn put(publisher: &Publisher<'static>, payload: Vec<u8>, errors: &mut u64) {
-        if let Err(e) = publisher.put(payload).wait() {
-            *errors += 1;
-            warn!(error = %e, key = %publisher.key_expr(), "publish failed");
-        }
-    }
-
-    fn undeclare_all(&mut self) {
-        for (robot, outputs) in self.outputs.drain() {
-            let RobotOutputs {
-                pose,
-                deviation,
-                metrics,
-                events,
-                token,
-                inputs,
-            } = outputs;
-            for publisher in [pose, deviation, metrics, events] {
-                if let Err(e) = publisher.undeclare().wait() {
-                    warn!(%robot, error = %e, "undeclaring a publisher failed");
-                }
-            }
-            if let Some(token) = token
-                && let Err(e) = token.undeclare().wait()
-            {
-                warn!(%robot, error = %e, "undeclaring the liveliness token failed");
-            }
-            for key in inputs {
-                if let Err(e) = self.session.undeclare(key).wait() {
-                    warn!(%robot, error = %e, "undeclaring a key expression failed");
-                }
-            }
+    /// Publishes `payload` on `robot`'s `stream`: through its declared publisher, or, until the
+    /// control thread has declared it (and for robots that are not tracked), on the plain key.
+    fn put(&mut self, robot: &str, stream: Stream, payload: Vec<u8>) {
+        let result = match self.outputs.get(robot) {
+            Some(outputs) => stream.publisher(outputs).put(payload).wait(),
+            None => self
+                .declarer
+                .session
+                .put(self.declarer.key(stream.as_str(), robot), payload)
+                .congestion_control(self.declarer.congestion)
+                .wait(),
+        };
+        if let Err(e) = result {
+            self.publish_errors += 1;
+            warn!(error = %e, %robot, stream = stream.as_str(), "publish failed");
         }
     }
 }
 
 impl Sink for ZenohSink {
     fn tracking(&mut self, robot: &str) {
-        match self.declare(robot) {
-            Ok(outputs) => {
-                info!(%robot, "tracking robot");
-                self.outputs.insert(robot.to_owned(), outputs);
-            }
-            Err(e) => warn!(%robot, error = %e, "cannot declare the robot's outputs"),
-        }
+        let bucket = EventBucket::full(self.event_budget, Instant::now());
+        self.event_buckets.insert(robot.to_owned(), bucket);
+        // Fails only once the control thread has stopped, when nothing is declared any more.
+        let _ = self.control.send(Control::Track(robot.to_owned()));
     }
 
     fn pose(
@@ -673,15 +820,8 @@ impl Sink for ZenohSink {
         frame: OutputFrame,
         pose: &PoseReadout,
     ) {
-        let Some(outputs) = self.outputs.get(robot) else {
-            return;
-        };
         let message = wire::PoseMessage::new(robot, stamp_s, seq, frame.as_str(), pose);
-        Self::put(
-            &outputs.pose,
-            wire::to_json_bytes(&message),
-            &mut self.publish_errors,
-        );
+        self.put(robot, Stream::Pose, wire::to_json_bytes(&message));
         self.poses += 1;
     }
 
@@ -692,15 +832,8 @@ impl Sink for ZenohSink {
         _measured: &PoseReadout,
         deviation: &Deviation,
     ) {
-        let Some(outputs) = self.outputs.get(robot) else {
-            return;
-        };
         let message = wire::DeviationMessage::new(robot, stamp_s, deviation);
-        Self::put(
-            &outputs.deviation,
-            wire::to_json_bytes(&message),
-            &mut self.publish_errors,
-        );
+        self.put(robot, Stream::Deviation, wire::to_json_bytes(&message));
     }
 
     fn event(&mut self, event: &Event<'_>) {
@@ -708,11 +841,8 @@ impl Sink for ZenohSink {
             event.kind,
             EventKind::Alarm | EventKind::Recovered | EventKind::Restart
         );
-        let bucket_id = if self.outputs.contains_key(event.robot) {
-            event.robot
-        } else {
-            ""
-        };
+        let tracked = self.event_buckets.contains_key(event.robot);
+        let bucket_id = if tracked { event.robot } else { "" };
         let now = Instant::now();
         let budget = self.event_budget;
         let bucket = match self.event_buckets.get_mut(bucket_id) {
@@ -730,22 +860,7 @@ impl Sink for ZenohSink {
         }
         let mut message = wire::EventMessage::new(event);
         message.suppressed = std::mem::take(&mut bucket.suppressed);
-        let payload = wire::to_json_bytes(&message);
-        if let Some(outputs) = self.outputs.get(event.robot) {
-            Self::put(&outputs.events, payload, &mut self.publish_errors);
-        } else {
-            // An untracked robot (unknown and rejected): no declared publisher.
-            let key = format!("{}/events/{}", self.prefix, event.robot);
-            if let Err(e) = self
-                .session
-                .put(key, payload)
-                .congestion_control(self.congestion)
-                .wait()
-            {
-                self.publish_errors += 1;
-                warn!(error = %e, robot = %event.robot, "publishing an event failed");
-            }
-        }
+        self.put(event.robot, Stream::Events, wire::to_json_bytes(&message));
         match event.kind {
             EventKind::Rejected | EventKind::Alarm => {
                 warn!(robot = %event.robot, kind = event.kind.as_str(), reason = %event.reason, "event");
@@ -760,14 +875,11 @@ impl Sink for ZenohSink {
     }
 
     fn metrics(&mut self, snapshot: &MetricsSnapshot) {
-        let Some(outputs) = self.outputs.get(&snapshot.robot) else {
-            return;
-        };
         let message = wire::MetricsMessage::new(snapshot);
-        Self::put(
-            &outputs.metrics,
+        self.put(
+            &snapshot.robot,
+            Stream::Metrics,
             wire::to_json_bytes(&message),
-            &mut self.publish_errors,
         );
     }
 }

@@ -244,3 +244,41 @@ fn a_resent_message_is_one_rejection_and_bad_stamps_do_not_move_time() {
         "a refused sample does not move source time"
     );
 }
+
+#[test]
+fn periodic_metrics_go_out_once_per_robot_with_new_results() {
+    let (mut pipeline, model) = pipeline();
+    let mut sink = Recorder::default();
+    let q = [0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
+    for robot in ["r1", "r2"] {
+        pipeline.joints(
+            robot,
+            &format!("twin/joints/{robot}"),
+            1.0,
+            &sample(&model, q, true),
+            &mut sink,
+        );
+    }
+    let mut due = pipeline.robots_with_due_metrics();
+    due.sort();
+    assert_eq!(due, ["r1", "r2"]);
+    for robot in &due {
+        pipeline.publish_metrics_if_due(robot, &mut sink);
+        // A second call before new results sends nothing.
+        pipeline.publish_metrics_if_due(robot, &mut sink);
+    }
+    let robots: Vec<&str> = sink.metrics.iter().map(|m| m.robot.as_str()).collect();
+    assert_eq!(robots, ["r1", "r2"]);
+    assert!(pipeline.robots_with_due_metrics().is_empty());
+    pipeline.joints(
+        "r2",
+        "twin/joints/r2",
+        1.01,
+        &sample(&model, q, true),
+        &mut sink,
+    );
+    assert_eq!(pipeline.robots_with_due_metrics(), ["r2"]);
+    // Unknown robots have no metrics to send.
+    pipeline.publish_metrics_if_due("nobody", &mut sink);
+    assert_eq!(sink.metrics.len(), 2);
+}

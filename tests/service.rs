@@ -892,3 +892,32 @@ async fn a_flood_of_bad_input_is_counted_but_its_events_are_rate_limited() {
     .await
     .expect("test finished in time");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_sensor_key_that_would_receive_the_twins_own_outputs_is_refused() {
+    let config = r#"
+[robots."lab/r7"]
+model = "ur5e"
+[[robots."lab/r7".sensors]]
+key_expr = "twin/*/lab/**"
+base_from_sensor = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+"#;
+    let port = free_port();
+    let config = ServiceConfig::parse(
+        config,
+        "test config",
+        Path::new("."),
+        &Overrides {
+            listen: vec![format!("tcp/127.0.0.1:{port}")],
+            ..Overrides::default()
+        },
+    )
+    .expect("valid config");
+    let result = tokio::time::timeout(TEST_LIMIT, serve(config, std::future::pending())).await;
+    let error = result.expect("refused at once").expect_err("refused");
+    assert!(
+        matches!(error, ServiceError::SensorKeyLoop { .. }),
+        "{error}"
+    );
+    assert!(error.to_string().contains("twin/*/lab/**"), "{error}");
+}

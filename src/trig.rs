@@ -63,7 +63,11 @@ pub fn sin_cos_batch(angles_rad: &[f64; BATCH]) -> ([f64; BATCH], [f64; BATCH]) 
 /// `sin(q₂ + q₃ + q₄)` as accurate as `sin(q₂)` where the rounded sum alone would lose up to half
 /// an ulp of the sum (2e-15 rad for sums near 6π).
 #[must_use]
-#[inline]
+#[inline(always)]
+#[allow(
+    clippy::inline_always,
+    reason = "out of line, the caller's element-wise stores meet the kernel's paired loads (a store-forwarding stall)"
+)]
 pub fn sin_cos_batch_split(
     angles_hi_rad: &[f64; BATCH],
     angles_lo_rad: &[f64; BATCH],
@@ -94,7 +98,11 @@ fn sin_cos_platform(hi: &[f64; BATCH], lo: &[f64; BATCH]) -> ([f64; BATCH], [f64
 
 /// The kernel for |hi| ≤ [`REDUCTION_LIMIT_RAD`], one step at a time across all lanes: plain
 /// loops over fixed-size arrays with no per-lane branch, which LLVM turns into two-lane SSE2.
-#[inline]
+#[inline(always)]
+#[allow(
+    clippy::inline_always,
+    reason = "out of line, the caller's element-wise stores meet the kernel's paired loads (a store-forwarding stall)"
+)]
 fn sin_cos_lanes<const N: usize>(hi: &[f64; N], lo: &[f64; N]) -> ([f64; N], [f64; N]) {
     let mut quadrant = [0_u64; N];
     let mut r = [0.0; N];
@@ -152,7 +160,11 @@ const PI_LO: f64 = 1.224_646_799_147_353_207_17e-16;
 /// `atan2(y, x)` of each pair, in [−π, π], within 2 ulp; `atan2(±0, ±0)` as IEEE defines it.
 /// Arguments must be finite (they are rotation-matrix entries here).
 #[must_use]
-#[inline]
+#[inline(always)]
+#[allow(
+    clippy::inline_always,
+    reason = "out of line, the caller's element-wise stores meet the kernel's paired loads (a store-forwarding stall)"
+)]
 pub fn atan2_batch(y: &[f64; ATAN2_BATCH], x: &[f64; ATAN2_BATCH]) -> [f64; ATAN2_BATCH] {
     [
         atan2_kernel(y[0], x[0]),

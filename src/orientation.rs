@@ -74,8 +74,10 @@ pub fn matrix_from_rpy(rpy: Rpy) -> Matrix3<f64> {
 #[must_use]
 pub fn rpy_from_matrix(m: &Matrix3<f64>) -> Rpy {
     // Entries of a rotation are at most 1 in magnitude: no overflow without `hypot`.
-    let cos_pitch = (m[(0, 0)] * m[(0, 0)] + m[(1, 0)] * m[(1, 0)]).sqrt();
-    let locked = cos_pitch <= GIMBAL_LOCK_COS_PITCH;
+    let cos_pitch_squared = m[(0, 0)] * m[(0, 0)] + m[(1, 0)] * m[(1, 0)];
+    let cos_pitch = cos_pitch_squared.sqrt();
+    // Decided on the square: roll and yaw then need not wait for the square root.
+    let locked = cos_pitch_squared <= GIMBAL_LOCK_COS_PITCH * GIMBAL_LOCK_COS_PITCH;
     // Rz(−yaw) · R = Ry(pitch) · Rx(roll), whose row 1 is [0, cos(roll), −sin(roll)]; with
     // cos(yaw), sin(yaw) = m₀₀, m₁₀ over cos(pitch), and atan2 blind to a positive common factor,
     // roll = atan2(m₁₀·m₀₂ − m₀₀·m₁₂, m₀₀·m₁₁ − m₁₀·m₀₁): no division. At the lock, yaw = 0.

@@ -10,7 +10,7 @@ use armtwin::model::{Calibration, RobotModel, catalog};
 use armtwin::orientation::wrap_angle;
 
 /// Configurations per model and variant.
-const CONFIGURATIONS: usize = 50_000;
+const CONFIGURATIONS: usize = 10_000;
 const TOLERANCE: f64 = 1e-15;
 
 /// A small deterministic generator (xorshift64*): uniform in [−1, 1).

@@ -8,7 +8,9 @@
 //! Every chain, whatever its source, compiles to one form,
 //! `frame_from_tcp = F₀ · Rz(q₁ + θ₁) · F₁ · Rz(q₂ + θ₂) · … · Rz(qₙ + θₙ) · Fₙ`, with fixed rigid
 //! transforms `Fₖ`, so the per-sample cost is n `sin_cos` and 2n small matrix products. The output
-//! frame is folded into `F₀` and the tool into `Fₙ` once, when the chain is built.
+//! frame is folded into `F₀` and the tool into `Fₙ` once, when the chain is built. A standard-DH
+//! table with exactly the Universal Robots structure (every nominal catalog arm) is evaluated in
+//! closed form instead, equal to the link-by-link result to rounding ([`Chain::uses_closed_form`]).
 
 use std::f64::consts::FRAC_PI_2;
 

@@ -1,5 +1,6 @@
 //! FK cost: one pose with position, quaternion and roll/pitch/yaw (the target: ≤ 50 ns), its
-//! parts, and the platform's scalar `sin_cos` / `atan2` as in-run baselines for the batched trig.
+//! parts (`pose_only` takes the UR closed form, `pose_only_link_by_link` the general chain), and
+//! the platform's scalar `sin_cos` / `atan2` as in-run baselines for the batched trig.
 use std::hint::black_box;
 
 use armtwin::kinematics::{OutputFrame, TcpOffset};
@@ -33,6 +34,13 @@ fn fk(c: &mut Criterion) {
     });
     c.bench_function("parts/pose_only", |b| {
         b.iter(|| model.chain().pose_unchecked(black_box(&Q)));
+    });
+    let link_by_link = model.chain().to_link_by_link();
+    c.bench_function("parts/pose_only_link_by_link", |b| {
+        b.iter(|| link_by_link.pose_unchecked(black_box(&Q)));
+    });
+    c.bench_function("parts/check_joints", |b| {
+        b.iter(|| model.check_joints(black_box(&Q)));
     });
     let pose = model.pose(&Q).expect("valid");
     c.bench_function("parts/readout_only", |b| {

@@ -74,26 +74,28 @@ pub fn matrix_from_rpy(rpy: Rpy) -> Matrix3<f64> {
 #[must_use]
 pub fn rpy_from_matrix(m: &Matrix3<f64>) -> Rpy {
     // Entries of a rotation are at most 1 in magnitude: no overflow without `hypot`.
-    let cos_pitch = (m[(0, 0)] * m[(0, 0)] + m[(1, 0)] * m[(1, 0)]).sqrt();
-    let locked = cos_pitch <= GIMBAL_LOCK_COS_PITCH;
-    let (sin_yaw, cos_yaw) = if locked {
+    let cos_pitch_squared = m[(0, 0)] * m[(0, 0)] + m[(1, 0)] * m[(1, 0)];
+    let cos_pitch = cos_pitch_squared.sqrt();
+    // Decided on the square: roll and yaw then need not wait for the square root.
+    let locked = cos_pitch_squared <= GIMBAL_LOCK_COS_PITCH * GIMBAL_LOCK_COS_PITCH;
+    // Rz(−yaw) · R = Ry(pitch) · Rx(roll), whose row 1 is [0, cos(roll), −sin(roll)]; with
+    // cos(yaw), sin(yaw) = m₀₀, m₁₀ over cos(pitch), and atan2 blind to a positive common factor,
+    // roll = atan2(m₁₀·m₀₂ − m₀₀·m₁₂, m₀₀·m₁₁ − m₁₀·m₀₁): no division. At the lock, yaw = 0.
+    let (roll_y, roll_x) = if locked {
+        (-m[(1, 2)], m[(1, 1)])
+    } else {
+        (
+            m[(1, 0)] * m[(0, 2)] - m[(0, 0)] * m[(1, 2)],
+            m[(0, 0)] * m[(1, 1)] - m[(1, 0)] * m[(0, 1)],
+        )
+    };
+    let (yaw_y, yaw_x) = if locked {
         (0.0, 1.0)
     } else {
-        (m[(1, 0)] / cos_pitch, m[(0, 0)] / cos_pitch)
+        (m[(1, 0)], m[(0, 0)])
     };
-    // Rz(−yaw) · R = Ry(pitch) · Rx(roll), whose row 1 is [0, cos(roll), −sin(roll)].
-    let [roll_rad, pitch_rad, yaw_rad] = trig::atan2_batch(
-        &[
-            sin_yaw * m[(0, 2)] - cos_yaw * m[(1, 2)],
-            -m[(2, 0)],
-            if locked { 0.0 } else { m[(1, 0)] },
-        ],
-        &[
-            cos_yaw * m[(1, 1)] - sin_yaw * m[(0, 1)],
-            cos_pitch,
-            if locked { 1.0 } else { m[(0, 0)] },
-        ],
-    );
+    let [roll_rad, pitch_rad, yaw_rad] =
+        trig::atan2_batch(&[roll_y, -m[(2, 0)], yaw_y], &[roll_x, cos_pitch, yaw_x]);
     Rpy {
         roll_rad: wrap_angle(roll_rad),
         // `+ 0.0` turns −0.0 into 0.0, so exact poses print without a stray sign.

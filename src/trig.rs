@@ -6,8 +6,10 @@
 //! `atan2` of one pose took several times the whole FK budget. Elsewhere armtwin uses `f64`'s own.
 //!
 //! Method (fdlibm's, as in musl): `sin_cos` reduces by π/2 with a two-part Cody–Waite constant
-//! and evaluates fdlibm's minimax kernels on [−π/4, π/4]; `atan2` reduces to atan on [0, 1], then
-//! to |t| < 7/16 around 0, atan(½) or π/4, with fdlibm's atan kernel. Both stay within 2 ulp of
+//! and evaluates fdlibm's minimax kernels on [−π/4, π/4], written as loops over fixed-size lane
+//! arrays, each step across all lanes without per-lane branches (two-lane SSE2 on the x86-64
+//! baseline); `atan2` reduces to atan on [0, 1], then to |t| < 7/16 around 0, atan(½) or π/4,
+//! with fdlibm's atan kernel. Both stay within 2 ulp of
 //! the exact values (tested against the platform over millions of arguments). `sin_cos` falls
 //! back to `f64::sin_cos` for a batch holding an angle beyond [`REDUCTION_LIMIT_RAD`] (never a
 //! real joint).
@@ -51,46 +53,85 @@ const C6: f64 = -1.135_964_755_778_819_482_65e-11;
 
 /// `(sin, cos)` of each of `angles_rad`, within 1 ulp.
 #[must_use]
+#[inline]
 pub fn sin_cos_batch(angles_rad: &[f64; BATCH]) -> ([f64; BATCH], [f64; BATCH]) {
+    sin_cos_batch_split(angles_rad, &[0.0; BATCH])
+}
+
+/// `(sin, cos)` of each angle `hi + lo`, the pair taken as an unrounded sum: `lo` is the rounding
+/// error of a sum of angles (e.g. from a two-sum), at most an ulp or so of `hi`. This keeps
+/// `sin(q₂ + q₃ + q₄)` as accurate as `sin(q₂)` where the rounded sum alone would lose up to half
+/// an ulp of the sum (2e-15 rad for sums near 6π).
+#[must_use]
+#[inline(always)]
+#[allow(
+    clippy::inline_always,
+    reason = "out of line, the caller's element-wise stores meet the kernel's paired loads (a store-forwarding stall)"
+)]
+pub fn sin_cos_batch_split(
+    angles_hi_rad: &[f64; BATCH],
+    angles_lo_rad: &[f64; BATCH],
+) -> ([f64; BATCH], [f64; BATCH]) {
+    // Non-short-circuit `|`: one vector comparison instead of a branch per angle.
+    let huge = angles_hi_rad
+        .iter()
+        .fold(false, |huge, a| huge | (a.abs() > REDUCTION_LIMIT_RAD));
+    if huge {
+        return sin_cos_platform(angles_hi_rad, angles_lo_rad);
+    }
+    sin_cos_lanes(angles_hi_rad, angles_lo_rad)
+}
+
+/// The rare path for huge angles: the platform's `sin_cos` of `hi`, turned by the tiny `lo`
+/// (first order; `lo²` is far below an ulp).
+#[cold]
+fn sin_cos_platform(hi: &[f64; BATCH], lo: &[f64; BATCH]) -> ([f64; BATCH], [f64; BATCH]) {
     let mut sin = [0.0; BATCH];
     let mut cos = [0.0; BATCH];
-    if angles_rad.iter().any(|a| a.abs() > REDUCTION_LIMIT_RAD) {
-        for ((s, c), a) in sin.iter_mut().zip(&mut cos).zip(angles_rad) {
-            (*s, *c) = a.sin_cos();
-        }
-        return (sin, cos);
-    }
     for i in 0..BATCH {
-        (sin[i], cos[i]) = sin_cos_kernel(angles_rad[i]);
+        let (s, c) = hi[i].sin_cos();
+        sin[i] = s + lo[i] * c;
+        cos[i] = c - lo[i] * s;
     }
     (sin, cos)
 }
 
-/// `(sin x, cos x)` for |x| ≤ [`REDUCTION_LIMIT_RAD`].
-#[inline]
-fn sin_cos_kernel(x: f64) -> (f64, f64) {
-    {
-        let shifted = x * FRAC_2_PI + ROUND_MAGIC;
-        let quadrant = shifted.to_bits();
+/// The kernel for |hi| ≤ [`REDUCTION_LIMIT_RAD`], one step at a time across all lanes: plain
+/// loops over fixed-size arrays with no per-lane branch, which LLVM turns into two-lane SSE2.
+#[inline(always)]
+#[allow(
+    clippy::inline_always,
+    reason = "out of line, the caller's element-wise stores meet the kernel's paired loads (a store-forwarding stall)"
+)]
+fn sin_cos_lanes<const N: usize>(hi: &[f64; N], lo: &[f64; N]) -> ([f64; N], [f64; N]) {
+    let mut quadrant = [0_u64; N];
+    let mut r = [0.0; N];
+    for i in 0..N {
+        let shifted = hi[i] * FRAC_2_PI + ROUND_MAGIC;
+        quadrant[i] = shifted.to_bits();
         let k = shifted - ROUND_MAGIC;
-        // Exact first step (Sterbenz and the 33-bit constant), then the small correction.
-        let r = (x - k * PIO2_HI) - k * PIO2_LO;
+        // Exact first step (Sterbenz and the 33-bit constant), then the small corrections.
+        r[i] = ((hi[i] - k * PIO2_HI) - k * PIO2_LO) + lo[i];
+    }
+    let mut sin = [0.0; N];
+    let mut cos = [0.0; N];
+    for i in 0..N {
+        let r = r[i];
         let z = r * r;
         let sin_r = r + r * z * (S1 + z * (S2 + z * (S3 + z * (S4 + z * (S5 + z * S6)))));
         let cos_r =
             1.0 - (0.5 * z - z * z * (C1 + z * (C2 + z * (C3 + z * (C4 + z * (C5 + z * C6))))));
         // Quadrant k mod 4: sin x = [s, c, −s, −c][k], cos x = [c, −s, −c, s][k].
-        let swap = (quadrant & 1).wrapping_neg();
+        let swap = (quadrant[i] & 1).wrapping_neg();
         let sin_abs = (sin_r.to_bits() & !swap) | (cos_r.to_bits() & swap);
         let cos_abs = (cos_r.to_bits() & !swap) | (sin_r.to_bits() & swap);
         // Bit 1 of the quadrant moved to the sign bit.
-        let sin_sign = (quadrant & 2) << 62;
-        let cos_sign = (quadrant.wrapping_add(1) & 2) << 62;
-        (
-            f64::from_bits(sin_abs ^ sin_sign),
-            f64::from_bits(cos_abs ^ cos_sign),
-        )
+        let sin_sign = (quadrant[i] & 2) << 62;
+        let cos_sign = (quadrant[i].wrapping_add(1) & 2) << 62;
+        sin[i] = f64::from_bits(sin_abs ^ sin_sign);
+        cos[i] = f64::from_bits(cos_abs ^ cos_sign);
     }
+    (sin, cos)
 }
 
 const AT: [f64; 11] = [
@@ -119,6 +160,11 @@ const PI_LO: f64 = 1.224_646_799_147_353_207_17e-16;
 /// `atan2(y, x)` of each pair, in [−π, π], within 2 ulp; `atan2(±0, ±0)` as IEEE defines it.
 /// Arguments must be finite (they are rotation-matrix entries here).
 #[must_use]
+#[inline(always)]
+#[allow(
+    clippy::inline_always,
+    reason = "out of line, the caller's element-wise stores meet the kernel's paired loads (a store-forwarding stall)"
+)]
 pub fn atan2_batch(y: &[f64; ATAN2_BATCH], x: &[f64; ATAN2_BATCH]) -> [f64; ATAN2_BATCH] {
     [
         atan2_kernel(y[0], x[0]),
@@ -213,6 +259,55 @@ mod tests {
             angle += step * BATCH as f64;
         }
         assert!(worst.0 < 3e-16 && worst.1 < 3e-16, "{worst:?}");
+    }
+
+    #[test]
+    fn split_angles_are_taken_as_unrounded_sums() {
+        // Sums of three joint angles up to 6π, whose rounding alone can reach 1.8e-15 rad.
+        let mut worst_split = 0.0_f64;
+        let mut k = 0_u32;
+        while k < 200_000 {
+            let batch: [[f64; 3]; BATCH] = std::array::from_fn(|i| {
+                let u = f64::from(k) + i as f64 * 0.377;
+                [
+                    6.2 - (u * 1e-5) % 0.3,
+                    6.1 + (u * 3.1e-6) % 0.18,
+                    -6.2 + (u * 7.7e-6) % 12.4,
+                ]
+            });
+            let mut hi = [0.0; BATCH];
+            let mut lo = [0.0; BATCH];
+            for i in 0..BATCH {
+                let [a, b, c] = batch[i];
+                let (ab, e1) = two_sum(a, b);
+                let (abc, e2) = two_sum(ab, c);
+                (hi[i], lo[i]) = (abc, e1 + e2);
+            }
+            let (sin, cos) = sin_cos_batch_split(&hi, &lo);
+            for i in 0..BATCH {
+                // Reference: the angle of (hi + lo) via sin(hi + lo) = sin hi + lo · cos hi.
+                let (s, c) = hi[i].sin_cos();
+                let (s_ref, c_ref) = (s + lo[i] * c, c - lo[i] * s);
+                worst_split = worst_split
+                    .max((sin[i] - s_ref).abs())
+                    .max((cos[i] - c_ref).abs());
+            }
+            k += BATCH as u32;
+        }
+        assert!(worst_split < 3e-16, "{worst_split}");
+        assert_eq!(
+            sin_cos_batch_split(&[3.0e5; BATCH], &[1e-11; BATCH]).0[0],
+            {
+                let (s, c) = 3.0e5_f64.sin_cos();
+                s + 1e-11 * c
+            }
+        );
+    }
+
+    fn two_sum(a: f64, b: f64) -> (f64, f64) {
+        let sum = a + b;
+        let b_part = sum - a;
+        (sum, (a - (sum - b_part)) + (b - b_part))
     }
 
     #[test]

@@ -257,6 +257,27 @@ pub struct Report {
     pub fleet: Option<Fleet>,
     /// The memory measurement's load report.
     pub memory: Option<LoadReport>,
+    /// The echo's resident bytes per robot, the transport's own share (null when not measured).
+    pub echo_bytes_per_robot: Option<f64>,
+    /// The echo's memory measurement.
+    pub echo_memory: Option<EchoMemory>,
+}
+
+/// The echo's resident memory with few and with many robots, each run started afresh (the echo
+/// declares every robot's publishers and input keys up front), every robot having sent the same
+/// samples: Zenoh's own per-robot cost for the same keys.
+#[derive(Debug, Clone, Serialize)]
+pub struct EchoMemory {
+    /// Robots of the small run.
+    pub base_robots: usize,
+    /// RSS of the small run once every robot was answered (KiB).
+    pub rss_base_kib: u64,
+    /// Robots of the large run.
+    pub robots: usize,
+    /// RSS of the large run once every robot was answered (KiB).
+    pub rss_full_kib: u64,
+    /// `(rss_full − rss_base) / (robots − base_robots)`, bytes.
+    pub bytes_per_robot: f64,
 }
 
 /// The machine.
@@ -561,6 +582,38 @@ impl Orchestrator {
         sut.stop();
         Ok(report)
     }
+
+    fn echo_memory(&self) -> Result<EchoMemory> {
+        let s = &self.settings;
+        let mut rss_kib = Vec::new();
+        for robots in [s.memory_base_robots, s.memory_robots] {
+            eprintln!("== memory: echo with {robots} robots");
+            let sut = self.start_echo(robots)?;
+            let report = self.load(
+                &sut,
+                Target::Echo,
+                &[
+                    "--robots".into(),
+                    robots.to_string(),
+                    "--memory-base-robots".into(),
+                    robots.to_string(),
+                    "--memory-samples".into(),
+                    s.memory_samples.to_string(),
+                ],
+            )?;
+            sut.stop();
+            let memory = report.memory.context("the load measured no memory")?;
+            rss_kib.push(memory.rss_full_kib);
+        }
+        let added = s.memory_robots.saturating_sub(s.memory_base_robots).max(1);
+        Ok(EchoMemory {
+            base_robots: s.memory_base_robots,
+            rss_base_kib: rss_kib[0],
+            robots: s.memory_robots,
+            rss_full_kib: rss_kib[1],
+            bytes_per_robot: (rss_kib[1] as f64 - rss_kib[0] as f64) * 1024.0 / added as f64,
+        })
+    }
 }
 
 fn fmt_rate(rate: f64) -> String {
@@ -632,6 +685,17 @@ fn table(report: &Report) -> String {
             memory.bytes_per_robot
         );
     }
+    if let Some(echo) = &report.echo_memory {
+        let _ = writeln!(
+            text,
+            "memory, echo: RSS {} KiB with {} robots, {} KiB with {}: {:.0} bytes per robot",
+            echo.rss_base_kib,
+            echo.base_robots,
+            echo.rss_full_kib,
+            echo.robots,
+            echo.bytes_per_robot
+        );
+    }
     text
 }
 
@@ -685,6 +749,16 @@ pub fn run(args: &RunArgs) -> Result<Report> {
     } else {
         None
     };
+    let echo_memory = if settings.memory_robots > 0 {
+        orchestrator
+            .echo_memory()
+            .inspect_err(|error| {
+                eprintln!("armtwin-bench: the echo's memory measurement failed: {error:#}");
+            })
+            .ok()
+    } else {
+        None
+    };
     let _ = std::fs::remove_dir_all(&work_dir);
     let headline = by_robots
         .iter()
@@ -712,6 +786,8 @@ pub fn run(args: &RunArgs) -> Result<Report> {
         settings,
         fleet,
         memory,
+        echo_bytes_per_robot: echo_memory.as_ref().map(|m| m.bytes_per_robot),
+        echo_memory,
         by_robots,
     };
     let json = serde_json::to_string_pretty(&report)?;

@@ -281,7 +281,8 @@ struct AlarmState {
 }
 
 struct RobotTwin {
-    settings: RobotSettings,
+    /// Shared with the pipeline's configuration (and every robot using the default).
+    settings: Arc<RobotSettings>,
     aligner: Aligner<Waiting>,
     cumulative: CumulativeStats,
     window: WindowStats,
@@ -307,9 +308,11 @@ struct RobotTwin {
 /// The multi-robot twin core.
 pub struct Pipeline {
     config: PipelineConfig,
-    default_settings: Option<RobotSettings>,
-    settings: HashMap<String, RobotSettings>,
-    robots: HashMap<String, RobotTwin>,
+    default_settings: Option<Arc<RobotSettings>>,
+    settings: HashMap<String, Arc<RobotSettings>>,
+    /// Boxed: the map keeps spare slots (up to half of them at times), which then cost a pointer
+    /// each rather than a whole twin.
+    robots: HashMap<String, Box<RobotTwin>>,
     rejected_unknown: u64,
 }
 
@@ -328,8 +331,11 @@ impl Pipeline {
     ) -> Self {
         Self {
             config,
-            default_settings,
-            settings,
+            default_settings: default_settings.map(Arc::new),
+            settings: settings
+                .into_iter()
+                .map(|(robot, settings)| (robot, Arc::new(settings)))
+                .collect(),
             robots: HashMap::new(),
             rejected_unknown: 0,
         }
@@ -344,12 +350,17 @@ impl Pipeline {
     /// The settings a robot gets (its own, else the default), if it may be tracked.
     #[must_use]
     pub fn settings_for(&self, robot: &str) -> Option<&RobotSettings> {
-        self.settings.get(robot).or(self.default_settings.as_ref())
+        self.settings
+            .get(robot)
+            .or(self.default_settings.as_ref())
+            .map(Arc::as_ref)
     }
 
     /// Configured robots (with their own settings), tracked or not.
     pub fn configured_robots(&self) -> impl Iterator<Item = (&str, &RobotSettings)> {
-        self.settings.iter().map(|(id, s)| (id.as_str(), s))
+        self.settings
+            .iter()
+            .map(|(id, s)| (id.as_str(), s.as_ref()))
     }
 
     /// Ids of the robots tracked so far.
@@ -374,7 +385,12 @@ impl Pipeline {
         if self.robots.contains_key(robot) {
             return Ok(());
         }
-        let settings = self.settings_for(robot).cloned().ok_or(UnknownRobot)?;
+        let settings = self
+            .settings
+            .get(robot)
+            .or(self.default_settings.as_ref())
+            .cloned()
+            .ok_or(UnknownRobot)?;
         let twin = RobotTwin {
             aligner: Aligner::new(self.config.align),
             cumulative: CumulativeStats::new(),
@@ -395,7 +411,7 @@ impl Pipeline {
             scratch_q: Vec::with_capacity(settings.model.joint_count()),
             settings,
         };
-        self.robots.insert(robot.to_owned(), twin);
+        self.robots.insert(robot.to_owned(), Box::new(twin));
         sink.tracking(robot);
         Ok(())
     }
@@ -755,6 +771,9 @@ impl RobotTwin {
             return false;
         }
         if self.last_measured_s.len() <= slot {
+            // Exact: most robots have one stream, and a `Vec` would otherwise start at four.
+            self.last_measured_s
+                .reserve_exact(slot + 1 - self.last_measured_s.len());
             self.last_measured_s.resize(slot + 1, None);
         }
         self.last_measured_s[slot] = Some(stamp_s);

@@ -1,5 +1,6 @@
 //! Time alignment of measured poses with joint samples: a bounded history of recent joint samples
-//! (with their twin poses) and a bounded queue of measured poses waiting for a later joint sample.
+//! (stamps and angles; their twin poses are recomputed when needed, which costs less than keeping
+//! 80 bytes per sample) and a bounded queue of measured poses waiting for a later joint sample.
 //!
 //! Owns where a measured stamp falls among the joint stamps — exactly on one, between two (to be
 //! interpolated), or nowhere usable — and when a waiting measurement gives up. It computes no
@@ -16,8 +17,6 @@
 //! - one older than the kept history (`history_s`, at most `max_history` samples) is unpaired.
 
 use std::collections::VecDeque;
-
-use crate::kinematics::PoseReadout;
 
 /// Alignment limits.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -53,8 +52,8 @@ impl Default for AlignConfig {
 /// Where a measured stamp falls in the joint history.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Bracket<'a> {
-    /// A joint sample has exactly this stamp: its twin pose applies.
-    Exact(&'a PoseReadout),
+    /// A joint sample has exactly this stamp: the twin pose at its joint angles (rad) applies.
+    Exact(&'a [f64]),
     /// Between two joint samples: interpolate `q = q0 + fraction · (q1 − q0)`.
     Between {
         /// Joint angles (rad) before.
@@ -146,7 +145,6 @@ pub struct Aligner<T> {
     stamps_s: VecDeque<f64>,
     /// Joint angles of every kept sample, oldest first.
     angles_rad: AngleRing,
-    twins: VecDeque<PoseReadout>,
     pending: VecDeque<Pending<T>>,
 }
 
@@ -225,7 +223,6 @@ impl<T> Aligner<T> {
             config,
             stamps_s: VecDeque::new(),
             angles_rad: AngleRing::default(),
-            twins: VecDeque::new(),
             pending: VecDeque::new(),
         }
     }
@@ -248,12 +245,11 @@ impl<T> Aligner<T> {
         self.pending.len()
     }
 
-    /// Records a joint sample (stamps must increase; the caller enforces it) and its twin pose,
+    /// Records a joint sample's stamp and angles (stamps must increase; the caller enforces it),
     /// dropping history older than `history_s` or beyond `max_history`.
-    pub fn push_joints(&mut self, stamp_s: f64, q_rad: &[f64], twin: PoseReadout) {
+    pub fn push_joints(&mut self, stamp_s: f64, q_rad: &[f64]) {
         self.stamps_s.push_back(stamp_s);
         self.angles_rad.push_back(q_rad);
-        self.twins.push_back(twin);
         // Keep at least the two newest samples, so a measured pose between them can pair.
         while let Some(&oldest) = self.stamps_s.front() {
             let too_old = oldest < stamp_s - self.config.history_s;
@@ -262,7 +258,6 @@ impl<T> Aligner<T> {
                 break;
             }
             self.stamps_s.pop_front();
-            self.twins.pop_front();
             self.angles_rad.pop_front();
         }
     }
@@ -289,7 +284,7 @@ impl<T> Aligner<T> {
             reason = "an exact stamp match is the defined pairing"
         )]
         if self.stamps_s[after] == stamp_s {
-            return Bracket::Exact(&self.twins[after]);
+            return Bracket::Exact(self.angles_rad.get(after));
         }
         let before = after - 1;
         let (t0, t1) = (self.stamps_s[before], self.stamps_s[after]);
@@ -356,7 +351,6 @@ pub fn interpolate(q0: &[f64], q1: &[f64], fraction: f64, out: &mut Vec<f64>) {
 #[allow(clippy::float_cmp, reason = "angles are stored, not computed")]
 mod tests {
     use super::*;
-    use nalgebra::UnitQuaternion;
 
     fn angles(sample: u32) -> [f64; 6] {
         std::array::from_fn(|joint| f64::from(sample) + joint as f64 / 10.0)
@@ -389,8 +383,7 @@ mod tests {
         let mut aligner = Aligner::<()>::new(AlignConfig::default());
         for i in 0..300 {
             let t = f64::from(i) * 0.01;
-            let pose = PoseReadout::from_position_quaternion([0.0; 3], &UnitQuaternion::identity());
-            aligner.push_joints(t, &angles(i), pose);
+            aligner.push_joints(t, &angles(i));
         }
         // 2 s of history at 100 Hz are kept, so the ring never holds more than 256 slots.
         assert!(

@@ -694,7 +694,7 @@ impl RobotTwin {
         let seq = self.next_pose_seq;
         self.next_pose_seq += 1;
         sink.pose(robot, stamp_s, seq, self.settings.model.frame(), &pose);
-        self.aligner.push_joints(stamp_s, &sample.q_rad, pose);
+        self.aligner.push_joints(stamp_s, &sample.q_rad);
         self.last_joint_s = Some(stamp_s);
         self.last_joints.clear();
         self.last_joints.extend_from_slice(&sample.q_rad);
@@ -815,7 +815,9 @@ impl RobotTwin {
         sink: &mut impl Sink,
     ) {
         let twin_pose = match self.aligner.bracket(stamp_s) {
-            Bracket::Exact(twin) => *twin,
+            // Recomputed rather than kept for every sample of history: the same pure function of
+            // the same angles, so the same pose, for about 0.1 µs instead of 80 bytes per sample.
+            Bracket::Exact(q_rad) => self.settings.model.chain().pose_unchecked(q_rad).readout(),
             Bracket::Between { q0, q1, fraction } => {
                 align::interpolate(q0, q1, fraction, &mut self.scratch_q);
                 self.settings

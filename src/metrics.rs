@@ -521,7 +521,7 @@ struct WindowSample {
 /// **Cost.** Amortised O(1) per [`add`](Self::add): branch-free integer additions to three chunks
 /// per sum, and each sample enters and leaves each maximum deque once (about 0.4 µs per sample in
 /// a release build, mostly the deques' data-dependent branches; Shewchuk's partials took 1–2 µs).
-/// A [`snapshot`](Self::snapshot) rounds the 18 sums, about 1.5 µs.
+/// A [`snapshot`](Self::snapshot) rounds the 18 sums, about 1 µs (`benches/metrics.rs`).
 /// Memory O(samples in the window): 80 bytes per sample (stamp and nine values) plus at most 36
 /// bytes of maximum-deque positions (4 bytes per metric, only while the sample is larger than every
 /// later one; a handful in all for noisy errors), so at most 116 bytes per sample. The ring buffers

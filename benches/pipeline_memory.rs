@@ -23,7 +23,7 @@ use armtwin::ingest;
 use armtwin::kinematics::{OutputFrame, PoseReadout};
 use armtwin::metrics::{CumulativeStats, Deviation, WindowStats};
 use armtwin::model::RobotModel;
-use armtwin::pipeline::{Event, MeasuredStream, MetricsSnapshot, Pipeline, Sink};
+use armtwin::pipeline::{Event, MeasuredStream, MetricsSnapshot, Pipeline, PipelineConfig, Sink};
 
 /// `System`, counting the bytes live and the allocations made.
 struct Counting;
@@ -137,12 +137,12 @@ impl Messages {
     }
 }
 
-/// Feeds robots `range` samples `samples` (joint, then measured, 100 Hz).
+/// Feeds robots `range` samples `samples` (joint, then measured unless `joints_only`, 100 Hz).
 fn feed(
     pipeline: &mut Pipeline,
     messages: &Messages,
-    range: std::ops::Range<usize>,
-    samples: std::ops::Range<usize>,
+    (range, samples): (std::ops::Range<usize>, std::ops::Range<usize>),
+    joints_only: bool,
 ) {
     let mut sink = NoSink;
     for sample in samples {
@@ -161,6 +161,9 @@ fn feed(
                 stamp_s,
                 &mut sink,
             );
+            if joints_only {
+                continue;
+            }
             ingest::measured_message(
                 pipeline,
                 &robot,
@@ -206,13 +209,13 @@ fn main() {
         model: RobotModel::nominal("ur10e").expect("catalog"),
     };
     let mut pipeline = Pipeline::new(config.pipeline, config.default_robot, config.robots);
-    feed(&mut pipeline, &messages, 0..FIRST, 0..samples);
+    feed(&mut pipeline, &messages, (0..FIRST, 0..samples), false);
     let base = live_bytes();
     // Phases for the other robots: first joint message (tracking), first measured pose (first
     // pairing), the remaining samples.
-    feed(&mut pipeline, &messages, FIRST..robots, 0..1);
+    feed(&mut pipeline, &messages, (FIRST..robots, 0..1), false);
     let after_joint_and_measured = live_bytes();
-    feed(&mut pipeline, &messages, FIRST..robots, 1..samples);
+    feed(&mut pipeline, &messages, (FIRST..robots, 1..samples), false);
     let after_all = live_bytes();
     let tracked = (robots - FIRST) as f64;
     let per_robot = |bytes: isize| bytes as f64 / tracked;
@@ -233,11 +236,33 @@ fn main() {
         per_robot(after_all - after_joint_and_measured)
     );
 
-    // The parts, each built alone and given the same samples.
+    // Robots that only stream joints (no measured poses, so no deviation statistics).
+    drop(pipeline);
+    let config = ServiceConfig::parse(
+        &service_config(robots),
+        "generated",
+        Path::new(""),
+        &Overrides::default(),
+    )
+    .expect("generated configuration");
+    let mut pipeline = Pipeline::new(config.pipeline, config.default_robot, config.robots);
+    feed(&mut pipeline, &messages, (0..FIRST, 0..samples), true);
+    let base = live_bytes();
+    feed(&mut pipeline, &messages, (FIRST..robots, 0..samples), true);
+    println!(
+        "  per tracked robot streaming joints only: {:.0} bytes",
+        per_robot(live_bytes() - base)
+    );
+
+    print_parts(&config.pipeline, samples);
+    drop(pipeline);
+}
+
+/// The main parts' inline sizes and heap after `samples` samples, each built alone.
+fn print_parts(pipeline: &PipelineConfig, samples: usize) {
     let model = RobotModel::nominal("ur10e").expect("catalog");
     let (window_bytes, window) = heap_of(|| {
-        let mut window =
-            WindowStats::new(config.pipeline.window_s, config.pipeline.window_max_samples);
+        let mut window = WindowStats::new(pipeline.window_s, pipeline.window_max_samples);
         for sample in 0..samples {
             let pose = model
                 .pose(&Messages::q_rad(sample))
@@ -251,7 +276,7 @@ fn main() {
         window
     });
     let (aligner_bytes, aligner) = heap_of(|| {
-        let mut aligner = Aligner::<PoseReadout>::new(config.pipeline.align);
+        let mut aligner = Aligner::<PoseReadout>::new(pipeline.align);
         for sample in 0..samples {
             aligner.push_joints(sample as f64 * 0.01, &Messages::q_rad(sample));
         }
@@ -278,5 +303,5 @@ fn main() {
         size_of::<String>(),
         robot_id(0).len()
     );
-    drop((window, aligner, pipeline));
+    drop((window, aligner));
 }

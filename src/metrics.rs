@@ -268,35 +268,6 @@ const EXACT_SUM_UNUSED: u16 = u16::MAX;
 /// a chunk, so chunks stay far from `i64` overflow.
 const EXACT_SUM_OPS_BETWEEN_CARRIES: u32 = 1 << 30;
 
-/// The chunks an [`ExactSum`] has in use: inline while they are few, on the heap beyond.
-#[derive(Debug, Clone)]
-enum Chunks {
-    Inline([i64; EXACT_SUM_INLINE_CHUNKS]),
-    Spilled(Box<[i64]>),
-}
-
-impl Chunks {
-    fn as_slice(&self) -> &[i64] {
-        match self {
-            Self::Inline(chunks) => chunks,
-            Self::Spilled(chunks) => chunks,
-        }
-    }
-
-    fn as_mut_slice(&mut self) -> &mut [i64] {
-        match self {
-            Self::Inline(chunks) => chunks,
-            Self::Spilled(chunks) => chunks,
-        }
-    }
-
-    /// The three chunks from `slot` on, if they are held.
-    #[inline]
-    fn slot_mut(&mut self, slot: usize) -> Option<&mut [i64; 3]> {
-        self.as_mut_slice().get_mut(slot..)?.first_chunk_mut()
-    }
-}
-
 /// An exact sum of doubles, with exact subtraction: a fixed-point "superaccumulator" over every
 /// value the statistics accept (finite, at most 1e200, as are squares of at most 1e100), holding
 /// only the chunks its values have reached.
@@ -313,25 +284,77 @@ impl Chunks {
 /// a metric's values span a few dozen binary orders, so 4 chunks, held inline, usually suffice.
 /// No headroom is needed above the highest chunk: the top chunk keeps the carries, and a sum of
 /// fewer than 2³² values each below 2²⁰ top-chunk units stays below 2⁵² of them.
+///
+/// 40 bytes: the position and carry counter share the first word with the variant's tag.
 #[derive(Debug, Clone)]
-struct ExactSum {
-    /// Position of `chunks[0]` among the 57, or [`EXACT_SUM_UNUSED`].
-    low: u16,
-    ops_since_carry: u32,
-    chunks: Chunks,
+enum ExactSum {
+    /// At most [`EXACT_SUM_INLINE_CHUNKS`] chunks, held inline.
+    Inline {
+        /// Position of `chunks[0]` among the 57, or [`EXACT_SUM_UNUSED`].
+        low: u16,
+        ops_since_carry: u32,
+        chunks: [i64; EXACT_SUM_INLINE_CHUNKS],
+    },
+    /// More chunks, on the heap.
+    Spilled {
+        /// Position of `chunks[0]` among the 57.
+        low: u16,
+        ops_since_carry: u32,
+        chunks: Box<[i64]>,
+    },
 }
 
 impl Default for ExactSum {
     fn default() -> Self {
-        Self {
+        Self::Inline {
             low: EXACT_SUM_UNUSED,
             ops_since_carry: 0,
-            chunks: Chunks::Inline([0; EXACT_SUM_INLINE_CHUNKS]),
+            chunks: [0; EXACT_SUM_INLINE_CHUNKS],
         }
     }
 }
 
 impl ExactSum {
+    fn low(&self) -> u16 {
+        match self {
+            Self::Inline { low, .. } | Self::Spilled { low, .. } => *low,
+        }
+    }
+
+    fn chunks(&self) -> &[i64] {
+        match self {
+            Self::Inline { chunks, .. } => chunks,
+            Self::Spilled { chunks, .. } => chunks,
+        }
+    }
+
+    fn ops_since_carry(&self) -> u32 {
+        match self {
+            Self::Inline {
+                ops_since_carry, ..
+            }
+            | Self::Spilled {
+                ops_since_carry, ..
+            } => *ops_since_carry,
+        }
+    }
+
+    /// The position, the carry counter and the chunks, with one look at the variant.
+    fn parts_mut(&mut self) -> (u16, &mut u32, &mut [i64]) {
+        match self {
+            Self::Inline {
+                low,
+                ops_since_carry,
+                chunks,
+            } => (*low, ops_since_carry, chunks),
+            Self::Spilled {
+                low,
+                ops_since_carry,
+                chunks,
+            } => (*low, ops_since_carry, chunks),
+        }
+    }
+
     /// Adds `x`, which must be finite and at most 1e200 in magnitude (the callers' acceptance
     /// check guarantees it; anything larger would reach past the 57 chunk positions).
     fn add(&mut self, x: f64) {
@@ -354,59 +377,88 @@ impl ExactSum {
         let index = position / 32;
         let placed = u128::from(significand) << (position % 32);
         let sign = if x.is_sign_negative() { -1 } else { 1 };
+        let parts = [
+            sign * (placed & LOW_32) as i64,
+            sign * ((placed >> 32) & LOW_32) as i64,
+            sign * (placed >> 64) as i64,
+        ];
+        let (low, ops_since_carry, chunks) = self.parts_mut();
         // Wraps to a huge slot below `low` (and for an unused sum), so one bounds check covers
         // both ends.
-        let slot = index.wrapping_sub(usize::from(self.low));
-        let chunks = if let Some(chunks) = self.chunks.slot_mut(slot) {
-            chunks
-        } else {
-            self.cover(index);
-            let slot = index - usize::from(self.low);
-            self.chunks
-                .slot_mut(slot)
-                .expect("covered chunks hold the value")
+        let slot = index.wrapping_sub(usize::from(low));
+        let Some(target) = chunks
+            .get_mut(slot..)
+            .and_then(<[i64]>::first_chunk_mut::<3>)
+        else {
+            self.add_uncovered(index, parts);
+            return;
         };
-        chunks[0] += sign * (placed & LOW_32) as i64;
-        chunks[1] += sign * ((placed >> 32) & LOW_32) as i64;
-        chunks[2] += sign * (placed >> 64) as i64;
-        self.ops_since_carry += 1;
-        if self.ops_since_carry == EXACT_SUM_OPS_BETWEEN_CARRIES {
-            propagate_carries(self.chunks.as_mut_slice());
-            self.ops_since_carry = 0;
+        for (chunk, part) in target.iter_mut().zip(parts) {
+            *chunk += part;
+        }
+        *ops_since_carry += 1;
+        if *ops_since_carry == EXACT_SUM_OPS_BETWEEN_CARRIES {
+            propagate_carries(chunks);
+            *ops_since_carry = 0;
+        }
+    }
+
+    /// [`add`](Self::add)'s rare path, kept out of line so the common one stays small: grows the
+    /// chunks to hold position `index` on, then adds `parts` there.
+    #[cold]
+    #[inline(never)]
+    fn add_uncovered(&mut self, index: usize, parts: [i64; 3]) {
+        self.cover(index);
+        let (low, ops_since_carry, chunks) = self.parts_mut();
+        let slot = index - usize::from(low);
+        for (chunk, part) in chunks[slot..slot + 3].iter_mut().zip(parts) {
+            *chunk += part;
+        }
+        *ops_since_carry += 1;
+        if *ops_since_carry == EXACT_SUM_OPS_BETWEEN_CARRIES {
+            propagate_carries(chunks);
+            *ops_since_carry = 0;
         }
     }
 
     /// Grows the chunks to cover positions `index..index + 3` as well as those in use. Chunks keep
     /// their deferred carries: each moves by less than 2³² per operation wherever it sits.
-    #[cold]
     fn cover(&mut self, index: usize) {
-        let old = self.chunks.as_slice();
-        let (low, end) = if self.low == EXACT_SUM_UNUSED {
+        let (old_low, ops_since_carry, old) = (self.low(), self.ops_since_carry(), self.chunks());
+        let (low, end) = if old_low == EXACT_SUM_UNUSED {
             (index, index + 3)
         } else {
-            let low = usize::from(self.low);
-            (low.min(index), (low + old.len()).max(index + 3))
+            let old_low = usize::from(old_low);
+            (old_low.min(index), (old_low + old.len()).max(index + 3))
         };
-        let mut chunks = if end - low <= EXACT_SUM_INLINE_CHUNKS {
-            Chunks::Inline([0; EXACT_SUM_INLINE_CHUNKS])
-        } else {
-            Chunks::Spilled(vec![0; end - low].into_boxed_slice())
-        };
-        if self.low != EXACT_SUM_UNUSED {
-            let offset = usize::from(self.low) - low;
-            chunks.as_mut_slice()[offset..offset + old.len()].copy_from_slice(old);
-        }
-        self.chunks = chunks;
         // Positions are below 57.
-        self.low = low as u16;
+        let position = low as u16;
+        let mut grown = if end - low <= EXACT_SUM_INLINE_CHUNKS {
+            Self::Inline {
+                low: position,
+                ops_since_carry,
+                chunks: [0; EXACT_SUM_INLINE_CHUNKS],
+            }
+        } else {
+            Self::Spilled {
+                low: position,
+                ops_since_carry,
+                chunks: vec![0; end - low].into_boxed_slice(),
+            }
+        };
+        if old_low != EXACT_SUM_UNUSED {
+            let offset = usize::from(old_low) - low;
+            grown.parts_mut().2[offset..offset + old.len()].copy_from_slice(old);
+        }
+        *self = grown;
     }
 
     /// The exact sum rounded to the nearest double, ties to even.
     fn value(&self) -> f64 {
-        if self.low == EXACT_SUM_UNUSED {
+        if self.low() == EXACT_SUM_UNUSED {
             return 0.0;
         }
-        let stored = self.chunks.as_slice();
+        let stored = self.chunks();
         let mut buffer = [0; EXACT_SUM_CHUNKS + EXACT_SUM_INLINE_CHUNKS];
         let chunks = &mut buffer[..stored.len()];
         chunks.copy_from_slice(stored);
@@ -431,7 +483,7 @@ impl ExactSum {
             });
         let below = chunks[..lowest].iter().any(|&chunk| chunk != 0);
         #[allow(clippy::cast_possible_wrap, reason = "chunk positions are below 61")]
-        let exponent = EXACT_SUM_LOWEST_EXPONENT + 32 * (usize::from(self.low) + lowest) as i32;
+        let exponent = EXACT_SUM_LOWEST_EXPONENT + 32 * (usize::from(self.low()) + lowest) as i32;
         let magnitude = round_to_f64(leading, below, exponent);
         if negative { -magnitude } else { magnitude }
     }
@@ -526,7 +578,7 @@ struct WindowSample {
 /// bytes of maximum-deque positions (4 bytes per metric, only while the sample is larger than every
 /// later one; a handful in all for noisy errors), so at most 116 bytes per sample. The ring buffers
 /// grow by doubling (at most 2× that allocated) and are trimmed once a quarter full (at most 4×
-/// after the window shrinks a lot). Fixed: 48 bytes for each of the 18 exact sums, holding 4
+/// after the window shrinks a lot). Fixed: 40 bytes for each of the 18 exact sums, holding 4
 /// chunks inline (values within about 2³² of each other); a sum whose values spread wider holds
 /// 8 bytes per 2³² of spread on the heap (at most 57 chunks, 456 bytes).
 ///
@@ -941,14 +993,15 @@ mod tests {
 
     #[test]
     fn exact_sum_survives_deferred_carry_propagation() {
-        let mut sum = ExactSum {
+        let mut sum = ExactSum::Inline {
+            low: EXACT_SUM_UNUSED,
             ops_since_carry: EXACT_SUM_OPS_BETWEEN_CARRIES - 2,
-            ..ExactSum::default()
+            chunks: [0; EXACT_SUM_INLINE_CHUNKS],
         };
         for x in [3.5, -1e-20, 2f64.powi(31), -7.0] {
             sum.add(x);
         }
-        assert!(sum.ops_since_carry < 4);
+        assert!(sum.ops_since_carry() < 4);
         assert_eq!(sum.value(), fsum(&[3.5, -1e-20, 2f64.powi(31), -7.0]));
     }
 
@@ -969,8 +1022,14 @@ mod tests {
 
     /// The chunk positions a sum holds.
     fn span(sum: &ExactSum) -> std::ops::Range<usize> {
-        let low = usize::from(sum.low);
-        low..low + sum.chunks.as_slice().len()
+        let low = usize::from(sum.low());
+        low..low + sum.chunks().len()
+    }
+
+    #[test]
+    #[cfg(target_pointer_width = "64")]
+    fn exact_sum_is_five_words() {
+        assert_eq!(size_of::<ExactSum>(), 40);
     }
 
     #[test]
@@ -980,7 +1039,7 @@ mod tests {
         // Zeros add nothing and claim no chunks.
         sum.add(0.0);
         sum.add(-0.0);
-        assert_eq!(sum.low, EXACT_SUM_UNUSED);
+        assert_eq!(sum.low(), EXACT_SUM_UNUSED);
         assert_eq!(sum.value(), 0.0);
         // Deviations from a micrometre to a centimetre, and back out of the window.
         let values: Vec<f64> = (0..2000)
@@ -989,7 +1048,7 @@ mod tests {
         for &x in &values {
             sum.add(x);
         }
-        assert!(matches!(sum.chunks, Chunks::Inline(_)), "{sum:?}");
+        assert!(matches!(sum, ExactSum::Inline { .. }), "{sum:?}");
         assert_eq!(sum.value(), fsum(&values));
         for &x in &values[..1000] {
             sum.add(-x);
@@ -999,7 +1058,7 @@ mod tests {
             sum.add(-x);
         }
         assert_eq!(sum.value(), 0.0);
-        assert!(matches!(sum.chunks, Chunks::Inline(_)));
+        assert!(matches!(sum, ExactSum::Inline { .. }));
     }
 
     #[test]
@@ -1007,12 +1066,12 @@ mod tests {
         let (mut sum, mut history) = (ExactSum::default(), Vec::new());
         check_adds(&mut sum, &mut history, &[1.0, 3.0]);
         let start = span(&sum);
-        assert!(matches!(sum.chunks, Chunks::Inline(_)));
+        assert!(matches!(sum, ExactSum::Inline { .. }));
         // Downwards, into the subnormals, keeping what is held.
         check_adds(&mut sum, &mut history, &[1e-300, f64::from_bits(1)]);
         let after_down = span(&sum);
         assert!(after_down.start < start.start && after_down.end == start.end);
-        assert!(matches!(sum.chunks, Chunks::Spilled(_)));
+        assert!(matches!(sum, ExactSum::Spilled { .. }));
         // Upwards, to the largest accepted values.
         let values = [1.0, 3.0, 1e-300, f64::from_bits(1), 1e200, -2.5e199, 1e200];
         let mut upwards = ExactSum::default();
@@ -1083,12 +1142,12 @@ mod tests {
         let mut sum = ExactSum::default();
         sum.add(1e-30);
         sum.add(1e10);
-        assert!(matches!(sum.chunks, Chunks::Spilled(_)));
-        sum.ops_since_carry = EXACT_SUM_OPS_BETWEEN_CARRIES - 2;
+        assert!(matches!(sum, ExactSum::Spilled { .. }));
+        *sum.parts_mut().1 = EXACT_SUM_OPS_BETWEEN_CARRIES - 2;
         for x in [-1e-30, 2f64.powi(31), -7.0, 1e-30] {
             sum.add(x);
         }
-        assert!(sum.ops_since_carry < 4);
+        assert!(sum.ops_since_carry() < 4);
         assert_eq!(sum.value(), fsum(&[1e10, 2f64.powi(31), -7.0, 1e-30]));
     }
 

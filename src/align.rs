@@ -1,5 +1,6 @@
 //! Time alignment of measured poses with joint samples: a bounded history of recent joint samples
-//! (with their twin poses) and a bounded queue of measured poses waiting for a later joint sample.
+//! (stamps and angles; their twin poses are recomputed when needed, which costs less than keeping
+//! 80 bytes per sample) and a bounded queue of measured poses waiting for a later joint sample.
 //!
 //! Owns where a measured stamp falls among the joint stamps — exactly on one, between two (to be
 //! interpolated), or nowhere usable — and when a waiting measurement gives up. It computes no
@@ -16,8 +17,6 @@
 //! - one older than the kept history (`history_s`, at most `max_history` samples) is unpaired.
 
 use std::collections::VecDeque;
-
-use crate::kinematics::PoseReadout;
 
 /// Alignment limits.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -53,8 +52,8 @@ impl Default for AlignConfig {
 /// Where a measured stamp falls in the joint history.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Bracket<'a> {
-    /// A joint sample has exactly this stamp: its twin pose applies.
-    Exact(&'a PoseReadout),
+    /// A joint sample has exactly this stamp: the twin pose at its joint angles (rad) applies.
+    Exact(&'a [f64]),
     /// Between two joint samples: interpolate `q = q0 + fraction · (q1 − q0)`.
     Between {
         /// Joint angles (rad) before.
@@ -145,23 +144,85 @@ pub struct Aligner<T> {
     config: AlignConfig,
     stamps_s: VecDeque<f64>,
     /// Joint angles of every kept sample, oldest first.
-    angles_rad: VecDeque<Vec<f64>>,
-    twins: VecDeque<PoseReadout>,
-    /// Angle buffers of dropped samples, reused so that steady state allocates nothing.
-    spare: Vec<Vec<f64>>,
+    angles_rad: AngleRing,
     pending: VecDeque<Pending<T>>,
 }
 
+/// Joint angles of a run of samples, oldest first, in one buffer of fixed-size slots (one per
+/// sample, never split at the buffer's end): no allocation per sample and no per-sample header,
+/// unlike a ring of `Vec`s (24 bytes and an allocation each).
+#[derive(Debug, Clone, Default)]
+struct AngleRing {
+    /// `slots · joint_count` angles (rad).
+    values_rad: Vec<f64>,
+    /// Angles per sample, set by the first sample (the caller keeps it constant).
+    joint_count: usize,
+    slots: usize,
+    /// Slot of the oldest sample.
+    head: usize,
+    len: usize,
+}
+
+impl AngleRing {
+    /// The `index`-th oldest sample's angles (rad); `index < len`.
+    fn get(&self, index: usize) -> &[f64] {
+        let start = (self.head + index) % self.slots * self.joint_count;
+        &self.values_rad[start..start + self.joint_count]
+    }
+
+    /// Appends a sample's angles, growing by doubling when every slot is taken. Angles beyond the
+    /// first sample's count are dropped and missing ones read as 0 (callers check the count).
+    fn push_back(&mut self, q_rad: &[f64]) {
+        if self.len == 0 {
+            self.joint_count = q_rad.len();
+            self.head = 0;
+        }
+        if self.len == self.slots || self.values_rad.len() != self.slots * self.joint_count {
+            self.grow();
+        }
+        let start = (self.head + self.len) % self.slots * self.joint_count;
+        let slot = &mut self.values_rad[start..start + self.joint_count];
+        slot.fill(0.0);
+        for (angle, &q) in slot.iter_mut().zip(q_rad) {
+            *angle = q;
+        }
+        self.len += 1;
+    }
+
+    /// Room for at least one more sample (and slots of the current joint count), oldest first.
+    #[cold]
+    fn grow(&mut self) {
+        let slots = (2 * self.slots).max(4);
+        let mut values_rad = Vec::with_capacity(slots * self.joint_count);
+        for index in 0..self.len {
+            values_rad.extend_from_slice(self.get(index));
+        }
+        values_rad.resize(slots * self.joint_count, 0.0);
+        *self = Self {
+            values_rad,
+            joint_count: self.joint_count,
+            slots,
+            head: 0,
+            len: self.len,
+        };
+    }
+
+    fn pop_front(&mut self) {
+        if self.len > 0 {
+            self.head = (self.head + 1) % self.slots;
+            self.len -= 1;
+        }
+    }
+}
+
 impl<T> Aligner<T> {
-    /// An empty aligner for an arm of `joint_count` joints.
+    /// An empty aligner; the arm's joint count is taken from the first joint sample.
     #[must_use]
     pub fn new(config: AlignConfig) -> Self {
         Self {
             config,
             stamps_s: VecDeque::new(),
-            angles_rad: VecDeque::new(),
-            twins: VecDeque::new(),
-            spare: Vec::new(),
+            angles_rad: AngleRing::default(),
             pending: VecDeque::new(),
         }
     }
@@ -184,15 +245,11 @@ impl<T> Aligner<T> {
         self.pending.len()
     }
 
-    /// Records a joint sample (stamps must increase; the caller enforces it) and its twin pose,
+    /// Records a joint sample's stamp and angles (stamps must increase; the caller enforces it),
     /// dropping history older than `history_s` or beyond `max_history`.
-    pub fn push_joints(&mut self, stamp_s: f64, q_rad: &[f64], twin: PoseReadout) {
-        let mut angles = self.spare.pop().unwrap_or_default();
-        angles.clear();
-        angles.extend_from_slice(q_rad);
+    pub fn push_joints(&mut self, stamp_s: f64, q_rad: &[f64]) {
         self.stamps_s.push_back(stamp_s);
-        self.angles_rad.push_back(angles);
-        self.twins.push_back(twin);
+        self.angles_rad.push_back(q_rad);
         // Keep at least the two newest samples, so a measured pose between them can pair.
         while let Some(&oldest) = self.stamps_s.front() {
             let too_old = oldest < stamp_s - self.config.history_s;
@@ -201,10 +258,7 @@ impl<T> Aligner<T> {
                 break;
             }
             self.stamps_s.pop_front();
-            self.twins.pop_front();
-            if let Some(angles) = self.angles_rad.pop_front() {
-                self.spare.push(angles);
-            }
+            self.angles_rad.pop_front();
         }
     }
 
@@ -230,7 +284,7 @@ impl<T> Aligner<T> {
             reason = "an exact stamp match is the defined pairing"
         )]
         if self.stamps_s[after] == stamp_s {
-            return Bracket::Exact(&self.twins[after]);
+            return Bracket::Exact(self.angles_rad.get(after));
         }
         let before = after - 1;
         let (t0, t1) = (self.stamps_s[before], self.stamps_s[after]);
@@ -238,8 +292,8 @@ impl<T> Aligner<T> {
             return Bracket::Unpaired(UnpairedReason::JointGap { gap_s: t1 - t0 });
         }
         Bracket::Between {
-            q0: &self.angles_rad[before],
-            q1: &self.angles_rad[after],
+            q0: self.angles_rad.get(before),
+            q1: self.angles_rad.get(after),
             fraction: (stamp_s - t0) / (t1 - t0),
         }
     }
@@ -291,4 +345,56 @@ impl<T> Aligner<T> {
 pub fn interpolate(q0: &[f64], q1: &[f64], fraction: f64, out: &mut Vec<f64>) {
     out.clear();
     out.extend(q0.iter().zip(q1).map(|(a, b)| a + fraction * (b - a)));
+}
+
+#[cfg(test)]
+#[allow(clippy::float_cmp, reason = "angles are stored, not computed")]
+mod tests {
+    use super::*;
+
+    fn angles(sample: u32) -> [f64; 6] {
+        std::array::from_fn(|joint| f64::from(sample) + joint as f64 / 10.0)
+    }
+
+    #[test]
+    fn angle_ring_keeps_samples_in_order_across_wrap_and_growth() {
+        let mut ring = AngleRing::default();
+        let (mut oldest, mut next) = (0, 0);
+        // Uneven pushes and pops: the head wraps round while the ring grows to 16 slots.
+        for round in 0..40u32 {
+            for _ in 0..=(round % 4) {
+                ring.push_back(&angles(next));
+                next += 1;
+            }
+            for _ in 0..(round % 3) {
+                ring.pop_front();
+                oldest += 1;
+            }
+            assert_eq!(ring.len, (next - oldest) as usize);
+            for (index, sample) in (oldest..next).enumerate() {
+                assert_eq!(ring.get(index), angles(sample));
+            }
+        }
+        assert!(ring.slots >= ring.len && ring.slots.is_power_of_two());
+    }
+
+    #[test]
+    fn aligner_interpolates_between_stored_angles() {
+        let mut aligner = Aligner::<()>::new(AlignConfig::default());
+        for i in 0..300 {
+            let t = f64::from(i) * 0.01;
+            aligner.push_joints(t, &angles(i));
+        }
+        // 2 s of history at 100 Hz are kept, so the ring never holds more than 256 slots.
+        assert!(
+            aligner.angles_rad.slots <= 256,
+            "{}",
+            aligner.angles_rad.slots
+        );
+        let Bracket::Between { q0, q1, fraction } = aligner.bracket(2.905) else {
+            panic!("between two joint samples");
+        };
+        assert_eq!((q0, q1), (&angles(290)[..], &angles(291)[..]));
+        assert!((fraction - 0.5).abs() < 1e-9);
+    }
 }

@@ -412,8 +412,15 @@ fn load_robots(
     let default_section = sections.get("default");
     let mut default_robot = None;
     let mut robots = HashMap::new();
+    let mut models = HashMap::new();
     for (id, section) in sections {
-        let settings = robot_settings(id, section, default_section, source_name, base_dir)?;
+        let settings = robot_settings(
+            id,
+            section,
+            default_section,
+            (source_name, base_dir),
+            &mut models,
+        )?;
         if id == "default" {
             default_robot = Some(settings);
             continue;
@@ -437,8 +444,8 @@ fn load_robots(
             "default",
             &RobotSection::default(),
             None,
-            source_name,
-            base_dir,
+            (source_name, base_dir),
+            &mut models,
         )?,
     };
     Ok((default_robot, robots))
@@ -488,7 +495,7 @@ impl RobotSource<'_> {
     fn model(&self) -> Result<RobotModel, ConfigError> {
         let model_name = self
             .pick(|s| s.model.clone())
-            .unwrap_or_else(|| "ur10e".to_owned());
+            .unwrap_or_else(|| DEFAULT_MODEL.to_owned());
         let arm = if Path::new(&model_name)
             .extension()
             .is_some_and(|e| e == "toml")
@@ -565,13 +572,29 @@ impl RobotSource<'_> {
     }
 }
 
+/// The arm of a robot whose sections name none.
+const DEFAULT_MODEL: &str = "ur10e";
+
+/// What a robot's model is built from, once its own section and `[robots.default]` are merged:
+/// robots that agree on it share one model (a fleet of identical arms holds one, not thousands).
+#[derive(Debug, PartialEq, Eq, Hash)]
+struct ModelSource {
+    /// The catalog name or custom arm file (the built-in default filled in).
+    model: String,
+    calibration: Option<PathBuf>,
+    /// The `tcp` values' bits (doubles are not `Eq`).
+    tcp_bits: Option<[u64; 6]>,
+    frame: Option<String>,
+}
+
 /// A robot's settings: its own fields, else the default section's, else built-in defaults.
+/// Models already built for an identical [`ModelSource`] (in `models`) are shared.
 fn robot_settings(
     id: &str,
     section: &RobotSection,
     default_section: Option<&RobotSection>,
-    source_name: &str,
-    base_dir: &Path,
+    (source_name, base_dir): (&str, &Path),
+    models: &mut HashMap<ModelSource, Arc<RobotModel>>,
 ) -> Result<RobotSettings, ConfigError> {
     let source = RobotSource {
         id,
@@ -584,9 +607,47 @@ fn robot_settings(
         source_name,
         base_dir,
     };
+    let model_source = ModelSource {
+        model: source
+            .pick(|s| s.model.clone())
+            .unwrap_or_else(|| DEFAULT_MODEL.to_owned()),
+        calibration: source.pick(|s| s.calibration.clone()),
+        tcp_bits: source.pick(|s| s.tcp).map(|tcp| tcp.map(f64::to_bits)),
+        frame: source.pick(|s| s.frame.clone()),
+    };
+    let model = if let Some(model) = models.get(&model_source) {
+        Arc::clone(model)
+    } else {
+        let model = Arc::new(source.model()?);
+        models.insert(model_source, Arc::clone(&model));
+        model
+    };
     Ok(RobotSettings {
-        model: Arc::new(source.model()?),
+        model,
         alarm: source.alarm()?,
         sensors: source.sensors()?,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn robots_with_the_same_model_source_share_one_model() {
+        let text = "[robots.default]\nmodel = \"ur10e\"\n\
+                    [robots.a]\n[robots.b]\nmodel = \"ur10e\"\n\
+                    [robots.c]\ntcp = [0.0, 0.0, 0.1, 0.0, 0.0, 0.0]\n\
+                    [robots.d]\ntcp = [0.0, 0.0, 0.1, 0.0, 0.0, 0.0]\n\
+                    [robots.e]\nmodel = \"ur5e\"\n";
+        let config = ServiceConfig::parse(text, "test", Path::new(""), &Overrides::default())
+            .expect("valid configuration");
+        let model = |id: &str| Arc::clone(&config.robots[id].model);
+        let default = Arc::clone(&config.default_robot.as_ref().expect("default").model);
+        assert!(Arc::ptr_eq(&model("a"), &default) && Arc::ptr_eq(&model("b"), &default));
+        assert!(Arc::ptr_eq(&model("c"), &model("d")));
+        assert!(!Arc::ptr_eq(&model("c"), &default));
+        assert!(!Arc::ptr_eq(&model("e"), &default));
+        assert_eq!(model("e").arm().name, "ur5e");
+    }
 }

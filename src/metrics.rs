@@ -253,41 +253,110 @@ impl CumulativeStats {
 /// subnormal (2⁻¹⁰⁷⁴), so every double is an integer multiple of it.
 const EXACT_SUM_LOWEST_EXPONENT: i32 = -1088;
 
-/// Chunks of an [`ExactSum`]: enough for bits up to 2⁷⁰⁴, above any sum of up to 2³² squares of
-/// accepted magnitudes (each at most 1e200 < 2⁶⁶⁵).
+/// Chunk positions an [`ExactSum`] may use: bits up to 2⁷⁰⁴, so every accepted value (at most
+/// 1e200 < 2⁶⁶⁵) lands below the last one.
 const EXACT_SUM_CHUNKS: usize = 57;
+
+/// Chunks an [`ExactSum`] holds without allocating: enough for values within about 2³² of each
+/// other (3 chunks for one value, one more for its neighbours), as a metric's deviations are.
+const EXACT_SUM_INLINE_CHUNKS: usize = 4;
+
+/// `ExactSum::low` of a sum that has never held a non-zero value.
+const EXACT_SUM_UNUSED: u16 = u16::MAX;
 
 /// Operations an [`ExactSum`] absorbs before it must propagate carries: each adds less than 2³² to
 /// a chunk, so chunks stay far from `i64` overflow.
 const EXACT_SUM_OPS_BETWEEN_CARRIES: u32 = 1 << 30;
 
-/// An exact sum of doubles, with exact subtraction: a fixed-point "superaccumulator" wide enough
-/// for every value the statistics accept (finite, at most 1e200, as are squares of at most 1e100).
+/// An exact sum of doubles, with exact subtraction: a fixed-point "superaccumulator" over every
+/// value the statistics accept (finite, at most 1e200, as are squares of at most 1e100), holding
+/// only the chunks its values have reached.
 ///
-/// The value is `Σ chunks[i] · 2^(32·i − 1088)`. Adding a double adds its 53-bit significand,
-/// shifted into place, to three chunks: branch-free integer additions, no rounding at all. Chunks
-/// are signed and carries are deferred, so subtraction is the same operation with the sign flipped,
-/// and carries are propagated only every 2³⁰ operations and on reading. This keeps a
+/// The value is `Σ chunks[i] · 2^(32·(low + i) − 1088)`. Adding a double adds its 53-bit
+/// significand, shifted into place, to three chunks: branch-free integer additions, no rounding at
+/// all. Chunks are signed and carries are deferred, so subtraction is the same operation with the
+/// sign flipped, and carries are propagated only every 2³⁰ operations and on reading. This keeps a
 /// sliding window's sum exact for ever, at a few nanoseconds per operation, unlike Shewchuk's
 /// partials (`math.fsum`), whose count and cost grow with the spread of the values.
+///
+/// The chunks span `low..low + len` of the 57 positions a double can reach (2⁻¹⁰⁸⁸ to 2⁷⁰⁴), grown
+/// when a value lands outside and never shrunk (a window's values come back to the same range);
+/// a metric's values span a few dozen binary orders, so 4 chunks, held inline, usually suffice.
+/// No headroom is needed above the highest chunk: the top chunk keeps the carries, and a sum of
+/// fewer than 2³² values each below 2²⁰ top-chunk units stays below 2⁵² of them.
+///
+/// 40 bytes: the position and carry counter share the first word with the variant's tag.
 #[derive(Debug, Clone)]
-struct ExactSum {
-    chunks: [i64; EXACT_SUM_CHUNKS],
-    ops_since_carry: u32,
+enum ExactSum {
+    /// At most [`EXACT_SUM_INLINE_CHUNKS`] chunks, held inline.
+    Inline {
+        /// Position of `chunks[0]` among the 57, or [`EXACT_SUM_UNUSED`].
+        low: u16,
+        ops_since_carry: u32,
+        chunks: [i64; EXACT_SUM_INLINE_CHUNKS],
+    },
+    /// More chunks, on the heap.
+    Spilled {
+        /// Position of `chunks[0]` among the 57.
+        low: u16,
+        ops_since_carry: u32,
+        chunks: Box<[i64]>,
+    },
 }
 
 impl Default for ExactSum {
     fn default() -> Self {
-        Self {
-            chunks: [0; EXACT_SUM_CHUNKS],
+        Self::Inline {
+            low: EXACT_SUM_UNUSED,
             ops_since_carry: 0,
+            chunks: [0; EXACT_SUM_INLINE_CHUNKS],
         }
     }
 }
 
 impl ExactSum {
+    fn low(&self) -> u16 {
+        match self {
+            Self::Inline { low, .. } | Self::Spilled { low, .. } => *low,
+        }
+    }
+
+    fn chunks(&self) -> &[i64] {
+        match self {
+            Self::Inline { chunks, .. } => chunks,
+            Self::Spilled { chunks, .. } => chunks,
+        }
+    }
+
+    fn ops_since_carry(&self) -> u32 {
+        match self {
+            Self::Inline {
+                ops_since_carry, ..
+            }
+            | Self::Spilled {
+                ops_since_carry, ..
+            } => *ops_since_carry,
+        }
+    }
+
+    /// The position, the carry counter and the chunks, with one look at the variant.
+    fn parts_mut(&mut self) -> (u16, &mut u32, &mut [i64]) {
+        match self {
+            Self::Inline {
+                low,
+                ops_since_carry,
+                chunks,
+            } => (*low, ops_since_carry, chunks),
+            Self::Spilled {
+                low,
+                ops_since_carry,
+                chunks,
+            } => (*low, ops_since_carry, chunks),
+        }
+    }
+
     /// Adds `x`, which must be finite and at most 1e200 in magnitude (the callers' acceptance
-    /// check guarantees it; anything larger would index past the chunks).
+    /// check guarantees it; anything larger would reach past the 57 chunk positions).
     fn add(&mut self, x: f64) {
         const LOW_32: u128 = 0xFFFF_FFFF;
         let bits = x.to_bits();
@@ -299,31 +368,107 @@ impl ExactSum {
         } else {
             fraction | (1 << 52)
         };
+        if significand == 0 {
+            // ±0.0 adds nothing, and must not pull the chunks down to position 0.
+            return;
+        }
         // Position of the significand's lowest bit above 2⁻¹⁰⁸⁸.
         let position = biased_exponent.max(1) + 13;
         let index = position / 32;
         let placed = u128::from(significand) << (position % 32);
         let sign = if x.is_sign_negative() { -1 } else { 1 };
-        self.chunks[index] += sign * (placed & LOW_32) as i64;
-        self.chunks[index + 1] += sign * ((placed >> 32) & LOW_32) as i64;
-        self.chunks[index + 2] += sign * (placed >> 64) as i64;
-        self.ops_since_carry += 1;
-        if self.ops_since_carry == EXACT_SUM_OPS_BETWEEN_CARRIES {
-            propagate_carries(&mut self.chunks);
-            self.ops_since_carry = 0;
+        let parts = [
+            sign * (placed & LOW_32) as i64,
+            sign * ((placed >> 32) & LOW_32) as i64,
+            sign * (placed >> 64) as i64,
+        ];
+        let (low, ops_since_carry, chunks) = self.parts_mut();
+        // Wraps to a huge slot below `low` (and for an unused sum), so one bounds check covers
+        // both ends.
+        let slot = index.wrapping_sub(usize::from(low));
+        let Some(target) = chunks
+            .get_mut(slot..)
+            .and_then(<[i64]>::first_chunk_mut::<3>)
+        else {
+            self.add_uncovered(index, parts);
+            return;
+        };
+        for (chunk, part) in target.iter_mut().zip(parts) {
+            *chunk += part;
         }
+        *ops_since_carry += 1;
+        if *ops_since_carry == EXACT_SUM_OPS_BETWEEN_CARRIES {
+            propagate_carries(chunks);
+            *ops_since_carry = 0;
+        }
+    }
+
+    /// [`add`](Self::add)'s rare path, kept out of line so the common one stays small: grows the
+    /// chunks to hold position `index` on, then adds `parts` there.
+    #[cold]
+    #[inline(never)]
+    fn add_uncovered(&mut self, index: usize, parts: [i64; 3]) {
+        self.cover(index);
+        let (low, ops_since_carry, chunks) = self.parts_mut();
+        let slot = index - usize::from(low);
+        for (chunk, part) in chunks[slot..slot + 3].iter_mut().zip(parts) {
+            *chunk += part;
+        }
+        *ops_since_carry += 1;
+        if *ops_since_carry == EXACT_SUM_OPS_BETWEEN_CARRIES {
+            propagate_carries(chunks);
+            *ops_since_carry = 0;
+        }
+    }
+
+    /// Grows the chunks to cover positions `index..index + 3` as well as those in use. Chunks keep
+    /// their deferred carries: each moves by less than 2³² per operation wherever it sits.
+    fn cover(&mut self, index: usize) {
+        let (old_low, ops_since_carry, old) = (self.low(), self.ops_since_carry(), self.chunks());
+        let (low, end) = if old_low == EXACT_SUM_UNUSED {
+            (index, index + 3)
+        } else {
+            let old_low = usize::from(old_low);
+            (old_low.min(index), (old_low + old.len()).max(index + 3))
+        };
+        // Positions are below 57.
+        let position = low as u16;
+        let mut grown = if end - low <= EXACT_SUM_INLINE_CHUNKS {
+            Self::Inline {
+                low: position,
+                ops_since_carry,
+                chunks: [0; EXACT_SUM_INLINE_CHUNKS],
+            }
+        } else {
+            Self::Spilled {
+                low: position,
+                ops_since_carry,
+                chunks: vec![0; end - low].into_boxed_slice(),
+            }
+        };
+        if old_low != EXACT_SUM_UNUSED {
+            let offset = usize::from(old_low) - low;
+            grown.parts_mut().2[offset..offset + old.len()].copy_from_slice(old);
+        }
+        *self = grown;
     }
 
     /// The exact sum rounded to the nearest double, ties to even.
     fn value(&self) -> f64 {
-        let mut chunks = self.chunks;
-        propagate_carries(&mut chunks);
-        let negative = chunks[EXACT_SUM_CHUNKS - 1] < 0;
+        if self.low() == EXACT_SUM_UNUSED {
+            return 0.0;
+        }
+        let stored = self.chunks();
+        let mut buffer = [0; EXACT_SUM_CHUNKS + EXACT_SUM_INLINE_CHUNKS];
+        let chunks = &mut buffer[..stored.len()];
+        chunks.copy_from_slice(stored);
+        propagate_carries(chunks);
+        let negative = chunks[chunks.len() - 1] < 0;
         if negative {
-            for chunk in &mut chunks {
+            for chunk in chunks.iter_mut() {
                 *chunk = -*chunk;
             }
-            propagate_carries(&mut chunks);
+            propagate_carries(chunks);
         }
         // Chunks are now digits in [0, 2³²) (the top one possibly larger) of the magnitude.
         let Some(top) = chunks.iter().rposition(|&chunk| chunk != 0) else {
@@ -337,8 +482,8 @@ impl ExactSum {
                 (acc << 32) | u128::from(chunk.unsigned_abs())
             });
         let below = chunks[..lowest].iter().any(|&chunk| chunk != 0);
-        #[allow(clippy::cast_possible_wrap, reason = "chunk indices are below 57")]
-        let exponent = EXACT_SUM_LOWEST_EXPONENT + 32 * lowest as i32;
+        #[allow(clippy::cast_possible_wrap, reason = "chunk positions are below 61")]
+        let exponent = EXACT_SUM_LOWEST_EXPONENT + 32 * (usize::from(self.low()) + lowest) as i32;
         let magnitude = round_to_f64(leading, below, exponent);
         if negative { -magnitude } else { magnitude }
     }
@@ -349,15 +494,18 @@ impl ExactSum {
 }
 
 /// Moves each chunk's excess over [0, 2³²) into the next one; the top chunk keeps the sign.
-fn propagate_carries(chunks: &mut [i64; EXACT_SUM_CHUNKS]) {
+fn propagate_carries(chunks: &mut [i64]) {
+    let Some((top, rest)) = chunks.split_last_mut() else {
+        return;
+    };
     let mut carry = 0;
-    for chunk in &mut chunks[..EXACT_SUM_CHUNKS - 1] {
+    for chunk in rest {
         let value = *chunk + carry;
         *chunk = value & 0xFFFF_FFFF;
         // Arithmetic shift: floor division, so negative values borrow from the next chunk.
         carry = value >> 32;
     }
-    chunks[EXACT_SUM_CHUNKS - 1] += carry;
+    *top += carry;
 }
 
 /// `(leading + δ) · 2^exponent` rounded to the nearest double (ties to even), where `δ` is in
@@ -408,8 +556,8 @@ struct WindowSample {
 /// the window's true maximum.
 ///
 /// **Design.** Add/subtract running sums, made exact: each sum and sum of squares is a fixed-point
-/// superaccumulator (57 signed 32-bit-digit chunks spanning 2⁻¹⁰⁸⁸ to beyond 2⁷⁰⁰, so any accepted
-/// double lands on it without rounding). Adding a sample adds its values, evicting one subtracts
+/// superaccumulator (signed 32-bit-digit chunks on a grid spanning 2⁻¹⁰⁸⁸ to beyond 2⁷⁰⁰, so any
+/// accepted double lands on it without rounding; only the chunks the values reach are held). Adding a sample adds its values, evicting one subtracts
 /// the very same values (squares rounded identically), so the state is the exact sum of the window
 /// however many samples have passed: nothing drifts and nothing needs periodic recomputation. A
 /// snapshot rounds each exact sum once. Each maximum is a monotonic deque of the positions of the
@@ -425,12 +573,14 @@ struct WindowSample {
 /// **Cost.** Amortised O(1) per [`add`](Self::add): branch-free integer additions to three chunks
 /// per sum, and each sample enters and leaves each maximum deque once (about 0.4 µs per sample in
 /// a release build, mostly the deques' data-dependent branches; Shewchuk's partials took 1–2 µs).
-/// A [`snapshot`](Self::snapshot) rounds the 18 sums, about 1.5 µs.
+/// A [`snapshot`](Self::snapshot) rounds the 18 sums, about 1 µs (`benches/metrics.rs`).
 /// Memory O(samples in the window): 80 bytes per sample (stamp and nine values) plus at most 36
 /// bytes of maximum-deque positions (4 bytes per metric, only while the sample is larger than every
 /// later one; a handful in all for noisy errors), so at most 116 bytes per sample. The ring buffers
 /// grow by doubling (at most 2× that allocated) and are trimmed once a quarter full (at most 4×
-/// after the window shrinks a lot). Fixed: about 8 KiB for the 18 exact sums.
+/// after the window shrinks a lot). Fixed: 40 bytes for each of the 18 exact sums, holding 4
+/// chunks inline (values within about 2³² of each other); a sum whose values spread wider holds
+/// 8 bytes per 2³² of spread on the heap (at most 57 chunks, 456 bytes).
 ///
 /// **Stamps** should arrive in non-decreasing order. A stamp that goes backwards does not panic:
 /// the window is kept in insertion order and eviction runs from the oldest-inserted sample while it
@@ -843,15 +993,167 @@ mod tests {
 
     #[test]
     fn exact_sum_survives_deferred_carry_propagation() {
-        let mut sum = ExactSum {
+        let mut sum = ExactSum::Inline {
+            low: EXACT_SUM_UNUSED,
             ops_since_carry: EXACT_SUM_OPS_BETWEEN_CARRIES - 2,
-            ..ExactSum::default()
+            chunks: [0; EXACT_SUM_INLINE_CHUNKS],
         };
         for x in [3.5, -1e-20, 2f64.powi(31), -7.0] {
             sum.add(x);
         }
-        assert!(sum.ops_since_carry < 4);
+        assert!(sum.ops_since_carry() < 4);
         assert_eq!(sum.value(), fsum(&[3.5, -1e-20, 2f64.powi(31), -7.0]));
+    }
+
+    /// Adds `values` one by one to `sum`, which holds `history`, checking the sum against
+    /// `fsum` of everything added after each.
+    fn check_adds(sum: &mut ExactSum, history: &mut Vec<f64>, values: &[f64]) {
+        for &x in values {
+            sum.add(x);
+            history.push(x);
+            assert_eq!(sum.value(), fsum(history), "after {history:?}");
+        }
+    }
+
+    /// [`check_adds`] from an empty sum.
+    fn check_prefixes(sum: &mut ExactSum, values: &[f64]) {
+        check_adds(sum, &mut Vec::new(), values);
+    }
+
+    /// The chunk positions a sum holds.
+    fn span(sum: &ExactSum) -> std::ops::Range<usize> {
+        let low = usize::from(sum.low());
+        low..low + sum.chunks().len()
+    }
+
+    #[test]
+    #[cfg(target_pointer_width = "64")]
+    fn exact_sum_is_five_words() {
+        assert_eq!(size_of::<ExactSum>(), 40);
+    }
+
+    #[test]
+    fn exact_sum_holds_clustered_values_inline() {
+        let mut sum = ExactSum::default();
+        assert_eq!(sum.value(), 0.0);
+        // Zeros add nothing and claim no chunks.
+        sum.add(0.0);
+        sum.add(-0.0);
+        assert_eq!(sum.low(), EXACT_SUM_UNUSED);
+        assert_eq!(sum.value(), 0.0);
+        // Deviations from a micrometre to a centimetre, and back out of the window.
+        let values: Vec<f64> = (0..2000)
+            .map(|i| 1e-6 * 1.7f64.powi(i % 17) * (1.0 + f64::from(i) * 1e-7))
+            .collect();
+        for &x in &values {
+            sum.add(x);
+        }
+        assert!(matches!(sum, ExactSum::Inline { .. }), "{sum:?}");
+        assert_eq!(sum.value(), fsum(&values));
+        for &x in &values[..1000] {
+            sum.add(-x);
+        }
+        assert_eq!(sum.value(), fsum(&values[1000..]));
+        for &x in &values[1000..] {
+            sum.add(-x);
+        }
+        assert_eq!(sum.value(), 0.0);
+        assert!(matches!(sum, ExactSum::Inline { .. }));
+    }
+
+    #[test]
+    fn exact_sum_grows_at_both_ends() {
+        let (mut sum, mut history) = (ExactSum::default(), Vec::new());
+        check_adds(&mut sum, &mut history, &[1.0, 3.0]);
+        let start = span(&sum);
+        assert!(matches!(sum, ExactSum::Inline { .. }));
+        // Downwards, into the subnormals, keeping what is held.
+        check_adds(&mut sum, &mut history, &[1e-300, f64::from_bits(1)]);
+        let after_down = span(&sum);
+        assert!(after_down.start < start.start && after_down.end == start.end);
+        assert!(matches!(sum, ExactSum::Spilled { .. }));
+        // Upwards, to the largest accepted values.
+        let values = [1.0, 3.0, 1e-300, f64::from_bits(1), 1e200, -2.5e199, 1e200];
+        let mut upwards = ExactSum::default();
+        check_prefixes(&mut upwards, &values);
+        let full = span(&upwards);
+        assert_eq!(full.start, 0);
+        assert!(full.end <= EXACT_SUM_CHUNKS, "{full:?}");
+        // Everything but the smallest leaves again, exactly.
+        for x in [1.0, 3.0, 1e-300, 1e200, -2.5e199, 1e200] {
+            upwards.add(-x);
+        }
+        assert_eq!(upwards.value(), f64::from_bits(1));
+        upwards.add(-f64::from_bits(1));
+        assert_eq!(upwards.value(), 0.0);
+        // Upwards alone, from small values to large ones.
+        let mut sum = ExactSum::default();
+        check_prefixes(&mut sum, &[1e-3, 2.0, 1e30, -1e-3, 7e100, -7e100, -1e30]);
+        assert_eq!(sum.value(), 2.0);
+    }
+
+    #[test]
+    fn exact_sum_changes_sign_and_cancels_to_zero() {
+        let mut sum = ExactSum::default();
+        check_prefixes(
+            &mut sum,
+            &[
+                1.0,
+                -3.0,
+                2.5,
+                -0.5,
+                -1e-10,
+                1e-10,
+                2f64.powi(-60),
+                -1e5,
+                1e5,
+            ],
+        );
+        assert_eq!(sum.value(), 2f64.powi(-60));
+        sum.add(-(2f64.powi(-60)));
+        assert_eq!(sum.value(), 0.0);
+        // Negative results round to nearest, ties to even, like positive ones.
+        let half_ulp = f64::EPSILON / 2.0;
+        let mut negative = ExactSum::default();
+        check_prefixes(&mut negative, &[-1.0, -half_ulp, 1e-200, -2e-200]);
+        assert_eq!(negative.value(), -1.0 - f64::EPSILON);
+    }
+
+    #[test]
+    fn exact_sum_subnormals_and_the_largest_values() {
+        let tiny = f64::from_bits(1);
+        let mut sum = ExactSum::default();
+        check_prefixes(&mut sum, &[tiny, f64::MIN_POSITIVE, -tiny, tiny * 3.0]);
+        assert_eq!(sum.value(), f64::from_bits(f64::MIN_POSITIVE.to_bits() + 3));
+        let mut large = ExactSum::default();
+        let values = vec![1e200; 1000];
+        for &x in &values {
+            large.add(x);
+        }
+        assert_eq!(large.value(), fsum(&values));
+        for _ in 0..1000 {
+            large.add(-1e200);
+        }
+        assert_eq!(large.value(), 0.0);
+    }
+
+    #[test]
+    fn exact_sum_propagates_carries_in_spilled_chunks() {
+        let mut sum = ExactSum::default();
+        sum.add(1e-30);
+        sum.add(1e10);
+        assert!(matches!(sum, ExactSum::Spilled { .. }));
+        *sum.parts_mut().1 = EXACT_SUM_OPS_BETWEEN_CARRIES - 2;
+        for x in [-1e-30, 2f64.powi(31), -7.0, 1e-30] {
+            sum.add(x);
+        }
+        assert!(sum.ops_since_carry() < 4);
+        assert_eq!(sum.value(), fsum(&[1e10, 2f64.powi(31), -7.0, 1e-30]));
+    }
+
+    /// Values of one metric: positive, within `orders` binary orders of each other.
+    fn clustered_value(orders: i32) -> impl Strategy<Value = f64> {
+        (1.0..2.0f64, -orders..=0).prop_map(|(m, e)| m * 2f64.powi(e - 10))
     }
 
     fn signed_value() -> impl Strategy<Value = f64> {
@@ -872,6 +1174,31 @@ mod tests {
         fn exact_sum_matches_fsum(values in prop::collection::vec(signed_value(), 0..60)) {
             // `==` rather than bits: fsum may return −0.0 where the exact sum says 0.0.
             prop_assert_eq!(exact_sum(&values), fsum(&values));
+        }
+
+        #[test]
+        fn exact_sum_slides_exactly(
+            values in prop::collection::vec(prop_oneof![
+                clustered_value(40),
+                -1e100..1e100f64,
+                (1.0..2.0f64, -1074..330i32).prop_map(|(m, e)| -m * 2f64.powi(e)),
+            ], 1..80),
+            width in 1usize..10,
+        ) {
+            // A sliding window: each value enters once and leaves `width` values later.
+            let mut sum = ExactSum::default();
+            for (i, &x) in values.iter().enumerate() {
+                sum.add(x);
+                sum.add(x * x);
+                if i >= width {
+                    let old = values[i - width];
+                    sum.add(-old);
+                    sum.add(-(old * old));
+                }
+                let kept = &values[i.saturating_sub(width - 1)..=i];
+                let expected: Vec<f64> = kept.iter().flat_map(|&x| [x, x * x]).collect();
+                prop_assert_eq!(sum.value(), fsum(&expected));
+            }
         }
 
         #[test]

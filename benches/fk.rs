@@ -3,32 +3,21 @@
 //! the platform's scalar `sin_cos` / `atan2` as in-run baselines for the batched trig.
 use std::hint::black_box;
 
-use armtwin::kinematics::{OutputFrame, TcpOffset};
-use armtwin::model::{Calibration, RobotModel, catalog};
+#[path = "common/fk_fixture.rs"]
+mod fk_fixture;
+
+use armtwin::model::RobotModel;
 use armtwin::orientation::{quaternion_from_matrix, rpy_from_matrix};
 use armtwin::trig;
 use criterion::{Criterion, criterion_group, criterion_main};
-
-const Q: [f64; 6] = [-0.693, -0.833, 0.951, 1.149, 1.515, 1.739];
+use fk_fixture::{Q, calibrated_ur10e};
 
 fn fk(c: &mut Criterion) {
     let model = RobotModel::nominal("ur10e").expect("catalog model");
     c.bench_function("fk_readout/ur10e", |b| {
         b.iter(|| model.pose(black_box(&Q)).expect("valid").readout());
     });
-    let calibrated = RobotModel::new(
-        catalog::arm("ur10e").expect("catalog"),
-        Some(
-            Calibration::parse(
-                include_str!("../config/examples/ur_calibration.yaml"),
-                "ur_calibration.yaml",
-            )
-            .expect("example calibration"),
-        ),
-        TcpOffset::from_ur_pose([0.0, 0.02, 0.15, 0.0, 0.0, 0.5]).expect("finite"),
-        OutputFrame::BaseLink,
-    )
-    .expect("model");
+    let calibrated = calibrated_ur10e();
     c.bench_function("fk_readout/ur10e_yaml_calibration_tool_base_link", |b| {
         b.iter(|| calibrated.pose(black_box(&Q)).expect("valid").readout());
     });

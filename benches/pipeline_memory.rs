@@ -13,9 +13,11 @@
 #![allow(clippy::print_stdout, reason = "a benchmark's report")]
 
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::fmt::Write as _;
 use std::path::Path;
 use std::sync::atomic::{AtomicIsize, AtomicUsize, Ordering};
+
+#[path = "../bench/src/fleet.rs"]
+mod fleet;
 
 use armtwin::align::Aligner;
 use armtwin::config::{Overrides, ServiceConfig};
@@ -24,6 +26,7 @@ use armtwin::kinematics::{OutputFrame, PoseReadout};
 use armtwin::metrics::{CumulativeStats, Deviation, WindowStats};
 use armtwin::model::RobotModel;
 use armtwin::pipeline::{Event, MeasuredStream, MetricsSnapshot, Pipeline, PipelineConfig, Sink};
+use fleet::{robot_id, service_config};
 
 /// `System`, counting the bytes live and the allocations made.
 struct Counting;
@@ -81,29 +84,6 @@ impl Sink for NoSink {
     fn deviation(&mut self, _: &str, _: f64, _: &PoseReadout, _: &Deviation) {}
     fn event(&mut self, _event: &Event<'_>) {}
     fn metrics(&mut self, _snapshot: &MetricsSnapshot) {}
-}
-
-/// `armtwin-bench run`'s service configuration for `robots` robots.
-fn service_config(robots: usize) -> String {
-    let mut text = String::from(
-        "[zenoh]\nmode = \"peer\"\nlisten = []\nconnect = []\nmulticast_scouting = false\n\n\
-         [service]\nkey_prefix = \"twin\"\nmetrics_period_ms = 100\nwindow_s = 10.0\n\
-         reject_unknown = true\ncongestion = \"block\"\n\n\
-         [align]\nmax_gap_s = 3600.0\n\n\
-         [robots.default]\nmodel = \"ur10e\"\n",
-    );
-    for index in 0..robots {
-        let _ = write!(
-            text,
-            "\n[robots.\"{}\"]\nmodel = \"ur10e\"\n",
-            robot_id(index)
-        );
-    }
-    text
-}
-
-fn robot_id(index: usize) -> String {
-    format!("fleet/r{index:05}")
 }
 
 /// The load's messages for one sample: a joint message and the measured pose that goes with it
@@ -174,7 +154,9 @@ fn feed(
                 &mut sink,
             );
         }
-        pipeline.publish_due_metrics(&mut sink);
+        for robot in pipeline.robots_with_due_metrics() {
+            pipeline.publish_metrics_if_due(&robot, &mut sink);
+        }
     }
 }
 

@@ -6,12 +6,13 @@
 use std::hint::black_box;
 use std::time::Instant;
 
-use armtwin::kinematics::{OutputFrame, TcpOffset};
-use armtwin::model::{Calibration, RobotModel, catalog};
+#[path = "../benches/common/fk_fixture.rs"]
+mod fk_fixture;
+
+use armtwin::model::RobotModel;
 use armtwin::orientation::{quaternion_from_matrix, rpy_from_matrix};
 use armtwin::trig;
-
-const Q: [f64; 6] = [-0.693, -0.833, 0.951, 1.149, 1.515, 1.739];
+use fk_fixture::{Q, calibrated_ur10e};
 
 /// Prints the fastest per-call time of `f` (ns).
 fn time<R>(name: &str, mut f: impl FnMut() -> R) {
@@ -28,19 +29,7 @@ fn time<R>(name: &str, mut f: impl FnMut() -> R) {
 
 fn main() {
     let model = RobotModel::nominal("ur10e").expect("catalog model");
-    let calibrated = RobotModel::new(
-        catalog::arm("ur10e").expect("catalog"),
-        Some(
-            Calibration::parse(
-                include_str!("../config/examples/ur_calibration.yaml"),
-                "ur_calibration.yaml",
-            )
-            .expect("example calibration"),
-        ),
-        TcpOffset::from_ur_pose([0.0, 0.02, 0.15, 0.0, 0.0, 0.5]).expect("finite"),
-        OutputFrame::BaseLink,
-    )
-    .expect("model");
+    let calibrated = calibrated_ur10e();
     let pose = model.pose(&Q).expect("valid");
     let (y, x) = ([0.3, -0.7, 0.9], [0.1, -0.2, 0.5]);
     time("fk_readout/ur10e", || {

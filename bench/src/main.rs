@@ -5,10 +5,11 @@
 //! - `echo`: the plain-Zenoh echo, the baseline.
 //! - `load`: the load generator.
 //!
-//! Layout: [`net`] (keys, robot ids, Zenoh peers), [`workload`] (the messages), [`procfs`]
+//! Layout: [`fleet`] (robot ids, the service configuration), [`net`] (keys, Zenoh peers), [`workload`] (the messages), [`procfs`]
 //! (another process's memory and CPU time), [`echo`], [`load`], [`run`].
 
 mod echo;
+mod fleet;
 mod load;
 mod net;
 mod procfs;

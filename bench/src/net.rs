@@ -23,11 +23,7 @@ pub const METRICS: &str = "metrics";
 /// Events (armtwin only; none expected in a benchmark).
 pub const EVENTS: &str = "events";
 
-/// The id of robot `index`: two key chunks, as a fleet's `site/robot` ids are.
-#[must_use]
-pub fn robot_id(index: usize) -> String {
-    format!("fleet/r{index:05}")
-}
+pub use crate::fleet::robot_id;
 
 /// `<prefix>/<stream>/<robot>`.
 #[must_use]

@@ -138,7 +138,7 @@ fn feed(
                 &robot,
                 &joint_key,
                 joints.as_bytes(),
-                stamp_s,
+                || stamp_s,
                 &mut sink,
             );
             if joints_only {
@@ -150,7 +150,7 @@ fn feed(
                 &measured_key,
                 MeasuredStream::Robot,
                 measured.as_bytes(),
-                stamp_s,
+                || stamp_s,
                 &mut sink,
             );
         }

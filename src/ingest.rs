@@ -5,8 +5,8 @@
 //! A message that does not decode becomes one rejection (an event and a count) at the best stamp
 //! it offers; an invalid embedded `measured` part is rejected on its own while the joints it came
 //! with still yield their pose. Must not know the network or the filesystem: callers pass the key
-//! a message arrived on and the stamp to use when the message carries none (the transport's, or
-//! the recording's).
+//! a message arrived on and how to get the stamp to use when the message carries none (the
+//! transport's or the arrival time, read only then; or the recording's).
 
 use tracing::debug;
 
@@ -19,24 +19,24 @@ pub fn joint_message(
     robot: &str,
     key: &str,
     payload: &[u8],
-    fallback_s: f64,
+    fallback_s: impl FnOnce() -> f64,
     sink: &mut impl Sink,
 ) {
     let Some(settings) = pipeline.settings_for(robot) else {
-        let stamp_s = wire::stamp_hint(payload).unwrap_or(fallback_s);
+        let stamp_s = wire::stamp_hint(payload).unwrap_or_else(fallback_s);
         pipeline.reject_unknown_robot(robot, key, stamp_s, sink);
         return;
     };
     match wire::decode_joints(payload, settings.model.joint_count()) {
         Ok(decoded) => {
-            let stamp_s = decoded.sample.stamp_s.unwrap_or(fallback_s);
+            let stamp_s = decoded.sample.stamp_s.unwrap_or_else(fallback_s);
             if let Some(error) = decoded.measured_error {
                 reject(pipeline, robot, key, stamp_s, &error, sink);
             }
             pipeline.joints(robot, key, stamp_s, &decoded.sample, sink);
         }
         Err(error) => {
-            let stamp_s = wire::stamp_hint(payload).unwrap_or(fallback_s);
+            let stamp_s = wire::stamp_hint(payload).unwrap_or_else(fallback_s);
             reject(pipeline, robot, key, stamp_s, &error, sink);
         }
     }
@@ -49,21 +49,21 @@ pub fn measured_message(
     key: &str,
     stream: MeasuredStream,
     payload: &[u8],
-    fallback_s: f64,
+    fallback_s: impl FnOnce() -> f64,
     sink: &mut impl Sink,
 ) {
     if pipeline.settings_for(robot).is_none() {
-        let stamp_s = wire::stamp_hint(payload).unwrap_or(fallback_s);
+        let stamp_s = wire::stamp_hint(payload).unwrap_or_else(fallback_s);
         pipeline.reject_unknown_robot(robot, key, stamp_s, sink);
         return;
     }
     match wire::decode_measured(payload) {
         Ok(measured) => {
-            let stamp_s = measured.stamp_s.unwrap_or(fallback_s);
+            let stamp_s = measured.stamp_s.unwrap_or_else(fallback_s);
             pipeline.measured(robot, key, stream, stamp_s, &measured.pose, sink);
         }
         Err(error) => {
-            let stamp_s = wire::stamp_hint(payload).unwrap_or(fallback_s);
+            let stamp_s = wire::stamp_hint(payload).unwrap_or_else(fallback_s);
             reject(pipeline, robot, key, stamp_s, &error, sink);
         }
     }

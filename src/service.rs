@@ -290,7 +290,8 @@ fn unix_now_s() -> f64 {
         .map_or(0.0, |d| d.as_secs_f64())
 }
 
-/// The stamp of a message without its own: the Zenoh timestamp, else the arrival time.
+/// The stamp of a message without its own: the Zenoh timestamp, else the arrival time (read only
+/// for such a message: most carry `t`, and a clock read per message adds up).
 fn transport_stamp_s(sample: &Sample) -> f64 {
     sample
         .timestamp()
@@ -336,7 +337,6 @@ impl SharedTwin {
             return;
         };
         let payload = sample.payload().to_bytes();
-        let stamp_s = transport_stamp_s(sample);
         let mut guard = self.lock();
         let Some(state) = guard.running() else {
             return;
@@ -346,7 +346,7 @@ impl SharedTwin {
             robot,
             key,
             &payload,
-            stamp_s,
+            || transport_stamp_s(sample),
             &mut state.sink,
         );
     }
@@ -366,7 +366,6 @@ impl SharedTwin {
 
     fn measured_pose(&self, robot: &str, stream: MeasuredStream, sample: &Sample) {
         let payload = sample.payload().to_bytes();
-        let stamp_s = transport_stamp_s(sample);
         let mut guard = self.lock();
         let Some(state) = guard.running() else {
             return;
@@ -377,7 +376,7 @@ impl SharedTwin {
             sample.key_expr().as_str(),
             stream,
             &payload,
-            stamp_s,
+            || transport_stamp_s(sample),
             &mut state.sink,
         );
     }

@@ -230,7 +230,7 @@ pub fn validate(
             ROBOT_ID,
             &key,
             &recording::payload(entry, stamp_s),
-            stamp_s,
+            || stamp_s,
             &mut collector,
         );
         if let Err(malformed) = entry {

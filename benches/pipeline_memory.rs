@@ -22,10 +22,10 @@ mod fleet;
 use armtwin::align::Aligner;
 use armtwin::config::{Overrides, ServiceConfig};
 use armtwin::ingest;
-use armtwin::kinematics::{OutputFrame, PoseReadout};
+use armtwin::kinematics::PoseReadout;
 use armtwin::metrics::{CumulativeStats, Deviation, WindowStats};
 use armtwin::model::RobotModel;
-use armtwin::pipeline::{Event, MeasuredStream, MetricsSnapshot, Pipeline, PipelineConfig, Sink};
+use armtwin::pipeline::{Discard, MeasuredStream, Pipeline, PipelineConfig};
 use fleet::{robot_id, service_config};
 
 /// `System`, counting the bytes live and the allocations made.
@@ -75,17 +75,6 @@ fn live_bytes() -> isize {
     LIVE_BYTES.load(Ordering::Relaxed)
 }
 
-/// Drops every result, as a service whose outputs cost nothing.
-struct NoSink;
-
-impl Sink for NoSink {
-    fn tracking(&mut self, _robot: &str) {}
-    fn pose(&mut self, _: &str, _: f64, _: u64, _: OutputFrame, _: &PoseReadout) {}
-    fn deviation(&mut self, _: &str, _: f64, _: &PoseReadout, _: &Deviation) {}
-    fn event(&mut self, _event: &Event<'_>) {}
-    fn metrics(&mut self, _snapshot: &MetricsSnapshot) {}
-}
-
 /// The load's messages for one sample: a joint message and the measured pose that goes with it
 /// (a millimetre off), as `armtwin-bench load` sends them.
 struct Messages {
@@ -124,7 +113,7 @@ fn feed(
     (range, samples): (std::ops::Range<usize>, std::ops::Range<usize>),
     joints_only: bool,
 ) {
-    let mut sink = NoSink;
+    let mut sink = Discard;
     for sample in samples {
         let stamp_s = 1000.0 + sample as f64 * 0.01;
         let joints = Messages::joints(sample, stamp_s);

@@ -238,6 +238,18 @@ pub trait Sink {
     fn metrics(&mut self, snapshot: &MetricsSnapshot);
 }
 
+/// A sink that drops every result: for measuring the pipeline alone (benchmarks, tests).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Discard;
+
+impl Sink for Discard {
+    fn tracking(&mut self, _robot: &str) {}
+    fn pose(&mut self, _: &str, _: f64, _: u64, _: OutputFrame, _: &PoseReadout) {}
+    fn deviation(&mut self, _: &str, _: f64, _: &PoseReadout, _: &Deviation) {}
+    fn event(&mut self, _event: &Event<'_>) {}
+    fn metrics(&mut self, _snapshot: &MetricsSnapshot) {}
+}
+
 /// A robot's last values, for the state view.
 #[derive(Debug, Clone)]
 pub struct RobotState<'a> {
@@ -1109,16 +1121,6 @@ fn transform(target_from_source: &IsometryMatrix3<f64>, pose: &PoseReadout) -> P
 mod tests {
     use super::*;
 
-    struct NoSink;
-
-    impl Sink for NoSink {
-        fn tracking(&mut self, _robot: &str) {}
-        fn pose(&mut self, _: &str, _: f64, _: u64, _: OutputFrame, _: &PoseReadout) {}
-        fn deviation(&mut self, _: &str, _: f64, _: &PoseReadout, _: &Deviation) {}
-        fn event(&mut self, _event: &Event<'_>) {}
-        fn metrics(&mut self, _snapshot: &MetricsSnapshot) {}
-    }
-
     #[test]
     fn statistics_start_with_the_first_pair_and_follow_source_time() {
         let model = Arc::new(RobotModel::nominal("ur10e").expect("catalog"));
@@ -1136,7 +1138,7 @@ mod tests {
             measured: None,
         };
         for i in 0..5 {
-            pipeline.joints("r1", "j", f64::from(i), &joints, &mut NoSink);
+            pipeline.joints("r1", "j", f64::from(i), &joints, &mut Discard);
         }
         assert!(
             pipeline.robots["r1"].stats.is_none(),
@@ -1152,13 +1154,13 @@ mod tests {
             MeasuredStream::Robot,
             4.0,
             &measured,
-            &mut NoSink,
+            &mut Discard,
         );
         assert!(pipeline.robots["r1"].stats.is_some());
         let snapshot = pipeline.metrics("r1").expect("tracked");
         assert_eq!((snapshot.cumulative.n, snapshot.window.n), (1, 1));
         // The window created at t = 4 s knows source time: 10 s later its pair has left.
-        pipeline.joints("r1", "j", 14.0, &joints, &mut NoSink);
+        pipeline.joints("r1", "j", 14.0, &joints, &mut Discard);
         let snapshot = pipeline.metrics("r1").expect("tracked");
         assert_eq!((snapshot.cumulative.n, snapshot.window.n), (1, 0));
     }

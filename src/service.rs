@@ -503,7 +503,7 @@ impl TwinState {
                 let frame = settings.model.frame().as_str();
                 let message =
                     wire::PoseMessage::new(robot, joints.stamp_s.unwrap_or(0.0), 0, frame, &pose);
-                Self::reply(query, &reply_key, wire::to_json_bytes(&message));
+                Self::reply(query, &reply_key, message.to_json_bytes());
             }
             Some(Err(e)) => Self::reply_err(query, &e.to_string()),
             None => Self::reply_err(query, &format!("robot '{robot}' is not configured")),
@@ -820,7 +820,7 @@ impl Sink for ZenohSink {
         pose: &PoseReadout,
     ) {
         let message = wire::PoseMessage::new(robot, stamp_s, seq, frame.as_str(), pose);
-        self.put(robot, Stream::Pose, wire::to_json_bytes(&message));
+        self.put(robot, Stream::Pose, message.to_json_bytes());
         self.poses += 1;
     }
 
@@ -832,7 +832,7 @@ impl Sink for ZenohSink {
         deviation: &Deviation,
     ) {
         let message = wire::DeviationMessage::new(robot, stamp_s, deviation);
-        self.put(robot, Stream::Deviation, wire::to_json_bytes(&message));
+        self.put(robot, Stream::Deviation, message.to_json_bytes());
     }
 
     fn event(&mut self, event: &Event<'_>) {

@@ -916,3 +916,77 @@ fn state_message_fields() {
         parse(&to_json_bytes(&MetricsMessage::new(&snapshot())))
     );
 }
+
+mod fixed_layout {
+    //! The per-sample messages' own writer against `serde_json` writing the same structs: the
+    //! same bytes, for any values and any robot id.
+    use armtwin::codec::PoseFields;
+    use armtwin::codec::wire::{DeviationMessage, PoseMessage, to_json_bytes};
+    use proptest::prelude::*;
+
+    /// Any double, the awkward ones much more often than uniform bits would give them.
+    fn any_f64() -> impl Strategy<Value = f64> {
+        prop_oneof![
+            any::<f64>(),
+            -10.0..10.0f64,
+            Just(0.0),
+            Just(-0.0),
+            Just(f64::NAN),
+            Just(f64::INFINITY),
+            Just(f64::NEG_INFINITY),
+            Just(f64::MIN_POSITIVE / 8.0),
+            Just(1e21),
+            Just(1e-7),
+            Just(f64::MAX),
+        ]
+    }
+
+    /// Robot ids, including those that need escaping and non-ASCII ones.
+    fn any_robot() -> impl Strategy<Value = String> {
+        prop_oneof![
+            "[a-z0-9_/-]{1,24}",
+            any::<String>(),
+            Just("quote\"back\\slash\u{1}tab\t".to_owned()),
+            Just("unit\u{1f}separator\u{7f}delete".to_owned()),
+            Just("zelle-3/roboter-ä/😀".to_owned()),
+        ]
+    }
+
+    proptest! {
+        #[test]
+        fn a_pose_message_is_written_as_serde_json_writes_it(
+            robot in any_robot(),
+            t in any_f64(),
+            seq in any::<u64>(),
+            base_link in any::<bool>(),
+            values in prop::array::uniform10(any_f64()),
+        ) {
+            let [x, y, z, roll, pitch, yaw, qx, qy, qz, qw] = values;
+            let message = PoseMessage {
+                robot,
+                t,
+                seq,
+                frame: if base_link { "base_link" } else { "base" },
+                pose: PoseFields { x, y, z, roll, pitch, yaw, qx, qy, qz, qw },
+            };
+            let fixed = message.to_json_bytes();
+            let serde = to_json_bytes(&message);
+            prop_assert_eq!(String::from_utf8_lossy(&fixed), String::from_utf8_lossy(&serde));
+        }
+
+        #[test]
+        fn a_deviation_message_is_written_as_serde_json_writes_it(
+            robot in any_robot(),
+            t in any_f64(),
+            values in prop::array::uniform9(any_f64()),
+        ) {
+            let [dx, dy, dz, position, quat_distance, angle, droll, dpitch, dyaw] = values;
+            let message = DeviationMessage {
+                robot, t, dx, dy, dz, position, quat_distance, angle, droll, dpitch, dyaw,
+            };
+            let fixed = message.to_json_bytes();
+            let serde = to_json_bytes(&message);
+            prop_assert_eq!(String::from_utf8_lossy(&fixed), String::from_utf8_lossy(&serde));
+        }
+    }
+}

@@ -2,6 +2,7 @@
 //! CSV). They know the core types, never the network or the filesystem: callers hand in readers
 //! and writers.
 
+mod flat_json;
 pub mod joint_csv;
 pub mod recording;
 pub mod wire;

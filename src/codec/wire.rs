@@ -29,6 +29,7 @@ use serde_json::{Map, Number, Value, json};
 use thiserror::Error;
 
 use super::PoseFields;
+use super::flat_json::FlatObject;
 use crate::kinematics::PoseReadout;
 use crate::metrics::{Deviation, Stats, StatsSet};
 use crate::orientation::{self, Rpy};
@@ -1086,12 +1087,15 @@ mod fast {
 /// structs, string keys, no custom implementations).
 #[must_use]
 pub fn to_json_bytes<T: Serialize>(value: &T) -> Vec<u8> {
-    // Room for a pose or deviation message at once (about 300 bytes): growing from serde_json's
-    // small default copied each message twice.
+    // Room for most messages at once: growing from serde_json's small default copied each
+    // message twice.
     let mut bytes = Vec::with_capacity(512);
     serde_json::to_writer(&mut bytes, value).expect("armtwin's wire messages always serialise");
     bytes
 }
+
+/// Room for a pose or deviation message (about 300 bytes with a long robot id) without growing.
+const POSE_JSON_CAPACITY: usize = 384;
 
 /// A twin (or measured) pose: `{robot, t, seq, frame, x, y, z, roll, pitch, yaw, qx, qy, qz, qw}`.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -1126,6 +1130,21 @@ impl PoseMessage {
             frame,
             pose: PoseFields::from(readout),
         }
+    }
+
+    /// The message's JSON: the bytes [`to_json_bytes`] writes for it, written directly (this is
+    /// the message the service sends for every joint sample).
+    #[must_use]
+    pub fn to_json_bytes(&self) -> Vec<u8> {
+        let mut object = FlatObject::with_capacity(POSE_JSON_CAPACITY);
+        object.string("robot", &self.robot);
+        object.number("t", self.t);
+        object.unsigned("seq", self.seq);
+        object.string("frame", self.frame);
+        for (name, value) in PoseFields::NAMES.into_iter().zip(self.pose.values()) {
+            object.number(name, value);
+        }
+        object.finish()
     }
 }
 
@@ -1174,6 +1193,25 @@ impl DeviationMessage {
             dpitch: deviation.dpitch_rad,
             dyaw: deviation.dyaw_rad,
         }
+    }
+
+    /// The message's JSON: the bytes [`to_json_bytes`] writes for it, written directly (this is
+    /// the message the service sends for every paired measured pose).
+    #[must_use]
+    pub fn to_json_bytes(&self) -> Vec<u8> {
+        let mut object = FlatObject::with_capacity(POSE_JSON_CAPACITY);
+        object.string("robot", &self.robot);
+        object.number("t", self.t);
+        object.number("dx", self.dx);
+        object.number("dy", self.dy);
+        object.number("dz", self.dz);
+        object.number("position", self.position);
+        object.number("quat_distance", self.quat_distance);
+        object.number("angle", self.angle);
+        object.number("droll", self.droll);
+        object.number("dpitch", self.dpitch);
+        object.number("dyaw", self.dyaw);
+        object.finish()
     }
 }
 

@@ -1,0 +1,213 @@
+//! armtwin's own work per sample, without Zenoh: what `armtwin serve` does inside the receive
+//! callback for the service benchmark's load (`armtwin-bench load`, whose payloads it renders with
+//! the same code, included by path). One sample is a joint message and its measured pose, into
+//! the pipeline through the service's entry points (`ingest::joint_message` /
+//! `ingest::measured_message`), and the outputs encoded as the service encodes them (a pose and a
+//! deviation message). Also each part alone: decoding, encoding (the fixed-layout writer the
+//! service uses, and `serde_json` writing the same bytes, as the baseline).
+//!
+//! `cargo bench --no-default-features --bench ingest`
+use std::hint::black_box;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+#[path = "../bench/src/fleet.rs"]
+mod fleet;
+#[path = "../bench/src/workload.rs"]
+#[allow(
+    dead_code,
+    unused_imports,
+    reason = "the benchmark uses a part of the load's workload, and not its tests"
+)]
+mod workload;
+
+use armtwin::codec::wire;
+use armtwin::config::{Overrides, ServiceConfig};
+use armtwin::ingest;
+use armtwin::kinematics::{OutputFrame, PoseReadout};
+use armtwin::metrics::Deviation;
+use armtwin::model::RobotModel;
+use armtwin::pipeline::{Discard, Event, MeasuredStream, MetricsSnapshot, Pipeline, Sink};
+use criterion::{Criterion, criterion_group, criterion_main};
+use fleet::{robot_id, service_config};
+use workload::Workload;
+
+/// Samples rendered ahead; a run longer than this starts again on a fresh pipeline (untimed).
+const RENDERED: usize = 4096;
+
+/// Encodes every output as `armtwin serve` does before its `put`, and keeps only the byte count.
+#[derive(Default)]
+struct Encode {
+    bytes: usize,
+}
+
+impl Sink for Encode {
+    fn tracking(&mut self, _robot: &str) {}
+
+    fn pose(
+        &mut self,
+        robot: &str,
+        stamp_s: f64,
+        seq: u64,
+        frame: OutputFrame,
+        pose: &PoseReadout,
+    ) {
+        let message = wire::PoseMessage::new(robot, stamp_s, seq, frame.as_str(), pose);
+        self.bytes += black_box(message.to_json_bytes()).len();
+    }
+
+    fn deviation(&mut self, robot: &str, stamp_s: f64, _: &PoseReadout, deviation: &Deviation) {
+        let message = wire::DeviationMessage::new(robot, stamp_s, deviation);
+        self.bytes += black_box(message.to_json_bytes()).len();
+    }
+
+    fn event(&mut self, event: &Event<'_>) {
+        self.bytes += black_box(wire::to_json_bytes(&wire::EventMessage::new(event))).len();
+    }
+
+    fn metrics(&mut self, snapshot: &MetricsSnapshot) {
+        self.bytes += black_box(wire::to_json_bytes(&wire::MetricsMessage::new(snapshot))).len();
+    }
+}
+
+/// One robot's load: joint and measured payloads of `RENDERED` samples at 100 Hz.
+struct Load {
+    robot: String,
+    joint_key: String,
+    measured_key: String,
+    samples: Vec<(f64, String, String)>,
+}
+
+impl Load {
+    fn new() -> Self {
+        let workload = Workload::ur10e().expect("the ur10e's payloads");
+        let robot = robot_id(0);
+        let samples = (0..RENDERED as u64)
+            .map(|sample| {
+                let stamp_s = 1000.0 + sample as f64 * 0.01;
+                (
+                    stamp_s,
+                    workload.joints(sample, stamp_s),
+                    workload.measured(sample, stamp_s),
+                )
+            })
+            .collect();
+        Self {
+            joint_key: format!("twin/joints/{robot}"),
+            measured_key: format!("twin/measured/{robot}"),
+            robot,
+            samples,
+        }
+    }
+
+    fn pipeline() -> Pipeline {
+        let config = ServiceConfig::parse(
+            &service_config(1),
+            "generated",
+            Path::new(""),
+            &Overrides::default(),
+        )
+        .expect("the benchmark's configuration");
+        Pipeline::new(config.pipeline, config.default_robot, config.robots)
+    }
+
+    /// Time of `iterations` samples into fresh pipelines through `sink`.
+    fn run(&self, iterations: u64, sink: &mut impl Sink) -> Duration {
+        let mut elapsed = Duration::ZERO;
+        let mut left = iterations as usize;
+        while left > 0 {
+            let chunk = left.min(RENDERED);
+            let mut pipeline = Self::pipeline();
+            let start = Instant::now();
+            for (stamp_s, joints, measured) in &self.samples[..chunk] {
+                ingest::joint_message(
+                    &mut pipeline,
+                    &self.robot,
+                    &self.joint_key,
+                    joints.as_bytes(),
+                    || *stamp_s,
+                    sink,
+                );
+                ingest::measured_message(
+                    &mut pipeline,
+                    &self.robot,
+                    &self.measured_key,
+                    MeasuredStream::Robot,
+                    measured.as_bytes(),
+                    || *stamp_s,
+                    sink,
+                );
+            }
+            elapsed += start.elapsed();
+            left -= chunk;
+        }
+        elapsed
+    }
+}
+
+fn sample(c: &mut Criterion) {
+    let load = Load::new();
+    c.bench_function("sample/pipeline", |b| {
+        b.iter_custom(|iterations| load.run(iterations, &mut Discard));
+    });
+    c.bench_function("sample/pipeline_and_encoding", |b| {
+        let mut sink = Encode::default();
+        b.iter_custom(|iterations| load.run(iterations, &mut sink));
+    });
+}
+
+fn parts(c: &mut Criterion) {
+    let load = Load::new();
+    let (_, joints, measured) = &load.samples[7];
+    c.bench_function("decode/joints", |b| {
+        b.iter(|| wire::decode_joints(black_box(joints.as_bytes()), 6));
+    });
+    c.bench_function("decode/measured", |b| {
+        b.iter(|| wire::decode_measured(black_box(measured.as_bytes())));
+    });
+    let model = RobotModel::nominal("ur10e").expect("catalog");
+    let twin = model
+        .pose(&[0.1, -1.2, 1.4, -0.3, 1.1, 0.5])
+        .expect("within limits")
+        .readout();
+    let mut measured = twin;
+    measured.position_m[0] += 0.0004;
+    let deviation = Deviation::between(&twin, &measured);
+    c.bench_function("encode/pose", |b| {
+        b.iter(|| {
+            let message = wire::PoseMessage::new(
+                black_box(&load.robot).as_str(),
+                1000.25,
+                42,
+                OutputFrame::Base.as_str(),
+                black_box(&twin),
+            );
+            message.to_json_bytes()
+        });
+    });
+    c.bench_function("encode/pose_serde_json", |b| {
+        b.iter(|| {
+            let message = wire::PoseMessage::new(
+                black_box(&load.robot).as_str(),
+                1000.25,
+                42,
+                OutputFrame::Base.as_str(),
+                black_box(&twin),
+            );
+            wire::to_json_bytes(&message)
+        });
+    });
+    c.bench_function("encode/deviation", |b| {
+        b.iter(|| {
+            let message = wire::DeviationMessage::new(
+                black_box(&load.robot).as_str(),
+                1000.25,
+                black_box(&deviation),
+            );
+            message.to_json_bytes()
+        });
+    });
+}
+
+criterion_group!(benches, sample, parts);
+criterion_main!(benches);

@@ -746,334 +746,9 @@ impl<'de> Visitor<'de> for ValueSeed<'_> {
     }
 }
 
-// ---------------------------------------------------------------------------------------------
-// The fast path: well-formed messages in their usual shapes, without building a `Value` tree.
-// ---------------------------------------------------------------------------------------------
-
-/// Decodes the messages gateways normally send straight into fixed slots, with borrowed keys and
-/// no allocation beyond the joint angles. It never reports an error: anything unusual (a field
-/// it does not handle, a `null`, a repeated field, a wrong type, a failed check) makes it give
-/// up, and the general decoder above reads the message again and names the problem exactly. So
-/// both paths agree by construction on every message the fast one accepts (tested below).
-mod fast {
-    use std::fmt;
-
-    use serde::de::{
-        self, DeserializeSeed, Deserializer, IgnoredAny, MapAccess, SeqAccess, Visitor,
-    };
-
-    use super::{DecodedJoints, MAX_PAYLOAD_BYTES, OrientationForm, joint_index, pose_of};
-    use crate::kinematics::PoseReadout;
-    use crate::sample::{JointSample, MeasuredSample};
-
-    /// Gives up: the general decoder takes over.
-    fn give_up<E: de::Error>() -> E {
-        E::custom("not on the fast path")
-    }
-
-    /// Parses `payload` as one JSON value with `seed`, requiring nothing after it.
-    fn parse<T>(payload: &[u8], seed: impl for<'de> DeserializeSeed<'de, Value = T>) -> Option<T> {
-        if payload.len() > MAX_PAYLOAD_BYTES {
-            return None;
-        }
-        let text = std::str::from_utf8(payload).ok()?;
-        let mut deserializer = serde_json::Deserializer::from_str(text);
-        let value = seed.deserialize(&mut deserializer).ok()?;
-        deserializer.end().ok()?;
-        Some(value)
-    }
-
-    /// Sets a slot once; a repeated field gives up.
-    fn once<T, E: de::Error>(slot: &mut Option<T>, value: T) -> Result<(), E> {
-        if slot.replace(value).is_some() {
-            return Err(give_up());
-        }
-        Ok(())
-    }
-
-    /// The fields of a measured pose object.
-    #[derive(Default)]
-    struct PoseSlots {
-        stamp_s: Option<f64>,
-        time_s: Option<f64>,
-        position_m: [Option<f64>; 3],
-        /// `qx, qy, qz, qw`, `roll, pitch, yaw` and `rx, ry, rz`, in [`OrientationForm::ALL`]
-        /// order.
-        forms: [[Option<f64>; 4]; 3],
-    }
-
-    impl PoseSlots {
-        /// The slot of a pose field, if `key` is one.
-        fn slot(&mut self, key: &str) -> Option<&mut Option<f64>> {
-            let [quaternion, rpy, rotation_vector] = &mut self.forms;
-            Some(match key {
-                "x" => &mut self.position_m[0],
-                "y" => &mut self.position_m[1],
-                "z" => &mut self.position_m[2],
-                "qx" => &mut quaternion[0],
-                "qy" => &mut quaternion[1],
-                "qz" => &mut quaternion[2],
-                "qw" => &mut quaternion[3],
-                "roll" => &mut rpy[0],
-                "pitch" => &mut rpy[1],
-                "yaw" => &mut rpy[2],
-                "rx" => &mut rotation_vector[0],
-                "ry" => &mut rotation_vector[1],
-                "rz" => &mut rotation_vector[2],
-                _ => return None,
-            })
-        }
-
-        /// The pose, if every position field and exactly one complete orientation form is
-        /// present and it passes the general decoder's checks.
-        fn pose(&self, prefix: &str) -> Option<PoseReadout> {
-            let [Some(x), Some(y), Some(z)] = self.position_m else {
-                return None;
-            };
-            let mut present = OrientationForm::ALL
-                .into_iter()
-                .zip(&self.forms)
-                .filter(|(_, values)| values.iter().any(Option::is_some));
-            let (form, values) = present.next()?;
-            if present.next().is_some() {
-                return None;
-            }
-            let mut numbers = [0.0; 4];
-            for (index, number) in numbers.iter_mut().enumerate().take(form.keys().len()) {
-                *number = values[index]?;
-            }
-            pose_of(prefix, [x, y, z], form, numbers).ok()
-        }
-    }
-
-    /// A measured pose object; `with_stamp` reads its `t`/`time` (a joint message's embedded
-    /// pose skips them, as the general decoder does).
-    struct PoseSeed {
-        with_stamp: bool,
-    }
-
-    impl<'de> DeserializeSeed<'de> for PoseSeed {
-        type Value = PoseSlots;
-
-        fn deserialize<D: Deserializer<'de>>(self, deserializer: D) -> Result<PoseSlots, D::Error> {
-            deserializer.deserialize_map(self)
-        }
-    }
-
-    impl<'de> Visitor<'de> for PoseSeed {
-        type Value = PoseSlots;
-
-        fn expecting(&self, formatter: &mut fmt::Formatter<'_>) -> fmt::Result {
-            formatter.write_str("a measured pose object")
-        }
-
-        fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<PoseSlots, A::Error> {
-            let mut slots = PoseSlots::default();
-            while let Some(key) = map.next_key::<Key<'de>>()? {
-                let slot = match key.as_str() {
-                    "t" if self.with_stamp => Some(&mut slots.stamp_s),
-                    "time" if self.with_stamp => Some(&mut slots.time_s),
-                    other => slots.slot(other),
-                };
-                if let Some(slot) = slot {
-                    let value = map.next_value::<f64>()?;
-                    once(slot, value)?;
-                } else {
-                    map.next_value::<IgnoredAny>()?;
-                }
-            }
-            Ok(slots)
-        }
-    }
-
-    /// The fields of a joint message.
-    struct JointSlots {
-        stamp_s: Option<f64>,
-        time_s: Option<f64>,
-        seq: Option<u64>,
-        degrees: Option<bool>,
-        q: Option<Vec<f64>>,
-        measured: Option<PoseSlots>,
-    }
-
-    struct JointSeed {
-        joint_count: usize,
-    }
-
-    impl<'de> DeserializeSeed<'de> for JointSeed {
-        type Value = JointSlots;
-
-        fn deserialize<D: Deserializer<'de>>(
-            self,
-            deserializer: D,
-        ) -> Result<JointSlots, D::Error> {
-            deserializer.deserialize_map(self)
-        }
-    }
-
-    impl<'de> Visitor<'de> for JointSeed {
-        type Value = JointSlots;
-
-        fn expecting(&self, formatter: &mut fmt::Formatter<'_>) -> fmt::Result {
-            formatter.write_str("a joint message object")
-        }
-
-        fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<JointSlots, A::Error> {
-            let mut slots = JointSlots {
-                stamp_s: None,
-                time_s: None,
-                seq: None,
-                degrees: None,
-                q: None,
-                measured: None,
-            };
-            while let Some(key) = map.next_key::<Key<'de>>()? {
-                match key.as_str() {
-                    "t" => once(&mut slots.stamp_s, map.next_value()?)?,
-                    "time" => once(&mut slots.time_s, map.next_value()?)?,
-                    "seq" => once(&mut slots.seq, map.next_value()?)?,
-                    "unit" => {
-                        let degrees = match map.next_value::<Key<'de>>()?.as_str() {
-                            "rad" => false,
-                            "deg" => true,
-                            _ => return Err(give_up()),
-                        };
-                        once(&mut slots.degrees, degrees)?;
-                    }
-                    "q" => {
-                        let q = map.next_value_seed(AnglesSeed {
-                            joint_count: self.joint_count,
-                        })?;
-                        once(&mut slots.q, q)?;
-                    }
-                    "measured" => {
-                        let pose = map.next_value_seed(PoseSeed { with_stamp: false })?;
-                        once(&mut slots.measured, pose)?;
-                    }
-                    // The flat `q1..qn` form: the general decoder.
-                    other if joint_index(other).is_some() => return Err(give_up()),
-                    _ => {
-                        map.next_value::<IgnoredAny>()?;
-                    }
-                }
-            }
-            Ok(slots)
-        }
-    }
-
-    /// The `q` array: exactly `joint_count` numbers.
-    struct AnglesSeed {
-        joint_count: usize,
-    }
-
-    impl<'de> DeserializeSeed<'de> for AnglesSeed {
-        type Value = Vec<f64>;
-
-        fn deserialize<D: Deserializer<'de>>(self, deserializer: D) -> Result<Vec<f64>, D::Error> {
-            deserializer.deserialize_seq(self)
-        }
-    }
-
-    impl<'de> Visitor<'de> for AnglesSeed {
-        type Value = Vec<f64>;
-
-        fn expecting(&self, formatter: &mut fmt::Formatter<'_>) -> fmt::Result {
-            formatter.write_str("an array of joint angles")
-        }
-
-        fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Vec<f64>, A::Error> {
-            let mut angles = Vec::with_capacity(self.joint_count);
-            while let Some(angle) = seq.next_element::<f64>()? {
-                if angles.len() == self.joint_count {
-                    return Err(give_up());
-                }
-                angles.push(angle);
-            }
-            Ok(angles)
-        }
-    }
-
-    /// An object key or a short string: borrowed from the payload when it has no escapes.
-    enum Key<'de> {
-        Borrowed(&'de str),
-        Owned(String),
-    }
-
-    impl Key<'_> {
-        fn as_str(&self) -> &str {
-            match self {
-                Self::Borrowed(key) => key,
-                Self::Owned(key) => key,
-            }
-        }
-    }
-
-    impl<'de> de::Deserialize<'de> for Key<'de> {
-        fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
-            struct KeyVisitor;
-            impl<'de> Visitor<'de> for KeyVisitor {
-                type Value = Key<'de>;
-
-                fn expecting(&self, formatter: &mut fmt::Formatter<'_>) -> fmt::Result {
-                    formatter.write_str("a string")
-                }
-
-                fn visit_borrowed_str<E: de::Error>(self, key: &'de str) -> Result<Key<'de>, E> {
-                    Ok(Key::Borrowed(key))
-                }
-
-                fn visit_str<E: de::Error>(self, key: &str) -> Result<Key<'de>, E> {
-                    Ok(Key::Owned(key.to_owned()))
-                }
-            }
-            deserializer.deserialize_str(KeyVisitor)
-        }
-    }
-
-    /// A joint message in its usual shape, or `None` for the general decoder.
-    pub(super) fn joints(payload: &[u8], joint_count: usize) -> Option<DecodedJoints> {
-        let slots = parse(payload, JointSeed { joint_count })?;
-        let stamp_s = match (slots.stamp_s, slots.time_s) {
-            (Some(_), Some(_)) => return None,
-            (stamp_s, time_s) => stamp_s.or(time_s),
-        };
-        let mut q_rad = slots.q?;
-        if q_rad.len() != joint_count || !q_rad.iter().all(|angle| angle.is_finite()) {
-            return None;
-        }
-        if slots.degrees == Some(true) {
-            for angle in &mut q_rad {
-                *angle = angle.to_radians();
-            }
-        }
-        let measured = match &slots.measured {
-            Some(pose) => Some(pose.pose("measured.")?),
-            None => None,
-        };
-        Some(DecodedJoints {
-            sample: JointSample {
-                stamp_s,
-                seq: slots.seq,
-                q_rad,
-                measured,
-            },
-            measured_error: None,
-        })
-    }
-
-    /// A measured pose in its usual shape, or `None` for the general decoder.
-    pub(super) fn measured(payload: &[u8]) -> Option<MeasuredSample> {
-        let slots = parse(payload, PoseSeed { with_stamp: true })?;
-        let stamp_s = match (slots.stamp_s, slots.time_s) {
-            (Some(_), Some(_)) => return None,
-            (stamp_s, time_s) => stamp_s.or(time_s),
-        };
-        Some(MeasuredSample {
-            stamp_s,
-            pose: slots.pose("")?,
-        })
-    }
-}
+/// The fast path for messages in their usual shapes; it gives up on anything else, and the general
+/// decoder above decides.
+mod fast;
 
 // ---------------------------------------------------------------------------------------------
 // Encoding
@@ -1513,7 +1188,8 @@ mod tests {
             r#"{"t": 12.5, "x": -0.807, "y": 0.436, "z": 0.42, "qx": -0.408, "qy": -0.9, "qz": -0.014, "qw": 0.152}"#,
             r#"{"time": 12.5, "x": -0.807, "y": 0.436, "z": 0.42, "roll": -3.038, "pitch": -0.289, "yaw": 2.275}"#,
             r#"{"x": -0.807, "y": 0.436, "z": 0.42, "rx": 0.92, "ry": 2.03, "rz": 0.03, "note": "x"}"#,
-            r#"{"\u0074": 1.5, "q": [1, 2, 3, 4, 5, 6]}"#,
+            r#"{"t":1,"q":[0,0,0,0,0,0],"note":"Zelle 3 · Roboter ä","flags":[true,false,null,[],{}],"n":-0.0e+0}"#,
+            " \t\r\n{ \"t\" :\n1 , \"q\" : [ 0 ,0,0,0,0, 0 ] }\n ",
         ];
         for payload in usual {
             assert!(
@@ -1542,6 +1218,17 @@ mod tests {
             r#"{"t": 1, "x": 1, "y": 2, "z": 3, "rx": 1e200, "ry": 0, "rz": 0}"#,
             r#"{"t": 1, "q": [0, 0, 0, 0, 0, 0]} trailing"#,
             "[1, 2]",
+            // Escapes in a key or a string: rare, left to the general decoder.
+            r#"{"\u0074": 1.5, "q": [1, 2, 3, 4, 5, 6]}"#,
+            r#"{"t": 1, "q": [0, 0, 0, 0, 0, 0], "note": "a \"quoted\" word"}"#,
+            // Not JSON.
+            r#"{"t": 01, "q": [0, 0, 0, 0, 0, 0]}"#,
+            r#"{"t": 1., "q": [0, 0, 0, 0, 0, 0]}"#,
+            r#"{"t": .5, "q": [0, 0, 0, 0, 0, 0]}"#,
+            r#"{"t": 1, "q": [0, 0, 0, 0, 0, 0], "note": tru}"#,
+            r#"{"t": 1, "q": [0, 0, 0, 0, 0, 0],}"#,
+            r#"{"t": 1, "q": [0, 0, 0, 0, 0, 0,]}"#,
+            "{\"t\": 1, \"q\": [0, 0, 0, 0, 0, 0], \"note\": \"\u{1}\"}",
         ];
         for payload in unusual {
             assert!(!assert_paths_agree(payload, 6), "fast path took {payload}");
@@ -1588,6 +1275,45 @@ mod tests {
                 None => format!("{{{pose_text}}}"),
             };
             assert_paths_agree(&measured, 6);
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::test_runner::Config::with_cases(4000))]
+
+        /// Damaged messages: whatever the fast path still accepts, the general decoder reads the
+        /// same (it must never take a message the general one refuses, nor read it differently).
+        #[test]
+        fn both_paths_agree_on_damaged_messages(
+            message in 0_usize..4,
+            edits in proptest::collection::vec(
+                (0_usize..3, proptest::num::usize::ANY, proptest::sample::select(
+                    br#"{}[]:,".-+eE0159 tfnul\x"#.to_vec(),
+                )),
+                1..4,
+            ),
+        ) {
+            let mut bytes = [
+                r#"{"t":1.25,"seq":3,"unit":"deg","q":[0.5,-1e-3,2E2,0,-0,12],"note":{"a":[true,null,"b"]}}"#,
+                r#"{"t":1.25,"q":[0.5,-1,2,0,0,1],"measured":{"t":1,"x":0.25,"y":-1,"z":3,"qx":0,"qy":0,"qz":0,"qw":1}}"#,
+                r#"{"time":7,"x":0.25,"y":-1,"z":3,"roll":0.1,"pitch":-0.2,"yaw":3.1,"extra":[]}"#,
+                r#"{"t":7,"x":0.25,"y":-1,"z":3,"rx":0.1,"ry":-0.2,"rz":1.5}"#,
+            ][message]
+                .as_bytes()
+                .to_vec();
+            for (kind, position, byte) in edits {
+                let at = position % (bytes.len() + 1);
+                match kind {
+                    0 if at < bytes.len() => {
+                        bytes.remove(at);
+                    }
+                    1 if at < bytes.len() => bytes[at] = byte,
+                    _ => bytes.insert(at, byte),
+                }
+            }
+            if let Ok(text) = std::str::from_utf8(&bytes) {
+                assert_paths_agree(text, 6);
+            }
         }
     }
 

@@ -4,7 +4,8 @@
 //! the pipeline through the service's entry points (`ingest::joint_message` /
 //! `ingest::measured_message`), and the outputs encoded as the service encodes them (a pose and a
 //! deviation message). Also each part alone: decoding, encoding (the fixed-layout writer the
-//! service uses, and `serde_json` writing the same bytes, as the baseline).
+//! service uses, and `serde_json` writing the same bytes, as the baseline), and a robot's metrics
+//! message.
 //!
 //! `cargo bench --no-default-features --bench ingest`
 use std::hint::black_box;
@@ -66,7 +67,7 @@ impl Sink for Encode {
     }
 
     fn metrics(&mut self, snapshot: &MetricsSnapshot) {
-        self.bytes += black_box(wire::to_json_bytes(&wire::MetricsMessage::new(snapshot))).len();
+        self.bytes += black_box(wire::MetricsMessage::new(snapshot).to_json_bytes()).len();
     }
 }
 
@@ -209,5 +210,48 @@ fn parts(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, sample, parts);
+/// A metrics message with full-precision statistics, as a robot's metrics look.
+fn metrics_message(robot: &str) -> wire::MetricsMessage {
+    let stats = |seed: f64| wire::StatsJson {
+        mae: 1e-3 * (1.1 + seed.sin()),
+        rmse: 1e-3 * (1.2 + seed.cos()),
+        max: 1e-3 * (2.3 + (seed * 1.7).sin()),
+    };
+    let set = |n: u64, seed: f64| wire::StatsSetJson {
+        n,
+        position: stats(seed),
+        x: stats(seed + 1.0),
+        y: stats(seed + 2.0),
+        z: stats(seed + 3.0),
+        quat_distance: stats(seed + 4.0),
+        angle: stats(seed + 5.0),
+        roll: stats(seed + 6.0),
+        pitch: stats(seed + 7.0),
+        yaw: stats(seed + 8.0),
+    };
+    wire::MetricsMessage {
+        robot: robot.to_owned(),
+        t: 1234.567_891,
+        paired: 123_456,
+        unpaired: 3,
+        rejected: 0,
+        cumulative: set(123_456, 0.3),
+        window: wire::WindowJson {
+            seconds: 10.0,
+            stats: set(1000, 0.7),
+        },
+    }
+}
+
+fn metrics(c: &mut Criterion) {
+    let message = metrics_message(&robot_id(0));
+    c.bench_function("encode/metrics", |b| {
+        b.iter(|| black_box(&message).to_json_bytes());
+    });
+    c.bench_function("encode/metrics_serde_json", |b| {
+        b.iter(|| wire::to_json_bytes(black_box(&message)));
+    });
+}
+
+criterion_group!(benches, sample, parts, metrics);
 criterion_main!(benches);

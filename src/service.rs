@@ -465,7 +465,7 @@ impl TwinState {
                 Self::reply(
                     query,
                     &key,
-                    wire::to_json_bytes(&wire::MetricsMessage::new(&snapshot)),
+                    wire::MetricsMessage::new(&snapshot).to_json_bytes(),
                 );
             }
         }
@@ -875,10 +875,6 @@ impl Sink for ZenohSink {
 
     fn metrics(&mut self, snapshot: &MetricsSnapshot) {
         let message = wire::MetricsMessage::new(snapshot);
-        self.put(
-            &snapshot.robot,
-            Stream::Metrics,
-            wire::to_json_bytes(&message),
-        );
+        self.put(&snapshot.robot, Stream::Metrics, message.to_json_bytes());
     }
 }

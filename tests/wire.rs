@@ -918,10 +918,13 @@ fn state_message_fields() {
 }
 
 mod fixed_layout {
-    //! The per-sample messages' own writer against `serde_json` writing the same structs: the
+    //! The frequent messages' own writer against `serde_json` writing the same structs: the
     //! same bytes, for any values and any robot id.
     use armtwin::codec::PoseFields;
-    use armtwin::codec::wire::{DeviationMessage, PoseMessage, to_json_bytes};
+    use armtwin::codec::wire::{
+        DeviationMessage, MetricsMessage, PoseMessage, StatsJson, StatsSetJson, WindowJson,
+        to_json_bytes,
+    };
     use proptest::prelude::*;
 
     /// Any double, the awkward ones much more often than uniform bits would give them.
@@ -952,7 +955,53 @@ mod fixed_layout {
         ]
     }
 
+    fn any_stats() -> impl Strategy<Value = StatsJson> {
+        (any_f64(), any_f64(), any_f64()).prop_map(|(mae, rmse, max)| StatsJson { mae, rmse, max })
+    }
+
+    fn any_stats_set() -> impl Strategy<Value = StatsSetJson> {
+        (any::<u64>(), prop::array::uniform9(any_stats())).prop_map(|(n, stats)| {
+            let [position, x, y, z, quat_distance, angle, roll, pitch, yaw] = stats;
+            StatsSetJson {
+                n,
+                position,
+                x,
+                y,
+                z,
+                quat_distance,
+                angle,
+                roll,
+                pitch,
+                yaw,
+            }
+        })
+    }
+
     proptest! {
+        #[test]
+        fn a_metrics_message_is_written_as_serde_json_writes_it(
+            robot in any_robot(),
+            t in any_f64(),
+            counts in prop::array::uniform3(any::<u64>()),
+            cumulative in any_stats_set(),
+            seconds in any_f64(),
+            window in any_stats_set(),
+        ) {
+            let [paired, unpaired, rejected] = counts;
+            let message = MetricsMessage {
+                robot,
+                t,
+                paired,
+                unpaired,
+                rejected,
+                cumulative,
+                window: WindowJson { seconds, stats: window },
+            };
+            let fixed = message.to_json_bytes();
+            let serde = to_json_bytes(&message);
+            prop_assert_eq!(String::from_utf8_lossy(&fixed), String::from_utf8_lossy(&serde));
+        }
+
         #[test]
         fn a_pose_message_is_written_as_serde_json_writes_it(
             robot in any_robot(),

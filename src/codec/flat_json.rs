@@ -1,5 +1,5 @@
-//! A fixed-layout JSON object writer for the messages armtwin sends once per sample (twin pose,
-//! deviation): keys known at compile time, numbers in the shortest round-trip form, written
+//! A fixed-layout JSON object writer for the messages armtwin sends most often (twin pose and
+//! deviation once per sample, metrics periodically per robot): keys known at compile time, numbers in the shortest round-trip form, written
 //! straight into one buffer. It writes the bytes `serde_json` writes for the same fields in the
 //! same order (the tests in `wire` compare them byte for byte), at about half the cost: no
 //! serialiser state machine, no escaping scan of constant keys, no small copies per token.
@@ -65,6 +65,19 @@ impl FlatObject {
         let mut buffer = itoa::Buffer::new();
         self.bytes
             .extend_from_slice(buffer.format(value).as_bytes());
+    }
+
+    /// Opens an object field: the following fields are its members until [`Self::close`].
+    pub(crate) fn open(&mut self, key: &'static str) {
+        self.key(key);
+        self.bytes.push(b'{');
+        self.empty = true;
+    }
+
+    /// Closes the innermost object opened by [`Self::open`].
+    pub(crate) fn close(&mut self) {
+        self.bytes.push(b'}');
+        self.empty = false;
     }
 
     /// The object's bytes.

@@ -772,6 +772,9 @@ pub fn to_json_bytes<T: Serialize>(value: &T) -> Vec<u8> {
 /// Room for a pose or deviation message (about 300 bytes with a long robot id) without growing.
 const POSE_JSON_CAPACITY: usize = 384;
 
+/// Room for a metrics message (about 1.6 kB with full-precision statistics) without growing.
+const METRICS_JSON_CAPACITY: usize = 2048;
+
 /// A twin (or measured) pose: `{robot, t, seq, frame, x, y, z, roll, pitch, yaw, qx, qy, qz, qw}`.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct PoseMessage {
@@ -1002,6 +1005,31 @@ pub struct StatsSetJson {
     pub yaw: StatsJson,
 }
 
+impl StatsSetJson {
+    /// Writes `n` and each metric's `{mae, rmse, max}` into `object`, in field order.
+    fn write_members(&self, object: &mut FlatObject) {
+        object.unsigned("n", self.n);
+        let metrics = [
+            ("position", &self.position),
+            ("x", &self.x),
+            ("y", &self.y),
+            ("z", &self.z),
+            ("quat_distance", &self.quat_distance),
+            ("angle", &self.angle),
+            ("roll", &self.roll),
+            ("pitch", &self.pitch),
+            ("yaw", &self.yaw),
+        ];
+        for (name, stats) in metrics {
+            object.open(name);
+            object.number("mae", stats.mae);
+            object.number("rmse", stats.rmse);
+            object.number("max", stats.max);
+            object.close();
+        }
+    }
+}
+
 impl From<&StatsSet> for StatsSetJson {
     fn from(set: &StatsSet) -> Self {
         // The order of `METRIC_NAMES`.
@@ -1067,6 +1095,26 @@ impl MetricsMessage {
                 stats: StatsSetJson::from(&snapshot.window),
             },
         }
+    }
+
+    /// The message's JSON: the bytes [`to_json_bytes`] writes for it, written directly (each
+    /// tracked robot sends one every metrics period).
+    #[must_use]
+    pub fn to_json_bytes(&self) -> Vec<u8> {
+        let mut object = FlatObject::with_capacity(METRICS_JSON_CAPACITY);
+        object.string("robot", &self.robot);
+        object.number("t", self.t);
+        object.unsigned("paired", self.paired);
+        object.unsigned("unpaired", self.unpaired);
+        object.unsigned("rejected", self.rejected);
+        object.open("cumulative");
+        self.cumulative.write_members(&mut object);
+        object.close();
+        object.open("window");
+        object.number("seconds", self.window.seconds);
+        self.window.stats.write_members(&mut object);
+        object.close();
+        object.finish()
     }
 }
 

@@ -231,7 +231,7 @@ fn metrics_message(robot: &str) -> wire::MetricsMessage {
     };
     wire::MetricsMessage {
         robot: robot.to_owned(),
-        t: 1234.567_891,
+        t: 1_234.567_891,
         paired: 123_456,
         unpaired: 3,
         rejected: 0,

@@ -11,9 +11,10 @@
 //! (`declare_keyexpr`), so it does not pay Zenoh's per-key route computation itself.
 //!
 //! What it runs, in order, each optional: a latency run at a fixed moderate rate; the search for
-//! the highest sustained rate (doubling until a trial fails, then bisecting); a check at one
-//! fixed rate; or (alone) the memory measurement of a system under test. Results go to standard
-//! output as one JSON object; progress to standard error.
+//! the highest sustained rate (doubling until a rate fails, then bisecting; a failed trial is run
+//! again before its rate counts as failed); a check at one fixed rate; or (alone) the memory
+//! measurement of a system under test. Results go to standard output as one JSON object;
+//! progress to standard error.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -102,6 +103,11 @@ pub struct LoadArgs {
     /// after it should have ended.
     #[arg(long, default_value_t = 0.05)]
     pub tolerance: f64,
+    /// Throughput search: how many times a failed trial is run again before its rate counts as
+    /// failed (a machine shared with others stalls now and then; a system that keeps up passes
+    /// one of the runs, one that cannot fails them all).
+    #[arg(long, default_value_t = 1)]
+    pub retries: u32,
     /// A check at one rate after the search (0: none), samples per second.
     #[arg(long, default_value_t = 0.0)]
     pub check_rate: f64,
@@ -701,6 +707,25 @@ impl Load {
         })
     }
 
+    /// Whether `rate` is sustained in one of `1 + retries` trials (stopping at the first that
+    /// is); every trial run goes into `trials`.
+    fn search_trial(
+        &mut self,
+        rate: f64,
+        duration_s: f64,
+        trials: &mut Vec<Trial>,
+    ) -> Result<bool, LoadError> {
+        for _ in 0..=self.args.retries {
+            let trial = self.trial(rate, duration_s, false)?;
+            let sustained = trial.sustained;
+            trials.push(trial);
+            if sustained {
+                return Ok(true);
+            }
+        }
+        Ok(false)
+    }
+
     /// Doubles the rate until a trial fails (halves it while the first ones fail), then
     /// bisects between the best sustained rate and the lowest failing one.
     fn search(&mut self) -> Result<Search, LoadError> {
@@ -711,10 +736,7 @@ impl Load {
         let mut failed = f64::INFINITY;
         let mut rate = self.args.start_rate.min(max_rate);
         loop {
-            let trial = self.trial(rate, duration_s, false)?;
-            let ok = trial.sustained;
-            trials.push(trial);
-            if ok {
+            if self.search_trial(rate, duration_s, &mut trials)? {
                 sustained = rate;
                 if rate >= max_rate || failed.is_finite() {
                     break;
@@ -731,13 +753,11 @@ impl Load {
         if failed.is_finite() && sustained > 0.0 {
             for _ in 0..self.args.bisect_steps {
                 let rate = f64::midpoint(sustained, failed).round();
-                let trial = self.trial(rate, duration_s, false)?;
-                if trial.sustained {
+                if self.search_trial(rate, duration_s, &mut trials)? {
                     sustained = rate;
                 } else {
                     failed = rate;
                 }
-                trials.push(trial);
             }
         }
         Ok(Search {

@@ -56,6 +56,9 @@ pub struct RunArgs {
     /// Bisection steps of the search (default 4; quick 1).
     #[arg(long)]
     pub bisect_steps: Option<u32>,
+    /// Runs of a failed search trial again before its rate counts as failed (default 1; quick 0).
+    #[arg(long)]
+    pub retries: Option<u32>,
     /// Latency run rate, samples/s (default 1000; quick 200).
     #[arg(long)]
     pub latency_rate: Option<f64>,
@@ -104,6 +107,8 @@ pub struct Settings {
     pub max_rate: f64,
     /// Bisection steps.
     pub bisect_steps: u32,
+    /// Repeats of a failed search trial.
+    pub retries: u32,
     /// Latency run rate.
     pub latency_rate: f64,
     /// Latency run seconds.
@@ -144,6 +149,7 @@ impl Settings {
             start_rate: pick(args.start_rate, 5000.0, 200.0),
             max_rate: pick(args.max_rate, 2_000_000.0, 800.0),
             bisect_steps: args.bisect_steps.unwrap_or(if quick { 1 } else { 4 }),
+            retries: args.retries.unwrap_or(u32::from(!quick)),
             latency_rate: pick(args.latency_rate, 1000.0, 200.0),
             latency_duration_s: pick(args.latency_duration, 5.0, 0.5),
             latency_rounds: args.latency_rounds.unwrap_or(if quick { 1 } else { 3 }),
@@ -474,6 +480,8 @@ impl Orchestrator {
             s.duration_s.to_string(),
             "--bisect-steps".into(),
             s.bisect_steps.to_string(),
+            "--retries".into(),
+            s.retries.to_string(),
         ]);
         if let Some(rate) = fleet_rate {
             args.extend([

@@ -174,29 +174,21 @@ fn parts(c: &mut Criterion) {
     let mut measured = twin;
     measured.position_m[0] += 0.0004;
     let deviation = Deviation::between(&twin, &measured);
+    // What the service does for each twin pose: build the message (the robot id copied), write it.
+    let pose_message = || {
+        wire::PoseMessage::new(
+            black_box(&load.robot).as_str(),
+            1000.25,
+            42,
+            OutputFrame::Base.as_str(),
+            black_box(&twin),
+        )
+    };
     c.bench_function("encode/pose", |b| {
-        b.iter(|| {
-            let message = wire::PoseMessage::new(
-                black_box(&load.robot).as_str(),
-                1000.25,
-                42,
-                OutputFrame::Base.as_str(),
-                black_box(&twin),
-            );
-            message.to_json_bytes()
-        });
+        b.iter(|| pose_message().to_json_bytes());
     });
     c.bench_function("encode/pose_serde_json", |b| {
-        b.iter(|| {
-            let message = wire::PoseMessage::new(
-                black_box(&load.robot).as_str(),
-                1000.25,
-                42,
-                OutputFrame::Base.as_str(),
-                black_box(&twin),
-            );
-            wire::to_json_bytes(&message)
-        });
+        b.iter(|| wire::to_json_bytes(&pose_message()));
     });
     c.bench_function("encode/deviation", |b| {
         b.iter(|| {

@@ -9,11 +9,12 @@
 //!
 //! `cargo bench --no-default-features --bench ingest`
 use std::hint::black_box;
-use std::path::Path;
 use std::time::{Duration, Instant};
 
 #[path = "../bench/src/fleet.rs"]
 mod fleet;
+#[path = "common/ingest_fixture.rs"]
+mod ingest_fixture;
 #[path = "../bench/src/workload.rs"]
 #[allow(
     dead_code,
@@ -23,142 +24,45 @@ mod fleet;
 mod workload;
 
 use armtwin::codec::wire;
-use armtwin::config::{Overrides, ServiceConfig};
-use armtwin::ingest;
-use armtwin::kinematics::{OutputFrame, PoseReadout};
+use armtwin::kinematics::OutputFrame;
 use armtwin::metrics::Deviation;
 use armtwin::model::RobotModel;
-use armtwin::pipeline::{Discard, Event, MeasuredStream, MetricsSnapshot, Pipeline, Sink};
+use armtwin::pipeline::{Discard, Sink};
 use criterion::{Criterion, criterion_group, criterion_main};
-use fleet::{robot_id, service_config};
-use workload::Workload;
+use fleet::robot_id;
+use ingest_fixture::{Encode, Load, RENDERED};
 
-/// Samples rendered ahead; a run longer than this starts again on a fresh pipeline (untimed).
-const RENDERED: usize = 4096;
-
-/// Encodes every output as `armtwin serve` does before its `put`, and keeps only the byte count.
-#[derive(Default)]
-struct Encode {
-    bytes: usize,
-}
-
-impl Sink for Encode {
-    fn tracking(&mut self, _robot: &str) {}
-
-    fn pose(
-        &mut self,
-        robot: &str,
-        stamp_s: f64,
-        seq: u64,
-        frame: OutputFrame,
-        pose: &PoseReadout,
-    ) {
-        let message = wire::PoseMessage::new(robot, stamp_s, seq, frame.as_str(), pose);
-        self.bytes += black_box(message.to_json_bytes()).len();
-    }
-
-    fn deviation(&mut self, robot: &str, stamp_s: f64, _: &PoseReadout, deviation: &Deviation) {
-        let message = wire::DeviationMessage::new(robot, stamp_s, deviation);
-        self.bytes += black_box(message.to_json_bytes()).len();
-    }
-
-    fn event(&mut self, event: &Event<'_>) {
-        self.bytes += black_box(wire::to_json_bytes(&wire::EventMessage::new(event))).len();
-    }
-
-    fn metrics(&mut self, snapshot: &MetricsSnapshot) {
-        self.bytes += black_box(wire::MetricsMessage::new(snapshot).to_json_bytes()).len();
-    }
-}
-
-/// One robot's load: joint and measured payloads of `RENDERED` samples at 100 Hz.
-struct Load {
-    robot: String,
-    joint_key: String,
-    measured_key: String,
-    samples: Vec<(f64, String, String)>,
-}
-
-impl Load {
-    fn new() -> Self {
-        let workload = Workload::ur10e().expect("the ur10e's payloads");
-        let robot = robot_id(0);
-        let samples = (0..RENDERED as u64)
-            .map(|sample| {
-                let stamp_s = 1000.0 + sample as f64 * 0.01;
-                (
-                    stamp_s,
-                    workload.joints(sample, stamp_s),
-                    workload.measured(sample, stamp_s),
-                )
-            })
-            .collect();
-        Self {
-            joint_key: format!("twin/joints/{robot}"),
-            measured_key: format!("twin/measured/{robot}"),
-            robot,
-            samples,
+/// Time of `iterations` samples into fresh pipelines through `sink`.
+fn run(load: &Load, iterations: u64, sink: &mut impl Sink) -> Duration {
+    let mut elapsed = Duration::ZERO;
+    let mut left = iterations as usize;
+    while left > 0 {
+        let chunk = left.min(RENDERED);
+        let mut pipeline = Load::pipeline();
+        let start = Instant::now();
+        for index in 0..chunk {
+            load.joints(&mut pipeline, index, sink);
+            load.measured(&mut pipeline, index, sink);
         }
+        elapsed += start.elapsed();
+        left -= chunk;
     }
-
-    fn pipeline() -> Pipeline {
-        let config = ServiceConfig::parse(
-            &service_config(1),
-            "generated",
-            Path::new(""),
-            &Overrides::default(),
-        )
-        .expect("the benchmark's configuration");
-        Pipeline::new(config.pipeline, config.default_robot, config.robots)
-    }
-
-    /// Time of `iterations` samples into fresh pipelines through `sink`.
-    fn run(&self, iterations: u64, sink: &mut impl Sink) -> Duration {
-        let mut elapsed = Duration::ZERO;
-        let mut left = iterations as usize;
-        while left > 0 {
-            let chunk = left.min(RENDERED);
-            let mut pipeline = Self::pipeline();
-            let start = Instant::now();
-            for (stamp_s, joints, measured) in &self.samples[..chunk] {
-                ingest::joint_message(
-                    &mut pipeline,
-                    &self.robot,
-                    &self.joint_key,
-                    joints.as_bytes(),
-                    || *stamp_s,
-                    sink,
-                );
-                ingest::measured_message(
-                    &mut pipeline,
-                    &self.robot,
-                    &self.measured_key,
-                    MeasuredStream::Robot,
-                    measured.as_bytes(),
-                    || *stamp_s,
-                    sink,
-                );
-            }
-            elapsed += start.elapsed();
-            left -= chunk;
-        }
-        elapsed
-    }
+    elapsed
 }
 
 fn sample(c: &mut Criterion) {
-    let load = Load::new();
+    let load = Load::starting_at(0);
     c.bench_function("sample/pipeline", |b| {
-        b.iter_custom(|iterations| load.run(iterations, &mut Discard));
+        b.iter_custom(|iterations| run(&load, iterations, &mut Discard));
     });
     c.bench_function("sample/pipeline_and_encoding", |b| {
         let mut sink = Encode::default();
-        b.iter_custom(|iterations| load.run(iterations, &mut sink));
+        b.iter_custom(|iterations| run(&load, iterations, &mut sink));
     });
 }
 
 fn parts(c: &mut Criterion) {
-    let load = Load::new();
+    let load = Load::starting_at(0);
     let (_, joints, measured) = &load.samples[7];
     c.bench_function("decode/joints", |b| {
         b.iter(|| wire::decode_joints(black_box(joints.as_bytes()), 6));

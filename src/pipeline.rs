@@ -564,12 +564,20 @@ impl Pipeline {
 
     /// Sends `robot`'s metrics if it has new results since its last ones.
     pub fn publish_metrics_if_due(&mut self, robot: &str, sink: &mut impl Sink) {
-        if let Some(twin) = self.robots.get_mut(robot)
-            && twin.dirty
-        {
-            twin.dirty = false;
-            sink.metrics(&twin.snapshot(robot));
+        if let Some(snapshot) = self.take_due_metrics(robot) {
+            sink.metrics(&snapshot);
         }
+    }
+
+    /// `robot`'s metrics if it has new results since its last ones, which they then count as
+    /// sent: for a caller that sends them itself (the service, outside its lock).
+    pub fn take_due_metrics(&mut self, robot: &str) -> Option<MetricsSnapshot> {
+        let twin = self.robots.get_mut(robot)?;
+        if !twin.dirty {
+            return None;
+        }
+        twin.dirty = false;
+        Some(twin.snapshot(robot))
     }
 
     /// The current metrics of `robot`.

@@ -511,21 +511,38 @@ impl TwinState {
     }
 }
 
-/// Robots whose metrics one turn of the lock publishes: a fleet's metrics go out in short turns,
-/// so samples wait behind a few robots' snapshots, never behind the whole fleet's.
+/// Robots whose metrics snapshots one turn of the lock takes: a fleet's metrics go out in short
+/// turns, so samples wait behind a few robots' snapshots, never behind the whole fleet's.
 const METRICS_PER_TURN: usize = 16;
 
-/// Publishes the metrics of every robot with new results, a few robots per turn of the lock.
-fn publish_due_metrics(twin: &SharedTwin) {
+/// Publishes the metrics of every robot with new results: a few robots' snapshots per turn of
+/// the lock, then their encoding and `put` after it is released, so samples wait at most for a
+/// few snapshots (about 2 µs each), never for a metrics message's encoding and sending.
+fn publish_due_metrics(twin: &SharedTwin, declarer: &Declarer) {
     let due = twin.lock().pipeline.robots_with_due_metrics();
+    let mut turn = Vec::with_capacity(METRICS_PER_TURN);
+    let mut publish_errors = 0;
     for robots in due.chunks(METRICS_PER_TURN) {
-        let mut guard = twin.lock();
-        let state = &mut *guard;
-        for robot in robots {
-            state
-                .pipeline
-                .publish_metrics_if_due(robot, &mut state.sink);
+        {
+            let mut guard = twin.lock();
+            let state = &mut *guard;
+            for robot in robots {
+                if let Some(snapshot) = state.pipeline.take_due_metrics(robot) {
+                    turn.push((snapshot, state.sink.outputs.get(robot).cloned()));
+                }
+            }
         }
+        for (snapshot, outputs) in turn.drain(..) {
+            let payload = wire::MetricsMessage::new(&snapshot).to_json_bytes();
+            let robot = &snapshot.robot;
+            if let Err(e) = declarer.put(outputs.as_deref(), robot, Stream::Metrics, payload) {
+                publish_errors += 1;
+                warn!(error = %e, %robot, stream = "metrics", "publish failed");
+            }
+        }
+    }
+    if publish_errors > 0 {
+        twin.lock().sink.publish_errors += publish_errors;
     }
 }
 
@@ -569,7 +586,7 @@ impl Control {
                     match declarer.declare(&robot) {
                         Ok(outputs) => {
                             info!(%robot, "tracking robot");
-                            twin.lock().sink.outputs.insert(robot, outputs);
+                            twin.lock().sink.outputs.insert(robot, Arc::new(outputs));
                         }
                         Err(e) => warn!(%robot, error = %e, "cannot declare the robot's outputs"),
                     }
@@ -578,7 +595,7 @@ impl Control {
             }
             let now = Instant::now();
             if now >= next_metrics {
-                publish_due_metrics(twin);
+                publish_due_metrics(twin, declarer);
                 next_metrics = now + metrics_period;
             }
         }
@@ -662,6 +679,25 @@ impl Declarer {
         format!("{}/{stream}/{robot}", self.prefix)
     }
 
+    /// Publishes `payload` on `robot`'s `stream`: through its declared publisher, or, until the
+    /// control thread has declared it (and for robots that are not tracked), on the plain key.
+    fn put(
+        &self,
+        outputs: Option<&RobotOutputs>,
+        robot: &str,
+        stream: Stream,
+        payload: Vec<u8>,
+    ) -> zenoh::Result<()> {
+        match outputs {
+            Some(outputs) => stream.publisher(outputs).put(payload).wait(),
+            None => self
+                .session
+                .put(self.key(stream.as_str(), robot), payload)
+                .congestion_control(self.congestion)
+                .wait(),
+        }
+    }
+
     fn publisher(&self, stream: Stream, robot: &str) -> zenoh::Result<Publisher<'static>> {
         self.session
             .declare_publisher(self.key(stream.as_str(), robot))
@@ -693,8 +729,13 @@ impl Declarer {
         })
     }
 
-    fn undeclare_all(&self, outputs: HashMap<String, RobotOutputs>) {
+    fn undeclare_all(&self, outputs: HashMap<String, Arc<RobotOutputs>>) {
         for (robot, outputs) in outputs {
+            // The control thread, the only other holder, has finished its last metrics turn.
+            let Some(outputs) = Arc::into_inner(outputs) else {
+                warn!(%robot, "outputs still shared at shutdown: left to be undeclared when dropped");
+                continue;
+            };
             let RobotOutputs {
                 pose,
                 deviation,
@@ -727,7 +768,8 @@ struct ZenohSink {
     declarer: Declarer,
     /// Asks the control thread to declare newly tracked robots.
     control: Sender<Control>,
-    outputs: HashMap<String, RobotOutputs>,
+    /// Shared with the control thread, which publishes metrics outside the lock.
+    outputs: HashMap<String, Arc<RobotOutputs>>,
     poses: u64,
     publish_errors: u64,
     event_budget: EventBudget,
@@ -784,19 +826,10 @@ impl ZenohSink {
         }
     }
 
-    /// Publishes `payload` on `robot`'s `stream`: through its declared publisher, or, until the
-    /// control thread has declared it (and for robots that are not tracked), on the plain key.
+    /// Publishes `payload` on `robot`'s `stream` ([`Declarer::put`]).
     fn put(&mut self, robot: &str, stream: Stream, payload: Vec<u8>) {
-        let result = match self.outputs.get(robot) {
-            Some(outputs) => stream.publisher(outputs).put(payload).wait(),
-            None => self
-                .declarer
-                .session
-                .put(self.declarer.key(stream.as_str(), robot), payload)
-                .congestion_control(self.declarer.congestion)
-                .wait(),
-        };
-        if let Err(e) = result {
+        let outputs = self.outputs.get(robot).map(Arc::as_ref);
+        if let Err(e) = self.declarer.put(outputs, robot, stream, payload) {
             self.publish_errors += 1;
             warn!(error = %e, %robot, stream = stream.as_str(), "publish failed");
         }

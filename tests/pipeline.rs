@@ -281,4 +281,12 @@ fn periodic_metrics_go_out_once_per_robot_with_new_results() {
     // Unknown robots have no metrics to send.
     pipeline.publish_metrics_if_due("nobody", &mut sink);
     assert_eq!(sink.metrics.len(), 2);
+    // Taken instead of sent (the service encodes and sends them outside its lock): counted as
+    // sent all the same.
+    assert!(pipeline.take_due_metrics("r1").is_none());
+    let taken = pipeline.take_due_metrics("r2").expect("new results");
+    assert_eq!((taken.robot.as_str(), taken.stamp_s), ("r2", 1.01));
+    assert!(pipeline.take_due_metrics("r2").is_none());
+    assert!(pipeline.robots_with_due_metrics().is_empty());
+    assert_eq!(sink.metrics.len(), 2);
 }

@@ -31,7 +31,7 @@ use thiserror::Error;
 use super::PoseFields;
 use super::flat_json::FlatObject;
 use crate::kinematics::PoseReadout;
-use crate::metrics::{Deviation, Stats, StatsSet};
+use crate::metrics::{Deviation, METRIC_NAMES, Stats, StatsSet};
 use crate::orientation::{self, Rpy};
 use crate::pipeline::{Event, EventDetail, MetricsSnapshot, RobotState};
 use crate::sample::{JointSample, MeasuredSample};
@@ -1009,18 +1009,19 @@ impl StatsSetJson {
     /// Writes `n` and each metric's `{mae, rmse, max}` into `object`, in field order.
     fn write_members(&self, object: &mut FlatObject) {
         object.unsigned("n", self.n);
-        let metrics = [
-            ("position", &self.position),
-            ("x", &self.x),
-            ("y", &self.y),
-            ("z", &self.z),
-            ("quat_distance", &self.quat_distance),
-            ("angle", &self.angle),
-            ("roll", &self.roll),
-            ("pitch", &self.pitch),
-            ("yaw", &self.yaw),
+        // The order of `METRIC_NAMES`, as the fields.
+        let stats = [
+            &self.position,
+            &self.x,
+            &self.y,
+            &self.z,
+            &self.quat_distance,
+            &self.angle,
+            &self.roll,
+            &self.pitch,
+            &self.yaw,
         ];
-        for (name, stats) in metrics {
+        for (name, stats) in METRIC_NAMES.into_iter().zip(stats) {
             object.open(name);
             object.number("mae", stats.mae);
             object.number("rmse", stats.rmse);

@@ -44,6 +44,8 @@ const PAUSE: Duration = Duration::from_millis(300);
 const STALL: Duration = Duration::from_secs(10);
 /// How long a failed trial's stragglers are awaited before the next trial starts.
 const SETTLE: Duration = Duration::from_secs(10);
+/// How long the wait for armtwin's liveliness tokens goes on without any new one.
+const TRACKING_STALL: Duration = Duration::from_secs(30);
 /// Slack on a trial's completion for the last replies' own latency.
 const COMPLETION_SLACK_S: f64 = 0.01;
 
@@ -316,6 +318,9 @@ pub struct LoadReport {
     pub robots: usize,
     /// Seconds until every robot's first sample was answered.
     pub warmup_s: f64,
+    /// armtwin: seconds from the end of the warm-up until every robot's liveliness token was
+    /// visible, i.e. armtwin had declared all its robots' entities (its steady state).
+    pub tracking_s: Option<f64>,
     /// The latency run.
     pub latency: Option<Latency>,
     /// The throughput search.
@@ -360,6 +365,7 @@ pub fn run(args: LoadArgs) -> Result<LoadReport, LoadError> {
         target: load.args.target,
         robots,
         warmup_s: 0.0,
+        tracking_s: None,
         latency: None,
         search: None,
         check: None,
@@ -374,6 +380,10 @@ pub fn run(args: LoadArgs) -> Result<LoadReport, LoadError> {
         let started = Instant::now();
         load.warm_up(0..robots)?;
         report.warmup_s = started.elapsed().as_secs_f64();
+        let started = Instant::now();
+        if load.wait_for_tracking(robots)? {
+            report.tracking_s = Some(started.elapsed().as_secs_f64());
+        }
         if load.args.latency_rate > 0.0 {
             report.latency = Some(load.latency()?);
         }
@@ -550,6 +560,75 @@ impl Load {
     /// embedded in the joint message (it returns that one message on `pose`).
     fn deviations_per_sample(&self) -> u64 {
         u64::from(!(self.args.embedded && self.args.target == Target::Echo))
+    }
+
+    /// armtwin declares a newly tracked robot's entities (publishers, input keys, liveliness
+    /// token) on its control thread, after the robot's first sample has been answered; at fleet
+    /// size that takes seconds to minutes (Zenoh's declarations cost O(robots) each). The echo
+    /// declares everything before it reports ready. So that both are measured in their steady
+    /// state, this waits until armtwin's token of the last of the first `robots` robots is
+    /// visible (they are declared in the order the robots were first seen, which is the order
+    /// the warm-up sent them), then counts every token once. Returns whether it waited (only
+    /// armtwin has tokens); fails if the tokens stop appearing for [`TRACKING_STALL`] or fewer
+    /// than `robots` are there in the end.
+    fn wait_for_tracking(&self, robots: usize) -> Result<bool, LoadError> {
+        if self.args.target != Target::Armtwin || robots == 0 {
+            return Ok(false);
+        }
+        let last = net::key(net::ALIVE, &net::robot_id(robots - 1));
+        let every = net::every_robot(net::ALIVE);
+        let (mut seen, mut counted) = (self.tokens(&every)?, Instant::now());
+        let mut progress = counted;
+        // The last robot's key every 200 ms (one reply at most); all tokens, to see progress,
+        // every 5 s (thousands of replies, work taken from the system under test).
+        while self.tokens(&last)? == 0 {
+            thread::sleep(Duration::from_millis(200));
+            if counted.elapsed() >= Duration::from_secs(5) {
+                let now_seen = self.tokens(&every)?;
+                counted = Instant::now();
+                if now_seen > seen {
+                    seen = now_seen;
+                    progress = counted;
+                    eprintln!("load: armtwin has declared {seen} of {robots} robots");
+                } else if counted - progress >= TRACKING_STALL {
+                    return Err(LoadError::NoAnswer(format!(
+                        "armtwin declared {seen} of {robots} robots' liveliness tokens, then none for {} s",
+                        TRACKING_STALL.as_secs()
+                    )));
+                }
+            }
+        }
+        let tokens = self.tokens(&every)?;
+        eprintln!("load: armtwin tracks {tokens} robots (liveliness tokens)");
+        if tokens < robots {
+            return Err(LoadError::NoAnswer(format!(
+                "armtwin has {tokens} liveliness tokens for {robots} robots"
+            )));
+        }
+        Ok(true)
+    }
+
+    /// Liveliness tokens visible under `key_expr`. Counted in the callback: the session answers
+    /// from the tokens it already knows in the calling thread, so a bounded channel of replies
+    /// would fill before `get` returns and block it for good.
+    fn tokens(&self, key_expr: &str) -> Result<usize, LoadError> {
+        let count = Arc::new(AtomicU64::new(0));
+        let (done_tx, done_rx) = std::sync::mpsc::channel::<()>();
+        let counter = count.clone();
+        self.session
+            .liveliness()
+            .get(key_expr)
+            .callback(move |reply| {
+                // Holding the sender until the query ends (the callback is dropped) is its job.
+                let _ = &done_tx;
+                if reply.result().is_ok() {
+                    counter.fetch_add(1, Ordering::Relaxed);
+                }
+            })
+            .wait()?;
+        // Disconnected once the query has ended and dropped the callback.
+        let _ = done_rx.recv();
+        Ok(usize::try_from(count.load(Ordering::Relaxed)).unwrap_or(usize::MAX))
     }
 
     /// Sends one sample per robot of `robots` until every one is answered. The system under
@@ -783,6 +862,7 @@ impl Load {
         for _ in 0..samples {
             self.warm_up(0..base_robots)?;
         }
+        self.wait_for_tracking(base_robots)?;
         thread::sleep(settle);
         let rss_base_kib = procfs::rss_kib(pid)?;
         eprintln!("load: memory baseline {rss_base_kib} KiB with {base_robots} robots");
@@ -791,6 +871,7 @@ impl Load {
             self.warm_up(base_robots..robots)?;
             eprintln!("load: memory round {}/{samples} done", round + 1);
         }
+        self.wait_for_tracking(robots)?;
         thread::sleep(settle);
         let rss_full_kib = procfs::rss_kib(pid)?;
         let added = robots.saturating_sub(base_robots).max(1);

@@ -22,6 +22,8 @@ pub const DEVIATION: &str = "deviation";
 pub const METRICS: &str = "metrics";
 /// Events (armtwin only; none expected in a benchmark).
 pub const EVENTS: &str = "events";
+/// Liveliness tokens, one per tracked robot (armtwin only).
+pub const ALIVE: &str = "alive";
 
 pub use crate::fleet::robot_id;
 

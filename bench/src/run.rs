@@ -639,6 +639,22 @@ fn table(report: &Report) -> String {
             cpu(c.armtwin_cpu_us_per_sample),
         );
     }
+    let tracking: Vec<String> = report
+        .by_robots
+        .iter()
+        .filter_map(|c| {
+            c.armtwin
+                .tracking_s
+                .map(|s| format!("{} robots {s:.1} s", c.robots))
+        })
+        .collect();
+    if !tracking.is_empty() {
+        let _ = writeln!(
+            text,
+            "\narmtwin's entities all declared (every liveliness token visible), after the warm-up: {}; the trials start then",
+            tracking.join(", ")
+        );
+    }
     if let Some(fleet) = &report.fleet {
         let _ = writeln!(
             text,

@@ -714,16 +714,21 @@ impl Declarer {
                     .wait()?,
             );
         }
+        let pose = self.publisher(Stream::Pose, robot)?;
+        let deviation = self.publisher(Stream::Deviation, robot)?;
+        let metrics = self.publisher(Stream::Metrics, robot)?;
+        let events = self.publisher(Stream::Events, robot)?;
+        // Last: a visible token means every entity of the robot is declared.
         let token = self
             .session
             .liveliness()
             .declare_token(self.key("alive", robot))
             .wait()?;
         Ok(RobotOutputs {
-            pose: self.publisher(Stream::Pose, robot)?,
-            deviation: self.publisher(Stream::Deviation, robot)?,
-            metrics: self.publisher(Stream::Metrics, robot)?,
-            events: self.publisher(Stream::Events, robot)?,
+            pose,
+            deviation,
+            metrics,
+            events,
             token: Some(token),
             inputs,
         })

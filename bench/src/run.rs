@@ -643,9 +643,10 @@ fn table(report: &Report) -> String {
         .by_robots
         .iter()
         .filter_map(|c| {
-            c.armtwin
-                .tracking_s
-                .map(|s| format!("{} robots {s:.1} s", c.robots))
+            c.armtwin.tracking_s.map(|s| {
+                let plural = if c.robots == 1 { "" } else { "s" };
+                format!("{} robot{plural} {s:.1} s", c.robots)
+            })
         })
         .collect();
     if !tracking.is_empty() {

@@ -13,20 +13,18 @@
 #![allow(clippy::print_stdout, reason = "a benchmark's report")]
 
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::path::Path;
 use std::sync::atomic::{AtomicIsize, AtomicUsize, Ordering};
 
 #[path = "../bench/src/fleet.rs"]
 mod fleet;
 
 use armtwin::align::Aligner;
-use armtwin::config::{Overrides, ServiceConfig};
 use armtwin::ingest;
 use armtwin::kinematics::PoseReadout;
 use armtwin::metrics::{CumulativeStats, Deviation, WindowStats};
 use armtwin::model::RobotModel;
 use armtwin::pipeline::{Discard, MeasuredStream, Pipeline, PipelineConfig};
-use fleet::{robot_id, service_config};
+use fleet::{parsed_service_config, robot_id};
 
 /// `System`, counting the bytes live and the allocations made.
 struct Counting;
@@ -167,15 +165,8 @@ fn main() {
     let robots = arguments.first().copied().unwrap_or(10_000).max(11);
     let samples = arguments.get(1).copied().unwrap_or(4).max(1);
 
-    let (config_bytes, config) = heap_of(|| {
-        ServiceConfig::parse(
-            &service_config(robots),
-            "generated",
-            Path::new(""),
-            &Overrides::default(),
-        )
-        .expect("generated configuration")
-    });
+    let (config_bytes, config) =
+        heap_of(|| parsed_service_config(robots).expect("generated configuration"));
     let messages = Messages {
         model: RobotModel::nominal("ur10e").expect("catalog"),
     };
@@ -209,13 +200,7 @@ fn main() {
 
     // Robots that only stream joints (no measured poses, so no deviation statistics).
     drop(pipeline);
-    let config = ServiceConfig::parse(
-        &service_config(robots),
-        "generated",
-        Path::new(""),
-        &Overrides::default(),
-    )
-    .expect("generated configuration");
+    let config = parsed_service_config(robots).expect("generated configuration");
     let mut pipeline = Pipeline::new(config.pipeline, config.default_robot, config.robots);
     feed(&mut pipeline, &messages, (0..FIRST, 0..samples), true);
     let base = live_bytes();

@@ -3,6 +3,9 @@
 //! so both measure the same configuration. Pure: no Zenoh, no I/O.
 
 use std::fmt::Write as _;
+use std::path::Path;
+
+use armtwin::config::{ConfigError, Overrides, ServiceConfig};
 
 /// The id of robot `index`: two key chunks, as a fleet's `site/robot` ids are.
 #[must_use]
@@ -32,4 +35,19 @@ pub fn service_config(robots: usize) -> String {
         );
     }
     text
+}
+
+/// [`service_config`] parsed as `armtwin serve` parses it: the configuration the in-process
+/// benchmarks build their pipeline from.
+#[allow(
+    dead_code,
+    reason = "used by the in-process benchmarks that include this file, and by the tests"
+)]
+pub fn parsed_service_config(robots: usize) -> Result<ServiceConfig, ConfigError> {
+    ServiceConfig::parse(
+        &service_config(robots),
+        "generated",
+        Path::new(""),
+        &Overrides::default(),
+    )
 }

@@ -804,17 +804,10 @@ pub fn run(args: &RunArgs) -> Result<Report> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use armtwin::config::{Overrides, ServiceConfig};
 
     #[test]
     fn the_generated_configuration_lists_every_robot() {
-        let config = ServiceConfig::parse(
-            &service_config(3),
-            "generated",
-            Path::new("."),
-            &Overrides::default(),
-        )
-        .expect("valid configuration");
+        let config = crate::fleet::parsed_service_config(3).expect("valid configuration");
         assert_eq!(config.robots.len(), 3);
         assert!(config.robots.contains_key(&net::robot_id(2)));
         assert!(

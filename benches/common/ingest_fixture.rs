@@ -5,16 +5,14 @@
 //! and a sink that encodes every output as `armtwin serve` does before its `put`.
 
 use std::hint::black_box;
-use std::path::Path;
 
 use armtwin::codec::wire;
-use armtwin::config::{Overrides, ServiceConfig};
 use armtwin::ingest;
 use armtwin::kinematics::{OutputFrame, PoseReadout};
 use armtwin::metrics::Deviation;
 use armtwin::pipeline::{Event, MeasuredStream, MetricsSnapshot, Pipeline, Sink};
 
-use crate::fleet::{robot_id, service_config};
+use crate::fleet::{parsed_service_config, robot_id};
 use crate::workload::Workload;
 
 /// Samples rendered ahead; a run longer than this starts again on a fresh pipeline (untimed).
@@ -90,13 +88,7 @@ impl Load {
 
     /// A pipeline configured as `armtwin-bench run` configures the service for one robot.
     pub fn pipeline() -> Pipeline {
-        let config = ServiceConfig::parse(
-            &service_config(1),
-            "generated",
-            Path::new(""),
-            &Overrides::default(),
-        )
-        .expect("the benchmark's configuration");
+        let config = parsed_service_config(1).expect("the benchmark's configuration");
         Pipeline::new(config.pipeline, config.default_robot, config.robots)
     }
 }

@@ -534,11 +534,13 @@ fn publish_due_metrics(twin: &SharedTwin, declarer: &Declarer) {
         }
         for (snapshot, outputs) in turn.drain(..) {
             let payload = wire::MetricsMessage::new(&snapshot).to_json_bytes();
-            let robot = &snapshot.robot;
-            if let Err(e) = declarer.put(outputs.as_deref(), robot, Stream::Metrics, payload) {
-                publish_errors += 1;
-                warn!(error = %e, %robot, stream = "metrics", "publish failed");
-            }
+            let sent = declarer.put(
+                outputs.as_deref(),
+                &snapshot.robot,
+                Stream::Metrics,
+                payload,
+            );
+            publish_errors += u64::from(!sent);
         }
     }
     if publish_errors > 0 {
@@ -681,21 +683,26 @@ impl Declarer {
 
     /// Publishes `payload` on `robot`'s `stream`: through its declared publisher, or, until the
     /// control thread has declared it (and for robots that are not tracked), on the plain key.
+    /// Returns whether Zenoh took it; a failure is logged here, and counted by the caller.
     fn put(
         &self,
         outputs: Option<&RobotOutputs>,
         robot: &str,
         stream: Stream,
         payload: Vec<u8>,
-    ) -> zenoh::Result<()> {
-        match outputs {
+    ) -> bool {
+        let result = match outputs {
             Some(outputs) => stream.publisher(outputs).put(payload).wait(),
             None => self
                 .session
                 .put(self.key(stream.as_str(), robot), payload)
                 .congestion_control(self.congestion)
                 .wait(),
+        };
+        if let Err(e) = &result {
+            warn!(error = %e, %robot, stream = stream.as_str(), "publish failed");
         }
+        result.is_ok()
     }
 
     fn publisher(&self, stream: Stream, robot: &str) -> zenoh::Result<Publisher<'static>> {
@@ -834,10 +841,8 @@ impl ZenohSink {
     /// Publishes `payload` on `robot`'s `stream` ([`Declarer::put`]).
     fn put(&mut self, robot: &str, stream: Stream, payload: Vec<u8>) {
         let outputs = self.outputs.get(robot).map(Arc::as_ref);
-        if let Err(e) = self.declarer.put(outputs, robot, stream, payload) {
-            self.publish_errors += 1;
-            warn!(error = %e, %robot, stream = stream.as_str(), "publish failed");
-        }
+        let sent = self.declarer.put(outputs, robot, stream, payload);
+        self.publish_errors += u64::from(!sent);
     }
 }
 

@@ -16,7 +16,7 @@
 //! measurement of a system under test. Results go to standard output as one JSON object;
 //! progress to standard error.
 
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::thread;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
@@ -612,7 +612,7 @@ impl Load {
     /// from the tokens it already knows in the calling thread, so a bounded channel of replies
     /// would fill before `get` returns and block it for good.
     fn tokens(&self, key_expr: &str) -> Result<usize, LoadError> {
-        let count = Arc::new(AtomicU64::new(0));
+        let count = Arc::new(AtomicUsize::new(0));
         let (done_tx, done_rx) = std::sync::mpsc::channel::<()>();
         let counter = count.clone();
         self.session
@@ -628,7 +628,7 @@ impl Load {
             .wait()?;
         // Disconnected once the query has ended and dropped the callback.
         let _ = done_rx.recv();
-        Ok(usize::try_from(count.load(Ordering::Relaxed)).unwrap_or(usize::MAX))
+        Ok(count.load(Ordering::Relaxed))
     }
 
     /// Sends one sample per robot of `robots` until every one is answered. The system under

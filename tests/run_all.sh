@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Runs every armtwin test from a fresh clone: Rust (format, lints, unit, integration and doc tests,
-# every workspace member: the root crate and the FMU in fmu/) and the Python tests (independent
+# every workspace member under crates/) and the Python tests (independent
 # numpy/scipy reference, the FMU in FMPy), in a virtualenv this script creates.
 set -euo pipefail
 cd "$(dirname "$0")/.."

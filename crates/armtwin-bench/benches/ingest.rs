@@ -1,0 +1,141 @@
+//! armtwin's own work per sample, without Zenoh: what `armtwin serve` does inside the receive
+//! callback for the service benchmark's load (`armtwin-bench load`, whose payloads it renders with
+//! the same code, included by path). One sample is a joint message and its measured pose, into
+//! the pipeline through the service's entry points (`ingest::joint_message` /
+//! `ingest::measured_message`), and the outputs encoded as the service encodes them (a pose and a
+//! deviation message). Also each part alone: decoding, encoding (the fixed-layout writer the
+//! service uses, and `serde_json` writing the same bytes, as the baseline), and a robot's metrics
+//! message.
+//!
+//! `cargo bench -p armtwin-bench --bench ingest`
+use std::hint::black_box;
+use std::time::{Duration, Instant};
+
+use armtwin::codec::wire;
+use armtwin::kinematics::OutputFrame;
+use armtwin::metrics::Deviation;
+use armtwin::model::RobotModel;
+use armtwin::pipeline::{Discard, Sink};
+use armtwin_bench::fleet::robot_id;
+use armtwin_bench::ingest_fixture::{Encode, Load, RENDERED};
+use criterion::{Criterion, criterion_group, criterion_main};
+
+/// Time of `iterations` samples into fresh pipelines through `sink`.
+fn run(load: &Load, iterations: u64, sink: &mut impl Sink) -> Duration {
+    let mut elapsed = Duration::ZERO;
+    let mut left = iterations as usize;
+    while left > 0 {
+        let chunk = left.min(RENDERED);
+        let mut pipeline = Load::pipeline();
+        let start = Instant::now();
+        for index in 0..chunk {
+            load.joints(&mut pipeline, index, sink);
+            load.measured(&mut pipeline, index, sink);
+        }
+        elapsed += start.elapsed();
+        left -= chunk;
+    }
+    elapsed
+}
+
+fn sample(c: &mut Criterion) {
+    let load = Load::starting_at(0);
+    c.bench_function("sample/pipeline", |b| {
+        b.iter_custom(|iterations| run(&load, iterations, &mut Discard));
+    });
+    c.bench_function("sample/pipeline_and_encoding", |b| {
+        let mut sink = Encode::default();
+        b.iter_custom(|iterations| run(&load, iterations, &mut sink));
+    });
+}
+
+fn parts(c: &mut Criterion) {
+    let load = Load::starting_at(0);
+    let (_, joints, measured) = &load.samples[7];
+    c.bench_function("decode/joints", |b| {
+        b.iter(|| wire::decode_joints(black_box(joints.as_bytes()), 6));
+    });
+    c.bench_function("decode/measured", |b| {
+        b.iter(|| wire::decode_measured(black_box(measured.as_bytes())));
+    });
+    let model = RobotModel::nominal("ur10e").expect("catalog");
+    let twin = model
+        .pose(&[0.1, -1.2, 1.4, -0.3, 1.1, 0.5])
+        .expect("within limits")
+        .readout();
+    let mut measured = twin;
+    measured.position_m[0] += 0.0004;
+    let deviation = Deviation::between(&twin, &measured);
+    // What the service does for each twin pose: build the message (the robot id copied), write it.
+    let pose_message = || {
+        wire::PoseMessage::new(
+            black_box(&load.robot).as_str(),
+            1000.25,
+            42,
+            OutputFrame::Base.as_str(),
+            black_box(&twin),
+        )
+    };
+    c.bench_function("encode/pose", |b| {
+        b.iter(|| pose_message().to_json_bytes());
+    });
+    c.bench_function("encode/pose_serde_json", |b| {
+        b.iter(|| wire::to_json_bytes(&pose_message()));
+    });
+    c.bench_function("encode/deviation", |b| {
+        b.iter(|| {
+            let message = wire::DeviationMessage::new(
+                black_box(&load.robot).as_str(),
+                1000.25,
+                black_box(&deviation),
+            );
+            message.to_json_bytes()
+        });
+    });
+}
+
+/// A metrics message with full-precision statistics, as a robot's metrics look.
+fn metrics_message(robot: &str) -> wire::MetricsMessage {
+    let stats = |seed: f64| wire::StatsJson {
+        mae: 1e-3 * (1.1 + seed.sin()),
+        rmse: 1e-3 * (1.2 + seed.cos()),
+        max: 1e-3 * (2.3 + (seed * 1.7).sin()),
+    };
+    let set = |n: u64, seed: f64| wire::StatsSetJson {
+        n,
+        position: stats(seed),
+        x: stats(seed + 1.0),
+        y: stats(seed + 2.0),
+        z: stats(seed + 3.0),
+        quat_distance: stats(seed + 4.0),
+        angle: stats(seed + 5.0),
+        roll: stats(seed + 6.0),
+        pitch: stats(seed + 7.0),
+        yaw: stats(seed + 8.0),
+    };
+    wire::MetricsMessage {
+        robot: robot.to_owned(),
+        t: 1_234.567_891,
+        paired: 123_456,
+        unpaired: 3,
+        rejected: 0,
+        cumulative: set(123_456, 0.3),
+        window: wire::WindowJson {
+            seconds: 10.0,
+            stats: set(1000, 0.7),
+        },
+    }
+}
+
+fn metrics(c: &mut Criterion) {
+    let message = metrics_message(&robot_id(0));
+    c.bench_function("encode/metrics", |b| {
+        b.iter(|| black_box(&message).to_json_bytes());
+    });
+    c.bench_function("encode/metrics_serde_json", |b| {
+        b.iter(|| wire::to_json_bytes(black_box(&message)));
+    });
+}
+
+criterion_group!(benches, sample, parts, metrics);
+criterion_main!(benches);

@@ -1,0 +1,125 @@
+//! The in-process ingest benchmarks' load, shared by `benches/ingest.rs` and
+//! `examples/ingest_latency.rs`: one robot's joint and measured payloads as
+//! `armtwin-bench load` sends them, the pipeline as `armtwin-bench run` configures the service,
+//! and a sink that encodes every output as `armtwin serve` does before its `put`.
+
+use std::hint::black_box;
+
+use armtwin::codec::wire;
+use armtwin::ingest;
+use armtwin::kinematics::{OutputFrame, PoseReadout};
+use armtwin::metrics::Deviation;
+use armtwin::pipeline::{Event, MeasuredStream, MetricsSnapshot, Pipeline, Sink};
+
+use crate::fleet::{parsed_service_config, robot_id};
+use crate::workload::Workload;
+
+/// Samples rendered ahead; a run longer than this starts again on a fresh pipeline (untimed).
+pub const RENDERED: usize = 4096;
+
+/// Encodes every output as `armtwin serve` does before its `put`, and keeps only the byte count.
+#[derive(Default)]
+pub struct Encode {
+    bytes: usize,
+}
+
+impl Sink for Encode {
+    fn tracking(&mut self, _robot: &str) {}
+
+    fn pose(
+        &mut self,
+        robot: &str,
+        stamp_s: f64,
+        seq: u64,
+        frame: OutputFrame,
+        pose: &PoseReadout,
+    ) {
+        let message = wire::PoseMessage::new(robot, stamp_s, seq, frame.as_str(), pose);
+        self.bytes += black_box(message.to_json_bytes()).len();
+    }
+
+    fn deviation(&mut self, robot: &str, stamp_s: f64, _: &PoseReadout, deviation: &Deviation) {
+        let message = wire::DeviationMessage::new(robot, stamp_s, deviation);
+        self.bytes += black_box(message.to_json_bytes()).len();
+    }
+
+    fn event(&mut self, event: &Event<'_>) {
+        self.bytes += black_box(wire::to_json_bytes(&wire::EventMessage::new(event))).len();
+    }
+
+    fn metrics(&mut self, snapshot: &MetricsSnapshot) {
+        self.bytes += black_box(wire::MetricsMessage::new(snapshot).to_json_bytes()).len();
+    }
+}
+
+/// One robot's load: joint and measured payloads of `RENDERED` samples at 100 Hz.
+pub struct Load {
+    /// The robot's id.
+    pub robot: String,
+    joint_key: String,
+    measured_key: String,
+    /// Stamp (s), joint payload and measured payload of each sample.
+    pub samples: Vec<(f64, String, String)>,
+}
+
+impl Load {
+    /// Samples `first..first + RENDERED`: their stamps continue those of the samples before, so
+    /// one pipeline can take load after load.
+    #[must_use]
+    pub fn starting_at(first: u64) -> Self {
+        let workload = Workload::ur10e().expect("the ur10e's payloads");
+        let robot = robot_id(0);
+        let samples = (first..first + RENDERED as u64)
+            .map(|sample| {
+                let stamp_s = 1000.0 + sample as f64 * 0.01;
+                (
+                    stamp_s,
+                    workload.joints(sample, stamp_s),
+                    workload.measured(sample, stamp_s),
+                )
+            })
+            .collect();
+        Self {
+            joint_key: format!("twin/joints/{robot}"),
+            measured_key: format!("twin/measured/{robot}"),
+            robot,
+            samples,
+        }
+    }
+
+    /// A pipeline configured as `armtwin-bench run` configures the service for one robot.
+    #[must_use]
+    pub fn pipeline() -> Pipeline {
+        let config = parsed_service_config(1).expect("the benchmark's configuration");
+        Pipeline::new(config.pipeline, config.default_robot, config.robots)
+    }
+}
+
+impl Load {
+    /// Sample `index`'s joint message into `pipeline`.
+    pub fn joints(&self, pipeline: &mut Pipeline, index: usize, sink: &mut impl Sink) {
+        let (stamp_s, joints, _) = &self.samples[index];
+        ingest::joint_message(
+            pipeline,
+            &self.robot,
+            &self.joint_key,
+            joints.as_bytes(),
+            || *stamp_s,
+            sink,
+        );
+    }
+
+    /// Sample `index`'s measured pose into `pipeline`.
+    pub fn measured(&self, pipeline: &mut Pipeline, index: usize, sink: &mut impl Sink) {
+        let (stamp_s, _, measured) = &self.samples[index];
+        ingest::measured_message(
+            pipeline,
+            &self.robot,
+            &self.measured_key,
+            MeasuredStream::Robot,
+            measured.as_bytes(),
+            || *stamp_s,
+            sink,
+        );
+    }
+}

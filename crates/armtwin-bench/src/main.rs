@@ -1,0 +1,56 @@
+//! `armtwin-bench`: the service next to a plain-Zenoh echo under the same load (how to run it is
+//! in BENCHMARKS.md).
+//!
+//! - `run`: the orchestrator; starts the systems under test and the load generator as
+//!   subprocesses and writes `bench.json`.
+//! - `echo`: the plain-Zenoh echo, the baseline.
+//! - `load`: the load generator.
+
+use armtwin_bench::{echo, load, run};
+
+use std::process::ExitCode;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+
+/// armtwin-bench: the service next to a plain Zenoh echo, side by side, over TCP loopback.
+#[derive(Debug, Parser)]
+#[command(name = "armtwin-bench", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Run every benchmark and write bench.json.
+    Run(run::RunArgs),
+    /// The plain-Zenoh echo (a system under test).
+    Echo(echo::EchoArgs),
+    /// The load generator (prints its report as JSON).
+    Load(load::LoadArgs),
+}
+
+fn execute(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Run(args) => {
+            run::run(&args)?;
+        }
+        Command::Echo(args) => echo::run(&args)?,
+        Command::Load(args) => {
+            let report = load::run(args)?;
+            println!("{}", serde_json::to_string(&report)?);
+        }
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    match execute(Cli::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(error) => {
+            eprintln!("armtwin-bench: error: {error:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,35 @@
+//! armtwin's pure twin core: everything between "a decoded joint sample" and "a pose plus
+//! updated metrics", shared by every mode (the live service, offline validation, replay and the
+//! FMU).
+//!
+//! Nothing here touches the network, the filesystem, tokio, zenoh or `serde_json`, or reads a
+//! clock: text comes in as `&str`, time as arguments, results go to a [`pipeline::Sink`]. The
+//! compiler holds it to that: the crate's dependencies exclude them, and `clippy.toml` beside it
+//! forbids `std::fs` and the system clocks.
+//!
+//! Layout:
+//! - [`orientation`]: rotation matrix, quaternion, roll/pitch/yaw and UR rotation vector
+//!   conversions, and the orientation error measures.
+//! - [`trig`]: batched, vectorisable sine and cosine for the kinematics hot path.
+//! - [`kinematics`]: DH tables, tool and output frame, compiled chains, forward kinematics.
+//! - [`model`]: the Universal Robots catalog, custom arms, factory calibration
+//!   (`calibration.conf`, `ur_calibration` YAML) and [`model::RobotModel`].
+//! - [`pose_fields`]: a pose as the named output fields every mode writes.
+//! - [`sample`]: decoded joint and measured-pose samples, whatever their source.
+//! - [`metrics`]: deviation of one paired sample; cumulative and exact sliding-window statistics.
+//! - [`align`]: pairing measured poses with joint samples in source time.
+//! - [`pipeline`]: the per-robot twin core every mode runs: samples in, poses, deviations,
+//!   metrics and events out to a [`pipeline::Sink`].
+//! - [`fmi`]: the FMI 2.0 FMU's interface contract (variables, resource file), shared by
+//!   `armtwin fmu build` and the FMU library.
+
+pub mod align;
+pub mod fmi;
+pub mod kinematics;
+pub mod metrics;
+pub mod model;
+pub mod orientation;
+pub mod pipeline;
+pub mod pose_fields;
+pub mod sample;
+pub mod trig;

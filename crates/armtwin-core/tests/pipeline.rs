@@ -1,0 +1,292 @@
+//! The pure pipeline without any transport: what the service, replay and validate all run.
+#![allow(clippy::float_cmp, reason = "stamps are passed through unchanged")]
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use armtwin_core::kinematics::{OutputFrame, PoseReadout};
+use armtwin_core::metrics::Deviation;
+use armtwin_core::model::RobotModel;
+use armtwin_core::pipeline::{
+    AlarmConfig, Event, EventDetail, EventKind, MetricsSnapshot, Pipeline, PipelineConfig,
+    RobotSettings, Sink,
+};
+use armtwin_core::sample::JointSample;
+
+/// Everything the pipeline sends, in order.
+#[derive(Default)]
+struct Recorder {
+    poses: Vec<(f64, u64)>,
+    deviations: Vec<f64>,
+    events: Vec<(EventKind, EventDetail, f64)>,
+    metrics: Vec<MetricsSnapshot>,
+}
+
+impl Sink for Recorder {
+    fn tracking(&mut self, _robot: &str) {}
+    fn pose(
+        &mut self,
+        _robot: &str,
+        stamp_s: f64,
+        seq: u64,
+        _frame: OutputFrame,
+        _pose: &PoseReadout,
+    ) {
+        self.poses.push((stamp_s, seq));
+    }
+    fn deviation(
+        &mut self,
+        _robot: &str,
+        stamp_s: f64,
+        _measured: &PoseReadout,
+        _deviation: &Deviation,
+    ) {
+        self.deviations.push(stamp_s);
+    }
+    fn event(&mut self, event: &Event<'_>) {
+        self.events.push((event.kind, event.detail, event.stamp_s));
+    }
+    fn metrics(&mut self, snapshot: &MetricsSnapshot) {
+        self.metrics.push(snapshot.clone());
+    }
+}
+
+fn pipeline() -> (Pipeline, Arc<RobotModel>) {
+    let model = Arc::new(RobotModel::nominal("ur10e").expect("catalog"));
+    let settings = RobotSettings {
+        model: model.clone(),
+        alarm: AlarmConfig::default(),
+        sensors: Vec::new(),
+    };
+    (
+        Pipeline::new(PipelineConfig::default(), Some(settings), HashMap::new()),
+        model,
+    )
+}
+
+fn sample(model: &RobotModel, q: [f64; 6], with_measured: bool) -> JointSample {
+    JointSample {
+        stamp_s: None,
+        seq: None,
+        q_rad: q.to_vec(),
+        measured: with_measured.then(|| model.pose(&q).expect("valid").readout()),
+    }
+}
+
+#[test]
+fn a_clock_restart_starts_alignment_and_window_afresh() {
+    let (mut pipeline, model) = pipeline();
+    let mut sink = Recorder::default();
+    let q = [0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
+    for i in 0..20 {
+        let t = 1000.0 + f64::from(i) * 0.01;
+        pipeline.joints(
+            "r1",
+            "twin/joints/r1",
+            t,
+            &sample(&model, q, true),
+            &mut sink,
+        );
+    }
+    // A small step back is an out-of-order sample (one rejection, its measured part included)...
+    pipeline.joints(
+        "r1",
+        "twin/joints/r1",
+        1000.1,
+        &sample(&model, q, true),
+        &mut sink,
+    );
+    // ...a big one is the gateway restarting its clock: accepted, with an event.
+    for i in 0..5 {
+        let t = f64::from(i) * 0.01;
+        pipeline.joints(
+            "r1",
+            "twin/joints/r1",
+            t,
+            &sample(&model, q, true),
+            &mut sink,
+        );
+    }
+    assert_eq!(
+        sink.poses.len(),
+        25,
+        "every sample but the out-of-order one"
+    );
+    assert_eq!(sink.deviations.len(), 25);
+    let kinds: Vec<EventKind> = sink.events.iter().map(|e| e.0).collect();
+    assert_eq!(kinds, [EventKind::Rejected, EventKind::Restart]);
+    assert!(matches!(
+        sink.events[1].1,
+        EventDetail::Restart { from_s, to_s } if (from_s - 1000.19).abs() < 1e-9 && to_s == 0.0
+    ));
+    let metrics = pipeline.metrics("r1").expect("tracked");
+    assert_eq!(metrics.paired, 25);
+    assert_eq!(metrics.rejected, 1);
+    assert_eq!(metrics.cumulative.n, 25);
+    assert_eq!(metrics.window.n, 5, "the window restarted with the clock");
+    assert!((metrics.stamp_s - 0.04).abs() < 1e-12);
+    // Pose seq keeps counting without gaps across the restart.
+    let seqs: Vec<u64> = sink.poses.iter().map(|p| p.1).collect();
+    assert_eq!(seqs, (0..25).collect::<Vec<u64>>());
+}
+
+#[test]
+fn finish_reports_waiting_measurements_and_sends_final_metrics() {
+    let (mut pipeline, model) = pipeline();
+    let mut sink = Recorder::default();
+    let q = [0.0, -1.0, 1.0, -1.0, 1.0, 0.0];
+    pipeline.joints(
+        "r1",
+        "twin/joints/r1",
+        1.0,
+        &sample(&model, q, false),
+        &mut sink,
+    );
+    let pose = model.pose(&q).expect("valid").readout();
+    pipeline.measured(
+        "r1",
+        "twin/measured/r1",
+        armtwin_core::pipeline::MeasuredStream::Robot,
+        1.5,
+        &pose,
+        &mut sink,
+    );
+    assert!(sink.events.is_empty(), "it waits for a later joint sample");
+    pipeline.finish(&mut sink);
+    assert!(matches!(
+        sink.events[0],
+        (
+            EventKind::Unpaired,
+            EventDetail::Unpaired {
+                cause: "stream_ended",
+                ..
+            },
+            _
+        )
+    ));
+    let last = sink.metrics.last().expect("final metrics");
+    assert_eq!((last.paired, last.unpaired), (0, 1));
+}
+
+#[test]
+fn streams_keep_their_own_stamp_order_and_the_window_ages_without_pairs() {
+    let (mut pipeline, model) = pipeline();
+    let mut sink = Recorder::default();
+    let q = [0.2, -1.1, 1.0, -1.2, 1.0, 0.3];
+    let pose = model.pose(&q).expect("valid").readout();
+    // Joints with the controller's pose at 10 ms, a second stream (a sensor) 3 ms later each time.
+    for i in 0..100 {
+        let t = f64::from(i) * 0.01;
+        pipeline.joints(
+            "r1",
+            "twin/joints/r1",
+            t,
+            &sample(&model, q, true),
+            &mut sink,
+        );
+        pipeline.measured(
+            "r1",
+            "mocap/r1",
+            armtwin_core::pipeline::MeasuredStream::Sensor(0),
+            t - 0.007,
+            &pose,
+            &mut sink,
+        );
+    }
+    let metrics = pipeline.metrics("r1").expect("tracked");
+    assert_eq!(metrics.rejected, 0, "{:?}", sink.events);
+    // The first sensor pose (t = -0.007) precedes every joint sample; the others pair.
+    assert_eq!((metrics.paired, metrics.unpaired), (199, 1));
+    // Pairs stop, joints go on for 20 s: the 10 s window empties, cumulative keeps everything.
+    for i in 100..2100 {
+        let t = f64::from(i) * 0.01;
+        pipeline.joints(
+            "r1",
+            "twin/joints/r1",
+            t,
+            &sample(&model, q, false),
+            &mut sink,
+        );
+    }
+    let metrics = pipeline.metrics("r1").expect("tracked");
+    assert_eq!(metrics.window.n, 0);
+    assert_eq!(metrics.cumulative.n, 199);
+    assert!((metrics.stamp_s - 20.99).abs() < 1e-9);
+}
+
+#[test]
+fn a_resent_message_is_one_rejection_and_bad_stamps_do_not_move_time() {
+    let (mut pipeline, model) = pipeline();
+    let mut sink = Recorder::default();
+    let q = [0.0, -1.0, 1.0, -1.0, 1.0, 0.0];
+    pipeline.joints(
+        "r1",
+        "twin/joints/r1",
+        1.0,
+        &sample(&model, q, true),
+        &mut sink,
+    );
+    pipeline.joints(
+        "r1",
+        "twin/joints/r1",
+        1.0,
+        &sample(&model, q, true),
+        &mut sink,
+    );
+    let mut beyond_limits = sample(&model, q, false);
+    beyond_limits.q_rad[2] = 9.0;
+    pipeline.joints("r1", "twin/joints/r1", 1e9, &beyond_limits, &mut sink);
+    let metrics = pipeline.metrics("r1").expect("tracked");
+    assert_eq!(metrics.rejected, 2, "{:?}", sink.events);
+    assert_eq!(metrics.paired, 1);
+    assert_eq!(
+        metrics.stamp_s, 1.0,
+        "a refused sample does not move source time"
+    );
+}
+
+#[test]
+fn periodic_metrics_go_out_once_per_robot_with_new_results() {
+    let (mut pipeline, model) = pipeline();
+    let mut sink = Recorder::default();
+    let q = [0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
+    for robot in ["r1", "r2"] {
+        pipeline.joints(
+            robot,
+            &format!("twin/joints/{robot}"),
+            1.0,
+            &sample(&model, q, true),
+            &mut sink,
+        );
+    }
+    let mut due = pipeline.robots_with_due_metrics();
+    due.sort();
+    assert_eq!(due, ["r1", "r2"]);
+    for robot in &due {
+        pipeline.publish_metrics_if_due(robot, &mut sink);
+        // A second call before new results sends nothing.
+        pipeline.publish_metrics_if_due(robot, &mut sink);
+    }
+    let robots: Vec<&str> = sink.metrics.iter().map(|m| m.robot.as_str()).collect();
+    assert_eq!(robots, ["r1", "r2"]);
+    assert!(pipeline.robots_with_due_metrics().is_empty());
+    pipeline.joints(
+        "r2",
+        "twin/joints/r2",
+        1.01,
+        &sample(&model, q, true),
+        &mut sink,
+    );
+    assert_eq!(pipeline.robots_with_due_metrics(), ["r2"]);
+    // Unknown robots have no metrics to send.
+    pipeline.publish_metrics_if_due("nobody", &mut sink);
+    assert_eq!(sink.metrics.len(), 2);
+    // Taken instead of sent (the service encodes and sends them outside its lock): counted as
+    // sent all the same.
+    assert!(pipeline.take_due_metrics("r1").is_none());
+    let taken = pipeline.take_due_metrics("r2").expect("new results");
+    assert_eq!((taken.robot.as_str(), taken.stamp_s), ("r2", 1.01));
+    assert!(pipeline.take_due_metrics("r2").is_none());
+    assert!(pipeline.robots_with_due_metrics().is_empty());
+    assert_eq!(sink.metrics.len(), 2);
+}

@@ -1,0 +1,653 @@
+//! The service's configuration file (TOML) and the command-line overrides in Zenoh's own style.
+//!
+//! Owns parsing and validating the file, resolving paths relative to it, and loading every
+//! robot's model, calibration and tool, so that a bad file fails at start with the file, the
+//! field and the problem named, never later. The embedded default is `config/armtwin.toml`.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Duration;
+
+use nalgebra::{IsometryMatrix3, Rotation3, Translation3, Vector3};
+use serde::Deserialize;
+use thiserror::Error;
+
+use crate::align::AlignConfig;
+use crate::kinematics::{OutputFrame, TcpOffset};
+use crate::model::{Calibration, ModelError, RobotModel, catalog, custom};
+use crate::orientation;
+use crate::pipeline::{AlarmConfig, PipelineConfig, RobotSettings, SensorStream};
+
+/// The embedded default configuration (`config/armtwin.toml`).
+pub const DEFAULT_CONFIG_TOML: &str = include_str!("../../../config/armtwin.toml");
+
+/// Why a configuration cannot be used.
+#[derive(Debug, Error)]
+pub enum ConfigError {
+    /// The file cannot be read.
+    #[error("cannot read {path}")]
+    Read {
+        /// The file.
+        path: String,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The TOML is invalid or has unknown or mistyped fields.
+    #[error("{source_name}: {message}")]
+    Syntax {
+        /// The file.
+        source_name: String,
+        /// The parser's message (with line and field).
+        message: String,
+    },
+    /// A value is out of range or inconsistent.
+    #[error("{source_name}: {field}: {problem}")]
+    Invalid {
+        /// The file.
+        source_name: String,
+        /// The field.
+        field: String,
+        /// What is wrong.
+        problem: String,
+    },
+    /// A robot's model or calibration cannot be loaded.
+    #[error("{source_name}: robot '{robot}'")]
+    Model {
+        /// The file.
+        source_name: String,
+        /// The robot id (`default` for the default).
+        robot: String,
+        /// The model error.
+        source: Box<ModelError>,
+    },
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct File {
+    #[serde(default)]
+    zenoh: ZenohSection,
+    #[serde(default)]
+    service: ServiceSection,
+    #[serde(default)]
+    align: AlignSection,
+    #[serde(default)]
+    robots: HashMap<String, RobotSection>,
+}
+
+/// `[zenoh]`: how armtwin joins the mesh.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ZenohSection {
+    /// `peer`, `client` or `router`.
+    #[serde(default = "default_mode")]
+    pub mode: String,
+    /// Endpoints to listen on, e.g. `tcp/127.0.0.1:7447`.
+    #[serde(default)]
+    pub listen: Vec<String>,
+    /// Endpoints to connect to.
+    #[serde(default)]
+    pub connect: Vec<String>,
+    /// A complete Zenoh JSON5 configuration file; `mode`, `listen`, `connect` and
+    /// `multicast_scouting` given here override it.
+    pub file: Option<PathBuf>,
+    /// Multicast scouting (off by default: peers are found through `listen`/`connect`).
+    #[serde(default)]
+    pub multicast_scouting: bool,
+}
+
+fn default_mode() -> String {
+    "peer".to_owned()
+}
+
+impl Default for ZenohSection {
+    fn default() -> Self {
+        Self {
+            mode: default_mode(),
+            listen: Vec::new(),
+            connect: Vec::new(),
+            file: None,
+            multicast_scouting: false,
+        }
+    }
+}
+
+/// What to do when an output cannot be sent as fast as it is produced.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Congestion {
+    /// Wait (nothing is lost; a slow subscriber slows the twin, and through it the gateways).
+    #[default]
+    Block,
+    /// Drop the output (the twin never waits; a slow subscriber misses messages).
+    Drop,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct ServiceSection {
+    key_prefix: String,
+    metrics_period_ms: u64,
+    window_s: f64,
+    window_max_samples: usize,
+    reject_unknown: bool,
+    congestion: Congestion,
+    events_per_s: f64,
+    events_burst: u32,
+}
+
+impl Default for ServiceSection {
+    fn default() -> Self {
+        let pipeline = PipelineConfig::default();
+        Self {
+            key_prefix: "twin".to_owned(),
+            metrics_period_ms: 100,
+            window_s: pipeline.window_s,
+            window_max_samples: pipeline.window_max_samples,
+            reject_unknown: false,
+            congestion: Congestion::Block,
+            events_per_s: EventBudget::default().per_s,
+            events_burst: EventBudget::default().burst,
+        }
+    }
+}
+
+/// How many events per robot the service publishes: a token bucket of `burst` events refilled at
+/// `per_s`. Rejected, gap and unpaired events beyond it are counted, not published; alarms,
+/// recoveries and restarts always go out.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EventBudget {
+    /// Sustained events per second per robot.
+    pub per_s: f64,
+    /// Events a robot may publish at once.
+    pub burst: u32,
+}
+
+impl Default for EventBudget {
+    fn default() -> Self {
+        Self {
+            per_s: 20.0,
+            burst: 100,
+        }
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct AlignSection {
+    max_gap_s: f64,
+    max_wait_s: f64,
+    history_s: f64,
+    max_history: usize,
+    max_pending: usize,
+    restart_s: f64,
+}
+
+impl Default for AlignSection {
+    fn default() -> Self {
+        let align = AlignConfig::default();
+        Self {
+            max_gap_s: align.max_gap_s,
+            max_wait_s: align.max_wait_s,
+            history_s: align.history_s,
+            max_history: align.max_history,
+            max_pending: align.max_pending,
+            restart_s: align.restart_s,
+        }
+    }
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RobotSection {
+    model: Option<String>,
+    calibration: Option<PathBuf>,
+    tcp: Option<[f64; 6]>,
+    frame: Option<String>,
+    alarm_position_m: Option<f64>,
+    alarm_angle_rad: Option<f64>,
+    alarm_hold_s: Option<f64>,
+    #[serde(default)]
+    sensors: Vec<SensorSection>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SensorSection {
+    key_expr: String,
+    /// `[x, y, z, rx, ry, rz]`: the sensor frame in the robot's base frame (m, rotation vector).
+    #[serde(default)]
+    base_from_sensor: [f64; 6],
+}
+
+/// Everything `armtwin serve` needs, loaded and checked.
+#[derive(Debug, Clone)]
+pub struct ServiceConfig {
+    /// Where the configuration came from (a path, or `embedded default`).
+    pub source_name: String,
+    /// `[zenoh]`, after command-line overrides.
+    pub zenoh: ZenohSection,
+    /// Key prefix (`twin`).
+    pub key_prefix: String,
+    /// Period of metrics publication while data flows.
+    pub metrics_period: Duration,
+    /// Congestion policy of every output.
+    pub congestion: Congestion,
+    /// How many events per robot are published.
+    pub event_budget: EventBudget,
+    /// Reject robots that are not configured (else they get `[robots.default]`).
+    pub reject_unknown: bool,
+    /// The pipeline's shared settings.
+    pub pipeline: PipelineConfig,
+    /// `[robots.default]`, unless unknown robots are rejected.
+    pub default_robot: Option<RobotSettings>,
+    /// Every `[robots."<id>"]`.
+    pub robots: HashMap<String, RobotSettings>,
+}
+
+/// Command-line overrides, Zenoh style.
+#[derive(Debug, Clone, Default)]
+pub struct Overrides {
+    /// `-m/--mode`.
+    pub mode: Option<String>,
+    /// `-l/--listen` (replaces the file's list when given).
+    pub listen: Vec<String>,
+    /// `-e/--connect` (replaces the file's list when given).
+    pub connect: Vec<String>,
+}
+
+impl ServiceConfig {
+    /// Loads `path`, or the embedded default when `None`, and applies `overrides`.
+    pub fn load(path: Option<&Path>, overrides: &Overrides) -> Result<Self, ConfigError> {
+        let (text, source_name, base_dir) = match path {
+            Some(path) => (
+                std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+                    path: path.display().to_string(),
+                    source,
+                })?,
+                path.display().to_string(),
+                path.parent().map(Path::to_path_buf).unwrap_or_default(),
+            ),
+            None => (
+                DEFAULT_CONFIG_TOML.to_owned(),
+                "embedded default config".to_owned(),
+                PathBuf::new(),
+            ),
+        };
+        Self::parse(&text, &source_name, &base_dir, overrides)
+    }
+
+    /// Parses configuration text; relative paths in it are taken from `base_dir`.
+    pub fn parse(
+        text: &str,
+        source_name: &str,
+        base_dir: &Path,
+        overrides: &Overrides,
+    ) -> Result<Self, ConfigError> {
+        let file: File = toml::from_str(text).map_err(|e| ConfigError::Syntax {
+            source_name: source_name.to_owned(),
+            message: e.to_string(),
+        })?;
+        let invalid = |field: &str, problem: String| ConfigError::Invalid {
+            source_name: source_name.to_owned(),
+            field: field.to_owned(),
+            problem,
+        };
+        let mut zenoh = file.zenoh;
+        if let Some(mode) = &overrides.mode {
+            zenoh.mode.clone_from(mode);
+        }
+        if !overrides.listen.is_empty() {
+            zenoh.listen.clone_from(&overrides.listen);
+        }
+        if !overrides.connect.is_empty() {
+            zenoh.connect.clone_from(&overrides.connect);
+        }
+        if !["peer", "client", "router"].contains(&zenoh.mode.as_str()) {
+            return Err(invalid(
+                "zenoh.mode",
+                format!("'{}' is not one of peer, client, router", zenoh.mode),
+            ));
+        }
+        zenoh.file = zenoh.file.map(|f| base_dir.join(f));
+        let service = file.service;
+        let align = check_service_and_align(&service, &file.align, source_name)?;
+        let (default_robot, robots) = load_robots(&file.robots, source_name, base_dir)?;
+        Ok(Self {
+            source_name: source_name.to_owned(),
+            zenoh,
+            key_prefix: service.key_prefix,
+            metrics_period: Duration::from_millis(service.metrics_period_ms),
+            congestion: service.congestion,
+            event_budget: EventBudget {
+                per_s: service.events_per_s,
+                burst: service.events_burst,
+            },
+            reject_unknown: service.reject_unknown,
+            pipeline: PipelineConfig {
+                window_s: service.window_s,
+                window_max_samples: service.window_max_samples,
+                align,
+            },
+            default_robot: if service.reject_unknown {
+                None
+            } else {
+                Some(default_robot)
+            },
+            robots,
+        })
+    }
+}
+
+/// Checks `[service]` and builds the alignment limits of `[align]`.
+fn check_service_and_align(
+    service: &ServiceSection,
+    align: &AlignSection,
+    source_name: &str,
+) -> Result<AlignConfig, ConfigError> {
+    let invalid = |field: &str, problem: String| ConfigError::Invalid {
+        source_name: source_name.to_owned(),
+        field: field.to_owned(),
+        problem,
+    };
+    {
+        if service.key_prefix.is_empty()
+            || service.key_prefix.contains(['*', '$', '?', '#'])
+            || service.key_prefix.starts_with('/')
+            || service.key_prefix.ends_with('/')
+        {
+            return Err(invalid(
+                "service.key_prefix",
+                format!(
+                    "'{}' is not a plain key (no wildcards, no leading or trailing '/')",
+                    service.key_prefix
+                ),
+            ));
+        }
+        let positive = |field: &str, value: f64| {
+            if value.is_finite() && value > 0.0 {
+                Ok(value)
+            } else {
+                Err(invalid(field, format!("{value} must be a positive number")))
+            }
+        };
+        positive("service.window_s", service.window_s)?;
+        if service.metrics_period_ms == 0 {
+            return Err(invalid(
+                "service.metrics_period_ms",
+                "must be at least 1".to_owned(),
+            ));
+        }
+        positive("service.events_per_s", service.events_per_s)?;
+        if service.events_burst == 0 {
+            return Err(invalid(
+                "service.events_burst",
+                "must be at least 1".to_owned(),
+            ));
+        }
+        if service.window_max_samples == 0 {
+            return Err(invalid(
+                "service.window_max_samples",
+                "must be at least 1".to_owned(),
+            ));
+        }
+        Ok(AlignConfig {
+            max_gap_s: positive("align.max_gap_s", align.max_gap_s)?,
+            max_wait_s: positive("align.max_wait_s", align.max_wait_s)?,
+            history_s: positive("align.history_s", align.history_s)?,
+            max_history: align.max_history.max(2),
+            max_pending: align.max_pending.max(1),
+            restart_s: positive("align.restart_s", align.restart_s)?,
+        })
+    }
+}
+
+/// `[robots.default]` (built in when absent: the `ur10e`, no tool) and every robot's own section.
+fn load_robots(
+    sections: &HashMap<String, RobotSection>,
+    source_name: &str,
+    base_dir: &Path,
+) -> Result<(RobotSettings, HashMap<String, RobotSettings>), ConfigError> {
+    let default_section = sections.get("default");
+    let mut default_robot = None;
+    let mut robots = HashMap::new();
+    let mut models = HashMap::new();
+    for (id, section) in sections {
+        let settings = robot_settings(
+            id,
+            section,
+            default_section,
+            (source_name, base_dir),
+            &mut models,
+        )?;
+        if id == "default" {
+            default_robot = Some(settings);
+            continue;
+        }
+        if id.is_empty()
+            || id.contains(['*', '$', '?', '#'])
+            || id.starts_with('/')
+            || id.ends_with('/')
+        {
+            return Err(ConfigError::Invalid {
+                source_name: source_name.to_owned(),
+                field: format!("robots.\"{id}\""),
+                problem: "a robot id is one or more key chunks without wildcards".to_owned(),
+            });
+        }
+        robots.insert(id.clone(), settings);
+    }
+    let default_robot = match default_robot {
+        Some(settings) => settings,
+        None => robot_settings(
+            "default",
+            &RobotSection::default(),
+            None,
+            (source_name, base_dir),
+            &mut models,
+        )?,
+    };
+    Ok((default_robot, robots))
+}
+
+/// Where a robot's settings come from: the file, its own section and `[robots.default]`.
+struct RobotSource<'a> {
+    id: &'a str,
+    section: &'a RobotSection,
+    /// `[robots.default]`, for fields the robot's own section leaves out.
+    fallback: Option<&'a RobotSection>,
+    source_name: &'a str,
+    base_dir: &'a Path,
+}
+
+impl RobotSource<'_> {
+    fn invalid(&self, name: &str, problem: String) -> ConfigError {
+        ConfigError::Invalid {
+            source_name: self.source_name.to_owned(),
+            field: format!("robots.\"{}\".{name}", self.id),
+            problem,
+        }
+    }
+
+    fn model_error(&self, source: ModelError) -> ConfigError {
+        ConfigError::Model {
+            source_name: self.source_name.to_owned(),
+            robot: self.id.to_owned(),
+            source: Box::new(source),
+        }
+    }
+
+    /// The robot's own value of a field, else the default section's.
+    fn pick<T: Clone>(&self, field: impl Fn(&RobotSection) -> Option<T>) -> Option<T> {
+        field(self.section).or_else(|| self.fallback.and_then(&field))
+    }
+
+    fn read(&self, relative: &Path) -> Result<(String, String), ConfigError> {
+        let path = self.base_dir.join(relative);
+        let text = std::fs::read_to_string(&path).map_err(|source| ConfigError::Read {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Ok((text, path.display().to_string()))
+    }
+
+    fn model(&self) -> Result<RobotModel, ConfigError> {
+        let model_name = self
+            .pick(|s| s.model.clone())
+            .unwrap_or_else(|| DEFAULT_MODEL.to_owned());
+        let arm = if Path::new(&model_name)
+            .extension()
+            .is_some_and(|e| e == "toml")
+        {
+            let (text, path) = self.read(Path::new(&model_name))?;
+            custom::parse_arm(&text, &path).map_err(|e| self.model_error(e))?
+        } else {
+            catalog::arm(&model_name).map_err(|e| self.model_error(e))?
+        };
+        let calibration = match self.pick(|s| s.calibration.clone()) {
+            Some(relative) => {
+                let (text, path) = self.read(&relative)?;
+                Some(Calibration::parse(&text, &path).map_err(|e| self.model_error(e.into()))?)
+            }
+            None => None,
+        };
+        let tcp = match self.pick(|s| s.tcp) {
+            Some(values) => TcpOffset::from_ur_pose(values)
+                .ok_or_else(|| self.invalid("tcp", "every value must be finite".to_owned()))?,
+            None => TcpOffset::FLANGE,
+        };
+        let frame = match self.pick(|s| s.frame.clone()) {
+            None => OutputFrame::Base,
+            Some(name) => OutputFrame::from_name(&name).ok_or_else(|| {
+                self.invalid("frame", format!("'{name}' is not base or base_link"))
+            })?,
+        };
+        RobotModel::new(arm, calibration, tcp, frame).map_err(|e| self.model_error(e))
+    }
+
+    fn alarm(&self) -> Result<AlarmConfig, ConfigError> {
+        let non_negative = |name: &str, value: Option<f64>| match value {
+            Some(v) if !(v.is_finite() && v >= 0.0) => {
+                Err(self.invalid(name, format!("{v} must be a non-negative number")))
+            }
+            other => Ok(other),
+        };
+        Ok(AlarmConfig {
+            position_m: non_negative("alarm_position_m", self.pick(|s| s.alarm_position_m))?,
+            angle_rad: non_negative("alarm_angle_rad", self.pick(|s| s.alarm_angle_rad))?,
+            hold_s: non_negative("alarm_hold_s", self.pick(|s| s.alarm_hold_s))?.unwrap_or(0.0),
+        })
+    }
+
+    fn sensors(&self) -> Result<Vec<SensorStream>, ConfigError> {
+        self.section
+            .sensors
+            .iter()
+            .enumerate()
+            .map(|(index, sensor)| {
+                let [x, y, z, rx, ry, rz] = sensor.base_from_sensor;
+                if !sensor.base_from_sensor.iter().all(|v| v.is_finite()) {
+                    return Err(self.invalid(
+                        &format!("sensors[{index}].base_from_sensor"),
+                        "every value must be finite".to_owned(),
+                    ));
+                }
+                if sensor.key_expr.is_empty() {
+                    return Err(
+                        self.invalid(&format!("sensors[{index}].key_expr"), "is empty".to_owned())
+                    );
+                }
+                Ok(SensorStream {
+                    key_expr: sensor.key_expr.clone(),
+                    base_from_sensor: IsometryMatrix3::from_parts(
+                        Translation3::new(x, y, z),
+                        Rotation3::from_matrix_unchecked(orientation::matrix_from_rotation_vector(
+                            &Vector3::new(rx, ry, rz),
+                        )),
+                    ),
+                })
+            })
+            .collect()
+    }
+}
+
+/// The arm of a robot whose sections name none.
+const DEFAULT_MODEL: &str = "ur10e";
+
+/// What a robot's model is built from, once its own section and `[robots.default]` are merged:
+/// robots that agree on it share one model (a fleet of identical arms holds one, not thousands).
+#[derive(Debug, PartialEq, Eq, Hash)]
+struct ModelSource {
+    /// The catalog name or custom arm file (the built-in default filled in).
+    model: String,
+    calibration: Option<PathBuf>,
+    /// The `tcp` values' bits (doubles are not `Eq`).
+    tcp_bits: Option<[u64; 6]>,
+    frame: Option<String>,
+}
+
+/// A robot's settings: its own fields, else the default section's, else built-in defaults.
+/// Models already built for an identical [`ModelSource`] (in `models`) are shared.
+fn robot_settings(
+    id: &str,
+    section: &RobotSection,
+    default_section: Option<&RobotSection>,
+    (source_name, base_dir): (&str, &Path),
+    models: &mut HashMap<ModelSource, Arc<RobotModel>>,
+) -> Result<RobotSettings, ConfigError> {
+    let source = RobotSource {
+        id,
+        section,
+        fallback: if id == "default" {
+            None
+        } else {
+            default_section
+        },
+        source_name,
+        base_dir,
+    };
+    let model_source = ModelSource {
+        model: source
+            .pick(|s| s.model.clone())
+            .unwrap_or_else(|| DEFAULT_MODEL.to_owned()),
+        calibration: source.pick(|s| s.calibration.clone()),
+        tcp_bits: source.pick(|s| s.tcp).map(|tcp| tcp.map(f64::to_bits)),
+        frame: source.pick(|s| s.frame.clone()),
+    };
+    let model = if let Some(model) = models.get(&model_source) {
+        Arc::clone(model)
+    } else {
+        let model = Arc::new(source.model()?);
+        models.insert(model_source, Arc::clone(&model));
+        model
+    };
+    Ok(RobotSettings {
+        model,
+        alarm: source.alarm()?,
+        sensors: source.sensors()?,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn robots_with_the_same_model_source_share_one_model() {
+        let text = "[robots.default]\nmodel = \"ur10e\"\n\
+                    [robots.a]\n[robots.b]\nmodel = \"ur10e\"\n\
+                    [robots.c]\ntcp = [0.0, 0.0, 0.1, 0.0, 0.0, 0.0]\n\
+                    [robots.d]\ntcp = [0.0, 0.0, 0.1, 0.0, 0.0, 0.0]\n\
+                    [robots.e]\nmodel = \"ur5e\"\n";
+        let config = ServiceConfig::parse(text, "test", Path::new(""), &Overrides::default())
+            .expect("valid configuration");
+        let model = |id: &str| Arc::clone(&config.robots[id].model);
+        let default = Arc::clone(&config.default_robot.as_ref().expect("default").model);
+        assert!(Arc::ptr_eq(&model("a"), &default) && Arc::ptr_eq(&model("b"), &default));
+        assert!(Arc::ptr_eq(&model("c"), &model("d")));
+        assert!(!Arc::ptr_eq(&model("c"), &default));
+        assert!(!Arc::ptr_eq(&model("e"), &default));
+        assert_eq!(model("e").arm().name, "ur5e");
+    }
+}

@@ -1,0 +1,31 @@
+//! armtwin: a live digital twin for robot arms.
+//!
+//! Gateways stream joint angles (and the controller's measured tool pose); armtwin computes each
+//! arm's calibrated forward kinematics and keeps running twin-vs-robot error metrics. The pure
+//! core ([`armtwin_core`], re-exported here under its own module names) serves every mode: the
+//! command line, the live service, offline validation and the FMU.
+//!
+//! This crate is the outer ring, around the core:
+//! - [`codec`]: the core's types to and from CSV and the service's JSON wire messages.
+//! - [`ingest`]: a gateway message's bytes into the pipeline, shared by the service and
+//!   `validate`.
+//! - [`config`]: the service's TOML configuration and command-line overrides.
+//! - [`service`]: `armtwin serve`, the pipeline on a Zenoh mesh.
+//! - [`replay`]: `armtwin replay`, a recording published as a gateway would.
+//! - [`validate`]: `armtwin validate`, a recording through the pipeline offline, with its report
+//!   and plots.
+//! - [`fmu_package`]: `armtwin fmu build`, the FMU archive.
+//! - [`cli`]: the `armtwin` command line (with `main.rs`).
+
+pub use armtwin_core::{
+    align, fmi, kinematics, metrics, model, orientation, pipeline, pose_fields, sample, trig,
+};
+
+pub mod cli;
+pub mod codec;
+pub mod config;
+pub mod fmu_package;
+pub mod ingest;
+pub mod replay;
+pub mod service;
+pub mod validate;

@@ -1,0 +1,923 @@
+//! The live service end to end: real Zenoh sessions over TCP loopback, one in-process `serve`.
+#![allow(
+    clippy::float_cmp,
+    reason = "counts and exact pairings have exact answers"
+)]
+
+use std::collections::HashMap;
+use std::net::TcpListener;
+use std::path::Path;
+use std::time::Duration;
+
+use armtwin::codec::recording;
+use armtwin::codec::wire::MetricsMessage;
+use armtwin::config::{Overrides, ServiceConfig, ZenohSection};
+use armtwin::kinematics::PoseReadout;
+use armtwin::model::RobotModel;
+use armtwin::replay::{ReplaySettings, replay};
+use armtwin::service::{ServeReport, ServiceError, serve};
+use armtwin::validate::validate;
+use serde_json::{Value, json};
+use tokio::sync::oneshot;
+use tokio::task::JoinHandle;
+use zenoh::Session;
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::pubsub::Subscriber;
+use zenoh::sample::{Locality, Sample, SampleKind};
+
+/// Every test must end by itself within this time.
+const TEST_LIMIT: Duration = Duration::from_secs(180);
+/// How long to wait for an expected message.
+const RECEIVE_LIMIT: Duration = Duration::from_secs(30);
+
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .and_then(|listener| listener.local_addr())
+        .map(|address| address.port())
+        .expect("a free loopback port")
+}
+
+struct Harness {
+    endpoint: String,
+    client: Session,
+    shutdown: Option<oneshot::Sender<()>>,
+    server: Option<JoinHandle<Result<ServeReport, ServiceError>>>,
+    outputs: Subscriber<FifoChannelHandler<Sample>>,
+    received: Vec<(String, Value)>,
+}
+
+async fn start(config_toml: &str) -> Harness {
+    let port = free_port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let config = ServiceConfig::parse(
+        config_toml,
+        "test config",
+        Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
+            .join("config")
+            .as_path(),
+        &Overrides {
+            listen: vec![endpoint.clone()],
+            ..Overrides::default()
+        },
+    )
+    .expect("valid test config");
+    let (shutdown_tx, shutdown_rx) = oneshot::channel::<()>();
+    let server = tokio::spawn(serve(config, async {
+        let _ = shutdown_rx.await;
+    }));
+    // Wait until the service listens.
+    let deadline = tokio::time::Instant::now() + RECEIVE_LIMIT;
+    while tokio::net::TcpStream::connect(("127.0.0.1", port))
+        .await
+        .is_err()
+    {
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "the service never listened"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let mut client_config = zenoh::Config::default();
+    for (key, value) in [
+        ("mode", "\"peer\"".to_owned()),
+        ("connect/endpoints", format!("[\"{endpoint}\"]")),
+        ("listen/endpoints", "[]".to_owned()),
+        ("scouting/multicast/enabled", "false".to_owned()),
+    ] {
+        client_config
+            .insert_json5(key, &value)
+            .expect("client config");
+    }
+    let client = zenoh::open(client_config).await.expect("client session");
+    let outputs = client
+        .declare_subscriber("twin/**")
+        .with(zenoh::handlers::FifoChannel::new(200_000))
+        .await
+        .expect("output subscriber");
+    // Wait until the service's subscribers are visible (remote ones only: our own `twin/**`
+    // matches too), so nothing published is lost.
+    let probe = client
+        .declare_publisher("twin/joints/probe")
+        .allowed_destination(Locality::Remote)
+        .await
+        .expect("probe publisher");
+    let deadline = tokio::time::Instant::now() + RECEIVE_LIMIT;
+    while !probe.matching_status().await.expect("matching").matching() {
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "the service never subscribed"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    probe.undeclare().await.expect("undeclare probe");
+    // A query travels after our subscriber's declaration on the same link: once it is answered,
+    // the service knows where to send outputs.
+    let replies = client.get("twin/state/**").await.expect("get");
+    while tokio::time::timeout(RECEIVE_LIMIT, replies.recv_async())
+        .await
+        .expect("state query answered")
+        .is_ok()
+    {}
+    Harness {
+        endpoint,
+        client,
+        shutdown: Some(shutdown_tx),
+        server: Some(server),
+        outputs,
+        received: Vec::new(),
+    }
+}
+
+impl Harness {
+    async fn put(&self, key: &str, payload: &Value) {
+        self.client
+            .put(key, payload.to_string())
+            .await
+            .expect("put");
+    }
+
+    async fn put_raw(&self, key: &str, payload: Vec<u8>) {
+        self.client.put(key, payload).await.expect("put");
+    }
+
+    /// Receives until `done` holds for the messages received so far.
+    /// Receives until `done` holds for the messages received so far. `done` is evaluated once
+    /// per burst (after draining what has arrived), so long streams stay linear.
+    async fn receive_until(&mut self, what: &str, done: impl Fn(&[(String, Value)]) -> bool) {
+        let deadline = tokio::time::Instant::now() + RECEIVE_LIMIT;
+        while !done(&self.received) {
+            let left = deadline.saturating_duration_since(tokio::time::Instant::now());
+            let first = tokio::time::timeout(left, self.outputs.recv_async())
+                .await
+                .unwrap_or_else(|_| {
+                    panic!(
+                        "timed out waiting for {what}; received {} messages: {:?}",
+                        self.received.len(),
+                        self.received.iter().rev().take(5).collect::<Vec<_>>()
+                    )
+                })
+                .expect("subscriber open");
+            self.keep(&first);
+            while let Ok(Some(sample)) = self.outputs.try_recv() {
+                self.keep(&sample);
+            }
+        }
+    }
+
+    fn keep(&mut self, sample: &Sample) {
+        let key = sample.key_expr().as_str();
+        // Our own inputs come back to us too; only outputs are collected.
+        if sample.kind() != SampleKind::Put
+            || key.starts_with("twin/joints/")
+            || key.starts_with("twin/measured/")
+        {
+            return;
+        }
+        let value: Value = serde_json::from_slice(&sample.payload().to_bytes())
+            .unwrap_or_else(|e| panic!("output on {key} is not JSON: {e}"));
+        self.received.push((key.to_owned(), value));
+    }
+
+    fn on(&self, key: &str) -> Vec<&Value> {
+        self.received
+            .iter()
+            .filter(|(k, _)| k == key)
+            .map(|(_, v)| v)
+            .collect()
+    }
+
+    async fn stop(&mut self) -> ServeReport {
+        if let Some(shutdown) = self.shutdown.take() {
+            let _ = shutdown.send(());
+        }
+        let server = self.server.take().expect("running");
+        tokio::time::timeout(RECEIVE_LIMIT, server)
+            .await
+            .expect("the service stops in time")
+            .expect("the service task")
+            .expect("the service ran")
+    }
+
+    async fn get(
+        &self,
+        selector: &str,
+        payload: Option<Value>,
+    ) -> Vec<Result<(String, Value), Value>> {
+        let mut get = self.client.get(selector);
+        if let Some(payload) = payload {
+            get = get.payload(payload.to_string());
+        }
+        let replies = get.await.expect("get");
+        let mut out = Vec::new();
+        while let Ok(reply) = tokio::time::timeout(RECEIVE_LIMIT, replies.recv_async())
+            .await
+            .expect("replies end in time")
+        {
+            match reply.result() {
+                Ok(sample) => out.push(Ok((
+                    sample.key_expr().as_str().to_owned(),
+                    serde_json::from_slice(&sample.payload().to_bytes()).expect("json reply"),
+                ))),
+                Err(error) => out.push(Err(
+                    serde_json::from_slice(&error.payload().to_bytes()).expect("json error")
+                )),
+            }
+        }
+        out
+    }
+}
+
+const CONFIG: &str = r#"
+[service]
+metrics_period_ms = 50
+window_s = 1.0
+[align]
+max_gap_s = 0.25
+max_wait_s = 0.5
+[robots.default]
+model = "ur10e"
+"#;
+
+fn ur10e() -> RobotModel {
+    RobotModel::nominal("ur10e").expect("catalog")
+}
+
+/// A smooth joint trajectory, `i` at 100 Hz.
+fn q_at(i: usize) -> Vec<f64> {
+    let t = i as f64 * 0.01;
+    vec![
+        -0.7 + 0.3 * (0.5 * t).sin(),
+        -0.8 + 0.2 * (0.7 * t).cos(),
+        0.9 + 0.1 * t.sin(),
+        1.1,
+        1.5 - 0.05 * t,
+        1.7 + 0.2 * t,
+    ]
+}
+
+fn measured_json(pose: &PoseReadout, dx_m: f64) -> Value {
+    let [x, y, z] = pose.position_m;
+    let [qx, qy, qz, qw] = pose.quaternion_xyzw;
+    json!({"x": x + dx_m, "y": y, "z": z, "qx": qx, "qy": qy, "qz": qz, "qw": qw})
+}
+
+fn number(value: &Value, path: &[&str]) -> f64 {
+    let mut node = value;
+    for key in path {
+        node = &node[*key];
+    }
+    node.as_f64()
+        .unwrap_or_else(|| panic!("{path:?} is not a number in {value}"))
+}
+
+fn final_metrics<'a>(harness: &'a Harness, robot: &str) -> &'a Value {
+    harness
+        .on(&format!("twin/metrics/{robot}"))
+        .last()
+        .copied()
+        .expect("metrics")
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn several_robots_poses_deviations_metrics_and_fleet_queries() {
+    tokio::time::timeout(TEST_LIMIT, async {
+        let mut h = start(CONFIG).await;
+        let model = ur10e();
+        let robots = [
+            ("plant-a/cell-1/r1", 0.0),
+            ("plant-a/cell-1/r2", 0.001),
+            ("r3", 0.0),
+        ];
+        for i in 0..50 {
+            for (robot, offset_m) in robots {
+                let q = q_at(i);
+                let pose = model.pose(&q).expect("valid").readout();
+                let message = json!({
+                    "t": i as f64 * 0.01, "q": q, "seq": i,
+                    "measured": measured_json(&pose, offset_m),
+                });
+                h.put(&format!("twin/joints/{robot}"), &message).await;
+            }
+        }
+        // A put on a wildcard key names no robot: nothing is tracked for it.
+        h.put("twin/joints/**", &json!({"t": 0.0, "q": q_at(0)}))
+            .await;
+        h.receive_until("150 poses and 150 deviations", |r| {
+            r.iter()
+                .filter(|(k, _)| k.starts_with("twin/pose/"))
+                .count()
+                == 150
+                && r.iter()
+                    .filter(|(k, _)| k.starts_with("twin/deviation/"))
+                    .count()
+                    == 150
+        })
+        .await;
+        for (robot, offset_m) in robots {
+            let poses = h.on(&format!("twin/pose/{robot}"));
+            assert_eq!(poses.len(), 50, "{robot}");
+            for (i, pose) in poses.iter().enumerate() {
+                assert_eq!(pose["seq"].as_u64(), Some(i as u64), "seq without gaps");
+                assert_eq!(pose["robot"], robot);
+                assert_eq!(pose["frame"], "base");
+                let expected = model.pose(&q_at(i)).expect("valid").readout();
+                assert!((number(pose, &["x"]) - expected.position_m[0]).abs() < 1e-12);
+                assert!((number(pose, &["qw"]) - expected.quaternion_xyzw[3]).abs() < 1e-12);
+                assert!((number(pose, &["t"]) - i as f64 * 0.01).abs() < 1e-12);
+            }
+            for deviation in h.on(&format!("twin/deviation/{robot}")) {
+                // Twin minus measured.
+                assert!(
+                    (number(deviation, &["dx"]) + offset_m).abs() < 1e-12,
+                    "{deviation}"
+                );
+                assert!((number(deviation, &["position"]) - offset_m).abs() < 1e-12);
+                assert!(number(deviation, &["angle"]) < 1e-7);
+            }
+        }
+        // The fleet view: one reply per robot.
+        let states = h.get("twin/state/**", None).await;
+        let mut ids: Vec<String> = states
+            .iter()
+            .map(|r| {
+                r.as_ref().expect("state reply").1["robot"]
+                    .as_str()
+                    .expect("id")
+                    .to_owned()
+            })
+            .collect();
+        ids.sort();
+        assert_eq!(ids, ["plant-a/cell-1/r1", "plant-a/cell-1/r2", "r3"]);
+        let site = h.get("twin/state/plant-a/**", None).await;
+        assert_eq!(site.len(), 2);
+        let r2 = h.get("twin/state/plant-a/cell-1/r2", None).await;
+        let (key, state) = r2[0].as_ref().expect("r2 state");
+        assert_eq!(key, "twin/state/plant-a/cell-1/r2");
+        assert_eq!(state["model"], "ur10e");
+        assert_eq!(number(state, &["metrics", "paired"]), 50.0);
+        assert!(
+            (number(state, &["metrics", "cumulative", "position", "mae"]) - 0.001).abs() < 1e-12
+        );
+        assert!((number(state, &["metrics", "cumulative", "x", "max"]) - 0.001).abs() < 1e-12);
+        assert_eq!(number(state, &["metrics", "cumulative", "y", "max"]), 0.0);
+        // FK on demand under that robot's model.
+        let fk = h.get("twin/fk/r3", Some(json!({"q": q_at(7)}))).await;
+        let (_, pose) = fk[0].as_ref().expect("fk reply");
+        let expected = model.pose(&q_at(7)).expect("valid").readout();
+        assert!((number(pose, &["z"]) - expected.position_m[2]).abs() < 1e-12);
+        let bad_fk = h.get("twin/fk/r3", Some(json!({"q": [1, 2]}))).await;
+        assert!(bad_fk[0].is_err(), "{bad_fk:?}");
+        // Reset replies with the final snapshot, then counts start again.
+        let reset = h.get("twin/reset/plant-a/cell-1/r2", None).await;
+        let (_, last) = reset[0].as_ref().expect("reset reply");
+        assert_eq!(number(last, &["paired"]), 50.0);
+        let after = h.get("twin/state/plant-a/cell-1/r2", None).await;
+        let (_, state) = after[0].as_ref().expect("state");
+        assert_eq!(number(state, &["metrics", "paired"]), 0.0);
+        assert_eq!(number(state, &["metrics", "cumulative", "n"]), 0.0);
+        h.stop().await;
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_input_is_rejected_with_an_event_and_neighbours_are_processed() {
+    tokio::time::timeout(TEST_LIMIT, async {
+        let mut h = start(CONFIG).await;
+        let model = ur10e();
+        let key = "twin/joints/cell/bad";
+        let measured_key = "twin/measured/cell/bad";
+        let q = q_at(0);
+        let pose = model.pose(&q).expect("valid").readout();
+        let mut valid = 0;
+        let mut t = 0.0;
+        let mut next_valid = |h: &Harness, t: &mut f64| {
+            *t += 0.01;
+            valid += 1;
+            let message = json!({"t": *t, "q": q_at(valid)});
+            let key = key.to_owned();
+            let client = h.client.clone();
+            async move { client.put(key, message.to_string()).await.expect("put") }
+        };
+        let invalid_joints: Vec<(Vec<u8>, &str)> = vec![
+            (b"not json".to_vec(), "not_json"),
+            (json!([1, 2, 3]).to_string().into_bytes(), "not_object"),
+            (json!({"t": 100.0, "q": [0, 0, "x", 0, 0, 0]}).to_string().into_bytes(), "wrong_type"),
+            (json!({"t": 100.0, "q": [0, 0, 0, 0, 0]}).to_string().into_bytes(), "joint_count"),
+            (json!({"t": 100.0, "q": [0, 0, 7.5, 0, 0, 0]}).to_string().into_bytes(), "joint_limits"),
+            (json!({"t": 100.0, "q": [0, 0, 0, 0, 0, 0], "unit": "grad"}).to_string().into_bytes(), "unit"),
+            (vec![b' '; 70 * 1024], "too_large"),
+        ];
+        // The joint cases, two stamp cases, four measured poses, one embedded measured pose.
+        let expected_rejections = invalid_joints.len() + 7;
+        next_valid(&h, &mut t).await;
+        for (payload, _) in invalid_joints.clone() {
+            h.put_raw(key, payload).await;
+            next_valid(&h, &mut t).await;
+        }
+        // Stamps that go back or repeat.
+        h.put(key, &json!({"t": 0.005, "q": q})).await;
+        h.put(key, &json!({"t": t, "q": q})).await;
+        next_valid(&h, &mut t).await;
+        // Measured poses: zero quaternion, norm off by 20 %, two orientation forms.
+        h.put(measured_key, &json!({"t": t, "x": 0, "y": 0, "z": 0, "qx": 0, "qy": 0, "qz": 0, "qw": 0})).await;
+        h.put(measured_key, &json!({"t": t, "x": 0, "y": 0, "z": 0, "qx": 0, "qy": 0, "qz": 0, "qw": 1.2})).await;
+        h.put(measured_key, &json!({"t": t, "x": 0, "y": 0, "z": 0, "qx": 0, "qy": 0, "qz": 0, "qw": 1, "roll": 0, "pitch": 0, "yaw": 0})).await;
+        // Well-formed, but a kilometre away: not a pose of this robot.
+        h.put(measured_key, &json!({"t": t, "x": 1000.0, "y": 0, "z": 0, "qx": 0, "qy": 0, "qz": 0, "qw": 1})).await;
+        next_valid(&h, &mut t).await;
+        // A valid joint sample with an invalid measured pose: the joints still count.
+        let mut broken = measured_json(&pose, 0.0);
+        broken["qz"] = json!("8.506,978");
+        t += 0.01;
+        h.put(key, &json!({"t": t, "q": q, "measured": broken})).await;
+        let valid_joint_samples = valid + 1;
+        h.receive_until("every pose and rejection", |r| {
+            r.iter().filter(|(k, _)| k == "twin/pose/cell/bad").count() == valid_joint_samples
+                && r.iter().filter(|(k, v)| k == "twin/events/cell/bad" && v["kind"] == "rejected").count()
+                    == expected_rejections
+        })
+        .await;
+        let causes: Vec<String> = h
+            .on("twin/events/cell/bad")
+            .iter()
+            .filter(|e| e["kind"] == "rejected")
+            .map(|e| e["detail"]["cause"].as_str().unwrap_or("?").to_owned())
+            .collect();
+        for (_, cause) in &invalid_joints {
+            assert!(causes.iter().any(|c| c == cause), "no {cause} rejection in {causes:?}");
+        }
+        for cause in [
+            "out_of_order",
+            "duplicate_stamp",
+            "quaternion_norm",
+            "orientation_forms",
+            "wrong_type",
+            "out_of_range",
+        ] {
+            assert!(causes.iter().any(|c| c == cause), "no {cause} rejection in {causes:?}");
+        }
+        for event in h.on("twin/events/cell/bad") {
+            assert!(event["reason"].as_str().is_some_and(|r| !r.is_empty()), "{event}");
+            assert!(event["key"].as_str().is_some(), "{event}");
+        }
+        h.receive_until("metrics counting the rejections", |r| {
+            r.iter().rev().find(|(k, _)| k == "twin/metrics/cell/bad").is_some_and(|(_, m)| {
+                m["rejected"].as_u64() == Some(expected_rejections as u64)
+            })
+        })
+        .await;
+        h.stop().await;
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn alignment_exact_interpolated_waiting_and_unpaired() {
+    tokio::time::timeout(TEST_LIMIT, async {
+        let mut h = start(CONFIG).await;
+        let model = ur10e();
+        let robot = "align/r1";
+        let measure = |q: &[f64]| measured_json(&model.pose(q).expect("valid").readout(), 0.0);
+        // Before any joint sample: nothing to pair with.
+        let mut early = measure(&q_at(0));
+        early["t"] = json!(-1.0);
+        h.put(&format!("twin/measured/{robot}"), &early).await;
+        for i in 0..10 {
+            h.put(
+                &format!("twin/joints/{robot}"),
+                &json!({"t": i as f64 * 0.01, "q": q_at(i)}),
+            )
+            .await;
+        }
+        // Exact stamp.
+        let mut exact = measure(&q_at(3));
+        exact["t"] = json!(0.03);
+        h.put(&format!("twin/measured/{robot}"), &exact).await;
+        // Between two joint samples: the robot's own pose at the interpolated joints.
+        let q_mid: Vec<f64> = q_at(4)
+            .iter()
+            .zip(q_at(5))
+            .map(|(a, b)| a + 0.25 * (b - a))
+            .collect();
+        let mut between = measure(&q_mid);
+        between["t"] = json!(0.0425);
+        h.put(&format!("twin/measured/{robot}"), &between).await;
+        // Newer than every joint sample: waits for the next one, then pairs.
+        let q_wait: Vec<f64> = q_at(9)
+            .iter()
+            .zip(q_at(10))
+            .map(|(a, b)| a + 0.5 * (b - a))
+            .collect();
+        let mut waiting = measure(&q_wait);
+        waiting["t"] = json!(0.095);
+        h.put(&format!("twin/measured/{robot}"), &waiting).await;
+        h.put(
+            &format!("twin/joints/{robot}"),
+            &json!({"t": 0.10, "q": q_at(10)}),
+        )
+        .await;
+        // A joint gap of 1 s (> max_gap_s 0.25): a measured pose inside it is unpaired.
+        h.put(
+            &format!("twin/joints/{robot}"),
+            &json!({"t": 1.10, "q": q_at(11)}),
+        )
+        .await;
+        let mut in_gap = measure(&q_at(10));
+        in_gap["t"] = json!(0.6);
+        h.put(&format!("twin/measured/{robot}"), &in_gap).await;
+        h.receive_until("three deviations and the unpaired events", |r| {
+            r.iter()
+                .filter(|(k, _)| k == "twin/deviation/align/r1")
+                .count()
+                == 3
+                && r.iter()
+                    .filter(|(k, v)| k == "twin/events/align/r1" && v["kind"] == "unpaired")
+                    .count()
+                    == 2
+        })
+        .await;
+        for deviation in h.on("twin/deviation/align/r1") {
+            assert!(number(deviation, &["position"]) < 1e-9, "{deviation}");
+            assert!(number(deviation, &["angle"]) < 1e-7, "{deviation}");
+        }
+        let stamps: Vec<f64> = h
+            .on("twin/deviation/align/r1")
+            .iter()
+            .map(|d| number(d, &["t"]))
+            .collect();
+        assert_eq!(stamps, [0.03, 0.0425, 0.095]);
+        let unpaired: Vec<&str> = h
+            .on("twin/events/align/r1")
+            .iter()
+            .filter(|e| e["kind"] == "unpaired")
+            .map(|e| e["detail"]["cause"].as_str().unwrap_or("?"))
+            .collect();
+        assert_eq!(unpaired, ["before_joint_history", "joint_gap"]);
+        let gaps = h
+            .on("twin/events/align/r1")
+            .iter()
+            .filter(|e| e["kind"] == "gap")
+            .count();
+        assert_eq!(gaps, 1, "the 1 s joint gap is reported");
+        h.receive_until("metrics with the counts", |r| {
+            r.iter()
+                .rev()
+                .find(|(k, _)| k == "twin/metrics/align/r1")
+                .is_some_and(|(_, m)| {
+                    m["paired"].as_u64() == Some(3) && m["unpaired"].as_u64() == Some(2)
+                })
+        })
+        .await;
+        h.stop().await;
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn window_forgets_what_cumulative_keeps_and_alarms_fire_and_recover() {
+    // 0.99 s, so that no sample sits exactly on the window's edge.
+    let config = r#"
+[service]
+metrics_period_ms = 50
+window_s = 0.99
+[robots.default]
+model = "ur10e"
+alarm_position_m = 0.0015
+alarm_hold_s = 0.2
+"#;
+    tokio::time::timeout(TEST_LIMIT, async {
+        let mut h = start(config).await;
+        let model = ur10e();
+        let robot = "win/r1";
+        // 2 s at 2 mm off, then 2 s at 1 mm off, 50 Hz.
+        for i in 0..200 {
+            let q = q_at(i);
+            let offset = if i < 100 { 0.002 } else { 0.001 };
+            let pose = model.pose(&q).expect("valid").readout();
+            let message =
+                json!({"t": i as f64 * 0.02, "q": q, "measured": measured_json(&pose, offset)});
+            h.put(&format!("twin/joints/{robot}"), &message).await;
+        }
+        h.receive_until("200 deviations", |r| {
+            r.iter()
+                .filter(|(k, _)| k == "twin/deviation/win/r1")
+                .count()
+                == 200
+        })
+        .await;
+        let mut h = {
+            let stop_at = h.stop().await;
+            assert!(stop_at.poses >= 200);
+            h
+        };
+        h.receive_until("final metrics", |r| {
+            r.iter()
+                .rev()
+                .find(|(k, _)| k == "twin/metrics/win/r1")
+                .is_some_and(|(_, m)| m["paired"] == 200)
+        })
+        .await;
+        let metrics = final_metrics(&h, robot);
+        // The window holds the last second only: 1 mm everywhere.
+        assert!((number(metrics, &["window", "position", "mae"]) - 0.001).abs() < 1e-12);
+        assert!((number(metrics, &["window", "position", "max"]) - 0.001).abs() < 1e-12);
+        assert_eq!(number(metrics, &["window", "seconds"]), 0.99);
+        assert_eq!(number(metrics, &["window", "n"]), 50.0);
+        // Cumulative keeps everything: half at 2 mm, half at 1 mm.
+        assert!((number(metrics, &["cumulative", "position", "mae"]) - 0.0015).abs() < 1e-12);
+        assert!(
+            (number(metrics, &["cumulative", "position", "rmse"]) - (2.5e-6_f64).sqrt()).abs()
+                < 1e-12
+        );
+        assert!((number(metrics, &["cumulative", "position", "max"]) - 0.002).abs() < 1e-12);
+        assert_eq!(number(metrics, &["cumulative", "n"]), 200.0);
+        // Alarm after 0.2 s above 1.5 mm, recovery 0.2 s after dropping to 1 mm.
+        let events = h.on("twin/events/win/r1");
+        let alarms: Vec<(&str, f64)> = events
+            .iter()
+            .filter(|e| e["kind"] == "alarm" || e["kind"] == "recovered")
+            .map(|e| (e["kind"].as_str().unwrap_or("?"), number(e, &["t"])))
+            .collect();
+        assert_eq!(alarms.len(), 2, "{alarms:?}");
+        assert_eq!(alarms[0].0, "alarm");
+        assert!((alarms[0].1 - 0.2).abs() < 1e-9, "{alarms:?}");
+        assert_eq!(alarms[1].0, "recovered");
+        assert!((alarms[1].1 - 2.2).abs() < 1e-9, "{alarms:?}");
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn liveliness_token_lives_while_tracked_and_final_metrics_go_out_on_shutdown() {
+    tokio::time::timeout(TEST_LIMIT, async {
+        let mut h = start(CONFIG).await;
+        let alive = h
+            .client
+            .liveliness()
+            .declare_subscriber("twin/alive/**")
+            .with(zenoh::handlers::FifoChannel::new(64))
+            .await
+            .expect("liveliness subscriber");
+        let before = h
+            .client
+            .liveliness()
+            .get("twin/alive/**")
+            .await
+            .expect("get");
+        let mut tokens = 0;
+        while let Ok(Ok(_)) =
+            tokio::time::timeout(Duration::from_secs(2), before.recv_async()).await
+        {
+            tokens += 1;
+        }
+        assert_eq!(tokens, 0, "no robot tracked yet");
+        h.put("twin/joints/live/r1", &json!({"t": 0.0, "q": q_at(0)}))
+            .await;
+        let appeared = tokio::time::timeout(RECEIVE_LIMIT, alive.recv_async())
+            .await
+            .expect("token in time")
+            .expect("sample");
+        assert_eq!(appeared.key_expr().as_str(), "twin/alive/live/r1");
+        assert_eq!(appeared.kind(), SampleKind::Put);
+        h.put("twin/joints/live/r1", &json!({"t": 0.01, "q": q_at(1)}))
+            .await;
+        h.receive_until("two poses", |r| {
+            r.iter().filter(|(k, _)| k == "twin/pose/live/r1").count() == 2
+        })
+        .await;
+        let metrics_before_stop = h.on("twin/metrics/live/r1").len();
+        let report = h.stop().await;
+        assert_eq!(report.poses, 2);
+        assert_eq!(report.robots, 1);
+        let gone = tokio::time::timeout(RECEIVE_LIMIT, alive.recv_async())
+            .await
+            .expect("token removal in time")
+            .expect("sample");
+        assert_eq!(gone.kind(), SampleKind::Delete);
+        h.receive_until("the final metrics", |r| {
+            r.iter()
+                .filter(|(k, _)| k == "twin/metrics/live/r1")
+                .count()
+                > metrics_before_stop
+        })
+        .await;
+        let last = final_metrics(&h, "live/r1");
+        assert_eq!(number(last, &["paired"]), 0.0);
+        assert!((number(last, &["t"]) - 0.01).abs() < 1e-12);
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sensor_streams_are_transformed_and_unknown_robots_rejected() {
+    let config = r#"
+[service]
+metrics_period_ms = 50
+reject_unknown = true
+[robots."lab/r7"]
+model = "ur5e"
+[[robots."lab/r7".sensors]]
+key_expr = "mocap/body/7"
+base_from_sensor = [1.0, -0.5, 0.2, 0.0, 0.0, 1.5707963267948966]
+"#;
+    tokio::time::timeout(TEST_LIMIT, async {
+        let mut h = start(config).await;
+        let model = RobotModel::nominal("ur5e").expect("catalog");
+        let q = q_at(3);
+        h.put("twin/joints/lab/r7", &json!({"t": 1.0, "q": q})).await;
+        // The sensor sees the TCP in its own frame: sensor_from_base · pose.
+        let pose = model.pose(&q).expect("valid");
+        let (c, s) = (0.0_f64, 1.0_f64); // cos, sin of π/2 about z
+        let p = pose.position_m - nalgebra::Vector3::new(1.0, -0.5, 0.2);
+        let in_sensor = [c * p.x + s * p.y, -s * p.x + c * p.y, p.z];
+        let r_sensor_from_base = nalgebra::Matrix3::new(c, s, 0.0, -s, c, 0.0, 0.0, 0.0, 1.0);
+        let q_sensor = armtwin::orientation::quaternion_from_matrix(&(r_sensor_from_base * pose.rotation));
+        let [qx, qy, qz, qw] = armtwin::orientation::quaternion_to_xyzw(&q_sensor);
+        h.put(
+            "mocap/body/7",
+            &json!({"t": 1.0, "x": in_sensor[0], "y": in_sensor[1], "z": in_sensor[2], "qx": qx, "qy": qy, "qz": qz, "qw": qw}),
+        )
+        .await;
+        h.put("twin/joints/stranger", &json!({"t": 1.0, "q": q})).await;
+        h.receive_until("the deviation and the rejection", |r| {
+            r.iter().any(|(k, _)| k == "twin/deviation/lab/r7")
+                && r.iter().any(|(k, _)| k == "twin/events/stranger")
+        })
+        .await;
+        let deviation = h.on("twin/deviation/lab/r7")[0];
+        assert!(number(deviation, &["position"]) < 1e-12, "{deviation}");
+        assert!(number(deviation, &["angle"]) < 1e-7, "{deviation}");
+        let rejection = h.on("twin/events/stranger")[0];
+        assert_eq!(rejection["detail"]["cause"], "unknown_robot");
+        assert!(h.on("twin/pose/stranger").is_empty());
+        let mut counts: HashMap<&str, usize> = HashMap::new();
+        for (key, _) in &h.received {
+            *counts.entry(key.as_str()).or_default() += 1;
+        }
+        assert_eq!(counts.get("twin/pose/lab/r7"), Some(&1));
+        h.stop().await;
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn replaying_the_sample_recordings_twins_every_row() {
+    tokio::time::timeout(TEST_LIMIT, async {
+        let mut h = start(CONFIG).await;
+        let endpoint = h.endpoint.clone();
+        let data = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../..")).join("tests/data");
+        let settings = |robot: &str| ReplaySettings {
+            zenoh: ZenohSection {
+                mode: "peer".to_owned(),
+                listen: Vec::new(),
+                connect: vec![endpoint.clone()],
+                file: None,
+                multicast_scouting: false,
+            },
+            key_prefix: "twin".to_owned(),
+            robot: robot.to_owned(),
+            speed: None,
+        };
+        // The seed's file: its time column is a row index; 0.1 s apart as the seed streamed it.
+        let text = std::fs::read_to_string(data.join("fmpy_inputs.csv")).expect("data");
+        let seed = recording::read(&text).expect("recognised");
+        let times = recording::source_times(&seed, Some(0.1));
+        let report = replay(
+            &seed,
+            &times,
+            &settings("seed"),
+            std::future::pending(),
+            |_| {},
+        )
+        .await
+        .expect("replay");
+        assert_eq!(report.published, 54);
+        // The ROS 2 export: whole-second stamps spread over each second, 7 malformed lines.
+        let text = std::fs::read_to_string(data.join("ur10e_lasttest.csv")).expect("data");
+        let ros = recording::read(&text).expect("recognised");
+        let times = recording::source_times(&ros, None);
+        assert!(times.windows(2).all(|w| w[1] > w[0]), "strictly increasing");
+        let report = replay(
+            &ros,
+            &times,
+            &settings("lasttest"),
+            std::future::pending(),
+            |_| {},
+        )
+        .await
+        .expect("replay");
+        assert_eq!((report.published, report.malformed), (29_061, 7));
+        h.receive_until("every row twinned", |r| {
+            let last = |key: &str| {
+                r.iter()
+                    .rev()
+                    .find(|(k, _)| k == key)
+                    .map(|(_, m)| (m["paired"].as_u64(), m["rejected"].as_u64()))
+            };
+            last("twin/metrics/seed") == Some((Some(54), Some(0)))
+                && last("twin/metrics/lasttest") == Some((Some(29_054), Some(7)))
+        })
+        .await;
+        assert_eq!(h.on("twin/pose/seed").len(), 54);
+        assert_eq!(h.on("twin/pose/lasttest").len(), 29_054);
+        // Offline validation of the same recordings gives exactly the service's metrics.
+        let config = ServiceConfig::parse(CONFIG, "test", Path::new("."), &Overrides::default())
+            .expect("config");
+        let robot = config.default_robot.clone().expect("default robot");
+        for (name, recording, times) in [
+            ("seed", &seed, recording::source_times(&seed, Some(0.1))),
+            ("lasttest", &ros, recording::source_times(&ros, None)),
+        ] {
+            let offline = validate(recording, &times, config.pipeline, robot.clone(), |_| {});
+            let offline =
+                serde_json::to_value(MetricsMessage::new(&offline.metrics)).expect("json");
+            let live = h
+                .on(&format!("twin/metrics/{name}"))
+                .last()
+                .copied()
+                .expect("metrics");
+            for field in ["paired", "unpaired", "rejected", "cumulative", "window"] {
+                assert_eq!(live[field], offline[field], "{name}: {field}");
+            }
+        }
+        h.stop().await;
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_flood_of_bad_input_is_counted_but_its_events_are_rate_limited() {
+    tokio::time::timeout(TEST_LIMIT, async {
+        let config = CONFIG.replace(
+            "window_s = 1.0\n",
+            "window_s = 1.0\nevents_per_s = 0.5\nevents_burst = 5\n",
+        );
+        let mut h = start(&config).await;
+        let key = "twin/joints/flood";
+        for _ in 0..50 {
+            h.put_raw(key, b"not json".to_vec()).await;
+        }
+        h.receive_until("50 rejections counted", |r| {
+            r.iter()
+                .rev()
+                .find(|(k, _)| k == "twin/metrics/flood")
+                .is_some_and(|(_, m)| m["rejected"] == 50)
+        })
+        .await;
+        assert_eq!(
+            h.on("twin/events/flood").len(),
+            5,
+            "the burst, then nothing"
+        );
+        // A token comes back after 2 s: the next event says how many were held back.
+        tokio::time::sleep(Duration::from_millis(2100)).await;
+        h.put_raw(key, b"not json".to_vec()).await;
+        h.receive_until("the event after the pause", |r| {
+            r.iter().filter(|(k, _)| k == "twin/events/flood").count() == 6
+        })
+        .await;
+        let events = h.on("twin/events/flood");
+        assert_eq!(events[5]["suppressed"], 45, "{}", events[5]);
+        assert!(events[..5].iter().all(|e| e.get("suppressed").is_none()));
+        h.stop().await;
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_sensor_key_that_would_receive_the_twins_own_outputs_is_refused() {
+    let config = r#"
+[robots."lab/r7"]
+model = "ur5e"
+[[robots."lab/r7".sensors]]
+key_expr = "twin/*/lab/**"
+base_from_sensor = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+"#;
+    let port = free_port();
+    let config = ServiceConfig::parse(
+        config,
+        "test config",
+        Path::new("."),
+        &Overrides {
+            listen: vec![format!("tcp/127.0.0.1:{port}")],
+            ..Overrides::default()
+        },
+    )
+    .expect("valid config");
+    let result = tokio::time::timeout(TEST_LIMIT, serve(config, std::future::pending())).await;
+    let error = result.expect("refused at once").expect_err("refused");
+    assert!(
+        matches!(error, ServiceError::SensorKeyLoop { .. }),
+        "{error}"
+    );
+    assert!(error.to_string().contains("twin/*/lab/**"), "{error}");
+}

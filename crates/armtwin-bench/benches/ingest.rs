@@ -8,6 +8,10 @@
 //! message.
 //!
 //! `cargo bench -p armtwin-bench --bench ingest`
+#![allow(
+    clippy::expect_used,
+    reason = "a measuring binary whose fixtures are the checkout's own constants"
+)]
 use std::hint::black_box;
 use std::time::{Duration, Instant};
 

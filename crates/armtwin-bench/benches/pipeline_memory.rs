@@ -7,6 +7,10 @@
 //! `cargo bench -p armtwin-bench --bench pipeline_memory [-- ROBOTS [SAMPLES]]`
 //! (defaults: 10 000 robots, 4 samples each).
 #![allow(
+    clippy::expect_used,
+    reason = "a measuring binary whose fixtures are the checkout's own constants"
+)]
+#![allow(
     unsafe_code,
     reason = "a global allocator is an `unsafe impl`; this measuring binary is not product code"
 )]

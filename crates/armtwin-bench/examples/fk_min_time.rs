@@ -3,6 +3,11 @@
 //! `benches/fk.rs` (same configuration, same names), whose wall-clock medians swing by 2× when
 //! other jobs share the cores. Run: `cargo run --release -p armtwin-bench --example
 //! fk_min_time`.
+#![allow(
+    clippy::expect_used,
+    reason = "a measuring binary whose fixtures are the checkout's own constants"
+)]
+#![allow(clippy::print_stdout, reason = "a measuring tool's report")]
 use std::hint::black_box;
 use std::time::Instant;
 

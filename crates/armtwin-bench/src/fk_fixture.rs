@@ -1,5 +1,9 @@
 //! The FK benchmarks' configuration, shared by `benches/fk.rs` and `examples/fk_min_time.rs`
 //! so both time the same poses under the same names.
+#![allow(
+    clippy::expect_used,
+    reason = "the fixtures are the checkout's own constants and example files"
+)]
 
 use armtwin::kinematics::{OutputFrame, TcpOffset};
 use armtwin::model::{Calibration, RobotModel, catalog};

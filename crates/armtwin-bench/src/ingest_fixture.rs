@@ -2,6 +2,10 @@
 //! `examples/ingest_latency.rs`: one robot's joint and measured payloads as
 //! `armtwin-bench load` sends them, the pipeline as `armtwin-bench run` configures the service,
 //! and a sink that encodes every output as `armtwin serve` does before its `put`.
+#![allow(
+    clippy::expect_used,
+    reason = "the fixtures are the checkout's own constants and example files"
+)]
 
 use std::hint::black_box;
 

@@ -15,6 +15,11 @@
 //! again before its rate counts as failed); a check at one fixed rate; or (alone) the memory
 //! measurement of a system under test. Results go to standard output as one JSON object;
 //! progress to standard error.
+#![allow(
+    clippy::print_stdout,
+    clippy::print_stderr,
+    reason = "a benchmark command's progress and report, on its terminal"
+)]
 
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};

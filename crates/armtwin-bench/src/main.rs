@@ -5,6 +5,11 @@
 //!   subprocesses and writes `bench.json`.
 //! - `echo`: the plain-Zenoh echo, the baseline.
 //! - `load`: the load generator.
+#![allow(
+    clippy::print_stdout,
+    clippy::print_stderr,
+    reason = "the command line's own output and error reports"
+)]
 
 use armtwin_bench::{echo, load, run};
 

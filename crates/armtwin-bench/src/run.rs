@@ -5,6 +5,11 @@
 //!
 //! Owns process lifetimes, the generated service configuration and the report; measures
 //! nothing itself (the load generator does).
+#![allow(
+    clippy::print_stdout,
+    clippy::print_stderr,
+    reason = "a benchmark command's progress and report, on its terminal"
+)]
 
 use std::fmt::Write as _;
 use std::io::{BufRead, BufReader};

@@ -1,6 +1,11 @@
 //! Smoke test of the benchmark harness: `armtwin-bench run --quick` end to end with tiny numbers,
 //! real processes and real Zenoh sessions over loopback. It checks the report's structure and
 //! that nothing was lost at a trivially low rate; it asserts no timing.
+#![allow(
+    clippy::expect_used,
+    clippy::unwrap_used,
+    reason = "a test, or a helper of one, that fails an expectation fails the test"
+)]
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -1,4 +1,9 @@
 //! Factory calibration: both file forms, their equivalence, huge cancelling δd, and the errors.
+#![allow(
+    clippy::expect_used,
+    clippy::unwrap_used,
+    reason = "a test, or a helper of one, that fails an expectation fails the test"
+)]
 
 use std::fmt::Write;
 

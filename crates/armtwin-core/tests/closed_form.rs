@@ -1,6 +1,11 @@
 //! The closed-form evaluation of UR-structured chains equals the link-by-link chain to 1e-15 for
 //! every catalog model, with and without tool and `base_link`, and is taken only for an exact
 //! UR structure.
+#![allow(
+    clippy::expect_used,
+    clippy::unwrap_used,
+    reason = "a test, or a helper of one, that fails an expectation fails the test"
+)]
 
 use std::f64::consts::{SQRT_2, TAU};
 

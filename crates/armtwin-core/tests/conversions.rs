@@ -1,5 +1,10 @@
 //! Property tests: every orientation conversion round-trips, and the comparison measures agree
 //! with their textbook definitions; plus the singular cases named one by one.
+#![allow(
+    clippy::expect_used,
+    clippy::unwrap_used,
+    reason = "a test, or a helper of one, that fails an expectation fails the test"
+)]
 #![allow(clippy::float_cmp, reason = "the singular cases have exact answers")]
 
 use std::f64::consts::{FRAC_PI_2, PI, TAU};

@@ -1,4 +1,9 @@
 //! Custom arms from TOML: standard and modified DH tables of one arm agree with the catalog.
+#![allow(
+    clippy::expect_used,
+    clippy::unwrap_used,
+    reason = "a test, or a helper of one, that fails an expectation fails the test"
+)]
 
 use armtwin_core::kinematics::{OutputFrame, TcpOffset};
 use armtwin_core::model::{RobotModel, custom};

@@ -1,5 +1,10 @@
 //! Golden poses of every catalog model at two closed-form configurations, from UR's published DH
 //! values typed here independently of the catalog.
+#![allow(
+    clippy::expect_used,
+    clippy::unwrap_used,
+    reason = "a test, or a helper of one, that fails an expectation fails the test"
+)]
 
 use std::f64::consts::FRAC_PI_2;
 

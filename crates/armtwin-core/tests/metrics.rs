@@ -1,5 +1,10 @@
 //! Streaming metrics against naive two-pass and exact-integer recomputations, and deviations by hand.
 #![allow(
+    clippy::expect_used,
+    clippy::unwrap_used,
+    reason = "a test, or a helper of one, that fails an expectation fails the test"
+)]
+#![allow(
     clippy::float_cmp,
     reason = "exact sums, maxima and hand-made cases are exact"
 )]

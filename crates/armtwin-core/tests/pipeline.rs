@@ -1,4 +1,9 @@
 //! The pure pipeline without any transport: what the service, replay and validate all run.
+#![allow(
+    clippy::expect_used,
+    clippy::unwrap_used,
+    reason = "a test, or a helper of one, that fails an expectation fails the test"
+)]
 #![allow(clippy::float_cmp, reason = "stamps are passed through unchanged")]
 
 use std::collections::HashMap;

@@ -2,6 +2,11 @@
 //! outputs equal to the core's forward kinematics, independent instances, and every kind of bad
 //! call returning an error status and reaching the master's logger.
 #![allow(
+    clippy::expect_used,
+    clippy::unwrap_used,
+    reason = "a test, or a helper of one, that fails an expectation fails the test"
+)]
+#![allow(
     unsafe_code,
     reason = "calling the FMU's C API means passing raw pointers, as a C master does"
 )]

@@ -2,6 +2,10 @@
 //!
 //! The outer ring: reads files, prints, and turns every error into one message with context
 //! (`anyhow`). All computing is delegated to the core.
+#![allow(
+    clippy::print_stderr,
+    reason = "the command line reports progress and problems to its user"
+)]
 
 use std::fs::File;
 use std::io::{self, BufReader, BufWriter, Read, Write};

@@ -1,4 +1,9 @@
 //! The `armtwin` binary: parses the command line and reports errors; all work is in the library.
+#![allow(
+    clippy::print_stdout,
+    clippy::print_stderr,
+    reason = "the command line's own output and error reports"
+)]
 
 use std::io::IsTerminal;
 use std::process::ExitCode;

@@ -1,5 +1,10 @@
 //! The live service end to end: real Zenoh sessions over TCP loopback, one in-process `serve`.
 #![allow(
+    clippy::expect_used,
+    clippy::unwrap_used,
+    reason = "a test, or a helper of one, that fails an expectation fails the test"
+)]
+#![allow(
     clippy::float_cmp,
     reason = "counts and exact pairings have exact answers"
 )]

@@ -1,5 +1,10 @@
 //! `armtwin validate`: every malformed-row class, column mapping, the report files and the gate's
 //! exit status (the figures on real data are checked against numpy in `tests/python`).
+#![allow(
+    clippy::expect_used,
+    clippy::unwrap_used,
+    reason = "a test, or a helper of one, that fails an expectation fails the test"
+)]
 
 use std::collections::BTreeMap;
 use std::path::Path;

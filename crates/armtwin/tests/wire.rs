@@ -1,5 +1,10 @@
 //! Wire messages: every accepted gateway form, every rejection class, and the exact field sets of
 //! the messages armtwin publishes.
+#![allow(
+    clippy::expect_used,
+    clippy::unwrap_used,
+    reason = "a test, or a helper of one, that fails an expectation fails the test"
+)]
 #![allow(clippy::float_cmp, reason = "decoded values are copied, not computed")]
 
 use std::collections::BTreeSet;

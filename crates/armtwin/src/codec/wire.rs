@@ -761,6 +761,10 @@ mod fast;
 /// If `value`'s `Serialize` implementation fails, which armtwin's message types never do (plain
 /// structs, string keys, no custom implementations).
 #[must_use]
+#[allow(
+    clippy::expect_used,
+    reason = "serialising armtwin's plain message structs into a Vec cannot fail"
+)]
 pub fn to_json_bytes<T: Serialize>(value: &T) -> Vec<u8> {
     // Room for most messages at once: growing from serde_json's small default copied each
     // message twice.

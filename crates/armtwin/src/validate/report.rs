@@ -146,6 +146,10 @@ pub struct ReportJson {
     pub armtwin_version: &'static str,
 }
 
+#[allow(
+    clippy::expect_used,
+    reason = "callers name statistics by the literals of METRIC_NAMES"
+)]
 fn statistic(validation: &Validation, name: &str) -> crate::metrics::Stats {
     let index = METRIC_NAMES
         .iter()

@@ -595,7 +595,44 @@ impl Chain {
         self.joints.len()
     }
 
-    /// `frame_from_tcp` for joint angles `q_rad`, after checking their count and finiteness.
+    /// `frame_from_tcp` for joint angles `q_rad` (rad), after checking their count and finiteness
+    /// (joint limits are the model's: [`RobotModel::pose`](crate::model::RobotModel::pose)).
+    ///
+    /// The position is in metres in the chain's output frame; the rotation's columns are the TCP's
+    /// axes in that frame. [`Pose::readout`] gives the quaternion in wire order `[x, y, z, w]` with
+    /// `w ≥ 0`, and roll, pitch, yaw with `R = Rz(yaw) · Ry(pitch) · Rx(roll)`.
+    ///
+    /// The UR10e's flange at `q = 0` in the controller's `base` frame (DH frame 0) is at
+    /// `(a₂ + a₃, −(d₄ + d₆), d₁ − d₅)` with its z axis along base −y, i.e. `R = Rx(π/2)`:
+    ///
+    /// ```
+    /// use approx::assert_abs_diff_eq;
+    /// use armtwin_core::kinematics::Chain;
+    /// use armtwin_core::model::catalog;
+    /// use nalgebra::{Matrix3, Vector3};
+    /// use std::f64::consts::{FRAC_1_SQRT_2, FRAC_PI_2};
+    ///
+    /// let ur10e = catalog::arm("ur10e")?;
+    /// let chain = Chain::from_dh(ur10e.convention, &ur10e.dh);
+    /// let pose = chain.pose(&[0.0; 6])?;
+    /// // d₁ = 0.1807, a₂ = −0.6127, a₃ = −0.57155, d₄ = 0.17415, d₅ = 0.11985, d₆ = 0.11655 (m)
+    /// let position_m = Vector3::new(-1.18425, -0.2907, 0.06085);
+    /// assert_abs_diff_eq!(pose.position_m, position_m, epsilon = 1e-12);
+    /// let rx_quarter_turn = Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 1.0, 0.0);
+    /// assert_abs_diff_eq!(pose.rotation, rx_quarter_turn, epsilon = 1e-15);
+    ///
+    /// let readout = pose.readout();
+    /// let [qx, qy, qz, qw] = readout.quaternion_xyzw;
+    /// assert_abs_diff_eq!(qx, FRAC_1_SQRT_2, epsilon = 1e-15);
+    /// assert_abs_diff_eq!(qy.abs() + qz.abs(), 0.0, epsilon = 1e-15);
+    /// assert_abs_diff_eq!(qw, FRAC_1_SQRT_2, epsilon = 1e-15);
+    /// assert_abs_diff_eq!(readout.rpy.roll_rad, FRAC_PI_2, epsilon = 1e-15);
+    /// assert_abs_diff_eq!(readout.rpy.pitch_rad, 0.0, epsilon = 1e-15);
+    /// assert_abs_diff_eq!(readout.rpy.yaw_rad, 0.0, epsilon = 1e-15);
+    ///
+    /// assert!(chain.pose(&[0.0; 5]).is_err(), "one angle per joint");
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
     pub fn pose(&self, q_rad: &[f64]) -> Result<Pose, KinematicsError> {
         if q_rad.len() != self.joints.len() {
             return Err(KinematicsError::JointCount {

@@ -193,7 +193,48 @@ impl RobotModel {
     }
 
     /// The TCP pose in the model's output frame for joint angles `q_rad` (rad), after
-    /// [`Self::check_joints`].
+    /// [`Self::check_joints`]: position in metres, the rotation's columns the TCP's axes in the
+    /// output frame (`frame_from_base · base_from_flange · flange_from_tcp`).
+    /// [`Pose::readout`](crate::kinematics::Pose::readout) gives the quaternion in wire order
+    /// `[x, y, z, w]` with `w ≥ 0`, and roll, pitch, yaw with `R = Rz(yaw) · Ry(pitch) · Rx(roll)`.
+    ///
+    /// A UR10e with a 0.2 m tool along the flange's z axis, turned a quarter turn about it, in ROS
+    /// `base_link` (`base` turned π about z), at `q = 0`: the tool's z axis is `base_link` +y, so
+    /// the TCP sits 0.2 m further along y than the flange, at `(−(a₂ + a₃), d₄ + d₆ + 0.2, d₁ − d₅)`:
+    ///
+    /// ```
+    /// use approx::assert_abs_diff_eq;
+    /// use armtwin_core::kinematics::{OutputFrame, TcpOffset};
+    /// use armtwin_core::model::{RobotModel, catalog};
+    /// use nalgebra::{Matrix3, Vector3};
+    /// use std::f64::consts::FRAC_PI_2;
+    ///
+    /// // As on the UR pendant: x, y, z (m), then a rotation vector (rad).
+    /// let tool = TcpOffset::from_ur_pose([0.0, 0.0, 0.2, 0.0, 0.0, FRAC_PI_2]).ok_or("finite")?;
+    /// let model = RobotModel::new(catalog::arm("ur10e")?, None, tool, OutputFrame::BaseLink)?;
+    /// let pose = model.pose(&[0.0; 6])?;
+    /// // d₁ = 0.1807, a₂ = −0.6127, a₃ = −0.57155, d₄ = 0.17415, d₅ = 0.11985, d₆ = 0.11655 (m)
+    /// let position_m = Vector3::new(1.18425, 0.4907, 0.06085);
+    /// assert_abs_diff_eq!(pose.position_m, position_m, epsilon = 1e-12);
+    /// // Columns: the TCP's x, y, z axes in base_link.
+    /// let axes = Matrix3::new(0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0);
+    /// assert_abs_diff_eq!(pose.rotation, axes, epsilon = 1e-15);
+    ///
+    /// // A third of a turn about (−1, −1, −1)/√3; of q and −q, the one with w ≥ 0.
+    /// let readout = pose.readout();
+    /// for (got, expected) in readout.quaternion_xyzw.iter().zip([-0.5, -0.5, -0.5, 0.5]) {
+    ///     assert_abs_diff_eq!(*got, expected, epsilon = 1e-15);
+    /// }
+    /// // Pitch −π/2 is gimbal lock: yaw is then 0 and roll carries the rotation.
+    /// assert_abs_diff_eq!(readout.rpy.roll_rad, -FRAC_PI_2, epsilon = 1e-12);
+    /// assert_abs_diff_eq!(readout.rpy.pitch_rad, -FRAC_PI_2, epsilon = 1e-12);
+    /// assert_abs_diff_eq!(readout.rpy.yaw_rad, 0.0, epsilon = 1e-12);
+    ///
+    /// // Outside the controller's ±2π on joint 3: an error that names the joint.
+    /// let error = model.pose(&[0.0, 0.0, 7.0, 0.0, 0.0, 0.0]).unwrap_err();
+    /// assert!(error.to_string().contains("q3"), "{error}");
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
     pub fn pose(&self, q_rad: &[f64]) -> Result<Pose, KinematicsError> {
         self.check_joints(q_rad)?;
         Ok(self.chain.pose_unchecked(q_rad))

@@ -1,6 +1,9 @@
-//! FK cost: one pose with position, quaternion and roll/pitch/yaw (the target: ≤ 50 ns), its
-//! parts (`pose_only` takes the UR closed form, `pose_only_link_by_link` the general chain), and
-//! the platform's scalar `sin_cos` / `atan2` as in-run baselines for the batched trig.
+//! FK cost: one pose with position, quaternion and roll/pitch/yaw (what the service computes per
+//! joint sample), its parts (`pose_only` takes the UR closed form, `pose_only_link_by_link` the
+//! general chain), and the platform's scalar `sin_cos` / `atan2` as in-run baselines for the
+//! batched trig.
+//!
+//! `cargo bench -p armtwin-bench --bench fk`; `examples/fk_min_time.rs` times the same calls.
 #![allow(
     clippy::expect_used,
     reason = "a measuring binary whose fixtures are the checkout's own constants"

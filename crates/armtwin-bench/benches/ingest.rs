@@ -1,7 +1,7 @@
 //! armtwin's own work per sample, without Zenoh: what `armtwin serve` does inside the receive
-//! callback for the service benchmark's load (`armtwin-bench load`, whose payloads it renders with
-//! the same code, included by path). One sample is a joint message and its measured pose, into
-//! the pipeline through the service's entry points (`ingest::joint_message` /
+//! callback for the service benchmark's load (`armtwin-bench load`'s payloads, rendered by the
+//! same code in `armtwin_bench::ingest_fixture`). One sample is a joint message and its measured
+//! pose, into the pipeline through the service's entry points (`ingest::joint_message` /
 //! `ingest::measured_message`), and the outputs encoded as the service encodes them (a pose and a
 //! deviation message). Also each part alone: decoding, encoding (the fixed-layout writer the
 //! service uses, and `serde_json` writing the same bytes, as the baseline), and a robot's metrics

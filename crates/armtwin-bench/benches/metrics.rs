@@ -1,5 +1,7 @@
 //! Streaming statistics cost: one sample into the exact sliding window in steady state (each add
 //! evicts one), a window snapshot (rounding the 18 exact sums), and the cumulative statistics.
+//!
+//! `cargo bench -p armtwin-bench --bench metrics`
 #![allow(
     clippy::expect_used,
     reason = "a measuring binary whose fixtures are the checkout's own constants"

@@ -1,6 +1,6 @@
 //! FK timings robust to a shared, loaded machine: the fastest of 3 000 runs of 200 calls each, per
 //! figure (preemption only ever adds time, so the minimum is what the code costs). Companion of
-//! `benches/fk.rs` (same configuration, same names), whose wall-clock medians swing by 2× when
+//! `benches/fk.rs` (same configuration, same names), whose wall-clock medians swing widely when
 //! other jobs share the cores. Run: `cargo run --release -p armtwin-bench --example
 //! fk_min_time`.
 #![allow(

@@ -4,7 +4,8 @@
 //! `armtwin serve` does inside Zenoh's receive callback beyond what the plain echo does there (both
 //! `put` one message per message received), so its percentiles bound armtwin's added latency,
 //! lock waits aside. Measured in process because the service benchmark's round trip cannot
-//! resolve tens of microseconds on a shared machine (the echo's own p99 moves by milliseconds).
+//! resolve work this small on a shared machine (the echo's own tail latency moves far more
+//! between runs).
 //!
 //! `cargo run --release -p armtwin-bench --example ingest_latency [-- MESSAGES]`
 //! (default 2 000 000 messages). Prints percentiles in µs, and the clock's own cost.

@@ -34,7 +34,8 @@ pub struct EchoArgs {
     /// Robots to declare publishers for (`fleet/r00000` …).
     #[arg(long, default_value_t = 1)]
     pub robots: usize,
-    /// Do not declare the robots' input keys (the naive echo the service issue measured).
+    /// Do not declare the robots' input keys, so Zenoh resolves each received key anew (the
+    /// baseline for what declaring them saves).
     #[arg(long)]
     pub naive: bool,
 }

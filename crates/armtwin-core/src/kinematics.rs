@@ -695,7 +695,7 @@ pub struct Pose {
     pub rotation: Matrix3<f64>,
 }
 
-/// A pose in every representation armtwin reports, with the seed's names.
+/// A pose in every representation armtwin reports, with the UR10e FMU report's names.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PoseReadout {
     /// `[x, y, z]` (m).

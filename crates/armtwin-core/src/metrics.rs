@@ -276,8 +276,8 @@ const EXACT_SUM_OPS_BETWEEN_CARRIES: u32 = 1 << 30;
 /// significand, shifted into place, to three chunks: branch-free integer additions, no rounding at
 /// all. Chunks are signed and carries are deferred, so subtraction is the same operation with the
 /// sign flipped, and carries are propagated only every 2³⁰ operations and on reading. This keeps a
-/// sliding window's sum exact for ever, at a few nanoseconds per operation, unlike Shewchuk's
-/// partials (`math.fsum`), whose count and cost grow with the spread of the values.
+/// sliding window's sum exact for ever at a fixed cost per operation, unlike Shewchuk's partials
+/// (`math.fsum`), whose count and cost grow with the spread of the values.
 ///
 /// The chunks span `low..low + len` of the 57 positions a double can reach (2⁻¹⁰⁸⁸ to 2⁷⁰⁴), grown
 /// when a value lands outside and never shrunk (a window's values come back to the same range);
@@ -571,9 +571,9 @@ struct WindowSample {
 /// of the values.
 ///
 /// **Cost.** Amortised O(1) per [`add`](Self::add): branch-free integer additions to three chunks
-/// per sum, and each sample enters and leaves each maximum deque once (about 0.4 µs per sample in
-/// a release build, mostly the deques' data-dependent branches; Shewchuk's partials took 1–2 µs).
-/// A [`snapshot`](Self::snapshot) rounds the 18 sums, about 1 µs (`benches/metrics.rs`).
+/// per sum, and each sample enters and leaves each maximum deque once (the deques' data-dependent
+/// branches take most of an add's time). A [`snapshot`](Self::snapshot) rounds the 18 sums.
+/// Timings: `benches/metrics.rs`, figures in BENCHMARKS.md.
 /// Memory O(samples in the window): 80 bytes per sample (stamp and nine values) plus at most 36
 /// bytes of maximum-deque positions (4 bytes per metric, only while the sample is larger than every
 /// later one; a handful in all for noisy errors), so at most 116 bytes per sample. The ring buffers

@@ -3,7 +3,7 @@
 //!
 //! Owns only these two functions. Both are branch-free so the compiler vectorises them: the
 //! platform's `sin_cos` and `atan2` are scalar library calls, and the six `sin_cos` and three
-//! `atan2` of one pose took several times the whole FK budget. Elsewhere armtwin uses `f64`'s own.
+//! `atan2` of one pose through them were most of its cost. Elsewhere armtwin uses `f64`'s own.
 //!
 //! Method (fdlibm's, as in musl): `sin_cos` reduces by π/2 with a two-part Cody–Waite constant
 //! and evaluates fdlibm's minimax kernels on [−π/4, π/4], written as loops over fixed-size lane

@@ -1,5 +1,6 @@
-"""Baseline for benches/fk.rs: the seed report's per-pose numpy FK (its model.py, rebuilt from the
-report's listing), timed on this machine. Run: .venv/bin/python benches/seed_fk.py"""
+"""Baseline for benches/fk.rs: the UR10e FMU report's per-pose numpy FK (its model.py, rebuilt from
+the report's listing), timed on this machine.
+Run: .venv/bin/python crates/armtwin-bench/benches/report_numpy_fk.py"""
 
 import math
 import timeit
@@ -50,4 +51,4 @@ if __name__ == "__main__":
     q = [-0.693, -0.833, 0.951, 1.149, 1.515, 1.739]
     runs = 20000
     best = min(timeit.repeat(lambda: forward_kinematics(q), number=runs, repeat=5)) / runs
-    print(f"seed numpy FK: {best * 1e6:.1f} us per pose (best of 5 x {runs})")
+    print(f"the report's numpy FK: {best * 1e6:.1f} us per pose (best of 5 x {runs})")

@@ -124,7 +124,7 @@ def test_fmpy_validation_finds_no_problem(nominal_fmu, calibrated_fmu):
         assert validate_fmu(str(fmu)) == []
 
 
-def test_interface_is_the_seeds_with_units_and_tool_parameters(calibrated_fmu):
+def test_interface_is_the_reports_with_units_and_tool_parameters(calibrated_fmu):
     md = read_model_description(str(calibrated_fmu))
     variables = {v.name: v for v in md.modelVariables}
     for vr, name in enumerate(JOINTS):

@@ -425,7 +425,7 @@ mod tests {
     }
 
     #[test]
-    fn names_are_the_seeds_and_the_codecs() {
+    fn names_are_the_reports_and_the_codecs() {
         let names: Vec<_> = VARIABLES.iter().map(|v| v.name).collect();
         assert_eq!(names[..6], ["q1", "q2", "q3", "q4", "q5", "q6"]);
         assert_eq!(names[6..16], PoseFields::NAMES);

@@ -16,7 +16,7 @@ use crate::pose_fields::PoseFields;
 /// Name of the robot description inside the FMU's `resources/` folder.
 pub const RESOURCE_FILE: &str = "armtwin-fmu.toml";
 
-/// Number of joint inputs `q1..q6` (the UR10e FMU report's 6-joint interface).
+/// Number of joint inputs `q1..q6` (the `UR10e` FMU report's 6-joint interface).
 pub const JOINT_COUNT: usize = 6;
 
 /// Number of pose outputs, in the order of [`PoseFields::NAMES`].
@@ -97,7 +97,7 @@ impl Unit {
 /// One scalar variable of the FMU.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ScalarVariable {
-    /// Its name (the UR10e FMU report's names for inputs and outputs).
+    /// Its name (the `UR10e` FMU report's names for inputs and outputs).
     pub name: &'static str,
     /// What it addresses (and so its value reference and causality).
     pub variable: Variable,

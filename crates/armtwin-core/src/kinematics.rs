@@ -602,7 +602,7 @@ impl Chain {
     /// axes in that frame. [`Pose::readout`] gives the quaternion in wire order `[x, y, z, w]` with
     /// `w ≥ 0`, and roll, pitch, yaw with `R = Rz(yaw) · Ry(pitch) · Rx(roll)`.
     ///
-    /// The UR10e's flange at `q = 0` in the controller's `base` frame (DH frame 0) is at
+    /// The `ur10e`'s flange at `q = 0` in the controller's `base` frame (DH frame 0) is at
     /// `(a₂ + a₃, −(d₄ + d₆), d₁ − d₅)` with its z axis along base −y, i.e. `R = Rx(π/2)`:
     ///
     /// ```
@@ -695,7 +695,7 @@ pub struct Pose {
     pub rotation: Matrix3<f64>,
 }
 
-/// A pose in every representation armtwin reports, with the UR10e FMU report's names.
+/// A pose in every representation armtwin reports, with the `UR10e` FMU report's names.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PoseReadout {
     /// `[x, y, z]` (m).

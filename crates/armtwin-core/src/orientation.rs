@@ -7,7 +7,7 @@
 //! Conventions, used everywhere in armtwin:
 //! - rotation matrices act on column vectors: `p_target = target_from_source · p_source`;
 //! - quaternions are unit quaternions, on the wire in order `[x, y, z, w]`, canonicalised to
-//!   `w ≥ 0` (the UR10e FMU report's rule);
+//!   `w ≥ 0` (the `UR10e` FMU report's rule);
 //! - roll, pitch, yaw: `R = Rz(yaw) · Ry(pitch) · Rx(roll)` (fixed axes x, then y, then z), with
 //!   roll, yaw in (−π, π] and pitch in [−π/2, π/2];
 //! - UR rotation vector `[rx, ry, rz]`: axis · angle in radians, angle in [0, π], as entered on the
@@ -62,7 +62,7 @@ pub fn matrix_from_rpy(rpy: Rpy) -> Matrix3<f64> {
     )
 }
 
-/// Roll, pitch, yaw of a rotation matrix, `R = Rz(yaw) · Ry(pitch) · Rx(roll)` (the UR10e
+/// Roll, pitch, yaw of a rotation matrix, `R = Rz(yaw) · Ry(pitch) · Rx(roll)` (the `UR10e`
 /// FMU report's `matrix_to_rpy`).
 ///
 /// At gimbal lock (`cos(pitch)` below 1e-12, pitch = ±π/2) only `roll ∓ yaw` is defined: yaw is
@@ -120,7 +120,7 @@ pub fn matrix_from_quaternion(q: &UnitQuaternion<f64>) -> Matrix3<f64> {
     q.to_rotation_matrix().into_inner()
 }
 
-/// The same rotation with `w ≥ 0` (`q` and `−q` are one rotation; the UR10e FMU report's rule
+/// The same rotation with `w ≥ 0` (`q` and `−q` are one rotation; the `UR10e` FMU report's rule
 /// picks one).
 ///
 /// At `w == 0` exactly (a half turn) both signs satisfy the rule and `q` is returned as is.
@@ -236,8 +236,8 @@ pub fn rotation_angle_between(a: &UnitQuaternion<f64>, b: &UnitQuaternion<f64>) 
     2.0 * relative.imag().norm().atan2(relative.w.abs())
 }
 
-/// Quaternion distance `1 − |⟨a, b⟩|` in [0, 1] (the UR10e FMU report's orientation error): 0 for the same
-/// rotation, 1 for a half turn. Sign-invariant, so `q` and `−q` are at distance 0.
+/// Quaternion distance `1 − |⟨a, b⟩|` in [0, 1] (the `UR10e` FMU report's orientation error): 0
+/// for the same rotation, 1 for a half turn. Sign-invariant, so `q` and `−q` are at distance 0.
 ///
 /// Evaluated as `2·sin²(θ/4)` with θ from [`rotation_angle_between`], identical in exact arithmetic
 /// and free of the cancellation in `1 − |⟨a, b⟩|` for nearby rotations.

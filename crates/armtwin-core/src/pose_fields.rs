@@ -5,7 +5,7 @@ use serde::Serialize;
 
 use crate::kinematics::PoseReadout;
 
-/// A pose with the UR10e FMU report's output names (`x, y, z, roll, pitch, yaw, qx, qy, qz, qw`):
+/// A pose with the `UR10e` FMU report's output names (`x, y, z, roll, pitch, yaw, qx, qy, qz, qw`):
 /// metres, radians, quaternion `qw ≥ 0`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct PoseFields {

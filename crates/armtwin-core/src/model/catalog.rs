@@ -2,7 +2,7 @@
 //!
 //! DH values are Universal Robots' published ones ("DH parameters for calculations of kinematics
 //! and dynamics", also `config/<model>/default_kinematics.yaml` in UR's ROS 2 description), not
-//! the rounded table of the UR10e FMU report. Every UR arm shares one structure,
+//! the rounded table of the `UR10e` FMU report. Every UR arm shares one structure,
 //! `α = [π/2, 0, 0, π/2, −π/2, 0]`, `a₁ = a₄ = a₅ = a₆ = 0`, `d₂ = d₃ = 0`, `θ = 0`, so an entry
 //! holds only `d₁, a₂, a₃, d₄, d₅, d₆`.
 //!

@@ -198,9 +198,10 @@ impl RobotModel {
     /// [`Pose::readout`](crate::kinematics::Pose::readout) gives the quaternion in wire order
     /// `[x, y, z, w]` with `w ≥ 0`, and roll, pitch, yaw with `R = Rz(yaw) · Ry(pitch) · Rx(roll)`.
     ///
-    /// A UR10e with a 0.2 m tool along the flange's z axis, turned a quarter turn about it, in ROS
-    /// `base_link` (`base` turned π about z), at `q = 0`: the tool's z axis is `base_link` +y, so
-    /// the TCP sits 0.2 m further along y than the flange, at `(−(a₂ + a₃), d₄ + d₆ + 0.2, d₁ − d₅)`:
+    /// A `ur10e` with a 0.2 m tool along the flange's z axis, turned a quarter turn about it, in
+    /// ROS `base_link` (`base` turned π about z), at `q = 0`: the tool's z axis is `base_link` +y,
+    /// so the TCP sits 0.2 m further along y than the flange, at
+    /// `(−(a₂ + a₃), d₄ + d₆ + 0.2, d₁ − d₅)`:
     ///
     /// ```
     /// use approx::assert_abs_diff_eq;

@@ -26,7 +26,8 @@ if [ "$(cat "$venv/.requirements.sha256" 2>/dev/null)" != "$want" ]; then
 fi
 
 step "pytest tests/python"
-# The FMU library on its own (core only, no zenoh), next to the armtwin binary that packages it.
-cargo build --locked -p armtwin-fmu
-cargo build --locked --bin armtwin
+# The armtwin binary and the FMU library beside it, from the build `cargo test` just made: the
+# same targets with the same feature set (dev-dependencies included), so nothing is compiled
+# again; only the FMU's cdylib is copied up to target/debug/.
+cargo build --locked --workspace --lib --bins --tests
 ARMTWIN_BIN="$PWD/target/debug/armtwin" "$venv/bin/python" -m pytest tests/python -q

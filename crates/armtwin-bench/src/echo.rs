@@ -13,6 +13,7 @@ use std::collections::HashMap;
 use std::io::{Read, Write};
 use std::sync::Arc;
 
+use armtwin::cli::ZenohArgs;
 use armtwin::service::ServiceError;
 use clap::Args;
 use thiserror::Error;
@@ -27,10 +28,11 @@ use crate::net;
 
 /// `armtwin-bench echo` arguments.
 #[derive(Debug, Args)]
+#[command(mut_arg("listen", |arg| arg.required(true)))]
 pub struct EchoArgs {
-    /// Endpoint to listen on (repeatable).
-    #[arg(short = 'l', long = "listen", value_name = "ENDPOINT", required = true)]
-    pub listen: Vec<String>,
+    /// How to join the mesh, as armtwin's commands do (`-l ENDPOINT` required).
+    #[command(flatten)]
+    pub zenoh: ZenohArgs,
     /// Robots to declare publishers for (`fleet/r00000` …).
     #[arg(long, default_value_t = 1)]
     pub robots: usize,
@@ -81,7 +83,7 @@ fn forward(routes: &Routes, input: &str, sample: &Sample) {
 
 /// Runs the echo until standard input closes.
 pub fn run(args: &EchoArgs) -> Result<(), EchoError> {
-    let session = zenoh::open(net::peer_config(&args.listen, &[])?).wait()?;
+    let session = zenoh::open(net::config_of(&args.zenoh)?).wait()?;
     let mut declared: Vec<KeyExpr<'static>> = Vec::new();
     if !args.naive {
         for index in 0..args.robots {

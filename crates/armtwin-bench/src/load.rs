@@ -26,6 +26,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::thread;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
+use armtwin::cli::ZenohArgs;
 use armtwin::service::ServiceError;
 use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};
@@ -66,15 +67,12 @@ pub enum Target {
 
 /// `armtwin-bench load` arguments.
 #[derive(Debug, Clone, Args)]
+#[command(mut_arg("connect", |arg| arg.required(true)))]
 pub struct LoadArgs {
-    /// Endpoint of the system under test.
-    #[arg(
-        short = 'e',
-        long = "connect",
-        value_name = "ENDPOINT",
-        required = true
-    )]
-    pub connect: Vec<String>,
+    /// How to join the mesh, as armtwin's commands do (`-e ENDPOINT` of the system under test
+    /// required).
+    #[command(flatten)]
+    pub zenoh: ZenohArgs,
     /// The system under test.
     #[arg(long, value_enum)]
     pub target: Target,
@@ -416,7 +414,7 @@ fn percentile_us(sorted_ns: &[u64], fraction: f64) -> f64 {
 
 impl Load {
     fn open(args: LoadArgs) -> Result<Self, LoadError> {
-        let session = zenoh::open(net::peer_config(&[], &args.connect)?).wait()?;
+        let session = zenoh::open(net::config_of(&args.zenoh)?).wait()?;
         let start = Instant::now();
         let unix_s = SystemTime::now()
             .duration_since(UNIX_EPOCH)

@@ -4,6 +4,7 @@
 //!
 //! Must not know what a process does with the mesh: no publishing or counting here.
 
+use armtwin::cli::ZenohArgs;
 use armtwin::config::ZenohSection;
 use armtwin::service::{ServiceError, zenoh_config_of};
 
@@ -48,13 +49,10 @@ pub fn robot_of<'k>(key: &'k str, stream: &str) -> Option<&'k str> {
         .strip_prefix('/')
 }
 
-/// A peer listening on `listen` and connecting to `connect`, multicast scouting off.
-pub fn peer_config(listen: &[String], connect: &[String]) -> Result<zenoh::Config, ServiceError> {
-    zenoh_config_of(&ZenohSection {
-        listen: listen.to_vec(),
-        connect: connect.to_vec(),
-        ..ZenohSection::default()
-    })
+/// The Zenoh configuration of armtwin's `-m/-l/-e/--cfg` flags over Zenoh's and armtwin's
+/// defaults (a peer, multicast scouting off), built as `armtwin serve` builds its own.
+pub fn config_of(zenoh: &ZenohArgs) -> Result<zenoh::Config, ServiceError> {
+    zenoh_config_of(&ZenohSection::default().overridden(&zenoh.overrides()))
 }
 
 /// `tcp/127.0.0.1:<port>`.

@@ -21,7 +21,7 @@ use serde::Serialize;
 use crate::codec::PoseFields;
 use crate::codec::joint_csv::{JointCsvReader, PoseCsvWriter};
 use crate::codec::recording::{self, ColumnMap, PoseForm, Recording};
-use crate::config::{Overrides, ServiceConfig, ZenohSection};
+use crate::config::{Overrides, ServiceConfig, ZenohInsert, ZenohMode, ZenohSection};
 use crate::fmi::FmuSettings;
 use crate::fmu_package::{self, FmuContents, FmuPackageError};
 use crate::kinematics::{OutputFrame, TcpOffset};
@@ -165,20 +165,10 @@ pub struct ReplayArgs {
     /// Key prefix of the service.
     #[arg(long, default_value = "twin")]
     pub prefix: String,
-    /// Zenoh mode: peer or client.
-    #[arg(short = 'm', long, default_value = "peer")]
-    pub mode: String,
-    /// Endpoint to connect to (repeatable).
-    #[arg(
-        short = 'e',
-        long = "connect",
-        value_name = "ENDPOINT",
-        default_value = "tcp/127.0.0.1:7447"
-    )]
-    pub connect: Vec<String>,
-    /// Endpoint to listen on (repeatable; none by default).
-    #[arg(short = 'l', long = "listen", value_name = "ENDPOINT")]
-    pub listen: Vec<String>,
+    /// How to join the mesh; without flags, as the default `armtwin serve` configuration says
+    /// (a peer, multicast scouting off), connecting to where it listens (tcp/127.0.0.1:7447).
+    #[command(flatten)]
+    pub zenoh: ZenohArgs,
 }
 
 /// `armtwin validate` arguments.
@@ -206,21 +196,51 @@ pub struct ValidateArgs {
     pub max_angle_error: Option<f64>,
 }
 
-/// `armtwin serve` arguments, in Zenoh's own style; they override the configuration file.
+/// `armtwin serve` arguments.
 #[derive(Debug, Args)]
 pub struct ServeArgs {
     /// The configuration file (TOML); without it, the built-in `config/armtwin.toml`.
     #[arg(short = 'c', long, value_name = "FILE")]
     pub config: Option<PathBuf>,
-    /// Zenoh mode: peer, client or router.
-    #[arg(short = 'm', long)]
-    pub mode: Option<String>,
-    /// Endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable; replaces the file's list).
+    /// How to join the mesh; the flags override the configuration's `[zenoh]`.
+    #[command(flatten)]
+    pub zenoh: ZenohArgs,
+}
+
+/// How a command joins the Zenoh mesh, in Zenoh's own style (as `zenohd`): the same flags, with
+/// the same meaning, for every command that opens a session. Each flag overrides the command's
+/// `[zenoh]` settings ([`ZenohSection::overridden`]); what is not given stays as they say.
+#[derive(Debug, Clone, Default, Args)]
+pub struct ZenohArgs {
+    /// Zenoh mode [default: the configuration's, peer].
+    #[arg(short = 'm', long, value_enum, value_name = "MODE")]
+    pub mode: Option<ZenohMode>,
+    /// Endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable; replaces the configuration's
+    /// list).
     #[arg(short = 'l', long = "listen", value_name = "ENDPOINT")]
     pub listen: Vec<String>,
-    /// Endpoint to connect to, e.g. tcp/10.0.0.5:7447 (repeatable; replaces the file's list).
+    /// Endpoint to connect to, e.g. tcp/10.0.0.5:7447 (repeatable; replaces the configuration's
+    /// list).
     #[arg(short = 'e', long = "connect", value_name = "ENDPOINT")]
     pub connect: Vec<String>,
+    /// Any Zenoh configuration value, as `zenohd --cfg`: a JSON5 VALUE at the configuration path
+    /// KEY, e.g. `--cfg transport/shared_memory/enabled:false` or
+    /// `--cfg scouting/multicast/enabled:true` (repeatable; applied last, so it wins).
+    #[arg(long = "cfg", value_name = "KEY:VALUE")]
+    pub cfg: Vec<ZenohInsert>,
+}
+
+impl ZenohArgs {
+    /// The flags as configuration overrides.
+    #[must_use]
+    pub fn overrides(&self) -> Overrides {
+        Overrides {
+            mode: self.mode,
+            listen: self.listen.clone(),
+            connect: self.connect.clone(),
+            cfg: self.cfg.clone(),
+        }
+    }
 }
 
 /// Which robot: model, its calibration, its tool, and the output frame. Shared by every command
@@ -431,13 +451,7 @@ fn run_replay(args: &ReplayArgs) -> Result<()> {
     }
     let (recording, times) = args.input.load()?;
     let settings = ReplaySettings {
-        zenoh: ZenohSection {
-            mode: args.mode.clone(),
-            listen: args.listen.clone(),
-            connect: args.connect.clone(),
-            file: None,
-            multicast_scouting: false,
-        },
+        zenoh: ZenohSection::joining_default_service().overridden(&args.zenoh.overrides()),
         key_prefix: args.prefix.clone(),
         robot: args.robot.clone(),
         speed: (!args.max_rate).then_some(args.speed),
@@ -564,12 +578,7 @@ fn run_validate(args: &ValidateArgs) -> Result<()> {
 }
 
 fn run_serve(args: &ServeArgs) -> Result<()> {
-    let overrides = Overrides {
-        mode: args.mode.clone(),
-        listen: args.listen.clone(),
-        connect: args.connect.clone(),
-    };
-    let config = ServiceConfig::load(args.config.as_deref(), &overrides)?;
+    let config = ServiceConfig::load(args.config.as_deref(), &args.zenoh.overrides())?;
     tracing::info!(config = %config.source_name, "configuration loaded");
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()

@@ -77,12 +77,12 @@ struct File {
 }
 
 /// `[zenoh]`: how armtwin joins the mesh.
-#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Default, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct ZenohSection {
-    /// `peer`, `client` or `router`.
-    #[serde(default = "default_mode")]
-    pub mode: String,
+    /// The session's role.
+    #[serde(default)]
+    pub mode: ZenohMode,
     /// Endpoints to listen on, e.g. `tcp/127.0.0.1:7447`.
     #[serde(default)]
     pub listen: Vec<String>,
@@ -95,21 +95,130 @@ pub struct ZenohSection {
     /// Multicast scouting (off by default: peers are found through `listen`/`connect`).
     #[serde(default)]
     pub multicast_scouting: bool,
+    /// Values set at a path of the Zenoh configuration (`zenohd --cfg` style), applied last so
+    /// that they win over every key above.
+    #[serde(default)]
+    pub cfg: Vec<ZenohInsert>,
 }
 
-fn default_mode() -> String {
-    "peer".to_owned()
+/// A Zenoh session's role (`-m/--mode`, `[zenoh] mode`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum ZenohMode {
+    /// Talks to every session it reaches, directly.
+    #[default]
+    Peer,
+    /// Talks through one router (or peer) it connects to.
+    Client,
+    /// Routes for clients and other routers.
+    Router,
 }
 
-impl Default for ZenohSection {
-    fn default() -> Self {
-        Self {
-            mode: default_mode(),
-            listen: Vec::new(),
-            connect: Vec::new(),
-            file: None,
-            multicast_scouting: false,
+impl ZenohMode {
+    /// The name Zenoh's configuration uses.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Peer => "peer",
+            Self::Client => "client",
+            Self::Router => "router",
         }
+    }
+}
+
+impl std::fmt::Display for ZenohMode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// One `KEY:VALUE` setting of the Zenoh configuration: a JSON5 `value` at the path `key`, e.g.
+/// `transport/shared_memory/enabled:false` (the key holds no `:`, the value may).
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
+#[serde(try_from = "String")]
+pub struct ZenohInsert {
+    /// The configuration path, e.g. `transport/shared_memory/enabled`.
+    pub key: String,
+    /// The JSON5 value, e.g. `false`; Zenoh checks it against the key when the session's
+    /// configuration is built.
+    pub value: String,
+}
+
+/// A `--cfg` (or `[zenoh] cfg`) entry that is not `KEY:VALUE`.
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+#[error(
+    "'{text}' is not KEY:VALUE (a Zenoh configuration path, a colon, a JSON5 value; e.g. transport/shared_memory/enabled:false)"
+)]
+pub struct ZenohInsertError {
+    /// The entry as given.
+    pub text: String,
+}
+
+impl std::str::FromStr for ZenohInsert {
+    type Err = ZenohInsertError;
+
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        match text.split_once(':') {
+            Some((key, value)) if !key.trim().is_empty() && !value.trim().is_empty() => Ok(Self {
+                key: key.trim().to_owned(),
+                value: value.trim().to_owned(),
+            }),
+            _ => Err(ZenohInsertError {
+                text: text.to_owned(),
+            }),
+        }
+    }
+}
+
+impl TryFrom<String> for ZenohInsert {
+    type Error = ZenohInsertError;
+
+    fn try_from(text: String) -> Result<Self, Self::Error> {
+        text.parse()
+    }
+}
+
+impl std::fmt::Display for ZenohInsert {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}:{}", self.key, self.value)
+    }
+}
+
+impl ZenohSection {
+    /// How a session joins the service running on the embedded default configuration: its
+    /// mode and multicast scouting, connecting to the endpoints it listens on
+    /// (`tcp/127.0.0.1:7447`). What `armtwin replay` starts from, so that a bare `replay` reaches
+    /// a bare `serve`.
+    #[must_use]
+    pub fn joining_default_service() -> Self {
+        // The embedded file is checked by this module's tests; a broken one would fall back to
+        // Zenoh's own defaults rather than stop `replay`.
+        let service = toml::from_str::<File>(DEFAULT_CONFIG_TOML)
+            .map(|file| file.zenoh)
+            .unwrap_or_default();
+        Self {
+            mode: service.mode,
+            connect: service.listen,
+            multicast_scouting: service.multicast_scouting,
+            ..Self::default()
+        }
+    }
+
+    /// The section with the command line's flags applied: a mode replaces the section's, an
+    /// endpoint list replaces the section's list, `--cfg` entries come after the section's own.
+    #[must_use]
+    pub fn overridden(mut self, overrides: &Overrides) -> Self {
+        if let Some(mode) = overrides.mode {
+            self.mode = mode;
+        }
+        if !overrides.listen.is_empty() {
+            self.listen.clone_from(&overrides.listen);
+        }
+        if !overrides.connect.is_empty() {
+            self.connect.clone_from(&overrides.connect);
+        }
+        self.cfg.extend(overrides.cfg.iter().cloned());
+        self
     }
 }
 
@@ -246,15 +355,17 @@ pub struct ServiceConfig {
     pub robots: HashMap<String, RobotSettings>,
 }
 
-/// Command-line overrides, Zenoh style.
+/// Command-line overrides, Zenoh style (`-m`, `-l`, `-e`, `--cfg`).
 #[derive(Debug, Clone, Default)]
 pub struct Overrides {
     /// `-m/--mode`.
-    pub mode: Option<String>,
+    pub mode: Option<ZenohMode>,
     /// `-l/--listen` (replaces the file's list when given).
     pub listen: Vec<String>,
     /// `-e/--connect` (replaces the file's list when given).
     pub connect: Vec<String>,
+    /// `--cfg KEY:VALUE` (applied after the file's `cfg`, so they win).
+    pub cfg: Vec<ZenohInsert>,
 }
 
 impl ServiceConfig {
@@ -289,27 +400,7 @@ impl ServiceConfig {
             source_name: source_name.to_owned(),
             message: e.to_string(),
         })?;
-        let invalid = |field: &str, problem: String| ConfigError::Invalid {
-            source_name: source_name.to_owned(),
-            field: field.to_owned(),
-            problem,
-        };
-        let mut zenoh = file.zenoh;
-        if let Some(mode) = &overrides.mode {
-            zenoh.mode.clone_from(mode);
-        }
-        if !overrides.listen.is_empty() {
-            zenoh.listen.clone_from(&overrides.listen);
-        }
-        if !overrides.connect.is_empty() {
-            zenoh.connect.clone_from(&overrides.connect);
-        }
-        if !["peer", "client", "router"].contains(&zenoh.mode.as_str()) {
-            return Err(invalid(
-                "zenoh.mode",
-                format!("'{}' is not one of peer, client, router", zenoh.mode),
-            ));
-        }
+        let mut zenoh = file.zenoh.overridden(overrides);
         zenoh.file = zenoh.file.map(|f| base_dir.join(f));
         let service = file.service;
         let align = check_service_and_align(&service, &file.align, source_name)?;
@@ -632,6 +723,83 @@ fn robot_settings(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn zenoh_flags_override_the_file_and_cfg_entries_come_last() {
+        let text = "[zenoh]\nmode = \"client\"\nlisten = [\"tcp/127.0.0.1:7000\"]\n\
+                    connect = [\"tcp/10.0.0.1:7447\"]\ncfg = [\"transport/shared_memory/enabled:false\"]\n";
+        let overrides = Overrides {
+            mode: Some(ZenohMode::Router),
+            listen: vec!["tcp/0.0.0.0:7447".to_owned()],
+            connect: Vec::new(),
+            cfg: vec![
+                "connect/timeout_ms:{router: -1, peer: 2000}"
+                    .parse()
+                    .expect("KEY:VALUE"),
+            ],
+        };
+        let config = ServiceConfig::parse(text, "test", Path::new(""), &overrides).expect("valid");
+        let zenoh = &config.zenoh;
+        assert_eq!(zenoh.mode, ZenohMode::Router);
+        assert_eq!(zenoh.listen, ["tcp/0.0.0.0:7447"]);
+        assert_eq!(
+            zenoh.connect,
+            ["tcp/10.0.0.1:7447"],
+            "no -e: the file's list stays"
+        );
+        let cfg: Vec<String> = zenoh.cfg.iter().map(ToString::to_string).collect();
+        assert_eq!(
+            cfg,
+            [
+                "transport/shared_memory/enabled:false",
+                "connect/timeout_ms:{router: -1, peer: 2000}"
+            ]
+        );
+        assert_eq!(zenoh.cfg[1].key, "connect/timeout_ms");
+        // The default: a peer, multicast scouting off, no extra settings.
+        let default = ServiceConfig::load(None, &Overrides::default()).expect("embedded");
+        assert_eq!(default.zenoh.mode, ZenohMode::Peer);
+        assert!(!default.zenoh.multicast_scouting && default.zenoh.cfg.is_empty());
+        assert_eq!(
+            ZenohSection::joining_default_service(),
+            ZenohSection {
+                connect: default.zenoh.listen,
+                ..ZenohSection::default()
+            }
+        );
+    }
+
+    #[test]
+    fn bad_zenoh_entries_are_named() {
+        for bad in ["novalue", ":false", "key:", ""] {
+            let error = bad.parse::<ZenohInsert>().expect_err(bad);
+            assert!(
+                error
+                    .to_string()
+                    .contains(&format!("'{bad}' is not KEY:VALUE")),
+                "{error}"
+            );
+        }
+        let error = ServiceConfig::parse(
+            "[zenoh]\nmode = \"hub\"\n",
+            "test",
+            Path::new(""),
+            &Overrides::default(),
+        )
+        .expect_err("unknown mode");
+        assert!(error.to_string().contains("hub"), "{error}");
+        let error = ServiceConfig::parse(
+            "[zenoh]\ncfg = [\"oops\"]\n",
+            "test",
+            Path::new(""),
+            &Overrides::default(),
+        )
+        .expect_err("not KEY:VALUE");
+        assert!(
+            error.to_string().contains("'oops' is not KEY:VALUE"),
+            "{error}"
+        );
+    }
 
     #[test]
     fn robots_with_the_same_model_source_share_one_model() {

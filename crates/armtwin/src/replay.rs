@@ -16,7 +16,7 @@ use zenoh::qos::CongestionControl;
 
 use crate::codec::recording::{self, Recording};
 use crate::config::ZenohSection;
-use crate::service::{ServiceError, zenoh_config_of};
+use crate::service::{ServiceError, TEARDOWN_STEP, bounded, zenoh_config_of};
 
 /// How long to wait for a subscriber (the service) before giving up.
 const WAIT_FOR_SUBSCRIBER: Duration = Duration::from_secs(10);
@@ -80,7 +80,7 @@ pub async fn replay(
     let deadline = Instant::now() + WAIT_FOR_SUBSCRIBER;
     while !publisher.matching_status().await?.matching() {
         if Instant::now() >= deadline {
-            let _ = session.close().await;
+            bounded("closing the session", TEARDOWN_STEP, session.close()).await;
             return Err(ServiceError::Worker(format!(
                 "nobody subscribes to {key} after {} s: is `armtwin serve` running and reachable ({:?})?",
                 WAIT_FOR_SUBSCRIBER.as_secs(),
@@ -121,9 +121,25 @@ pub async fn replay(
         report.published += 1;
         progress(index + 1);
     }
-    drain(&session, settings).await;
-    publisher.undeclare().await?;
-    session.close().await?;
+    // The query's own timeout ends the wait; the bound covers a session that stops answering.
+    bounded(
+        "waiting for the service to take every message",
+        DRAIN_LIMIT + TEARDOWN_STEP,
+        drain(&session, settings),
+    )
+    .await;
+    if let Some(result) = bounded(
+        "undeclaring the publisher",
+        TEARDOWN_STEP,
+        publisher.undeclare(),
+    )
+    .await
+    {
+        result?;
+    }
+    if let Some(result) = bounded("closing the session", TEARDOWN_STEP, session.close()).await {
+        result?;
+    }
     info!(
         published = report.published,
         malformed = report.malformed,

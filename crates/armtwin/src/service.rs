@@ -12,7 +12,7 @@
 //! disconnected; `drop`: the twin never waits and a slow subscriber misses outputs).
 
 use std::collections::HashMap;
-use std::future::Future;
+use std::future::{Future, IntoFuture};
 use std::sync::Arc;
 use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, channel};
 use std::sync::{Mutex, MutexGuard, PoisonError};
@@ -37,7 +37,7 @@ use crate::metrics::Deviation;
 use crate::pipeline::{Event, EventKind, MeasuredStream, MetricsSnapshot, Pipeline, Sink};
 
 /// How long each teardown step may take.
-const TEARDOWN_STEP: Duration = Duration::from_secs(5);
+pub(crate) const TEARDOWN_STEP: Duration = Duration::from_secs(5);
 
 /// Why the service stopped with an error.
 #[derive(Debug, Error)]
@@ -79,7 +79,9 @@ pub struct ServeReport {
     pub publish_errors: u64,
 }
 
-/// Builds the Zenoh configuration of a `[zenoh]` section.
+/// Builds the Zenoh configuration of a `[zenoh]` section (the command line's flags already
+/// applied, [`ZenohSection::overridden`]): the one place every armtwin session gets its
+/// configuration from. The section's `cfg` entries go in last, so they win.
 pub fn zenoh_config_of(section: &ZenohSection) -> Result<zenoh::Config, ServiceError> {
     let mut zenoh = match &section.file {
         Some(path) => zenoh::Config::from_file(path)
@@ -101,7 +103,51 @@ pub fn zenoh_config_of(section: &ZenohSection) -> Result<zenoh::Config, ServiceE
             .insert_json5(key, &value)
             .map_err(|e| ServiceError::ZenohConfig(format!("{key} = {value}: {e}")))?;
     }
+    for insert in &section.cfg {
+        if let Err(e) = zenoh.insert_json5(&insert.key, &insert.value) {
+            // Zenoh's message is the parser's error in debug form (an escaped excerpt of the
+            // value, then the reason after `= `) followed by Zenoh's source location.
+            let message = e.to_string();
+            let reason = message
+                .split_once("msg: \"")
+                .and_then(|(_, rest)| rest.split_once('"'))
+                .map_or(message.as_str(), |(msg, _)| msg);
+            let reason = reason.rsplit_once("= ").map_or(reason, |(_, last)| last);
+            let reason = reason
+                .find(" at ")
+                .filter(|&at| reason[at..].contains(".rs:"))
+                .map_or(reason, |at| &reason[..at]);
+            let problem = if zenoh.get_json(&insert.key).is_err() {
+                "Zenoh's configuration has no such key".to_owned()
+            } else {
+                format!("not a value this key takes: {reason}")
+            };
+            return Err(ServiceError::ZenohConfig(format!(
+                "cannot set '{}' to '{}': {problem}",
+                insert.key, insert.value
+            )));
+        }
+    }
     Ok(zenoh)
+}
+
+/// Awaits one teardown step for at most `limit`. `None`, with a warning naming the step, when it
+/// did not finish in time: the step is abandoned and the teardown goes on, so a peer that stopped
+/// answering cannot hold a shutdown forever.
+pub(crate) async fn bounded<T>(
+    step: &str,
+    limit: Duration,
+    future: impl IntoFuture<Output = T>,
+) -> Option<T> {
+    let outcome = tokio::time::timeout(limit, future).await.ok();
+    if outcome.is_none() {
+        warn!(
+            step,
+            limit_s = limit.as_secs_f64(),
+            "teardown step did not finish in time: abandoned"
+        );
+    }
+    outcome
 }
 
 /// Runs the service until `shutdown` completes, then tears down in order: stop intake, finish
@@ -145,8 +191,13 @@ pub async fn serve(
         Ok(intake) => intake,
         Err(e) => {
             let _ = control_tx.send(Control::Stop);
-            let _ = tokio::task::spawn_blocking(move || control.join()).await;
-            let _ = session.close().await;
+            bounded(
+                "stopping the control thread",
+                TEARDOWN_STEP * 4,
+                tokio::task::spawn_blocking(move || control.join()),
+            )
+            .await;
+            bounded("closing the session", TEARDOWN_STEP, session.close()).await;
             return Err(e);
         }
     };
@@ -156,31 +207,27 @@ pub async fn serve(
     intake.undeclare().await;
     // Samples that arrive after this are ignored: the control thread finishes the pipeline.
     let _ = control_tx.send(Control::Stop);
-    let report = match tokio::time::timeout(
+    let report = match bounded(
+        "finishing the pipeline and undeclaring the robots' outputs",
         TEARDOWN_STEP * 4,
         tokio::task::spawn_blocking(move || control.join()),
     )
     .await
     {
-        Ok(Ok(Ok(report))) => report,
-        Ok(Ok(Err(_))) => {
-            return Err(ServiceError::Worker(
-                "the control thread panicked".to_owned(),
-            ));
-        }
-        Ok(Err(e)) => return Err(ServiceError::Worker(e.to_string())),
-        Err(_) => {
-            return Err(ServiceError::Worker(
-                "the control thread did not stop in time".to_owned(),
-            ));
-        }
+        Some(Ok(Ok(report))) => Ok(report),
+        Some(Ok(Err(_))) => Err(ServiceError::Worker(
+            "the control thread panicked".to_owned(),
+        )),
+        Some(Err(e)) => Err(ServiceError::Worker(e.to_string())),
+        None => Err(ServiceError::Worker(
+            "the control thread did not stop in time".to_owned(),
+        )),
     };
-    if tokio::time::timeout(TEARDOWN_STEP, session.close())
-        .await
-        .is_err()
-    {
-        warn!("the session did not close in time");
+    // Closed even when the control thread failed: the session's links go down either way.
+    if let Some(Err(e)) = bounded("closing the session", TEARDOWN_STEP, session.close()).await {
+        warn!(error = %e, "closing the session failed");
     }
+    let report = report?;
     info!(
         inputs = report.inputs,
         poses = report.poses,
@@ -198,15 +245,18 @@ struct Intake {
 }
 
 impl Intake {
+    /// Undeclares every subscriber and queryable, each within [`TEARDOWN_STEP`].
     async fn undeclare(self) {
         for subscriber in self.subscribers {
-            if let Err(e) = subscriber.undeclare().await {
-                warn!(error = %e, "undeclaring a subscriber failed");
+            let step = format!("undeclaring the subscriber on {}", subscriber.key_expr());
+            if let Some(Err(e)) = bounded(&step, TEARDOWN_STEP, subscriber.undeclare()).await {
+                warn!(error = %e, step, "undeclaring failed");
             }
         }
         for queryable in self.queryables {
-            if let Err(e) = queryable.undeclare().await {
-                warn!(error = %e, "undeclaring a queryable failed");
+            let step = format!("undeclaring the queryable on {}", queryable.key_expr());
+            if let Some(Err(e)) = bounded(&step, TEARDOWN_STEP, queryable.undeclare()).await {
+                warn!(error = %e, step, "undeclaring failed");
             }
         }
     }

@@ -213,3 +213,37 @@ fn example_configs_work_as_documented() {
     assert!(ready["y"].as_f64().expect("y").abs() < 1e-12);
     assert!((ready["z"].as_f64().expect("z") - 0.590_282_052_302_8).abs() < 1e-12);
 }
+
+#[test]
+fn a_bad_zenoh_flag_is_a_clear_error_before_any_session() {
+    // Not KEY:VALUE: refused by the argument parser, for every command that opens a session.
+    for command in [
+        &["serve"][..],
+        &["replay", "recording.csv", "--robot", "r1"],
+    ] {
+        let error = failure(&[command, &["--cfg", "shared_memory"]].concat(), None);
+        assert!(
+            error.contains("'shared_memory' is not KEY:VALUE"),
+            "{command:?}: {error}"
+        );
+    }
+    // A key Zenoh does not have, and a value its key does not take: the key and value are named.
+    let error = failure(&["serve", "--cfg", "transport/no_such_key:true"], None);
+    assert!(
+        error.contains("cannot set 'transport/no_such_key' to 'true'")
+            && error.contains("no such key"),
+        "{error}"
+    );
+    let error = failure(
+        &["serve", "--cfg", "transport/shared_memory/enabled:7"],
+        None,
+    );
+    assert!(
+        error.contains("cannot set 'transport/shared_memory/enabled' to '7'")
+            && error.contains("expected a boolean"),
+        "{error}"
+    );
+    assert!(
+        failure(&["serve", "-m", "hub"], None).contains("possible values: peer, client, router")
+    );
+}

@@ -16,7 +16,7 @@ use std::time::Duration;
 
 use armtwin::codec::recording;
 use armtwin::codec::wire::MetricsMessage;
-use armtwin::config::{Overrides, ServiceConfig, ZenohSection};
+use armtwin::config::{Overrides, ServiceConfig, ZenohMode, ZenohSection};
 use armtwin::kinematics::PoseReadout;
 use armtwin::model::RobotModel;
 use armtwin::replay::{ReplaySettings, replay};
@@ -780,11 +780,12 @@ async fn replaying_the_sample_recordings_twins_every_row() {
         let data = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../..")).join("tests/data");
         let settings = |robot: &str| ReplaySettings {
             zenoh: ZenohSection {
-                mode: "peer".to_owned(),
+                mode: ZenohMode::Peer,
                 listen: Vec::new(),
                 connect: vec![endpoint.clone()],
                 file: None,
                 multicast_scouting: false,
+                cfg: Vec::new(),
             },
             key_prefix: "twin".to_owned(),
             robot: robot.to_owned(),

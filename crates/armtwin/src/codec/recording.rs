@@ -13,7 +13,8 @@
 //! ([`RecordingRow::to_message`]), so replaying a recording into the service and running it
 //! through the decoder offline are one path. Cells that are not numbers stay text and are refused
 //! by the decoder like any bad message; rows that cannot be split into the header's columns are
-//! kept as [`Malformed`].
+//! kept as [`Malformed`]. Lines are read with the `csv` crate (see `RecordLines` for the
+//! separators and why quotes are not special).
 
 use serde_json::{Map, Value, json};
 use thiserror::Error;
@@ -291,14 +292,116 @@ fn layout(names: &[&str]) -> Option<Layout> {
     None
 }
 
-/// Splits a line: on commas when the header has them, else on runs of white space. Quoted
-/// cells are not special: a line that quotes commas does not split into the header's columns
-/// and is reported malformed, which is what such a line is.
-fn split(line: &str, comma: bool) -> Vec<&str> {
-    if comma {
-        line.split(',').map(str::trim).collect()
-    } else {
-        line.split_whitespace().collect()
+/// The lines of a recording that hold something, read with the `csv` crate: each with its 1-based
+/// line number, its text as in the file, and its cells.
+///
+/// The separator is the header's: a comma when the header line has one, else white space (UR's
+/// RTDE `record.py` writes single spaces; runs of spaces and tabs, as in aligned columns, are
+/// accepted too: the reader splits on spaces and each piece is split again on any white space,
+/// which drops the empty pieces a run of spaces leaves). Quotes are not special, and one line is
+/// one record: the ROS 2 sample export has whole lines quoted around numbers written with
+/// thousands separators (`"…,""8.506,978,778,163,627e-7"",0.011"`); read as CSV quoting they
+/// would become rows of other cells, and an unbalanced quote in a truncated line would swallow the
+/// lines after it. Such a line does not split into the header's columns and is reported malformed,
+/// which is what it is.
+///
+/// Line numbers and text come from each record's byte offset, not from `csv::Position::line`,
+/// which names the wrong line for the record after an empty line (rust-csv issue 208).
+struct RecordLines<'t> {
+    text: &'t str,
+    reader: csv::Reader<&'t [u8]>,
+    comma: bool,
+    /// The last record read, as the reader split it.
+    record: csv::StringRecord,
+    /// Its cells: `record` itself, or its white-space-separated pieces.
+    pieces: csv::StringRecord,
+    /// Bytes of `text` whose line feeds are counted in `line`.
+    counted: usize,
+    /// 1-based line of byte `counted`.
+    line: u64,
+}
+
+/// Where a line of a recording that is not blank is.
+struct RecordLine<'t> {
+    /// 1-based line in the file.
+    line: u64,
+    /// The line as written (without its line ending).
+    text: &'t str,
+}
+
+impl<'t> RecordLines<'t> {
+    fn new(text: &'t str) -> Self {
+        let comma = text
+            .lines()
+            .find(|line| !line.trim().is_empty())
+            .is_some_and(|header| header.contains(','));
+        let reader = csv::ReaderBuilder::new()
+            .has_headers(false)
+            .flexible(true)
+            .quoting(false)
+            .trim(csv::Trim::All)
+            .delimiter(if comma { b',' } else { b' ' })
+            // Lines end at a line feed, as `str::lines` has them; a carriage return before it is
+            // trimmed with the last cell.
+            .terminator(csv::Terminator::Any(b'\n'))
+            .from_reader(text.as_bytes());
+        Self {
+            text,
+            reader,
+            comma,
+            record: csv::StringRecord::new(),
+            pieces: csv::StringRecord::new(),
+            counted: 0,
+            line: 1,
+        }
+    }
+
+    /// Reads the next line that is not blank; its cells are then [`Self::cells`].
+    fn advance(&mut self) -> Option<RecordLine<'t>> {
+        loop {
+            // The input is a `str` and quoting is off: a record is one line of valid UTF-8,
+            // and reading from memory cannot fail; an error ends the recording where it occurs.
+            if !self.reader.read_record(&mut self.record).ok()? {
+                return None;
+            }
+            let offset = self
+                .record
+                .position()
+                .and_then(|position| usize::try_from(position.byte()).ok())
+                .unwrap_or(self.counted);
+            let rest = self.text.get(offset..)?;
+            // The record's offset is where the previous one ended: skip the empty lines the
+            // reader passed over.
+            let start = offset + (rest.len() - rest.trim_start_matches('\n').len());
+            let before = self.text.get(self.counted..start)?;
+            self.line += before.bytes().filter(|&b| b == b'\n').count() as u64;
+            self.counted = start;
+            let text = self.text.get(start..)?;
+            let text = text.split('\n').next().unwrap_or_default();
+            let text = text.strip_suffix('\r').unwrap_or(text);
+            if text.trim().is_empty() {
+                continue;
+            }
+            if !self.comma {
+                self.pieces.clear();
+                for piece in self.record.iter().flat_map(str::split_whitespace) {
+                    self.pieces.push_field(piece);
+                }
+            }
+            return Some(RecordLine {
+                line: self.line,
+                text,
+            });
+        }
+    }
+
+    /// The cells of the line [`Self::advance`] returned last.
+    fn cells(&self) -> &csv::StringRecord {
+        if self.comma {
+            &self.record
+        } else {
+            &self.pieces
+        }
     }
 }
 
@@ -356,30 +459,23 @@ pub fn read(text: &str) -> Result<Recording, RecordingError> {
 /// Reads a recording, with the columns named by `map` when given (else recognised from the
 /// header).
 pub fn read_with(text: &str, map: Option<&ColumnMap>) -> Result<Recording, RecordingError> {
-    let mut lines = text.lines().enumerate();
-    let (_, header) = lines
-        .by_ref()
-        .find(|(_, l)| !l.trim().is_empty())
-        .ok_or(RecordingError::Empty)?;
-    let comma = header.contains(',');
-    let names = split(header.trim(), comma);
+    let mut lines = RecordLines::new(text);
+    let header = lines.advance().ok_or(RecordingError::Empty)?;
+    let names: Vec<String> = lines.cells().iter().map(str::to_owned).collect();
+    let names: Vec<&str> = names.iter().map(String::as_str).collect();
     let layout = match map {
         Some(map) => mapped_layout(&names, map)?,
         None => layout(&names).ok_or_else(|| RecordingError::UnknownHeader {
-            header: header.chars().take(200).collect(),
+            header: header.text.chars().take(200).collect(),
         })?,
     };
     let mut entries = Vec::new();
-    for (index, raw) in lines {
-        let line = index as u64 + 1;
-        if raw.trim().is_empty() {
-            continue;
-        }
-        let cells = split(raw.trim(), comma);
+    while let Some(RecordLine { line, text }) = lines.advance() {
+        let cells = lines.cells();
         if cells.len() != names.len() {
             entries.push(Err(Malformed {
                 line,
-                text: raw.to_owned(),
+                text: text.to_owned(),
                 problem: format!("{} columns, the header has {}", cells.len(), names.len()),
             }));
             continue;
@@ -388,13 +484,13 @@ pub fn read_with(text: &str, map: Option<&ColumnMap>) -> Result<Recording, Recor
             .stamp
             .iter()
             .zip(&layout.stamp_scale)
-            .map(|(&c, scale)| Cell::parse(cells[c]).number().map(|v| v * scale))
+            .map(|(&c, scale)| Cell::parse(&cells[c]).number().map(|v| v * scale))
             .sum::<Option<f64>>()
             .filter(|_| !layout.stamp.is_empty())
             .filter(|t| t.is_finite());
-        let q = layout.q.iter().map(|&c| Cell::parse(cells[c])).collect();
+        let q = layout.q.iter().map(|&c| Cell::parse(&cells[c])).collect();
         let pose = layout.pose.as_ref().map(|(form, columns)| {
-            let cell = |i: usize| Cell::parse(cells[columns[i]]);
+            let cell = |i: usize| Cell::parse(&cells[columns[i]]);
             match form {
                 PoseForm::Quaternion => PoseCells::Quaternion(std::array::from_fn(cell)),
                 PoseForm::Rpy => PoseCells::Rpy(std::array::from_fn(cell)),
@@ -548,6 +644,42 @@ mod tests {
         assert_eq!(message["measured"]["rx"], json!(0.1));
         let malformed = recording.entries[1].as_ref().expect_err("extra column");
         assert_eq!(malformed.line, 3);
+    }
+
+    #[test]
+    fn line_numbers_and_text_survive_blank_lines_and_crlf() {
+        let text = "\r\n\ntime,q1,q2,q3,q4,q5,q6\r\n\r\n1,0,0,0,0,0,0\r\n\n   \n, ,\r\n2,0,\"0\",0,0,0,0\r\n\r\n\r\n 3 , 0,0,0,0,0,zz";
+        let recording = read(text).expect("recognised");
+        let lines: Vec<u64> = recording
+            .entries
+            .iter()
+            .map(|e| e.as_ref().map_or_else(|m| m.line, |r| r.line))
+            .collect();
+        assert_eq!(lines, [5, 8, 9, 12]);
+        let malformed = recording.entries[1].as_ref().expect_err("3 columns");
+        assert_eq!(malformed.text, ", ,");
+        assert_eq!(malformed.problem, "3 columns, the header has 7");
+        let quoted = recording.entries[2].as_ref().expect("row");
+        assert_eq!(quoted.q[1], Cell::Text("\"0\"".to_owned()));
+        let last = recording.entries[3].as_ref().expect("row");
+        assert_eq!(
+            (last.stamp_s, &last.q[5]),
+            (Some(3.0), &Cell::Text("zz".to_owned()))
+        );
+    }
+
+    #[test]
+    fn white_space_runs_and_tabs_separate_cells() {
+        let header =
+            "timestamp\tactual_q_0 actual_q_1  actual_q_2 actual_q_3 actual_q_4 actual_q_5";
+        let text = format!("{header}\n  1.5\t0.1   0.2 0.3 0.4 0.5 0.6  \n\n2.5 0.1 0.2\n");
+        let recording = read(&text).expect("recognised");
+        assert_eq!(recording.format, Format::Rtde);
+        let row = recording.entries[0].as_ref().expect("row");
+        assert_eq!((row.line, row.stamp_s), (2, Some(1.5)));
+        assert_eq!(row.q[5], Cell::Number(0.6));
+        let short = recording.entries[1].as_ref().expect_err("3 columns");
+        assert_eq!((short.line, short.text.as_str()), (4, "2.5 0.1 0.2"));
     }
 
     #[test]

@@ -112,7 +112,7 @@ def test_fmpy_inputs_against_reference(tmp_path):
     mpos = np.array([[float(r[k]) for k in ("x", "y", "z")] for r in data])
     mquat = np.array([[float(r[k]) for k in ("qx", "qy", "qz", "qw")] for r in data])
     report, rows, _, stderr = validate(tmp_path, DATA_DIR / "fmpy_inputs.csv", "--period", "0.1")
-    assert "seed/FMPy form" in stderr
+    assert "FMPy input form" in stderr
     assert (report["rows"], report["poses"], report["paired"], report["rejected"]) == (54, 54, 54, 0)
     T = ur.fk("ur10e", q)
     dev = deviations(T, mpos, mquat)

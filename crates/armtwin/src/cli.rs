@@ -92,10 +92,10 @@ pub struct FmuBuildArgs {
 /// Which recording and how to read it; shared by `replay` and `validate`.
 #[derive(Debug, Args)]
 pub struct RecordingArgs {
-    /// The recording: the seed's CSV, a ROS 2 export or a UR RTDE recording (recognised from the
+    /// The recording: the UR10e FMU report's CSV form, a ROS 2 export or a UR RTDE recording (recognised from the
     /// header), or any CSV with --joint-columns.
     pub recording: PathBuf,
-    /// Seconds between rows, ignoring the recording's time column (e.g. 0.1 for the seed's
+    /// Seconds between rows, ignoring the recording's time column (e.g. 0.1 for the report's
     /// `fmpy_inputs.csv`, whose time column is a row index).
     #[arg(long, value_name = "SECONDS")]
     pub period: Option<f64>,

@@ -45,7 +45,7 @@ fn failure(args: &[&str], stdin: Option<&str>) -> String {
 }
 
 #[test]
-fn fk_prints_the_seed_names_and_optionally_the_matrix() {
+fn fk_prints_the_report_names_and_optionally_the_matrix() {
     let text = stdout(&armtwin(
         &[
             "fk", "--model", "ur10e", "0", "-1.2", "0.5", "-0.3", "1", "2",

@@ -53,7 +53,7 @@ fn joined(q: &[f64]) -> String {
     q.iter().map(f64::to_string).collect::<Vec<_>>().join(",")
 }
 
-/// A seed-form recording with one line of every bad-input class, and the cause each raises.
+/// A recording in the UR10e FMU report's CSV form with one line of every bad-input class, and the cause each raises.
 fn recording_with_every_bad_line() -> (String, Vec<(u64, &'static str)>) {
     let m = measured_cells();
     let m_all = m.join(",");

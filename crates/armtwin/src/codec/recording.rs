@@ -2,8 +2,8 @@
 //! rows that become the service's joint messages.
 //!
 //! Recognised from the header:
-//! - the seed's form (`fmpy_inputs.csv`): `time, q1..q6` and optionally `x, y, z` with
-//!   `qx, qy, qz, qw` (preferred) or `roll, pitch, yaw`;
+//! - the UR10e FMU report's form (`fmpy_inputs.csv`, its `FMPy` input): `time, q1..q6` and
+//!   optionally `x, y, z` with `qx, qy, qz, qw` (preferred) or `roll, pitch, yaw`;
 //! - ROS 2 exports (`ur10e_lasttest.csv`): `header.stamp.sec` (and `.nanosec`), the six
 //!   `<joint>.position` columns, `tcp_pose.position.*`, `tcp_pose.orientation.*`;
 //! - Universal Robots RTDE recordings: `timestamp`, `actual_q_0..5`, `actual_TCP_pose_0..5`
@@ -22,8 +22,8 @@ use thiserror::Error;
 /// The recording layouts armtwin recognises.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Format {
-    /// `time, q1..q6[, x, y, z, qx, qy, qz, qw | roll, pitch, yaw]` (the seed's `FMPy` input).
-    Seed,
+    /// `time, q1..q6[, x, y, z, qx, qy, qz, qw | roll, pitch, yaw]` (the UR10e FMU report's `FMPy` input).
+    FmpyInputs,
     /// A ROS 2 export of `/joint_states` and the TCP pose.
     Ros2,
     /// A UR RTDE recording (`record.py`, `ur_rtde`).
@@ -37,7 +37,7 @@ impl Format {
     #[must_use]
     pub fn describe(self) -> &'static str {
         match self {
-            Self::Seed => "seed/FMPy form (time, q1..q6, x..qw)",
+            Self::FmpyInputs => "FMPy input form (time, q1..q6, x..qw)",
             Self::Ros2 => "ROS 2 export (header.stamp, <joint>.position, tcp_pose.*)",
             Self::Rtde => "UR RTDE recording (timestamp, actual_q_*, actual_TCP_pose_*)",
             Self::Mapped => "columns mapped on the command line",
@@ -154,7 +154,7 @@ pub enum RecordingError {
     },
     /// The header matches no known layout.
     #[error(
-        "header not recognised: expected the seed's 'time,q1..q6[,x,y,z,qx,qy,qz,qw]', a ROS 2 export ('header.stamp.sec', '<joint>.position', 'tcp_pose.*') or an RTDE recording ('timestamp', 'actual_q_0..5', 'actual_TCP_pose_0..5'); found: {header}"
+        "header not recognised: expected the FMPy input form 'time,q1..q6[,x,y,z,qx,qy,qz,qw]', a ROS 2 export ('header.stamp.sec', '<joint>.position', 'tcp_pose.*') or an RTDE recording ('timestamp', 'actual_q_0..5', 'actual_TCP_pose_0..5'); found: {header}"
     )]
     UnknownHeader {
         /// The header line.
@@ -226,8 +226,8 @@ fn find_all(names: &[&str], wanted: &[String]) -> Option<Vec<usize>> {
 
 fn layout(names: &[&str]) -> Option<Layout> {
     let strings = |items: &[&str]| items.iter().map(|s| (*s).to_owned()).collect::<Vec<_>>();
-    let q_seed = (1..=6).map(|j| format!("q{j}")).collect::<Vec<_>>();
-    if let Some(q) = find_all(names, &q_seed) {
+    let q_columns = (1..=6).map(|j| format!("q{j}")).collect::<Vec<_>>();
+    if let Some(q) = find_all(names, &q_columns) {
         let stamp = find_all(names, &strings(&["time"])).unwrap_or_default();
         let pose = find_all(names, &strings(&["x", "y", "z", "qx", "qy", "qz", "qw"]))
             .map(|c| (PoseForm::Quaternion, c))
@@ -236,7 +236,7 @@ fn layout(names: &[&str]) -> Option<Layout> {
                     .map(|c| (PoseForm::Rpy, c))
             });
         return Some(Layout {
-            format: Format::Seed,
+            format: Format::FmpyInputs,
             stamp_scale: vec![1.0; stamp.len()],
             stamp,
             q,
@@ -686,7 +686,7 @@ mod tests {
     fn text_cells_stay_text_and_quoted_lines_are_malformed() {
         let text = "time,q1,q2,q3,q4,q5,q6,x,y,z,qx,qy,qz,qw\n1,0,0,0,0,0,0,1,2,3,0,0,0,1\n2,0,0,0,0,0,zz,1,2,3,0,0,0,1\n\"3,0,0,0,0,0,0,1,2,3,0,0,\"\"1,5\"\",1\"\n";
         let recording = read(text).expect("recognised");
-        assert_eq!(recording.format, Format::Seed);
+        assert_eq!(recording.format, Format::FmpyInputs);
         let row = recording.entries[1].as_ref().expect("row");
         assert_eq!(row.to_message(2.0)["q"][5], json!("zz"));
         assert!(recording.entries[2].is_err());

@@ -27,7 +27,7 @@ pub fn joint_message(
         pipeline.reject_unknown_robot(robot, key, stamp_s, sink);
         return;
     };
-    match wire::decode_joints(payload, settings.model.joint_count()) {
+    match wire::read_joints(payload, settings.model.joint_count()) {
         Ok(decoded) => {
             let stamp_s = decoded.sample.stamp_s.unwrap_or_else(fallback_s);
             if let Some(error) = decoded.measured_error {
@@ -35,9 +35,9 @@ pub fn joint_message(
             }
             pipeline.joints(robot, key, stamp_s, &decoded.sample, sink);
         }
-        Err(error) => {
-            let stamp_s = wire::stamp_hint(payload).unwrap_or_else(fallback_s);
-            reject(pipeline, robot, key, stamp_s, &error, sink);
+        Err(refused) => {
+            let stamp_s = refused.stamp_s.unwrap_or_else(fallback_s);
+            reject(pipeline, robot, key, stamp_s, &refused.error, sink);
         }
     }
 }
@@ -57,14 +57,14 @@ pub fn measured_message(
         pipeline.reject_unknown_robot(robot, key, stamp_s, sink);
         return;
     }
-    match wire::decode_measured(payload) {
+    match wire::read_measured(payload) {
         Ok(measured) => {
             let stamp_s = measured.stamp_s.unwrap_or_else(fallback_s);
             pipeline.measured(robot, key, stream, stamp_s, &measured.pose, sink);
         }
-        Err(error) => {
-            let stamp_s = wire::stamp_hint(payload).unwrap_or_else(fallback_s);
-            reject(pipeline, robot, key, stamp_s, &error, sink);
+        Err(refused) => {
+            let stamp_s = refused.stamp_s.unwrap_or_else(fallback_s);
+            reject(pipeline, robot, key, stamp_s, &refused.error, sink);
         }
     }
 }

@@ -20,12 +20,14 @@
 //! [`MetricsMessage`] and [`StateMessage`], serialised by [`to_json_bytes`] (numbers in shortest
 //! round-trip form; a non-finite number would become `null`, `serde_json`'s rule).
 
+use std::borrow::Cow;
+use std::collections::BTreeSet;
 use std::fmt::{self, Write as _};
 
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::Serialize;
 use serde::de::{self, DeserializeSeed, Deserializer, IgnoredAny, MapAccess, SeqAccess, Visitor};
-use serde_json::{Map, Number, Value, json};
+use serde_json::{Number, Value, json};
 use thiserror::Error;
 
 use super::PoseFields;
@@ -194,20 +196,26 @@ pub struct DecodedJoints {
     pub measured_error: Option<WireError>,
 }
 
-/// The stamp (`t` or `time`) of a message that failed to decode, if it has a usable one, so
-/// that its rejection is reported at the message's own time.
+/// A gateway message that did not decode: why, and the stamp it offers, so that its rejection
+/// is reported at the message's own time.
+#[derive(Debug, Clone, PartialEq, Error)]
+#[error("{error}")]
+pub struct Undecodable {
+    /// Why the message was refused.
+    pub error: WireError,
+    /// The message's `t` or, without a `t` field, its `time`, when the payload is a JSON object
+    /// and that field holds a number; `None` otherwise (also for a `t` holding `null`).
+    pub stamp_s: Option<f64>,
+}
+
+/// The stamp (`t` or `time`) of a message, if it has a usable one, read without knowing what
+/// kind of message it is (a message of an unknown robot is rejected at its own time).
 #[must_use]
 pub fn stamp_hint(payload: &[u8]) -> Option<f64> {
-    if payload.len() > MAX_PAYLOAD_BYTES {
-        return None;
+    match read_message(payload, Schema::Stamp) {
+        Ok(slots) => slots.stamp_hint(),
+        Err(undecodable) => undecodable.stamp_s,
     }
-    let value: Value = serde_json::from_slice(payload).ok()?;
-    let object = value.as_object()?;
-    object
-        .get("t")
-        .or_else(|| object.get("time"))
-        .and_then(Value::as_f64)
-        .filter(|t| t.is_finite())
 }
 
 /// Decodes a joint message for an arm with `joint_count` joints.
@@ -227,94 +235,55 @@ pub fn stamp_hint(payload: &[u8]) -> Option<f64> {
 /// # Ok::<(), armtwin::codec::wire::WireError>(())
 /// ```
 pub fn decode_joints(payload: &[u8], joint_count: usize) -> Result<DecodedJoints, WireError> {
+    read_joints(payload, joint_count).map_err(|undecodable| undecodable.error)
+}
+
+/// [`decode_joints`], and for a refused message the stamp it offers, from the same pass.
+///
+/// ```
+/// use armtwin::codec::wire::read_joints;
+/// let refused = read_joints(br#"{"t": 3.5, "q": [0, 0, 0]}"#, 2).unwrap_err();
+/// assert_eq!(refused.error.kind(), "joint_count");
+/// assert_eq!(refused.stamp_s, Some(3.5));
+/// assert_eq!(read_joints(b"{\"t\": 3.5,", 2).unwrap_err().stamp_s, None);
+/// ```
+pub fn read_joints(payload: &[u8], joint_count: usize) -> Result<DecodedJoints, Undecodable> {
     match fast::joints(payload, joint_count) {
         Some(decoded) => Ok(decoded),
         None => general_joints(payload, joint_count),
     }
 }
 
-/// [`decode_joints`] for any message, naming what is wrong with an invalid one.
-fn general_joints(payload: &[u8], joint_count: usize) -> Result<DecodedJoints, WireError> {
-    let fields = parse_object(payload, Schema::JointMessage)?;
-    let stamp_s = stamp(&fields)?;
-    let seq = optional(&fields, "seq").map(sequence_number).transpose()?;
-    let degrees = match optional(&fields, "unit") {
-        None => false,
-        Some(Value::String(unit)) if unit == "rad" => false,
-        Some(Value::String(unit)) if unit == "deg" => true,
-        Some(Value::String(unit)) => {
-            return Err(WireError::Unit { got: unit.clone() });
-        }
-        Some(other) => return Err(wrong_type("unit".to_owned(), "a string", other)),
-    };
-    let mut q_rad = joint_angles(&fields, joint_count)?;
-    if degrees {
-        for angle in &mut q_rad {
-            *angle = angle.to_radians();
-        }
-    }
-    let (measured, measured_error) = match optional(&fields, "measured") {
-        None => (None, None),
-        Some(Value::Object(pose)) => match pose_readout(pose, "measured.") {
-            Ok(pose) => (Some(pose), None),
-            Err(error) => (None, Some(error)),
-        },
-        Some(other) => (
-            None,
-            Some(wrong_type("measured".to_owned(), "an object", other)),
-        ),
-    };
-    Ok(DecodedJoints {
-        sample: JointSample {
-            stamp_s,
-            seq,
-            q_rad,
-            measured,
-        },
-        measured_error,
-    })
+/// [`read_joints`] for any message, naming what is wrong with an invalid one.
+fn general_joints(payload: &[u8], joint_count: usize) -> Result<DecodedJoints, Undecodable> {
+    let slots = read_message(payload, Schema::Joints { joint_count })?;
+    let stamp_s = slots.stamp_hint();
+    slots
+        .into_joints(joint_count)
+        .map_err(|error| Undecodable { error, stamp_s })
 }
 
 /// Decodes a measured-pose message: position (m) and exactly one orientation form, the
 /// quaternion normalised (within 5 % of unit norm) and canonicalised to `qw ≥ 0`.
 pub fn decode_measured(payload: &[u8]) -> Result<MeasuredSample, WireError> {
+    read_measured(payload).map_err(|undecodable| undecodable.error)
+}
+
+/// [`decode_measured`], and for a refused message the stamp it offers, from the same pass.
+pub fn read_measured(payload: &[u8]) -> Result<MeasuredSample, Undecodable> {
     match fast::measured(payload) {
         Some(measured) => Ok(measured),
         None => general_measured(payload),
     }
 }
 
-/// [`decode_measured`] for any message, naming what is wrong with an invalid one.
-fn general_measured(payload: &[u8]) -> Result<MeasuredSample, WireError> {
-    let fields = parse_object(payload, Schema::MeasuredPose { with_stamp: true })?;
-    Ok(MeasuredSample {
-        stamp_s: stamp(&fields)?,
-        pose: pose_readout(&fields, "")?,
-    })
-}
-
-/// The value of an optional field; `null` counts as absent.
-fn optional<'a>(fields: &'a Map<String, Value>, key: &str) -> Option<&'a Value> {
-    fields.get(key).filter(|value| !value.is_null())
-}
-
-/// `t` or `time` (not both), a finite number, or `None`.
-fn stamp(fields: &Map<String, Value>) -> Result<Option<f64>, WireError> {
-    match (optional(fields, "t"), optional(fields, "time")) {
-        (Some(_), Some(_)) => Err(WireError::AmbiguousFields {
-            first: "t".to_owned(),
-            second: "time".to_owned(),
-        }),
-        (Some(value), None) => number(value, || "t".to_owned()).map(Some),
-        (None, Some(value)) => number(value, || "time".to_owned()).map(Some),
-        (None, None) => Ok(None),
-    }
-}
-
-fn sequence_number(value: &Value) -> Result<u64, WireError> {
-    value
-        .as_u64()
-        .ok_or_else(|| wrong_type("seq".to_owned(), "a non-negative integer", value))
+/// [`read_measured`] for any message, naming what is wrong with an invalid one.
+fn general_measured(payload: &[u8]) -> Result<MeasuredSample, Undecodable> {
+    let slots = read_message(payload, Schema::Measured)?;
+    let stamp_s = slots.stamp_hint();
+    slots
+        .into_measured()
+        .map_err(|error| Undecodable { error, stamp_s })
 }
 
 /// The `n` in a flat joint field `qn` (`q1`, `q2`, …; no sign, no leading zero).
@@ -326,112 +295,11 @@ fn joint_index(key: &str) -> Option<usize> {
     digits.parse().ok()
 }
 
-/// Exactly `joint_count` angles, from the `q` array or from `q1..qn`, in message units.
-fn joint_angles(fields: &Map<String, Value>, joint_count: usize) -> Result<Vec<f64>, WireError> {
-    let flat_keys = fields
-        .keys()
-        .filter(|key| joint_index(key).is_some())
-        .count();
-    if let Some(array) = fields.get("q") {
-        if flat_keys > 0 {
-            let lowest = fields
-                .keys()
-                .filter_map(|key| joint_index(key))
-                .min()
-                .unwrap_or(1);
-            return Err(WireError::AmbiguousFields {
-                first: "q".to_owned(),
-                second: format!("q{lowest}"),
-            });
-        }
-        let Value::Array(items) = array else {
-            return Err(wrong_type("q".to_owned(), "an array", array));
-        };
-        if items.len() != joint_count {
-            return Err(WireError::JointCount {
-                field: "q".to_owned(),
-                expected: joint_count,
-                got: items.len(),
-            });
-        }
-        return items
-            .iter()
-            .enumerate()
-            .map(|(index, item)| number(item, || format!("q[{index}]")))
-            .collect();
-    }
-    if flat_keys == 0 {
-        return Err(WireError::MissingField {
-            field: "q".to_owned(),
-        });
-    }
-    if flat_keys != joint_count {
-        return Err(WireError::JointCount {
-            field: format!("q1..q{joint_count}"),
-            expected: joint_count,
-            got: flat_keys,
-        });
-    }
-    (1..=joint_count)
-        .map(|joint| {
-            let key = format!("q{joint}");
-            match fields.get(&key) {
-                Some(value) => number(value, || key.clone()),
-                // As many `q<n>` fields as joints, so one beyond `q{joint_count}` takes its place.
-                None => Err(WireError::MissingField { field: key }),
-            }
-        })
-        .collect()
-}
-
-/// A required number.
-fn required(fields: &Map<String, Value>, prefix: &str, key: &str) -> Result<f64, WireError> {
-    match fields.get(key) {
-        Some(value) => number(value, || format!("{prefix}{key}")),
-        None => Err(WireError::MissingField {
-            field: format!("{prefix}{key}"),
-        }),
-    }
-}
-
-/// A finite JSON number (the parser already rejected overflowing ones); strings are not coerced.
-fn number(value: &Value, field: impl FnOnce() -> String) -> Result<f64, WireError> {
-    match value.as_f64() {
-        Some(number) if number.is_finite() => Ok(number),
-        Some(_) => Err(WireError::NonFinite { field: field() }),
-        None => Err(wrong_type(field(), "a number", value)),
-    }
-}
-
-fn wrong_type(field: String, expected: &'static str, value: &Value) -> WireError {
-    WireError::WrongType {
-        field,
-        expected,
-        got: match value {
-            Value::Number(number) => format!("the number {number}"),
-            // The text itself (cut short), so a log or a report shows what the gateway sent.
-            Value::String(text) if text.chars().count() <= 40 => format!("the string {text:?}"),
-            Value::String(text) => {
-                format!(
-                    "the string {:?}…",
-                    text.chars().take(40).collect::<String>()
-                )
-            }
-            other => json_type(other).to_owned(),
-        },
-    }
-}
-
-fn json_type(value: &Value) -> &'static str {
-    match value {
-        Value::Null => "null",
-        Value::Bool(_) => "a boolean",
-        Value::Number(_) => "a number",
-        Value::String(_) => "a string",
-        Value::Array(_) => "an array",
-        Value::Object(_) => "an object",
-    }
-}
+/// The fields of a measured pose: position, then the orientation forms in
+/// [`OrientationForm::ALL`] order, each in wire order.
+const POSE_KEYS: [&str; 13] = [
+    "x", "y", "z", "qx", "qy", "qz", "qw", "roll", "pitch", "yaw", "rx", "ry", "rz",
+];
 
 /// The orientation forms a measured pose may carry.
 #[derive(Debug, Clone, Copy)]
@@ -447,46 +315,52 @@ enum OrientationForm {
 impl OrientationForm {
     const ALL: [Self; 3] = [Self::Quaternion, Self::RollPitchYaw, Self::RotationVector];
 
-    /// The form's fields, in wire order.
-    fn keys(self) -> &'static [&'static str] {
+    /// Where the form's fields are in [`POSE_KEYS`], in wire order.
+    fn slots(self) -> std::ops::Range<usize> {
         match self {
-            Self::Quaternion => &["qx", "qy", "qz", "qw"],
-            Self::RollPitchYaw => &["roll", "pitch", "yaw"],
-            Self::RotationVector => &["rx", "ry", "rz"],
+            Self::Quaternion => 3..7,
+            Self::RollPitchYaw => 7..10,
+            Self::RotationVector => 10..13,
         }
     }
 
-    /// The first of the form's fields present in `fields`.
-    fn first_present(self, fields: &Map<String, Value>) -> Option<&'static str> {
-        self.keys()
-            .iter()
-            .copied()
-            .find(|key| fields.contains_key(*key))
+    /// The form's fields, in wire order.
+    fn keys(self) -> &'static [&'static str] {
+        &POSE_KEYS[self.slots()]
+    }
+
+    /// The first of the form's fields present in `pose`, as an index into [`POSE_KEYS`].
+    fn first_present(self, pose: &PoseSlots) -> Option<usize> {
+        self.slots().find(|&index| pose[index].is_some())
     }
 }
 
 /// Position and exactly one orientation form, from a measured pose object.
-fn pose_readout(fields: &Map<String, Value>, prefix: &str) -> Result<PoseReadout, WireError> {
-    let position_m = [
-        required(fields, prefix, "x")?,
-        required(fields, prefix, "y")?,
-        required(fields, prefix, "z")?,
-    ];
-    let present: Vec<(OrientationForm, &str)> = OrientationForm::ALL
-        .into_iter()
-        .filter_map(|form| form.first_present(fields).map(|key| (form, key)))
-        .collect();
-    let [(form, _)] = present[..] else {
+fn pose_readout(pose: &PoseSlots, prefix: &str) -> Result<PoseReadout, WireError> {
+    let required = |index: usize| {
+        let field = || format!("{prefix}{}", POSE_KEYS[index]);
+        match &pose[index] {
+            Some(got) => number(got, field),
+            None => Err(WireError::MissingField { field: field() }),
+        }
+    };
+    let position_m = [required(0)?, required(1)?, required(2)?];
+    let present = || {
+        OrientationForm::ALL
+            .into_iter()
+            .filter_map(|form| form.first_present(pose).map(|index| (form, index)))
+    };
+    let mut forms = present();
+    let (Some((form, _)), None) = (forms.next(), forms.next()) else {
         return Err(WireError::OrientationForms {
-            found: present
-                .iter()
-                .map(|(_, key)| format!("{prefix}{key}"))
+            found: present()
+                .map(|(_, index)| format!("{prefix}{}", POSE_KEYS[index]))
                 .collect(),
         });
     };
     let mut values = [0.0; 4];
-    for (value, key) in values.iter_mut().zip(form.keys()) {
-        *value = required(fields, prefix, key)?;
+    for (value, index) in values.iter_mut().zip(form.slots()) {
+        *value = required(index)?;
     }
     pose_of(prefix, position_m, form, values)
 }
@@ -553,201 +427,782 @@ fn rotation_vector(prefix: &str, rxyz: [f64; 3]) -> Result<UnitQuaternion<f64>, 
 }
 
 // ---------------------------------------------------------------------------------------------
-// The JSON layer: parse only the fields a decoder reads, remembering where a failure occurred.
+// The JSON layer: one pass of serde_json's parser over the payload into fixed slots. Fields a
+// message does not use are skipped unparsed (their numbers never converted, so they may hold
+// anything, even `1e400`); kept fields record what they held, and the checks on the slots name
+// the problem afterwards.
 // ---------------------------------------------------------------------------------------------
 
-/// Which fields of an object are kept; the rest are skipped without converting their numbers,
-/// so an unknown field can hold anything, even `1e400`.
+/// Which fields of a message's top level are kept.
 #[derive(Debug, Clone, Copy)]
 enum Schema {
-    /// The top level of a joint message.
-    JointMessage,
-    /// A measured pose; `with_stamp` is false inside a joint message, whose stamp applies.
-    MeasuredPose { with_stamp: bool },
-    /// Inside a kept field: everything.
-    Everything,
+    /// A joint message: stamp, `seq`, `unit`, `q` or `q1..qN`, and a `measured` pose.
+    Joints {
+        /// The arm's joint count: how many angles are kept.
+        joint_count: usize,
+    },
+    /// A measured-pose message: stamp and pose fields.
+    Measured,
+    /// Only the stamp.
+    Stamp,
 }
 
-impl Schema {
-    /// How to read the field `key` of an object read with this schema; `None` skips it.
-    fn field(self, key: &str) -> Option<Self> {
-        match self {
-            Self::JointMessage => match key {
-                "measured" => Some(Self::MeasuredPose { with_stamp: false }),
-                "t" | "time" | "seq" | "unit" | "q" => Some(Self::Everything),
-                _ => joint_index(key).map(|_| Self::Everything),
-            },
-            Self::MeasuredPose { with_stamp } => match key {
-                "t" | "time" => with_stamp.then_some(Self::Everything),
-                "x" | "y" | "z" | "qx" | "qy" | "qz" | "qw" | "roll" | "pitch" | "yaw" | "rx"
-                | "ry" | "rz" => Some(Self::Everything),
-                _ => None,
-            },
-            Self::Everything => Some(Self::Everything),
+/// A top-level field of a message.
+#[derive(Debug, Clone, Copy)]
+enum MessageKey {
+    T,
+    Time,
+    Seq,
+    Unit,
+    Q,
+    /// `q<n>`.
+    Joint(usize),
+    Measured,
+    /// A pose field of a measured-pose message, as an index into [`POSE_KEYS`].
+    Pose(usize),
+    /// A field the message does not use.
+    Other,
+}
+
+impl MessageKey {
+    fn of(schema: Schema, key: &str) -> Self {
+        match (schema, key) {
+            (_, "t") => Self::T,
+            (_, "time") => Self::Time,
+            (Schema::Joints { .. }, "seq") => Self::Seq,
+            (Schema::Joints { .. }, "unit") => Self::Unit,
+            (Schema::Joints { .. }, "q") => Self::Q,
+            (Schema::Joints { .. }, "measured") => Self::Measured,
+            (Schema::Joints { .. }, other) => joint_index(other).map_or(Self::Other, Self::Joint),
+            (Schema::Measured, other) => pose_key(other).map_or(Self::Other, Self::Pose),
+            (Schema::Stamp, _) => Self::Other,
         }
     }
 }
 
-/// What the parser was doing when it failed.
-#[derive(Debug, Default)]
-struct ParseState {
-    /// The value being read, as `measured.qx` or `q[2]`; left in place by a failure.
-    path: String,
-    /// The failure is a repeated field.
-    duplicate: bool,
+fn pose_key(key: &str) -> Option<usize> {
+    POSE_KEYS.iter().position(|pose_key| *pose_key == key)
 }
 
-impl ParseState {
+/// A JSON number as the parser gave it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Num {
+    Unsigned(u64),
+    Signed(i64),
+    Float(f64),
+}
+
+impl Num {
+    fn to_f64(self) -> f64 {
+        match self {
+            Self::Unsigned(value) => value as f64,
+            Self::Signed(value) => value as f64,
+            Self::Float(value) => value,
+        }
+    }
+
+    fn to_u64(self) -> Option<u64> {
+        match self {
+            Self::Unsigned(value) => Some(value),
+            Self::Signed(value) => u64::try_from(value).ok(),
+            Self::Float(_) => None,
+        }
+    }
+}
+
+/// What a kept field held: enough for its checks and for naming it in an error.
+#[derive(Debug, Clone, PartialEq)]
+enum Got {
+    Null,
+    Boolean,
+    Number(Num),
+    /// A string: its first 40 characters and whether there were more, or for `unit` the whole
+    /// text (a unit error quotes it whole).
+    String {
+        head: Cow<'static, str>,
+        cut: bool,
+    },
+    Array,
+    Object,
+}
+
+impl Got {
+    fn json_type(&self) -> &'static str {
+        match self {
+            Self::Null => "null",
+            Self::Boolean => "a boolean",
+            Self::Number(_) => "a number",
+            Self::String { .. } => "a string",
+            Self::Array => "an array",
+            Self::Object => "an object",
+        }
+    }
+
+    /// How an error message names it: the number or the text itself (cut short), so a log or a
+    /// report shows what the gateway sent.
+    fn describe(&self) -> String {
+        match self {
+            Self::Number(number) => {
+                let number = match *number {
+                    Num::Unsigned(value) => Number::from(value),
+                    Num::Signed(value) => Number::from(value),
+                    // The parser yields only finite numbers.
+                    Num::Float(value) => match Number::from_f64(value) {
+                        Some(number) => number,
+                        None => return Self::Null.json_type().to_owned(),
+                    },
+                };
+                format!("the number {number}")
+            }
+            Self::String { head, cut: false } => format!("the string {head:?}"),
+            Self::String { head, cut: true } => format!("the string {head:?}…"),
+            other => other.json_type().to_owned(),
+        }
+    }
+}
+
+/// The value of an optional field; `null` counts as absent.
+fn optional(slot: Option<&Got>) -> Option<&Got> {
+    slot.filter(|got| **got != Got::Null)
+}
+
+/// A finite JSON number (the parser already rejected overflowing ones); strings are not coerced.
+fn number(got: &Got, field: impl FnOnce() -> String) -> Result<f64, WireError> {
+    match got {
+        Got::Number(number) => Ok(number.to_f64()),
+        other => Err(wrong_type(field(), "a number", other)),
+    }
+}
+
+fn wrong_type(field: String, expected: &'static str, got: &Got) -> WireError {
+    WireError::WrongType {
+        field,
+        expected,
+        got: got.describe(),
+    }
+}
+
+/// The `q` array: every item counted, the first `joint_count` numbers kept and the first item
+/// that is not a number remembered.
+#[derive(Debug, Default)]
+struct AngleArray {
+    count: usize,
+    values: Vec<f64>,
+    first_non_number: Option<(usize, Got)>,
+}
+
+/// The flat `q1..qN` fields.
+#[derive(Debug, Default)]
+struct FlatAngles {
+    /// How many different `q<n>` fields there are.
+    count: usize,
+    /// The lowest `n`, for naming the field that clashes with `q`.
+    lowest: Option<usize>,
+    /// `q1..q{joint_count}`, allocated at the first of them.
+    values: Vec<Option<Got>>,
+    /// The `n` beyond the arm's joints seen so far, only to notice a repeated field.
+    beyond: BTreeSet<usize>,
+    /// Where the value of a field beyond the arm's joints is read.
+    scratch: Option<Got>,
+}
+
+impl FlatAngles {
+    /// The slot of `q<n>`, and whether the field was seen before.
+    fn slot(&mut self, n: usize, joint_count: usize) -> (&mut Option<Got>, bool) {
+        self.lowest = Some(self.lowest.map_or(n, |lowest| lowest.min(n)));
+        let repeated = if n <= joint_count {
+            if self.values.is_empty() {
+                self.values.resize_with(joint_count, || None);
+            }
+            self.values[n - 1].is_some()
+        } else {
+            !self.beyond.insert(n)
+        };
+        if !repeated {
+            self.count += 1;
+        }
+        let slot = if n <= joint_count {
+            &mut self.values[n - 1]
+        } else {
+            &mut self.scratch
+        };
+        (slot, repeated)
+    }
+}
+
+/// The fields of a measured pose, in [`POSE_KEYS`] order.
+type PoseSlots = [Option<Got>; 13];
+
+/// What the pass read from a message.
+#[derive(Debug, Default)]
+struct MessageSlots {
+    t: Option<Got>,
+    time: Option<Got>,
+    seq: Option<Got>,
+    unit: Option<Got>,
+    q: Option<Got>,
+    /// The items of `q` when it is an array.
+    angles: AngleArray,
+    flat: FlatAngles,
+    measured: Option<Got>,
+    /// The fields of `measured` when it is an object.
+    measured_pose: PoseSlots,
+    /// The pose fields of a measured-pose message.
+    pose: PoseSlots,
+}
+
+impl MessageSlots {
+    /// `t` or `time` (not both), a finite number, or `None`.
+    fn stamp(&self) -> Result<Option<f64>, WireError> {
+        match (optional(self.t.as_ref()), optional(self.time.as_ref())) {
+            (Some(_), Some(_)) => Err(WireError::AmbiguousFields {
+                first: "t".to_owned(),
+                second: "time".to_owned(),
+            }),
+            (Some(got), None) => number(got, || "t".to_owned()).map(Some),
+            (None, Some(got)) => number(got, || "time".to_owned()).map(Some),
+            (None, None) => Ok(None),
+        }
+    }
+
+    /// The stamp a refused message offers: `t` if present (a `null` or any non-number gives
+    /// none), else `time`.
+    fn stamp_hint(&self) -> Option<f64> {
+        match self.t.as_ref().or(self.time.as_ref()) {
+            Some(Got::Number(number)) => Some(number.to_f64()).filter(|t| t.is_finite()),
+            _ => None,
+        }
+    }
+
+    fn into_joints(self, joint_count: usize) -> Result<DecodedJoints, WireError> {
+        let stamp_s = self.stamp()?;
+        let seq = match optional(self.seq.as_ref()) {
+            None => None,
+            Some(got) => Some(
+                match got {
+                    Got::Number(number) => number.to_u64(),
+                    _ => None,
+                }
+                .ok_or_else(|| wrong_type("seq".to_owned(), "a non-negative integer", got))?,
+            ),
+        };
+        let degrees = match optional(self.unit.as_ref()) {
+            None => false,
+            Some(Got::String { head, .. }) if head == "rad" => false,
+            Some(Got::String { head, .. }) if head == "deg" => true,
+            Some(Got::String { head, .. }) => {
+                return Err(WireError::Unit {
+                    got: head.to_string(),
+                });
+            }
+            Some(other) => return Err(wrong_type("unit".to_owned(), "a string", other)),
+        };
+        let (measured, measured_error) = match optional(self.measured.as_ref()) {
+            None => (None, None),
+            Some(Got::Object) => match pose_readout(&self.measured_pose, "measured.") {
+                Ok(pose) => (Some(pose), None),
+                Err(error) => (None, Some(error)),
+            },
+            Some(other) => (
+                None,
+                Some(wrong_type("measured".to_owned(), "an object", other)),
+            ),
+        };
+        let mut q_rad = self.joint_angles(joint_count)?;
+        if degrees {
+            for angle in &mut q_rad {
+                *angle = angle.to_radians();
+            }
+        }
+        Ok(DecodedJoints {
+            sample: JointSample {
+                stamp_s,
+                seq,
+                q_rad,
+                measured,
+            },
+            measured_error,
+        })
+    }
+
+    /// Exactly `joint_count` angles, from the `q` array or from `q1..qn`, in message units.
+    fn joint_angles(self, joint_count: usize) -> Result<Vec<f64>, WireError> {
+        let flat = self.flat;
+        if let Some(q) = &self.q {
+            if let Some(lowest) = flat.lowest {
+                return Err(WireError::AmbiguousFields {
+                    first: "q".to_owned(),
+                    second: format!("q{lowest}"),
+                });
+            }
+            if *q != Got::Array {
+                return Err(wrong_type("q".to_owned(), "an array", q));
+            }
+            let angles = self.angles;
+            if angles.count != joint_count {
+                return Err(WireError::JointCount {
+                    field: "q".to_owned(),
+                    expected: joint_count,
+                    got: angles.count,
+                });
+            }
+            if let Some((index, got)) = &angles.first_non_number {
+                return Err(wrong_type(format!("q[{index}]"), "a number", got));
+            }
+            return Ok(angles.values);
+        }
+        if flat.count == 0 {
+            return Err(WireError::MissingField {
+                field: "q".to_owned(),
+            });
+        }
+        if flat.count != joint_count {
+            return Err(WireError::JointCount {
+                field: format!("q1..q{joint_count}"),
+                expected: joint_count,
+                got: flat.count,
+            });
+        }
+        (1..=joint_count)
+            .map(|joint| {
+                let field = || format!("q{joint}");
+                match flat.values.get(joint - 1) {
+                    Some(Some(got)) => number(got, field),
+                    // As many `q<n>` fields as joints, so one beyond `q{joint_count}` takes its place.
+                    _ => Err(WireError::MissingField { field: field() }),
+                }
+            })
+            .collect()
+    }
+
+    fn into_measured(self) -> Result<MeasuredSample, WireError> {
+        Ok(MeasuredSample {
+            stamp_s: self.stamp()?,
+            pose: pose_readout(&self.pose, "")?,
+        })
+    }
+}
+
+/// Where a value sits in the message (`measured.qx`, `q[2]`), as a chain on the parser's stack:
+/// written out only for an error.
+#[derive(Debug, Clone, Copy)]
+struct Path<'a> {
+    parent: Option<&'a Path<'a>>,
+    segment: Segment<'a>,
+}
+
+#[derive(Debug, Clone, Copy)]
+enum Segment<'a> {
+    Key(&'a str),
+    /// `q<n>`.
+    Joint(usize),
+    Index(usize),
+}
+
+impl Path<'_> {
+    fn render(&self) -> String {
+        let mut text = self.parent.map(Path::render).unwrap_or_default();
+        let separator = if text.is_empty() { "" } else { "." };
+        // Writing to a `String` cannot fail.
+        let _ = match self.segment {
+            Segment::Key(key) => write!(text, "{separator}{key}"),
+            Segment::Joint(n) => write!(text, "{separator}q{n}"),
+            Segment::Index(index) => write!(text, "[{index}]"),
+        };
+        text
+    }
+}
+
+/// What the pass noticed besides the values: the first repeated field, and the kept value it
+/// was reading when the parser failed.
+#[derive(Debug, Default)]
+struct Trace {
+    repeated: Option<String>,
+    failed_at: Option<String>,
+}
+
+impl Trace {
+    fn note_repeated(&mut self, path: &Path<'_>) {
+        if self.repeated.is_none() {
+            self.repeated = Some(path.render());
+        }
+    }
+
+    /// Passes `result` on, noting `path` if the parser failed inside it (the innermost value
+    /// notes first).
+    fn located<T, E>(&mut self, result: Result<T, E>, path: &Path<'_>) -> Result<T, E> {
+        if result.is_err() && self.failed_at.is_none() {
+            self.failed_at = Some(path.render());
+        }
+        result
+    }
+
     fn into_error(self, error: &serde_json::Error) -> WireError {
-        if self.duplicate {
-            return WireError::DuplicateField { field: self.path };
+        if let Some(field) = self.repeated {
+            return WireError::DuplicateField { field };
         }
         // serde_json reports a number beyond f64 only through its message.
         let out_of_range = error.classify() == serde_json::error::Category::Syntax
             && error.to_string().starts_with("number out of range");
-        if out_of_range && !self.path.is_empty() {
-            return WireError::NonFinite { field: self.path };
-        }
-        WireError::NotJson {
-            detail: error.to_string(),
+        match self.failed_at {
+            Some(field) if out_of_range => WireError::NonFinite { field },
+            _ => WireError::NotJson {
+                detail: error.to_string(),
+            },
         }
     }
 }
 
-/// Checks size and encoding, then parses an object with `schema`.
-fn parse_object(payload: &[u8], schema: Schema) -> Result<Map<String, Value>, WireError> {
+/// Checks size and encoding, then reads the message with `schema` in one pass.
+fn read_message(payload: &[u8], schema: Schema) -> Result<MessageSlots, Undecodable> {
+    let refused = |error| Undecodable {
+        error,
+        stamp_s: None,
+    };
     if payload.len() > MAX_PAYLOAD_BYTES {
-        return Err(WireError::TooLarge {
+        return Err(refused(WireError::TooLarge {
             bytes: payload.len(),
             limit: MAX_PAYLOAD_BYTES,
-        });
+        }));
     }
-    let text = std::str::from_utf8(payload).map_err(|error| WireError::NotUtf8 {
-        valid_up_to: error.valid_up_to(),
+    let text = std::str::from_utf8(payload).map_err(|error| {
+        refused(WireError::NotUtf8 {
+            valid_up_to: error.valid_up_to(),
+        })
     })?;
-    let mut state = ParseState::default();
+    let mut slots = MessageSlots::default();
+    let mut trace = Trace::default();
     let mut deserializer = serde_json::Deserializer::from_str(text);
-    let parsed = ValueSeed {
-        schema,
-        state: &mut state,
+    let parsed = Probe {
+        into: Target::Message {
+            schema,
+            slots: &mut slots,
+        },
+        path: None,
+        trace: &mut trace,
     }
     .deserialize(&mut deserializer)
-    .and_then(|value| deserializer.end().map(|()| value));
+    .and_then(|got| deserializer.end().map(|()| got));
     match parsed {
-        Ok(Value::Object(fields)) => Ok(fields),
-        Ok(other) => Err(WireError::NotObject {
-            got: json_type(&other),
+        Err(error) => Err(refused(trace.into_error(&error))),
+        // A repeated field is reported even when the rest of the message is well formed; the
+        // stamp is then the last `t` or `time`, as the last of a JSON object's repeated keys
+        // usually counts.
+        Ok(_) if trace.repeated.is_some() => Err(Undecodable {
+            error: WireError::DuplicateField {
+                field: trace.repeated.unwrap_or_default(),
+            },
+            stamp_s: slots.stamp_hint(),
         }),
-        Err(error) => Err(state.into_error(&error)),
+        Ok(Got::Object) => Ok(slots),
+        Ok(other) => Err(refused(WireError::NotObject {
+            got: other.json_type(),
+        })),
     }
 }
 
-/// Reads one JSON value into a [`Value`], keeping what `schema` asks for.
-struct ValueSeed<'s> {
-    schema: Schema,
-    state: &'s mut ParseState,
+/// Where the value being read goes.
+enum Target<'a> {
+    /// Inside a kept field: only what the value is (its contents are still checked: numbers
+    /// within f64, no repeated key).
+    Value,
+    /// `unit`: a string is kept whole.
+    WholeString,
+    /// `q`: the items of an array.
+    Angles {
+        angles: &'a mut AngleArray,
+        joint_count: usize,
+    },
+    /// A measured pose object embedded in a joint message (its own `t`/`time` skipped).
+    Pose(&'a mut PoseSlots),
+    /// A whole message.
+    Message {
+        schema: Schema,
+        slots: &'a mut MessageSlots,
+    },
 }
 
-impl<'de> DeserializeSeed<'de> for ValueSeed<'_> {
-    type Value = Value;
+/// Reads one JSON value into `into`, returning what it was.
+struct Probe<'a> {
+    into: Target<'a>,
+    /// Where the value sits; `None` for the message itself.
+    path: Option<&'a Path<'a>>,
+    trace: &'a mut Trace,
+}
 
-    fn deserialize<D: Deserializer<'de>>(self, deserializer: D) -> Result<Value, D::Error> {
+impl<'de> DeserializeSeed<'de> for Probe<'_> {
+    type Value = Got;
+
+    fn deserialize<D: Deserializer<'de>>(self, deserializer: D) -> Result<Got, D::Error> {
         deserializer.deserialize_any(self)
     }
 }
 
-impl<'de> Visitor<'de> for ValueSeed<'_> {
-    type Value = Value;
+impl<'de> Visitor<'de> for Probe<'_> {
+    type Value = Got;
 
     fn expecting(&self, formatter: &mut fmt::Formatter<'_>) -> fmt::Result {
         formatter.write_str("a JSON value")
     }
 
-    fn visit_bool<E: de::Error>(self, value: bool) -> Result<Value, E> {
-        Ok(Value::Bool(value))
+    fn visit_bool<E: de::Error>(self, _: bool) -> Result<Got, E> {
+        Ok(Got::Boolean)
     }
 
-    fn visit_i64<E: de::Error>(self, value: i64) -> Result<Value, E> {
-        Ok(Value::from(value))
+    fn visit_i64<E: de::Error>(self, value: i64) -> Result<Got, E> {
+        Ok(Got::Number(Num::Signed(value)))
     }
 
-    fn visit_u64<E: de::Error>(self, value: u64) -> Result<Value, E> {
-        Ok(Value::from(value))
+    fn visit_u64<E: de::Error>(self, value: u64) -> Result<Got, E> {
+        Ok(Got::Number(Num::Unsigned(value)))
     }
 
-    fn visit_f64<E: de::Error>(self, value: f64) -> Result<Value, E> {
+    fn visit_f64<E: de::Error>(self, value: f64) -> Result<Got, E> {
         // serde_json never yields a non-finite number; if another parser did, it reads as null.
-        Ok(Number::from_f64(value).map_or(Value::Null, Value::Number))
+        Ok(if value.is_finite() {
+            Got::Number(Num::Float(value))
+        } else {
+            Got::Null
+        })
     }
 
-    fn visit_str<E: de::Error>(self, value: &str) -> Result<Value, E> {
-        Ok(Value::String(value.to_owned()))
+    fn visit_str<E: de::Error>(self, text: &str) -> Result<Got, E> {
+        const KEPT_CHARS: usize = 40;
+        let head = match self.into {
+            Target::WholeString => match text {
+                "rad" => Cow::Borrowed("rad"),
+                "deg" => Cow::Borrowed("deg"),
+                other => Cow::Owned(other.to_owned()),
+            },
+            _ => Cow::Owned(text.chars().take(KEPT_CHARS).collect()),
+        };
+        let cut =
+            !matches!(self.into, Target::WholeString) && text.chars().nth(KEPT_CHARS).is_some();
+        Ok(Got::String { head, cut })
     }
 
-    fn visit_string<E: de::Error>(self, value: String) -> Result<Value, E> {
-        Ok(Value::String(value))
+    fn visit_unit<E: de::Error>(self) -> Result<Got, E> {
+        Ok(Got::Null)
     }
 
-    fn visit_unit<E: de::Error>(self) -> Result<Value, E> {
-        Ok(Value::Null)
+    fn visit_none<E: de::Error>(self) -> Result<Got, E> {
+        Ok(Got::Null)
     }
 
-    fn visit_none<E: de::Error>(self) -> Result<Value, E> {
-        Ok(Value::Null)
-    }
-
-    fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Value, A::Error> {
-        let mut items = Vec::new();
-        if !matches!(self.schema, Schema::Everything) {
-            // An array where an object is expected: skip it, the caller reports the type.
-            while seq.next_element::<IgnoredAny>()?.is_some() {}
-            return Ok(Value::Array(items));
-        }
-        loop {
-            let mark = self.state.path.len();
-            // Writing to a `String` cannot fail.
-            let _ = write!(self.state.path, "[{}]", items.len());
-            let item = seq.next_element_seed(ValueSeed {
-                schema: Schema::Everything,
-                state: &mut *self.state,
-            })?;
-            self.state.path.truncate(mark);
-            match item {
-                Some(item) => items.push(item),
-                None => return Ok(Value::Array(items)),
+    fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Got, A::Error> {
+        match self.into {
+            // An array where an object is expected: skipped, the caller reports the type.
+            Target::Message { .. } | Target::Pose(_) => {
+                while seq.next_element::<IgnoredAny>()?.is_some() {}
+            }
+            Target::Angles {
+                angles,
+                joint_count,
+            } => {
+                *angles = AngleArray::default();
+                angles.values.reserve_exact(joint_count);
+                loop {
+                    let path = Path {
+                        parent: self.path,
+                        segment: Segment::Index(angles.count),
+                    };
+                    let item = seq.next_element_seed(Probe {
+                        into: Target::Value,
+                        path: Some(&path),
+                        trace: &mut *self.trace,
+                    });
+                    match self.trace.located(item, &path)? {
+                        None => break,
+                        Some(Got::Number(number)) if angles.count < joint_count => {
+                            angles.values.push(number.to_f64());
+                        }
+                        Some(Got::Number(_)) => {}
+                        Some(other) => {
+                            if angles.first_non_number.is_none() {
+                                angles.first_non_number = Some((angles.count, other));
+                            }
+                        }
+                    }
+                    angles.count += 1;
+                }
+            }
+            Target::Value | Target::WholeString => {
+                for index in 0.. {
+                    let path = Path {
+                        parent: self.path,
+                        segment: Segment::Index(index),
+                    };
+                    let item = seq.next_element_seed(Probe {
+                        into: Target::Value,
+                        path: Some(&path),
+                        trace: &mut *self.trace,
+                    });
+                    if self.trace.located(item, &path)?.is_none() {
+                        break;
+                    }
+                }
             }
         }
+        Ok(Got::Array)
     }
 
-    fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<Value, A::Error> {
-        let mut fields = Map::new();
-        while let Some(key) = map.next_key::<String>()? {
-            let Some(schema) = self.schema.field(&key) else {
-                map.next_value::<IgnoredAny>()?;
-                continue;
-            };
-            let mark = self.state.path.len();
-            if mark > 0 {
-                self.state.path.push('.');
+    fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<Got, A::Error> {
+        match self.into {
+            Target::Message { schema, slots } => read_members(&mut map, schema, slots, self.trace)?,
+            Target::Pose(pose) => {
+                *pose = PoseSlots::default();
+                while let Some(key) = map.next_key_seed(KeySeed(pose_key))? {
+                    let Some(index) = key else {
+                        map.next_value::<IgnoredAny>()?;
+                        continue;
+                    };
+                    let path = Path {
+                        parent: self.path,
+                        segment: Segment::Key(POSE_KEYS[index]),
+                    };
+                    let slot = &mut pose[index];
+                    let repeated = slot.is_some();
+                    keep(
+                        &mut map,
+                        slot,
+                        repeated,
+                        Target::Value,
+                        &path,
+                        &mut *self.trace,
+                    )?;
+                }
             }
-            self.state.path.push_str(&key);
-            if fields.contains_key(&key) {
-                self.state.duplicate = true;
-                return Err(de::Error::custom(format_args!("duplicate field `{key}`")));
+            Target::Value | Target::WholeString | Target::Angles { .. } => {
+                // Kept only to notice a repeated key; empty (unallocated) for most values.
+                let mut keys = BTreeSet::new();
+                while let Some(key) = map.next_key::<String>()? {
+                    let path = Path {
+                        parent: self.path,
+                        segment: Segment::Key(&key),
+                    };
+                    if keys.contains(&key) {
+                        self.trace.note_repeated(&path);
+                    }
+                    let value = map.next_value_seed(Probe {
+                        into: Target::Value,
+                        path: Some(&path),
+                        trace: &mut *self.trace,
+                    });
+                    self.trace.located(value, &path)?;
+                    keys.insert(key);
+                }
             }
-            let value = map.next_value_seed(ValueSeed {
-                schema,
-                state: &mut *self.state,
-            })?;
-            self.state.path.truncate(mark);
-            fields.insert(key, value);
         }
-        Ok(Value::Object(fields))
+        Ok(Got::Object)
     }
 }
 
-/// The fast path for messages in their usual shapes; it gives up on anything else, and the general
-/// decoder above decides.
+/// The members of a message's top-level object.
+fn read_members<'de, A: MapAccess<'de>>(
+    map: &mut A,
+    schema: Schema,
+    slots: &mut MessageSlots,
+    trace: &mut Trace,
+) -> Result<(), A::Error> {
+    let joint_count = match schema {
+        Schema::Joints { joint_count } => joint_count,
+        Schema::Measured | Schema::Stamp => 0,
+    };
+    while let Some(key) = map.next_key_seed(KeySeed(|key: &str| MessageKey::of(schema, key)))? {
+        let (slot, into, segment) = match key {
+            MessageKey::T => (&mut slots.t, Target::Value, Segment::Key("t")),
+            MessageKey::Time => (&mut slots.time, Target::Value, Segment::Key("time")),
+            MessageKey::Seq => (&mut slots.seq, Target::Value, Segment::Key("seq")),
+            MessageKey::Unit => (&mut slots.unit, Target::WholeString, Segment::Key("unit")),
+            MessageKey::Q => (
+                &mut slots.q,
+                Target::Angles {
+                    angles: &mut slots.angles,
+                    joint_count,
+                },
+                Segment::Key("q"),
+            ),
+            MessageKey::Measured => (
+                &mut slots.measured,
+                Target::Pose(&mut slots.measured_pose),
+                Segment::Key("measured"),
+            ),
+            MessageKey::Pose(index) => (
+                &mut slots.pose[index],
+                Target::Value,
+                Segment::Key(POSE_KEYS[index]),
+            ),
+            MessageKey::Joint(n) => {
+                let (slot, repeated) = slots.flat.slot(n, joint_count);
+                let path = Path {
+                    parent: None,
+                    segment: Segment::Joint(n),
+                };
+                keep(map, slot, repeated, Target::Value, &path, trace)?;
+                continue;
+            }
+            MessageKey::Other => {
+                map.next_value::<IgnoredAny>()?;
+                continue;
+            }
+        };
+        let path = Path {
+            parent: None,
+            segment,
+        };
+        let repeated = slot.is_some();
+        keep(map, slot, repeated, into, &path, trace)?;
+    }
+    Ok(())
+}
+
+/// Reads the value of a kept field into `slot` (a repeated field's last value wins, and the
+/// repetition is noted).
+fn keep<'de, A: MapAccess<'de>>(
+    map: &mut A,
+    slot: &mut Option<Got>,
+    repeated: bool,
+    into: Target<'_>,
+    path: &Path<'_>,
+    trace: &mut Trace,
+) -> Result<(), A::Error> {
+    if repeated {
+        trace.note_repeated(path);
+    }
+    let got = map.next_value_seed(Probe {
+        into,
+        path: Some(path),
+        trace: &mut *trace,
+    });
+    *slot = Some(trace.located(got, path)?);
+    Ok(())
+}
+
+/// Reads an object key as what `classify` makes of it, without copying it.
+struct KeySeed<F>(F);
+
+impl<'de, K, F: FnOnce(&str) -> K> DeserializeSeed<'de> for KeySeed<F> {
+    type Value = K;
+
+    fn deserialize<D: Deserializer<'de>>(self, deserializer: D) -> Result<K, D::Error> {
+        deserializer.deserialize_str(self)
+    }
+}
+
+impl<K, F: FnOnce(&str) -> K> Visitor<'_> for KeySeed<F> {
+    type Value = K;
+
+    fn expecting(&self, formatter: &mut fmt::Formatter<'_>) -> fmt::Result {
+        formatter.write_str("an object key")
+    }
+
+    fn visit_str<E: de::Error>(self, key: &str) -> Result<K, E> {
+        Ok((self.0)(key))
+    }
+}
+
+/// The fast path for messages in their usual shapes; it gives up on anything else, and the single
+/// pass above decides.
 mod fast;
 
 // ---------------------------------------------------------------------------------------------
@@ -1219,13 +1674,21 @@ mod tests {
         if let Some(fast) = &fast_joints {
             assert_eq!(
                 Ok(fast),
-                general_joints(bytes, joint_count).as_ref(),
+                general_joints(bytes, joint_count)
+                    .map_err(|refused| refused.error)
+                    .as_ref(),
                 "{payload}"
             );
         }
         let fast_measured = fast::measured(bytes);
         if let Some(fast) = &fast_measured {
-            assert_eq!(Ok(fast), general_measured(bytes).as_ref(), "{payload}");
+            assert_eq!(
+                Ok(fast),
+                general_measured(bytes)
+                    .map_err(|refused| refused.error)
+                    .as_ref(),
+                "{payload}"
+            );
         }
         fast_joints.is_some() || fast_measured.is_some()
     }
@@ -1366,6 +1829,97 @@ mod tests {
             }
             if let Ok(text) = std::str::from_utf8(&bytes) {
                 assert_paths_agree(text, 6);
+            }
+        }
+    }
+
+    /// The stamp a refused message offered before the decoder read it in one pass: `t` if
+    /// present (a `null` or non-number gives none), else `time`, of a payload that parses as a
+    /// JSON object.
+    fn stamp_of_parsed(payload: &[u8]) -> Result<Option<f64>, serde_json::Error> {
+        let value: Value = serde_json::from_slice(payload)?;
+        Ok(value.as_object().and_then(|object| {
+            object
+                .get("t")
+                .or_else(|| object.get("time"))
+                .and_then(Value::as_f64)
+        }))
+    }
+
+    #[test]
+    fn a_refused_message_carries_its_own_stamp() {
+        let stamp = |payload: &str| {
+            read_joints(payload.as_bytes(), 2)
+                .expect_err(payload)
+                .stamp_s
+        };
+        assert_eq!(stamp(r#"{"t": 3.5, "q": "x"}"#), Some(3.5));
+        assert_eq!(stamp(r#"{"time": 4, "q": [1, 2, 3]}"#), Some(4.0));
+        assert_eq!(stamp(r#"{"t": 1, "time": 2, "q": [1, 2]}"#), Some(1.0));
+        // A `t` that is no number hides `time`.
+        assert_eq!(stamp(r#"{"t": null, "time": 2, "q": [1]}"#), None);
+        assert_eq!(stamp(r#"{"t": "5", "time": 2, "q": [1, 2]}"#), None);
+        // A repeated field: the last value counts, as in a parsed object.
+        assert_eq!(stamp(r#"{"t": 1, "q": [1, 2], "t": 6}"#), Some(6.0));
+        // Not JSON, overflowing, or not an object: no stamp.
+        assert_eq!(stamp(r#"{"t": 3.5, "q": [1, 2]"#), None);
+        assert_eq!(stamp(r#"{"t": 3.5, "q": [1, 1e400]}"#), None);
+        assert_eq!(stamp(r#"[{"t": 3.5}]"#), None);
+        let refused =
+            read_measured(br#"{"time": 2.5, "x": 0, "y": 0, "z": 0}"#).expect_err("no form");
+        assert_eq!(refused.stamp_s, Some(2.5));
+        assert_eq!(refused.error.kind(), "orientation_forms");
+        assert_eq!(stamp_hint(br#"{"q": 1e400, "t": 7}"#), Some(7.0));
+        assert_eq!(stamp_hint(b"{\"t\": 7} x"), None);
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::test_runner::Config::with_cases(4000))]
+
+        /// Damaged messages: a refused message offers the stamp of the parsed object, and none
+        /// when the payload is not JSON.
+        #[test]
+        fn damaged_messages_offer_the_stamp_of_the_parsed_object(
+            message in 0_usize..4,
+            edits in proptest::collection::vec(
+                (0_usize..3, proptest::num::usize::ANY, proptest::sample::select(
+                    br#"{}[]:,".-+eE0159 tfnul\x"#.to_vec(),
+                )),
+                1..4,
+            ),
+        ) {
+            let mut bytes = [
+                r#"{"t":1.25,"seq":3,"unit":"deg","q":[0.5,-1e-3,2E2,0,-0,12],"note":{"a":[true,null,"b"]}}"#,
+                r#"{"t":1.25,"q":[0.5,-1,2,0,0,1],"measured":{"t":1,"x":0.25,"y":-1,"z":3,"qx":0,"qy":0,"qz":0,"qw":1}}"#,
+                r#"{"time":7,"x":0.25,"y":-1,"z":3,"roll":0.1,"pitch":-0.2,"yaw":3.1,"extra":[]}"#,
+                r#"{"t":7,"x":0.25,"y":-1,"z":3,"rx":0.1,"ry":-0.2,"rz":1.5}"#,
+            ][message]
+                .as_bytes()
+                .to_vec();
+            for (kind, position, byte) in edits {
+                let at = position % (bytes.len() + 1);
+                match kind {
+                    0 if at < bytes.len() => {
+                        bytes.remove(at);
+                    }
+                    1 if at < bytes.len() => bytes[at] = byte,
+                    _ => bytes.insert(at, byte),
+                }
+            }
+            let offered = [
+                read_joints(&bytes, 6).err().map(|refused| (refused.error, refused.stamp_s)),
+                read_measured(&bytes).err().map(|refused| (refused.error, refused.stamp_s)),
+            ];
+            for (error, stamp_s) in offered.into_iter().flatten() {
+                match stamp_of_parsed(&bytes) {
+                    Ok(parsed) => proptest::prop_assert_eq!(stamp_s, parsed, "{:?}", error),
+                    Err(_) if matches!(error, WireError::NotJson { .. } | WireError::NonFinite { .. }) => {
+                        proptest::prop_assert_eq!(stamp_s, None);
+                    }
+                    // Only a number beyond f64 in a field no decoder reads keeps such a payload
+                    // readable.
+                    Err(_) => {}
+                }
             }
         }
     }

@@ -116,7 +116,6 @@ pub enum MeasuredStream {
     Sensor(usize),
 }
 
-
 /// A robot's metrics at one instant.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MetricsSnapshot {
@@ -310,12 +309,11 @@ impl Pipeline {
             self.twins.resize_with(index + 1, || None);
         }
         let slot = &mut self.twins[index];
-        let twin = match slot {
-            Some(twin) => twin,
-            None => {
-                sink.tracking(robot);
-                slot.insert(Box::new(RobotTwin::new(robot.clone(), &self.config)))
-            }
+        let twin = if let Some(twin) = slot {
+            twin
+        } else {
+            sink.tracking(robot);
+            slot.insert(Box::new(RobotTwin::new(robot.clone(), &self.config)))
         };
         twin.dirty = true;
         twin
@@ -555,7 +553,8 @@ impl RobotTwin {
                         expected: last + 1,
                         got: seq,
                     };
-                    let event = self.event(stamp_s, EventKind::Gap, Some(key), detail, Reason::SeqGap);
+                    let event =
+                        self.event(stamp_s, EventKind::Gap, Some(key), detail, Reason::SeqGap);
                     sink.event(&event);
                 }
             }
@@ -580,7 +579,13 @@ impl RobotTwin {
             .readout();
         let seq = self.next_pose_seq;
         self.next_pose_seq += 1;
-        sink.pose(&self.robot, stamp_s, seq, self.robot.settings().model.frame(), &pose);
+        sink.pose(
+            &self.robot,
+            stamp_s,
+            seq,
+            self.robot.settings().model.frame(),
+            &pose,
+        );
         self.aligner.push_joints(stamp_s, &sample.q_rad);
         self.last_joint_s = Some(stamp_s);
         self.last_joints.clear();
@@ -688,17 +693,17 @@ impl RobotTwin {
     }
 
     /// Pairs a measured pose through the aligner, or queues it, or reports it unpaired.
-    fn resolve(
-        &mut self,
-        key: &str,
-        stamp_s: f64,
-        pose: PoseReadout,
-        sink: &mut impl Sink,
-    ) {
+    fn resolve(&mut self, key: &str, stamp_s: f64, pose: PoseReadout, sink: &mut impl Sink) {
         let twin_pose = match self.aligner.bracket(stamp_s) {
             // Recomputed rather than kept for every sample of history: the same pure function of
             // the same angles, so the same pose, for about 0.1 µs instead of 80 bytes per sample.
-            Bracket::Exact(q_rad) => self.robot.settings().model.chain().pose_unchecked(q_rad).readout(),
+            Bracket::Exact(q_rad) => self
+                .robot
+                .settings()
+                .model
+                .chain()
+                .pose_unchecked(q_rad)
+                .readout(),
             Bracket::Between { q0, q1, fraction } => {
                 align::interpolate(q0, q1, fraction, &mut self.scratch_q);
                 self.robot
@@ -881,7 +886,6 @@ impl RobotTwin {
     }
 }
 
-
 /// Why `stamp_s` cannot follow `last_s` in a `stream` (stamps must be finite and increase
 /// strictly), as a rejection cause and what its sentence says.
 fn stamp_problem(
@@ -911,7 +915,6 @@ fn transform(target_from_source: &IsometryMatrix3<f64>, pose: &PoseReadout) -> P
     PoseReadout::from_position_quaternion(position.coords.into(), &quaternion)
 }
 
-
 #[cfg(test)]
 mod tests {
     use std::collections::HashMap;
@@ -936,7 +939,8 @@ mod tests {
             q_rad: q_rad.clone(),
             measured: None,
         };
-        let stats = |pipeline: &Pipeline| pipeline.twin(r1.index()).expect("tracked").stats.is_some();
+        let stats =
+            |pipeline: &Pipeline| pipeline.twin(r1.index()).expect("tracked").stats.is_some();
         let metrics = |pipeline: &Pipeline| pipeline.state(r1.index()).expect("tracked").metrics;
         for i in 0..5 {
             pipeline.joints(&r1, "j", f64::from(i), &joints, &mut Discard);
@@ -946,7 +950,14 @@ mod tests {
         assert_eq!((snapshot.window.n, snapshot.window_s), (0, 10.0));
 
         let measured = model.pose(&q_rad).expect("valid").readout();
-        pipeline.measured(&r1, "m", MeasuredStream::Robot, 4.0, &measured, &mut Discard);
+        pipeline.measured(
+            &r1,
+            "m",
+            MeasuredStream::Robot,
+            4.0,
+            &measured,
+            &mut Discard,
+        );
         assert!(stats(&pipeline));
         let snapshot = metrics(&pipeline);
         assert_eq!((snapshot.cumulative.n, snapshot.window.n), (1, 1));

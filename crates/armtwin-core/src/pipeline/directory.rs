@@ -113,14 +113,19 @@ impl RobotDirectory {
 
     /// The robot `id`, admitted under the default settings if it is not yet in the directory.
     pub fn admit(&mut self, id: &str) -> Result<&Robot, UnknownRobot> {
-        let index = match self.index_of.get(id) {
-            Some(&index) => index,
-            None => {
-                let settings = self.default_settings.clone().ok_or(UnknownRobot)?;
-                self.insert(id, settings)
-            }
+        let index = if let Some(&index) = self.index_of.get(id) {
+            index
+        } else {
+            let settings = self.default_settings.clone().ok_or(UnknownRobot)?;
+            self.insert(id, settings)
         };
         self.robots.get(index.0).ok_or(UnknownRobot)
+    }
+
+    /// Whether robots that are not listed are admitted (under the default settings).
+    #[must_use]
+    pub fn admits_unlisted(&self) -> bool {
+        self.default_settings.is_some()
     }
 
     /// The settings robot `id` has or would get, without admitting it.

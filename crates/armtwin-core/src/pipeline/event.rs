@@ -337,3 +337,185 @@ impl fmt::Display for Event<'_> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kinematics::KinematicsError;
+
+    fn event(kind: EventKind, detail: EventDetail, reason: Reason<'_>) -> Event<'_> {
+        Event {
+            robot: "r1",
+            index: None,
+            stamp_s: 2.5,
+            kind,
+            key: Some("twin/joints/r1"),
+            detail,
+            reason,
+        }
+    }
+
+    /// Each sentence is the one the events key has always carried.
+    #[test]
+    fn sentences() {
+        let rejected = |cause| EventDetail::Rejected { cause };
+        let error = KinematicsError::JointCount {
+            expected: 6,
+            got: 5,
+        };
+        let align = AlignConfig::default();
+        let cases = [
+            (
+                event(
+                    EventKind::Rejected,
+                    rejected(RejectCause::JointCount),
+                    Reason::Error(&error),
+                ),
+                "expected 6 joint angles, got 5".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Rejected,
+                    rejected(RejectCause::NonFinite),
+                    Reason::StampNotFinite { stream: "joint" },
+                ),
+                "joint stamp 2.5 is not finite".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Rejected,
+                    rejected(RejectCause::OutOfOrder),
+                    Reason::StampOrder {
+                        stream: "measured",
+                        last_s: 3.0,
+                    },
+                ),
+                "measured stamp 2.5 s is older than the previous one (3 s)".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Rejected,
+                    rejected(RejectCause::DuplicateStamp),
+                    Reason::StampOrder {
+                        stream: "joint",
+                        last_s: 2.5,
+                    },
+                ),
+                "joint stamp 2.5 s is equal to the previous one (2.5 s)".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Rejected,
+                    rejected(RejectCause::SeqNotIncreasing),
+                    Reason::Seq { seq: 4, last: 7 },
+                ),
+                "seq 4 does not follow the previous seq 7".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Rejected,
+                    rejected(RejectCause::OutOfRange),
+                    Reason::OutOfRange {
+                        position_m: [1.0, 2.0, 300.5],
+                        distance_m: 300.25,
+                    },
+                ),
+                "measured pose [1.0, 2.0, 300.5] m is 300.25 m from the twin: not a pose of this robot"
+                    .to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Rejected,
+                    rejected(RejectCause::UnknownRobot),
+                    Reason::UnknownRobot,
+                ),
+                "robot 'r1' is not configured and unknown robots are rejected".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Alarm,
+                    EventDetail::Alarm {
+                        metric: "position",
+                        value: 0.02,
+                        threshold: 0.01,
+                    },
+                    Reason::Alarm {
+                        unit: "m",
+                        hold_s: 0.5,
+                    },
+                ),
+                "position deviation 0.02 m above 0.01 m for at least 0.5 s".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Recovered,
+                    EventDetail::Alarm {
+                        metric: "angle",
+                        value: 0.001,
+                        threshold: 0.01,
+                    },
+                    Reason::Alarm {
+                        unit: "rad",
+                        hold_s: 0.0,
+                    },
+                ),
+                "angle deviation 0.001 rad back at or below 0.01 rad for at least 0 s".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Gap,
+                    EventDetail::StampGap { gap_s: 1.5 },
+                    Reason::StampGap { max_gap_s: 0.25 },
+                ),
+                "no joint sample for 1.5 s (max_gap_s = 0.25)".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Gap,
+                    EventDetail::SeqGap {
+                        expected: 5,
+                        got: 9,
+                    },
+                    Reason::SeqGap,
+                ),
+                "gateway seq jumped from 4 to 9: 4 samples missing upstream".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Restart,
+                    EventDetail::Restart {
+                        from_s: 1000.19,
+                        to_s: 0.0,
+                    },
+                    Reason::Restart {
+                        stream: "joint",
+                        restart_s: 5.0,
+                    },
+                ),
+                "joint stamp went back from 1000.19 s to 0 s (more than restart_s = 5 s): taken as a \
+                 gateway clock restart; alignment and the metrics window start afresh"
+                    .to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Unpaired,
+                    EventDetail::Unpaired {
+                        cause: UnpairedReason::WaitExpired.kind(),
+                        measured_s: 2.5,
+                    },
+                    Reason::Unpaired {
+                        reason: UnpairedReason::WaitExpired,
+                        align,
+                    },
+                ),
+                format!(
+                    "measured pose at t = 2.5 s unpaired: {}",
+                    UnpairedReason::WaitExpired.describe(&align)
+                ),
+            ),
+        ];
+        for (event, sentence) in cases {
+            assert_eq!(event.to_string(), sentence);
+        }
+    }
+}

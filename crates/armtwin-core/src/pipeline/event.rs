@@ -357,6 +357,7 @@ mod tests {
 
     /// Each sentence is the one the events key has always carried.
     #[test]
+    #[allow(clippy::too_many_lines, reason = "one case per sentence, in a table")]
     fn sentences() {
         let rejected = |cause| EventDetail::Rejected { cause };
         let error = KinematicsError::JointCount {

@@ -24,7 +24,7 @@ use armtwin::ingest;
 use armtwin::kinematics::PoseReadout;
 use armtwin::metrics::{CumulativeStats, Deviation, WindowStats};
 use armtwin::model::RobotModel;
-use armtwin::pipeline::{Discard, MeasuredStream, Pipeline, PipelineConfig};
+use armtwin::pipeline::{Discard, MeasuredStream, Pipeline, PipelineConfig, RobotDirectory};
 use armtwin_bench::fleet::{parsed_service_config, robot_id};
 
 /// `System`, counting the bytes live and the allocations made.
@@ -107,7 +107,7 @@ impl Messages {
 
 /// Feeds robots `range` samples `samples` (joint, then measured unless `joints_only`, 100 Hz).
 fn feed(
-    pipeline: &mut Pipeline,
+    (robots, pipeline): (&mut RobotDirectory, &mut Pipeline),
     messages: &Messages,
     (range, samples): (std::ops::Range<usize>, std::ops::Range<usize>),
     joints_only: bool,
@@ -118,12 +118,13 @@ fn feed(
         let joints = Messages::joints(sample, stamp_s);
         let measured = messages.measured(sample, stamp_s);
         for index in range.clone() {
-            let robot = robot_id(index);
-            let joint_key = format!("twin/joints/{robot}");
-            let measured_key = format!("twin/measured/{robot}");
+            let id = robot_id(index);
+            let joint_key = format!("twin/joints/{id}");
+            let measured_key = format!("twin/measured/{id}");
+            let robot = robots.admit(&id).expect("a configured robot");
             ingest::joint_message(
                 pipeline,
-                &robot,
+                robot,
                 &joint_key,
                 joints.as_bytes(),
                 || stamp_s,
@@ -134,7 +135,7 @@ fn feed(
             }
             ingest::measured_message(
                 pipeline,
-                &robot,
+                robot,
                 &measured_key,
                 MeasuredStream::Robot,
                 measured.as_bytes(),
@@ -142,8 +143,9 @@ fn feed(
                 &mut sink,
             );
         }
-        for robot in pipeline.robots_with_due_metrics() {
-            pipeline.publish_metrics_if_due(&robot, &mut sink);
+        // Taken as the service takes them (it sends them itself); this sink would drop them.
+        for index in pipeline.robots_with_due_metrics() {
+            drop(pipeline.take_due_metrics(index));
         }
     }
 }
@@ -171,14 +173,30 @@ fn main() {
     let messages = Messages {
         model: RobotModel::nominal("ur10e").expect("catalog"),
     };
-    let mut pipeline = Pipeline::new(config.pipeline, config.default_robot, config.robots);
-    feed(&mut pipeline, &messages, (0..FIRST, 0..samples), false);
+    let mut directory = RobotDirectory::new(config.default_robot, config.robots);
+    let mut pipeline = Pipeline::new(config.pipeline);
+    feed(
+        (&mut directory, &mut pipeline),
+        &messages,
+        (0..FIRST, 0..samples),
+        false,
+    );
     let base = live_bytes();
     // Phases for the other robots: first joint message (tracking), first measured pose (first
     // pairing), the remaining samples.
-    feed(&mut pipeline, &messages, (FIRST..robots, 0..1), false);
+    feed(
+        (&mut directory, &mut pipeline),
+        &messages,
+        (FIRST..robots, 0..1),
+        false,
+    );
     let after_joint_and_measured = live_bytes();
-    feed(&mut pipeline, &messages, (FIRST..robots, 1..samples), false);
+    feed(
+        (&mut directory, &mut pipeline),
+        &messages,
+        (FIRST..robots, 1..samples),
+        false,
+    );
     let after_all = live_bytes();
     let tracked = (robots - FIRST) as f64;
     let per_robot = |bytes: isize| bytes as f64 / tracked;
@@ -202,10 +220,21 @@ fn main() {
     // Robots that only stream joints (no measured poses, so no deviation statistics).
     drop(pipeline);
     let config = parsed_service_config(robots).expect("generated configuration");
-    let mut pipeline = Pipeline::new(config.pipeline, config.default_robot, config.robots);
-    feed(&mut pipeline, &messages, (0..FIRST, 0..samples), true);
+    let mut directory = RobotDirectory::new(config.default_robot, config.robots);
+    let mut pipeline = Pipeline::new(config.pipeline);
+    feed(
+        (&mut directory, &mut pipeline),
+        &messages,
+        (0..FIRST, 0..samples),
+        true,
+    );
     let base = live_bytes();
-    feed(&mut pipeline, &messages, (FIRST..robots, 0..samples), true);
+    feed(
+        (&mut directory, &mut pipeline),
+        &messages,
+        (FIRST..robots, 0..samples),
+        true,
+    );
     println!(
         "  per tracked robot streaming joints only: {:.0} bytes",
         per_robot(live_bytes() - base)

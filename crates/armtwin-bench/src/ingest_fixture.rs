@@ -13,7 +13,9 @@ use armtwin::codec::wire;
 use armtwin::ingest;
 use armtwin::kinematics::{OutputFrame, PoseReadout};
 use armtwin::metrics::Deviation;
-use armtwin::pipeline::{Event, MeasuredStream, MetricsSnapshot, Pipeline, Sink};
+use armtwin::pipeline::{
+    Event, MeasuredStream, MetricsSnapshot, Pipeline, Robot, RobotDirectory, Sink,
+};
 
 use crate::fleet::{parsed_service_config, robot_id};
 use crate::workload::Workload;
@@ -28,22 +30,22 @@ pub struct Encode {
 }
 
 impl Sink for Encode {
-    fn tracking(&mut self, _robot: &str) {}
+    fn tracking(&mut self, _robot: &Robot) {}
 
     fn pose(
         &mut self,
-        robot: &str,
+        robot: &Robot,
         stamp_s: f64,
         seq: u64,
         frame: OutputFrame,
         pose: &PoseReadout,
     ) {
-        let message = wire::PoseMessage::new(robot, stamp_s, seq, frame.as_str(), pose);
+        let message = wire::PoseMessage::new(robot.id(), stamp_s, seq, frame.as_str(), pose);
         self.bytes += black_box(message.to_json_bytes()).len();
     }
 
-    fn deviation(&mut self, robot: &str, stamp_s: f64, _: &PoseReadout, deviation: &Deviation) {
-        let message = wire::DeviationMessage::new(robot, stamp_s, deviation);
+    fn deviation(&mut self, robot: &Robot, stamp_s: f64, _: &PoseReadout, deviation: &Deviation) {
+        let message = wire::DeviationMessage::new(robot.id(), stamp_s, deviation);
         self.bytes += black_box(message.to_json_bytes()).len();
     }
 
@@ -51,7 +53,7 @@ impl Sink for Encode {
         self.bytes += black_box(wire::to_json_bytes(&wire::EventMessage::new(event))).len();
     }
 
-    fn metrics(&mut self, snapshot: &MetricsSnapshot) {
+    fn metrics(&mut self, _robot: &Robot, snapshot: &MetricsSnapshot) {
         self.bytes += black_box(wire::MetricsMessage::new(snapshot).to_json_bytes()).len();
     }
 }
@@ -91,21 +93,35 @@ impl Load {
         }
     }
 
-    /// A pipeline configured as `armtwin-bench run` configures the service for one robot.
+    /// A pipeline and its robots, configured as `armtwin-bench run` configures the service for
+    /// one robot.
     #[must_use]
-    pub fn pipeline() -> Pipeline {
+    pub fn pipeline() -> Twin {
         let config = parsed_service_config(1).expect("the benchmark's configuration");
-        Pipeline::new(config.pipeline, config.default_robot, config.robots)
+        Twin {
+            robots: RobotDirectory::new(config.default_robot, config.robots),
+            pipeline: Pipeline::new(config.pipeline),
+        }
     }
 }
 
+/// A pipeline and the directory its robots are resolved in, as the service holds them.
+pub struct Twin {
+    /// Who may be tracked.
+    pub robots: RobotDirectory,
+    /// The twins.
+    pub pipeline: Pipeline,
+}
+
 impl Load {
-    /// Sample `index`'s joint message into `pipeline`.
-    pub fn joints(&self, pipeline: &mut Pipeline, index: usize, sink: &mut impl Sink) {
+    /// Sample `index`'s joint message into `twin`, its robot resolved by id as the service
+    /// resolves it.
+    pub fn joints(&self, twin: &mut Twin, index: usize, sink: &mut impl Sink) {
         let (stamp_s, joints, _) = &self.samples[index];
+        let robot = twin.robots.find(&self.robot).expect("a configured robot");
         ingest::joint_message(
-            pipeline,
-            &self.robot,
+            &mut twin.pipeline,
+            robot,
             &self.joint_key,
             joints.as_bytes(),
             || *stamp_s,
@@ -113,12 +129,13 @@ impl Load {
         );
     }
 
-    /// Sample `index`'s measured pose into `pipeline`.
-    pub fn measured(&self, pipeline: &mut Pipeline, index: usize, sink: &mut impl Sink) {
+    /// Sample `index`'s measured pose into `twin`.
+    pub fn measured(&self, twin: &mut Twin, index: usize, sink: &mut impl Sink) {
         let (stamp_s, _, measured) = &self.samples[index];
+        let robot = twin.robots.find(&self.robot).expect("a configured robot");
         ingest::measured_message(
-            pipeline,
-            &self.robot,
+            &mut twin.pipeline,
+            robot,
             &self.measured_key,
             MeasuredStream::Robot,
             measured.as_bytes(),

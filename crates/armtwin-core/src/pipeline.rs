@@ -6,17 +6,31 @@
 //! view. Results go to a [`Sink`]; the pipeline never awaits, never touches the network or the
 //! filesystem, and never panics on input.
 //!
+//! A robot's id is resolved once per input: a [`RobotDirectory`] turns it into a [`Robot`]
+//! handle (index, id, settings), and every per-sample method takes that handle. Twins live in a
+//! `Vec` by [`RobotIndex`], each carrying its own [`Robot`], and sinks get the same index, so
+//! nothing on the way from input to outputs hashes the id again. The directory never changes an
+//! entry, so a caller may decode against a robot's settings before it locks the pipeline.
+//!
+//! Events ([`Event`]) carry numbers, causes and borrowed errors; their sentence is written only
+//! by their `Display`, so an event a sink drops costs no formatting.
+//!
 //! Stamp rules (per robot, source time): joint stamps must increase strictly, and so must
 //! measured stamps; a sample that goes back or repeats a stamp is rejected (`out_of_order`,
 //! `duplicate_stamp`), because a twin cannot tell which of two readings at one instant is true.
 //! A gateway `seq` that skips numbers raises a `gap` event (samples lost upstream); one that goes
 //! back or repeats rejects the sample.
 
-use std::collections::HashMap;
+mod directory;
+mod event;
+
+use std::error::Error;
 use std::sync::Arc;
 
 use nalgebra::{IsometryMatrix3, Matrix3, Rotation3, Vector3};
 
+pub use self::directory::{Robot, RobotDirectory, RobotIndex, UnknownRobot};
+pub use self::event::{Event, EventDetail, EventKind, Reason, RejectCause};
 use crate::align::{self, AlignConfig, Aligner, Bracket, Pending, UnpairedReason};
 use crate::kinematics::{KinematicsError, OutputFrame, PoseReadout};
 use crate::metrics::{CumulativeStats, Deviation, StatsSet, WindowStats};
@@ -102,101 +116,6 @@ pub enum MeasuredStream {
     Sensor(usize),
 }
 
-/// What an event reports.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum EventKind {
-    /// Input rejected.
-    Rejected,
-    /// A deviation stayed above its threshold.
-    Alarm,
-    /// An alarm's deviation came back to or below its threshold.
-    Recovered,
-    /// A gap in a stream (joint stamps or gateway sequence numbers).
-    Gap,
-    /// A measured pose that could not be paired with the twin.
-    Unpaired,
-    /// The gateway's clock went back by more than `restart_s`: alignment and the metrics window
-    /// started afresh.
-    Restart,
-}
-
-impl EventKind {
-    /// The wire name.
-    #[must_use]
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Rejected => "rejected",
-            Self::Alarm => "alarm",
-            Self::Recovered => "recovered",
-            Self::Gap => "gap",
-            Self::Unpaired => "unpaired",
-            Self::Restart => "restart",
-        }
-    }
-}
-
-/// Machine-readable details of an event.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum EventDetail {
-    /// Input rejected for this cause (a stable snake-case name).
-    Rejected {
-        /// E.g. `joint_count`, `out_of_order`, `quaternion_norm`.
-        cause: &'static str,
-    },
-    /// An alarm on a metric, or its recovery.
-    Alarm {
-        /// `position` or `angle`.
-        metric: &'static str,
-        /// The deviation that decided (m or rad).
-        value: f64,
-        /// The threshold (m or rad).
-        threshold: f64,
-    },
-    /// Joint samples further apart than `max_gap_s`.
-    StampGap {
-        /// Spacing (s).
-        gap_s: f64,
-    },
-    /// Gateway sequence numbers skipped.
-    SeqGap {
-        /// The sequence number expected.
-        expected: u64,
-        /// The one received.
-        got: u64,
-    },
-    /// A stream's clock went back.
-    Restart {
-        /// The stream's previous stamp (s).
-        from_s: f64,
-        /// The new stamp (s).
-        to_s: f64,
-    },
-    /// A measured pose left unpaired.
-    Unpaired {
-        /// The cause, e.g. `joint_gap`, `wait_expired`.
-        cause: &'static str,
-        /// The measured pose's stamp (s).
-        measured_s: f64,
-    },
-}
-
-/// One event for a robot's events key.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Event<'a> {
-    /// Robot id.
-    pub robot: &'a str,
-    /// Source time (s) of the sample concerned.
-    pub stamp_s: f64,
-    /// What happened.
-    pub kind: EventKind,
-    /// A sentence for people.
-    pub reason: String,
-    /// The key the input arrived on, where an input is concerned.
-    pub key: Option<&'a str>,
-    /// Details for machines.
-    pub detail: EventDetail,
-}
-
 /// A robot's metrics at one instant.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MetricsSnapshot {
@@ -218,24 +137,32 @@ pub struct MetricsSnapshot {
     pub window_s: f64,
 }
 
-/// Where the pipeline's results go.
+/// Where the pipeline's results go. Every result names its robot by [`Robot`] (or, for events,
+/// [`Event::index`]), whose [`RobotIndex`] lets a sink keep per-robot state in a `Vec`.
 pub trait Sink {
     /// A robot is tracked from now on (declare its outputs, its liveliness token).
-    fn tracking(&mut self, robot: &str);
+    fn tracking(&mut self, robot: &Robot);
     /// The twin pose of a valid joint sample.
-    fn pose(&mut self, robot: &str, stamp_s: f64, seq: u64, frame: OutputFrame, pose: &PoseReadout);
+    fn pose(
+        &mut self,
+        robot: &Robot,
+        stamp_s: f64,
+        seq: u64,
+        frame: OutputFrame,
+        pose: &PoseReadout,
+    );
     /// Twin minus measured, for a paired measured pose (given in the output frame).
     fn deviation(
         &mut self,
-        robot: &str,
+        robot: &Robot,
         stamp_s: f64,
         measured: &PoseReadout,
         deviation: &Deviation,
     );
-    /// An event.
+    /// An event (its sentence, if the sink wants one, is its `Display`).
     fn event(&mut self, event: &Event<'_>);
-    /// A metrics snapshot.
-    fn metrics(&mut self, snapshot: &MetricsSnapshot);
+    /// A metrics snapshot of `robot`.
+    fn metrics(&mut self, robot: &Robot, snapshot: &MetricsSnapshot);
 }
 
 /// A sink that drops every result: for measuring the pipeline alone (benchmarks, tests).
@@ -243,11 +170,11 @@ pub trait Sink {
 pub struct Discard;
 
 impl Sink for Discard {
-    fn tracking(&mut self, _robot: &str) {}
-    fn pose(&mut self, _: &str, _: f64, _: u64, _: OutputFrame, _: &PoseReadout) {}
-    fn deviation(&mut self, _: &str, _: f64, _: &PoseReadout, _: &Deviation) {}
+    fn tracking(&mut self, _robot: &Robot) {}
+    fn pose(&mut self, _: &Robot, _: f64, _: u64, _: OutputFrame, _: &PoseReadout) {}
+    fn deviation(&mut self, _: &Robot, _: f64, _: &PoseReadout, _: &Deviation) {}
     fn event(&mut self, _event: &Event<'_>) {}
-    fn metrics(&mut self, _snapshot: &MetricsSnapshot) {}
+    fn metrics(&mut self, _robot: &Robot, _snapshot: &MetricsSnapshot) {}
 }
 
 /// A robot's last values, for the state view.
@@ -299,8 +226,8 @@ struct DeviationStats {
 }
 
 struct RobotTwin {
-    /// Shared with the pipeline's configuration (and every robot using the default).
-    settings: Arc<RobotSettings>,
+    /// Its index, id and settings (shared with the directory).
+    robot: Robot,
     aligner: Aligner<Waiting>,
     /// Created by the first paired measurement (about 1.6 KB): a robot that only streams joints
     /// never needs them.
@@ -327,195 +254,106 @@ struct RobotTwin {
     scratch_q: Vec<f64>,
 }
 
-/// The multi-robot twin core.
+/// The multi-robot twin core: one twin per robot that has had input, by [`RobotIndex`].
 pub struct Pipeline {
     config: PipelineConfig,
-    default_settings: Option<Arc<RobotSettings>>,
-    settings: HashMap<String, Arc<RobotSettings>>,
-    /// Boxed: the map keeps spare slots (up to half of them at times), which then cost a pointer
-    /// each rather than a whole twin.
-    robots: HashMap<String, Box<RobotTwin>>,
-    rejected_unknown: u64,
+    /// `None` until the robot's first input. Boxed: a configured robot that never sends costs a
+    /// pointer, not a twin.
+    twins: Vec<Option<Box<RobotTwin>>>,
 }
 
-/// Why a robot is not tracked.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct UnknownRobot;
+/// Rejects an input of a robot that is neither configured nor covered by a default: one event
+/// (there is no twin to count it).
+pub fn reject_unknown_robot(robot: &str, key: &str, stamp_s: f64, sink: &mut impl Sink) {
+    sink.event(&Event {
+        robot,
+        index: None,
+        stamp_s,
+        kind: EventKind::Rejected,
+        key: Some(key),
+        detail: EventDetail::Rejected {
+            cause: RejectCause::UnknownRobot,
+        },
+        reason: Reason::UnknownRobot,
+    });
+}
 
 impl Pipeline {
-    /// A pipeline with per-robot `settings`, and `default_settings` for robots not listed
-    /// (`None`: robots not listed are rejected).
+    /// A pipeline with no robot tracked yet.
     #[must_use]
-    pub fn new(
-        config: PipelineConfig,
-        default_settings: Option<RobotSettings>,
-        settings: HashMap<String, RobotSettings>,
-    ) -> Self {
+    pub fn new(config: PipelineConfig) -> Self {
         Self {
             config,
-            default_settings: default_settings.map(Arc::new),
-            settings: settings
-                .into_iter()
-                .map(|(robot, settings)| (robot, Arc::new(settings)))
-                .collect(),
-            robots: HashMap::new(),
-            rejected_unknown: 0,
+            twins: Vec::new(),
         }
     }
 
-    /// The shared settings.
-    #[must_use]
-    pub fn config(&self) -> &PipelineConfig {
-        &self.config
+    /// The robots tracked so far, in index order.
+    pub fn tracked(&self) -> impl Iterator<Item = &Robot> {
+        self.twins.iter().flatten().map(|twin| &twin.robot)
     }
 
-    /// The settings a robot gets (its own, else the default), if it may be tracked.
-    #[must_use]
-    pub fn settings_for(&self, robot: &str) -> Option<&RobotSettings> {
-        self.settings
-            .get(robot)
-            .or(self.default_settings.as_ref())
-            .map(Arc::as_ref)
+    fn twin(&self, robot: RobotIndex) -> Option<&RobotTwin> {
+        self.twins.get(robot.get())?.as_deref()
     }
 
-    /// Configured robots (with their own settings), tracked or not.
-    pub fn configured_robots(&self) -> impl Iterator<Item = (&str, &RobotSettings)> {
-        self.settings
-            .iter()
-            .map(|(id, s)| (id.as_str(), s.as_ref()))
+    fn twin_mut(&mut self, robot: RobotIndex) -> Option<&mut RobotTwin> {
+        self.twins.get_mut(robot.get())?.as_deref_mut()
     }
 
-    /// Ids of the robots tracked so far.
-    pub fn tracked_robots(&self) -> impl Iterator<Item = &str> {
-        self.robots.keys().map(String::as_str)
-    }
-
-    /// Whether `robot` is tracked.
-    #[must_use]
-    pub fn is_tracked(&self, robot: &str) -> bool {
-        self.robots.contains_key(robot)
-    }
-
-    /// Inputs rejected because their robot is neither configured nor covered by a default.
-    #[must_use]
-    pub fn rejected_unknown(&self) -> u64 {
-        self.rejected_unknown
-    }
-
-    /// Starts tracking `robot` if it is not yet; fails for a robot that may not be tracked.
-    pub fn track(&mut self, robot: &str, sink: &mut impl Sink) -> Result<(), UnknownRobot> {
-        if self.robots.contains_key(robot) {
-            return Ok(());
+    /// `robot`'s twin, tracking it first (and telling the sink) if this is its first input;
+    /// marked as having new results.
+    fn track(&mut self, robot: &Robot, sink: &mut impl Sink) -> &mut RobotTwin {
+        let index = robot.index().get();
+        if self.twins.len() <= index {
+            self.twins.resize_with(index + 1, || None);
         }
-        let settings = self
-            .settings
-            .get(robot)
-            .or(self.default_settings.as_ref())
-            .cloned()
-            .ok_or(UnknownRobot)?;
-        let twin = RobotTwin {
-            aligner: Aligner::new(self.config.align),
-            stats: None,
-            window_s: self.config.window_s,
-            window_max_samples: self.config.window_max_samples,
-            paired: 0,
-            unpaired: 0,
-            rejected: 0,
-            next_pose_seq: 0,
-            last_gateway_seq: None,
-            last_joint_s: None,
-            last_joints: Vec::with_capacity(settings.model.joint_count()),
-            last_twin: None,
-            last_measured_s: Vec::new(),
-            last_measured: None,
-            newest_s: f64::NEG_INFINITY,
-            alarms: [AlarmState::default(); 2],
-            dirty: false,
-            scratch_q: Vec::with_capacity(settings.model.joint_count()),
-            settings,
+        let slot = &mut self.twins[index];
+        let twin = if let Some(twin) = slot {
+            twin
+        } else {
+            sink.tracking(robot);
+            slot.insert(Box::new(RobotTwin::new(robot.clone(), &self.config)))
         };
-        self.robots.insert(robot.to_owned(), Box::new(twin));
-        sink.tracking(robot);
-        Ok(())
+        twin.dirty = true;
+        twin
     }
 
-    /// Rejects an input for `robot` that could not be decoded (or was refused before reaching
-    /// the pipeline): one event, one count.
+    /// Rejects an input of `robot` that could not be decoded (or was refused before reaching
+    /// the pipeline): one event, one count; `error` says why.
     pub fn reject(
         &mut self,
-        robot: &str,
+        robot: &Robot,
         key: &str,
         stamp_s: f64,
-        cause: &'static str,
-        reason: String,
+        cause: RejectCause,
+        error: &dyn Error,
         sink: &mut impl Sink,
     ) {
-        if self.track(robot, sink).is_ok()
-            && let Some(twin) = self.robots.get_mut(robot)
-        {
-            twin.dirty = true;
-            twin.reject(robot, key, stamp_s, cause, reason, sink);
-            return;
-        }
-        self.rejected_unknown += 1;
-        sink.event(&rejection(robot, key, stamp_s, cause, reason));
-    }
-
-    /// Rejects an input for a robot that is neither configured nor covered by a default.
-    pub fn reject_unknown_robot(
-        &mut self,
-        robot: &str,
-        key: &str,
-        stamp_s: f64,
-        sink: &mut impl Sink,
-    ) {
-        self.rejected_unknown += 1;
-        let reason = format!("robot '{robot}' is not configured and unknown robots are rejected");
-        sink.event(&rejection(robot, key, stamp_s, "unknown_robot", reason));
-    }
-
-    /// The twin an input at `stamp_s` goes to, tracking the robot first; `None` (after a
-    /// rejection) for a robot that may not be tracked. Source time moves on only once the input
-    /// is accepted.
-    fn twin_for_input(
-        &mut self,
-        robot: &str,
-        key: &str,
-        stamp_s: f64,
-        sink: &mut impl Sink,
-    ) -> Option<&mut RobotTwin> {
-        if self.track(robot, sink).is_err() {
-            self.reject_unknown_robot(robot, key, stamp_s, sink);
-            return None;
-        }
-        let twin = self.robots.get_mut(robot)?;
-        twin.dirty = true;
-        Some(twin)
+        self.track(robot, sink)
+            .reject(key, stamp_s, cause, Reason::Error(error), sink);
     }
 
     /// A decoded joint sample of `robot`, stamped `stamp_s` (the message's own stamp, else the
     /// transport's). Valid ones yield exactly one twin pose; an embedded measured pose pairs
-    /// with it exactly.
+    /// with it exactly. Source time moves on only once the input is accepted.
     pub fn joints(
         &mut self,
-        robot: &str,
+        robot: &Robot,
         key: &str,
         stamp_s: f64,
         sample: &JointSample,
         sink: &mut impl Sink,
     ) {
-        let Some(twin) = self.twin_for_input(robot, key, stamp_s, sink) else {
-            return;
-        };
-        match twin.accept_joints(robot, key, stamp_s, sample, sink) {
+        let twin = self.track(robot, sink);
+        match twin.accept_joints(key, stamp_s, sample, sink) {
             Ok(pose) => {
                 // Older waiting poses first, so statistics and alarms see stamps in order.
-                twin.pair_ready(robot, sink);
+                twin.pair_ready(sink);
                 if let Some(measured) = &sample.measured {
                     let measured = twin.to_output_frame(measured, MeasuredStream::Robot);
-                    if twin.accept_measured_stamp(robot, key, MeasuredStream::Robot, stamp_s, sink)
-                    {
-                        twin.pair(robot, key, stamp_s, &pose, measured, sink);
+                    if twin.accept_measured_stamp(key, MeasuredStream::Robot, stamp_s, sink) {
+                        twin.pair(key, stamp_s, &pose, measured, sink);
                     }
                 }
             }
@@ -528,7 +366,7 @@ impl Pipeline {
                 // input and goes through the aligner like any other.
                 if let Some(measured) = &sample.measured {
                     let measured = twin.to_output_frame(measured, MeasuredStream::Robot);
-                    twin.measured(robot, key, MeasuredStream::Robot, stamp_s, measured, sink);
+                    twin.measured(key, MeasuredStream::Robot, stamp_s, measured, sink);
                 }
             }
         }
@@ -537,60 +375,46 @@ impl Pipeline {
     /// A decoded measured pose of `robot` from `stream`, stamped `stamp_s`.
     pub fn measured(
         &mut self,
-        robot: &str,
+        robot: &Robot,
         key: &str,
         stream: MeasuredStream,
         stamp_s: f64,
         pose: &PoseReadout,
         sink: &mut impl Sink,
     ) {
-        let Some(twin) = self.twin_for_input(robot, key, stamp_s, sink) else {
-            return;
-        };
+        let twin = self.track(robot, sink);
         let pose = twin.to_output_frame(pose, stream);
-        twin.measured(robot, key, stream, stamp_s, pose, sink);
+        twin.measured(key, stream, stamp_s, pose, sink);
     }
 
     /// Robots with new results since their last metrics (the periodic publication while data
-    /// flows sends theirs, with [`publish_metrics_if_due`](Self::publish_metrics_if_due)).
+    /// flows sends theirs, with [`take_due_metrics`](Self::take_due_metrics)).
     #[must_use]
-    pub fn robots_with_due_metrics(&self) -> Vec<String> {
-        self.robots
+    pub fn robots_with_due_metrics(&self) -> Vec<RobotIndex> {
+        self.twins
             .iter()
-            .filter(|(_, twin)| twin.dirty)
-            .map(|(robot, _)| robot.clone())
+            .flatten()
+            .filter(|twin| twin.dirty)
+            .map(|twin| twin.robot.index())
             .collect()
-    }
-
-    /// Sends `robot`'s metrics if it has new results since its last ones.
-    pub fn publish_metrics_if_due(&mut self, robot: &str, sink: &mut impl Sink) {
-        if let Some(snapshot) = self.take_due_metrics(robot) {
-            sink.metrics(&snapshot);
-        }
     }
 
     /// `robot`'s metrics if it has new results since its last ones, which they then count as
     /// sent: for a caller that sends them itself (the service, outside its lock).
-    pub fn take_due_metrics(&mut self, robot: &str) -> Option<MetricsSnapshot> {
-        let twin = self.robots.get_mut(robot)?;
+    pub fn take_due_metrics(&mut self, robot: RobotIndex) -> Option<MetricsSnapshot> {
+        let twin = self.twin_mut(robot)?;
         if !twin.dirty {
             return None;
         }
         twin.dirty = false;
-        Some(twin.snapshot(robot))
-    }
-
-    /// The current metrics of `robot`.
-    #[must_use]
-    pub fn metrics(&self, robot: &str) -> Option<MetricsSnapshot> {
-        self.robots.get(robot).map(|twin| twin.snapshot(robot))
+        Some(twin.snapshot())
     }
 
     /// Resets `robot`'s statistics and counters; returns (and sends) the final snapshot before
     /// the reset.
-    pub fn reset(&mut self, robot: &str, sink: &mut impl Sink) -> Option<MetricsSnapshot> {
-        let twin = self.robots.get_mut(robot)?;
-        let last = twin.snapshot(robot);
+    pub fn reset(&mut self, robot: RobotIndex, sink: &mut impl Sink) -> Option<MetricsSnapshot> {
+        let twin = self.twin_mut(robot)?;
+        let last = twin.snapshot();
         if let Some(stats) = &mut twin.stats {
             stats.cumulative.reset();
             stats.window.reset();
@@ -600,115 +424,138 @@ impl Pipeline {
         twin.rejected = 0;
         // Alarms stay as they are: clearing one silently would leave dashboards waiting for a
         // `recovered` that never comes.
-        sink.metrics(&last);
+        sink.metrics(&twin.robot, &last);
         Some(last)
     }
 
-    /// The state view of `robot`.
+    /// The state view of `robot`, if it is tracked.
     #[must_use]
-    pub fn state<'a>(&'a self, robot: &'a str) -> Option<RobotState<'a>> {
-        let twin = self.robots.get(robot)?;
+    pub fn state(&self, robot: RobotIndex) -> Option<RobotState<'_>> {
+        let twin = self.twin(robot)?;
         Some(RobotState {
-            robot,
-            model: &twin.settings.model,
+            robot: twin.robot.id(),
+            model: &twin.robot.settings().model,
             last_joints: twin
                 .last_joint_s
                 .map(|stamp_s| (stamp_s, twin.last_joints.as_slice())),
             last_twin: twin.last_twin.as_ref().map(|(s, p)| (*s, p)),
             last_measured: twin.last_measured.as_ref().map(|(s, p)| (*s, p)),
-            metrics: twin.snapshot(robot),
+            metrics: twin.snapshot(),
             alarms_active: [twin.alarms[0].active, twin.alarms[1].active],
         })
-    }
-
-    /// The pose of joint angles `q_rad` under `robot`'s model (tracked or only configured).
-    #[must_use]
-    pub fn fk(&self, robot: &str, q_rad: &[f64]) -> Option<Result<PoseReadout, KinematicsError>> {
-        let model = match self.robots.get(robot) {
-            Some(twin) => &twin.settings.model,
-            None => &self.settings_for(robot)?.model,
-        };
-        Some(model.pose(q_rad).map(|pose| pose.readout()))
     }
 
     /// End of input: waiting measured poses become unpaired, and every robot's final metrics go
     /// out.
     pub fn finish(&mut self, sink: &mut impl Sink) {
-        for (robot, twin) in &mut self.robots {
+        for twin in self.twins.iter_mut().flatten() {
             for (pending, reason) in twin.aligner.finish() {
-                twin.unpaired_event(robot, &pending, reason, sink);
+                twin.unpaired_event(&pending, reason, sink);
             }
             twin.dirty = false;
-            sink.metrics(&twin.snapshot(robot));
+            sink.metrics(&twin.robot, &twin.snapshot());
         }
     }
 }
 
 impl RobotTwin {
+    fn new(robot: Robot, config: &PipelineConfig) -> Self {
+        let joint_count = robot.settings().model.joint_count();
+        Self {
+            aligner: Aligner::new(config.align),
+            stats: None,
+            window_s: config.window_s,
+            window_max_samples: config.window_max_samples,
+            paired: 0,
+            unpaired: 0,
+            rejected: 0,
+            next_pose_seq: 0,
+            last_gateway_seq: None,
+            last_joint_s: None,
+            last_joints: Vec::with_capacity(joint_count),
+            last_twin: None,
+            last_measured_s: Vec::new(),
+            last_measured: None,
+            newest_s: f64::NEG_INFINITY,
+            alarms: [AlarmState::default(); 2],
+            dirty: false,
+            scratch_q: Vec::with_capacity(joint_count),
+            robot,
+        }
+    }
+
+    /// An event of this robot.
+    fn event<'a>(
+        &'a self,
+        stamp_s: f64,
+        kind: EventKind,
+        key: Option<&'a str>,
+        detail: EventDetail,
+        reason: Reason<'a>,
+    ) -> Event<'a> {
+        Event {
+            robot: self.robot.id(),
+            index: Some(self.robot.index()),
+            stamp_s,
+            kind,
+            key,
+            detail,
+            reason,
+        }
+    }
+
+    /// One rejection: an event and a count.
     fn reject(
         &mut self,
-        robot: &str,
         key: &str,
         stamp_s: f64,
-        cause: &'static str,
-        reason: String,
+        cause: RejectCause,
+        reason: Reason<'_>,
         sink: &mut impl Sink,
     ) {
         self.rejected += 1;
-        sink.event(&rejection(robot, key, stamp_s, cause, reason));
+        self.dirty = true;
+        let detail = EventDetail::Rejected { cause };
+        sink.event(&self.event(stamp_s, EventKind::Rejected, Some(key), detail, reason));
     }
 
     /// Validates and evaluates a joint sample: its twin pose is sent and returned.
     fn accept_joints(
         &mut self,
-        robot: &str,
         key: &str,
         stamp_s: f64,
         sample: &JointSample,
         sink: &mut impl Sink,
     ) -> Result<PoseReadout, Refusal> {
-        if let Err(error) = self.settings.model.check_joints(&sample.q_rad) {
+        if let Err(error) = self.robot.settings().model.check_joints(&sample.q_rad) {
             let cause = match error {
-                KinematicsError::JointCount { .. } => "joint_count",
-                KinematicsError::NonFinite { .. } => "non_finite",
-                KinematicsError::OutOfLimits { .. } => "joint_limits",
+                KinematicsError::JointCount { .. } => RejectCause::JointCount,
+                KinematicsError::NonFinite { .. } => RejectCause::NonFinite,
+                KinematicsError::OutOfLimits { .. } => RejectCause::JointLimits,
             };
-            self.reject(robot, key, stamp_s, cause, error.to_string(), sink);
+            self.reject(key, stamp_s, cause, Reason::Error(&error), sink);
             return Err(Refusal::Joints);
         }
-        self.restart_if_clock_went_back(robot, key, "joint", stamp_s, self.last_joint_s, sink);
+        self.restart_if_clock_went_back(key, "joint", stamp_s, self.last_joint_s, sink);
         if let Some((cause, reason)) = stamp_problem("joint", stamp_s, self.last_joint_s) {
-            self.reject(robot, key, stamp_s, cause, reason, sink);
+            self.reject(key, stamp_s, cause, reason, sink);
             return Err(Refusal::Order);
         }
         if let Some(seq) = sample.seq {
             if let Some(last) = self.last_gateway_seq {
                 if seq <= last {
-                    self.reject(
-                        robot,
-                        key,
-                        stamp_s,
-                        "seq_not_increasing",
-                        format!("seq {seq} does not follow the previous seq {last}"),
-                        sink,
-                    );
+                    let reason = Reason::Seq { seq, last };
+                    self.reject(key, stamp_s, RejectCause::SeqNotIncreasing, reason, sink);
                     return Err(Refusal::Order);
                 }
                 if seq != last + 1 {
-                    sink.event(&Event {
-                        robot,
-                        stamp_s,
-                        kind: EventKind::Gap,
-                        reason: format!(
-                            "gateway seq jumped from {last} to {seq}: {} samples missing upstream",
-                            seq - last - 1
-                        ),
-                        key: Some(key),
-                        detail: EventDetail::SeqGap {
-                            expected: last + 1,
-                            got: seq,
-                        },
-                    });
+                    let detail = EventDetail::SeqGap {
+                        expected: last + 1,
+                        got: seq,
+                    };
+                    let event =
+                        self.event(stamp_s, EventKind::Gap, Some(key), detail, Reason::SeqGap);
+                    sink.event(&event);
                 }
             }
             self.last_gateway_seq = Some(seq);
@@ -718,25 +565,27 @@ impl RobotTwin {
             && stamp_s - last_s > max_gap_s
         {
             let gap_s = stamp_s - last_s;
-            sink.event(&Event {
-                robot,
-                stamp_s,
-                kind: EventKind::Gap,
-                reason: format!("no joint sample for {gap_s} s (max_gap_s = {max_gap_s})"),
-                key: Some(key),
-                detail: EventDetail::StampGap { gap_s },
-            });
+            let detail = EventDetail::StampGap { gap_s };
+            let reason = Reason::StampGap { max_gap_s };
+            sink.event(&self.event(stamp_s, EventKind::Gap, Some(key), detail, reason));
         }
         self.advance_time(stamp_s);
         let pose = self
-            .settings
+            .robot
+            .settings()
             .model
             .chain()
             .pose_unchecked(&sample.q_rad)
             .readout();
         let seq = self.next_pose_seq;
         self.next_pose_seq += 1;
-        sink.pose(robot, stamp_s, seq, self.settings.model.frame(), &pose);
+        sink.pose(
+            &self.robot,
+            stamp_s,
+            seq,
+            self.robot.settings().model.frame(),
+            &pose,
+        );
         self.aligner.push_joints(stamp_s, &sample.q_rad);
         self.last_joint_s = Some(stamp_s);
         self.last_joints.clear();
@@ -751,9 +600,8 @@ impl RobotTwin {
     /// window start afresh (cumulative metrics and counters continue), with a `restart` event.
     fn restart_if_clock_went_back(
         &mut self,
-        robot: &str,
         key: &str,
-        stream: &str,
+        stream: &'static str,
         stamp_s: f64,
         last_s: Option<f64>,
         sink: &mut impl Sink,
@@ -763,7 +611,7 @@ impl RobotTwin {
             return;
         };
         for (pending, reason) in self.aligner.finish() {
-            self.unpaired_event(robot, &pending, reason, sink);
+            self.unpaired_event(&pending, reason, sink);
         }
         self.aligner = Aligner::new(config);
         if let Some(stats) = &mut self.stats {
@@ -777,28 +625,21 @@ impl RobotTwin {
         }
         self.last_gateway_seq = None;
         self.newest_s = stamp_s;
-        sink.event(&Event {
-            robot,
-            stamp_s,
-            kind: EventKind::Restart,
-            reason: format!(
-                "{stream} stamp went back from {last_s} s to {stamp_s} s (more than restart_s = {} s): \
-                 taken as a gateway clock restart; alignment and the metrics window start afresh",
-                config.restart_s
-            ),
-            key: Some(key),
-            detail: EventDetail::Restart {
-                from_s: last_s,
-                to_s: stamp_s,
-            },
-        });
+        let detail = EventDetail::Restart {
+            from_s: last_s,
+            to_s: stamp_s,
+        };
+        let reason = Reason::Restart {
+            stream,
+            restart_s: config.restart_s,
+        };
+        sink.event(&self.event(stamp_s, EventKind::Restart, Some(key), detail, reason));
     }
 
     /// Measured stamps must increase strictly within each stream; rejects (and returns false)
     /// otherwise.
     fn accept_measured_stamp(
         &mut self,
-        robot: &str,
         key: &str,
         stream: MeasuredStream,
         stamp_s: f64,
@@ -809,10 +650,10 @@ impl RobotTwin {
             MeasuredStream::Sensor(index) => index + 1,
         };
         let last_s = self.last_measured_s.get(slot).copied().flatten();
-        self.restart_if_clock_went_back(robot, key, "measured", stamp_s, last_s, sink);
+        self.restart_if_clock_went_back(key, "measured", stamp_s, last_s, sink);
         let last_s = self.last_measured_s.get(slot).copied().flatten();
         if let Some((cause, reason)) = stamp_problem("measured", stamp_s, last_s) {
-            self.reject(robot, key, stamp_s, cause, reason, sink);
+            self.reject(key, stamp_s, cause, reason, sink);
             return false;
         }
         if self.last_measured_s.len() <= slot {
@@ -839,35 +680,34 @@ impl RobotTwin {
 
     fn measured(
         &mut self,
-        robot: &str,
         key: &str,
         stream: MeasuredStream,
         stamp_s: f64,
         pose: PoseReadout,
         sink: &mut impl Sink,
     ) {
-        if !self.accept_measured_stamp(robot, key, stream, stamp_s, sink) {
+        if !self.accept_measured_stamp(key, stream, stamp_s, sink) {
             return;
         }
-        self.resolve(robot, key, stamp_s, pose, sink);
+        self.resolve(key, stamp_s, pose, sink);
     }
 
     /// Pairs a measured pose through the aligner, or queues it, or reports it unpaired.
-    fn resolve(
-        &mut self,
-        robot: &str,
-        key: &str,
-        stamp_s: f64,
-        pose: PoseReadout,
-        sink: &mut impl Sink,
-    ) {
+    fn resolve(&mut self, key: &str, stamp_s: f64, pose: PoseReadout, sink: &mut impl Sink) {
         let twin_pose = match self.aligner.bracket(stamp_s) {
             // Recomputed rather than kept for every sample of history: the same pure function of
             // the same angles, so the same pose, for about 0.1 µs instead of 80 bytes per sample.
-            Bracket::Exact(q_rad) => self.settings.model.chain().pose_unchecked(q_rad).readout(),
+            Bracket::Exact(q_rad) => self
+                .robot
+                .settings()
+                .model
+                .chain()
+                .pose_unchecked(q_rad)
+                .readout(),
             Bracket::Between { q0, q1, fraction } => {
                 align::interpolate(q0, q1, fraction, &mut self.scratch_q);
-                self.settings
+                self.robot
+                    .settings()
                     .model
                     .chain()
                     .pose_unchecked(&self.scratch_q)
@@ -879,7 +719,7 @@ impl RobotTwin {
                     key: key.to_owned(),
                 };
                 for (pending, reason) in self.aligner.wait(stamp_s, waiting) {
-                    self.unpaired_event(robot, &pending, reason, sink);
+                    self.unpaired_event(&pending, reason, sink);
                 }
                 return;
             }
@@ -891,50 +731,43 @@ impl RobotTwin {
                         key: key.to_owned(),
                     },
                 };
-                self.unpaired_event(robot, &pending, reason, sink);
+                self.unpaired_event(&pending, reason, sink);
                 return;
             }
         };
-        self.pair(robot, key, stamp_s, &twin_pose, pose, sink);
+        self.pair(key, stamp_s, &twin_pose, pose, sink);
     }
 
     /// Pairs the measured poses that the newest joint sample now brackets.
-    fn pair_ready(&mut self, robot: &str, sink: &mut impl Sink) {
+    fn pair_ready(&mut self, sink: &mut impl Sink) {
         for pending in self.aligner.take_ready() {
             let Pending { stamp_s, item } = pending;
-            self.resolve(robot, &item.key, stamp_s, item.pose, sink);
+            self.resolve(&item.key, stamp_s, item.pose, sink);
         }
     }
 
     fn unpaired_event(
         &mut self,
-        robot: &str,
         pending: &Pending<Waiting>,
         reason: UnpairedReason,
         sink: &mut impl Sink,
     ) {
         self.unpaired += 1;
         self.dirty = true;
-        sink.event(&Event {
-            robot,
-            stamp_s: pending.stamp_s,
-            kind: EventKind::Unpaired,
-            reason: format!(
-                "measured pose at t = {} s unpaired: {}",
-                pending.stamp_s,
-                reason.describe(self.aligner.config())
-            ),
-            key: Some(&pending.item.key),
-            detail: EventDetail::Unpaired {
-                cause: reason.kind(),
-                measured_s: pending.stamp_s,
-            },
-        });
+        let detail = EventDetail::Unpaired {
+            cause: reason.kind(),
+            measured_s: pending.stamp_s,
+        };
+        let reason = Reason::Unpaired {
+            reason,
+            align: *self.aligner.config(),
+        };
+        let key = Some(pending.item.key.as_str());
+        sink.event(&self.event(pending.stamp_s, EventKind::Unpaired, key, detail, reason));
     }
 
     fn pair(
         &mut self,
-        robot: &str,
         key: &str,
         stamp_s: f64,
         twin_pose: &PoseReadout,
@@ -947,20 +780,14 @@ impl RobotTwin {
             .iter()
             .all(|v| v.is_finite() && *v <= MAX_DEVIATION)
         {
-            self.reject(
-                robot,
-                key,
-                stamp_s,
-                "out_of_range",
-                format!(
-                    "measured pose {:?} m is {} m from the twin: not a pose of this robot",
-                    measured.position_m, deviation.position_m
-                ),
-                sink,
-            );
+            let reason = Reason::OutOfRange {
+                position_m: measured.position_m,
+                distance_m: deviation.position_m,
+            };
+            self.reject(key, stamp_s, RejectCause::OutOfRange, reason, sink);
             return;
         }
-        sink.deviation(robot, stamp_s, &measured, &deviation);
+        sink.deviation(&self.robot, stamp_s, &measured, &deviation);
         let stats = self.stats.get_or_insert_with(|| {
             let mut window = WindowStats::new(self.window_s, self.window_max_samples);
             // As if it had followed source time all along.
@@ -974,7 +801,7 @@ impl RobotTwin {
         stats.window.add(stamp_s, &magnitudes);
         self.paired += 1;
         self.last_measured = Some((stamp_s, measured));
-        let alarm = self.settings.alarm;
+        let alarm = self.robot.settings().alarm;
         let checks = [
             ("position", alarm.position_m, deviation.position_m, "m"),
             ("angle", alarm.angle_rad, deviation.angle_rad, "rad"),
@@ -995,45 +822,32 @@ impl RobotTwin {
             }
             state.active = !state.active;
             state.since_s = None;
-            let (kind, reason) = if state.active {
-                (
-                    EventKind::Alarm,
-                    format!(
-                        "{metric} deviation {value} {unit} above {threshold} {unit} for at least {} s",
-                        alarm.hold_s
-                    ),
-                )
+            let kind = if state.active {
+                EventKind::Alarm
             } else {
-                (
-                    EventKind::Recovered,
-                    format!(
-                        "{metric} deviation {value} {unit} back at or below {threshold} {unit} for at least {} s",
-                        alarm.hold_s
-                    ),
-                )
+                EventKind::Recovered
             };
-            sink.event(&Event {
-                robot,
-                stamp_s,
-                kind,
-                reason,
-                key: None,
-                detail: EventDetail::Alarm {
-                    metric,
-                    value,
-                    threshold,
-                },
-            });
+            let detail = EventDetail::Alarm {
+                metric,
+                value,
+                threshold,
+            };
+            let reason = Reason::Alarm {
+                unit,
+                hold_s: alarm.hold_s,
+            };
+            sink.event(&self.event(stamp_s, kind, None, detail, reason));
         }
     }
 
     /// A measured pose from `stream` in the model's output frame.
     fn to_output_frame(&self, pose: &PoseReadout, stream: MeasuredStream) -> PoseReadout {
-        let frame = self.settings.model.frame();
+        let frame = self.robot.settings().model.frame();
         let sensor = match stream {
             MeasuredStream::Robot => None,
             MeasuredStream::Sensor(index) => self
-                .settings
+                .robot
+                .settings()
                 .sensors
                 .get(index)
                 .map(|sensor| sensor.base_from_sensor),
@@ -1046,9 +860,9 @@ impl RobotTwin {
         transform(&frame_from_measured, pose)
     }
 
-    fn snapshot(&self, robot: &str) -> MetricsSnapshot {
+    fn snapshot(&self) -> MetricsSnapshot {
         MetricsSnapshot {
-            robot: robot.to_owned(),
+            robot: self.robot.id().to_owned(),
             stamp_s: if self.newest_s.is_finite() {
                 self.newest_s
             } else {
@@ -1072,47 +886,23 @@ impl RobotTwin {
     }
 }
 
-/// The event for an input rejected for `cause`.
-fn rejection<'a>(
-    robot: &'a str,
-    key: &'a str,
-    stamp_s: f64,
-    cause: &'static str,
-    reason: String,
-) -> Event<'a> {
-    Event {
-        robot,
-        stamp_s,
-        kind: EventKind::Rejected,
-        reason,
-        key: Some(key),
-        detail: EventDetail::Rejected { cause },
-    }
-}
-
 /// Why `stamp_s` cannot follow `last_s` in a `stream` (stamps must be finite and increase
-/// strictly), as a rejection cause and a sentence.
+/// strictly), as a rejection cause and what its sentence says.
 fn stamp_problem(
-    stream: &str,
+    stream: &'static str,
     stamp_s: f64,
     last_s: Option<f64>,
-) -> Option<(&'static str, String)> {
+) -> Option<(RejectCause, Reason<'static>)> {
     if !stamp_s.is_finite() {
-        return Some((
-            "non_finite",
-            format!("{stream} stamp {stamp_s} is not finite"),
-        ));
+        return Some((RejectCause::NonFinite, Reason::StampNotFinite { stream }));
     }
     let last_s = last_s.filter(|last_s| stamp_s <= *last_s)?;
-    let (cause, relation) = if stamp_s < last_s {
-        ("out_of_order", "older than")
+    let cause = if stamp_s < last_s {
+        RejectCause::OutOfOrder
     } else {
-        ("duplicate_stamp", "equal to")
+        RejectCause::DuplicateStamp
     };
-    Some((
-        cause,
-        format!("{stream} stamp {stamp_s} s is {relation} the previous one ({last_s} s)"),
-    ))
+    Some((cause, Reason::StampOrder { stream, last_s }))
 }
 
 /// `target_from_source · pose`.
@@ -1127,6 +917,8 @@ fn transform(target_from_source: &IsometryMatrix3<f64>, pose: &PoseReadout) -> P
 
 #[cfg(test)]
 mod tests {
+    use std::collections::HashMap;
+
     use super::*;
 
     #[test]
@@ -1137,7 +929,9 @@ mod tests {
             alarm: AlarmConfig::default(),
             sensors: Vec::new(),
         };
-        let mut pipeline = Pipeline::new(PipelineConfig::default(), Some(settings), HashMap::new());
+        let mut robots = RobotDirectory::new(Some(settings), HashMap::new());
+        let r1 = robots.admit("r1").expect("default settings").clone();
+        let mut pipeline = Pipeline::new(PipelineConfig::default());
         let q_rad = vec![0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
         let joints = JointSample {
             stamp_s: None,
@@ -1145,31 +939,31 @@ mod tests {
             q_rad: q_rad.clone(),
             measured: None,
         };
+        let stats =
+            |pipeline: &Pipeline| pipeline.twin(r1.index()).expect("tracked").stats.is_some();
+        let metrics = |pipeline: &Pipeline| pipeline.state(r1.index()).expect("tracked").metrics;
         for i in 0..5 {
-            pipeline.joints("r1", "j", f64::from(i), &joints, &mut Discard);
+            pipeline.joints(&r1, "j", f64::from(i), &joints, &mut Discard);
         }
-        assert!(
-            pipeline.robots["r1"].stats.is_none(),
-            "joints alone need none"
-        );
-        let snapshot = pipeline.metrics("r1").expect("tracked");
+        assert!(!stats(&pipeline), "joints alone need none");
+        let snapshot = metrics(&pipeline);
         assert_eq!((snapshot.window.n, snapshot.window_s), (0, 10.0));
 
         let measured = model.pose(&q_rad).expect("valid").readout();
         pipeline.measured(
-            "r1",
+            &r1,
             "m",
             MeasuredStream::Robot,
             4.0,
             &measured,
             &mut Discard,
         );
-        assert!(pipeline.robots["r1"].stats.is_some());
-        let snapshot = pipeline.metrics("r1").expect("tracked");
+        assert!(stats(&pipeline));
+        let snapshot = metrics(&pipeline);
         assert_eq!((snapshot.cumulative.n, snapshot.window.n), (1, 1));
         // The window created at t = 4 s knows source time: 10 s later its pair has left.
-        pipeline.joints("r1", "j", 14.0, &joints, &mut Discard);
-        let snapshot = pipeline.metrics("r1").expect("tracked");
+        pipeline.joints(&r1, "j", 14.0, &joints, &mut Discard);
+        let snapshot = metrics(&pipeline);
         assert_eq!((snapshot.cumulative.n, snapshot.window.n), (1, 0));
     }
 }

@@ -13,8 +13,8 @@ use armtwin_core::kinematics::{OutputFrame, PoseReadout};
 use armtwin_core::metrics::Deviation;
 use armtwin_core::model::RobotModel;
 use armtwin_core::pipeline::{
-    AlarmConfig, Event, EventDetail, EventKind, MetricsSnapshot, Pipeline, PipelineConfig,
-    RobotSettings, Sink,
+    AlarmConfig, Event, EventDetail, EventKind, MetricsSnapshot, Pipeline, PipelineConfig, Robot,
+    RobotDirectory, RobotIndex, RobotSettings, Sink,
 };
 use armtwin_core::sample::JointSample;
 
@@ -28,10 +28,10 @@ struct Recorder {
 }
 
 impl Sink for Recorder {
-    fn tracking(&mut self, _robot: &str) {}
+    fn tracking(&mut self, _robot: &Robot) {}
     fn pose(
         &mut self,
-        _robot: &str,
+        _robot: &Robot,
         stamp_s: f64,
         seq: u64,
         _frame: OutputFrame,
@@ -41,7 +41,7 @@ impl Sink for Recorder {
     }
     fn deviation(
         &mut self,
-        _robot: &str,
+        _robot: &Robot,
         stamp_s: f64,
         _measured: &PoseReadout,
         _deviation: &Deviation,
@@ -51,12 +51,12 @@ impl Sink for Recorder {
     fn event(&mut self, event: &Event<'_>) {
         self.events.push((event.kind, event.detail, event.stamp_s));
     }
-    fn metrics(&mut self, snapshot: &MetricsSnapshot) {
+    fn metrics(&mut self, _robot: &Robot, snapshot: &MetricsSnapshot) {
         self.metrics.push(snapshot.clone());
     }
 }
 
-fn pipeline() -> (Pipeline, Arc<RobotModel>) {
+fn pipeline() -> (Pipeline, Arc<RobotModel>, RobotDirectory) {
     let model = Arc::new(RobotModel::nominal("ur10e").expect("catalog"));
     let settings = RobotSettings {
         model: model.clone(),
@@ -64,9 +64,30 @@ fn pipeline() -> (Pipeline, Arc<RobotModel>) {
         sensors: Vec::new(),
     };
     (
-        Pipeline::new(PipelineConfig::default(), Some(settings), HashMap::new()),
+        Pipeline::new(PipelineConfig::default()),
         model,
+        RobotDirectory::new(Some(settings), HashMap::new()),
     )
+}
+
+/// `id`'s handle, admitted under the default settings.
+fn robot(directory: &mut RobotDirectory, id: &str) -> Robot {
+    directory.admit(id).expect("default settings").clone()
+}
+
+/// Sends `robot`'s metrics if it has new results since its last ones.
+fn publish_metrics_if_due(pipeline: &mut Pipeline, robot: &Robot, sink: &mut impl Sink) {
+    if let Some(snapshot) = pipeline.take_due_metrics(robot.index()) {
+        sink.metrics(robot, &snapshot);
+    }
+}
+
+/// The ids of `robots`.
+fn ids(pipeline: &Pipeline, robots: &[RobotIndex]) -> Vec<String> {
+    robots
+        .iter()
+        .map(|&robot| pipeline.state(robot).expect("tracked").robot.to_owned())
+        .collect()
 }
 
 fn sample(model: &RobotModel, q: [f64; 6], with_measured: bool) -> JointSample {
@@ -80,13 +101,14 @@ fn sample(model: &RobotModel, q: [f64; 6], with_measured: bool) -> JointSample {
 
 #[test]
 fn a_clock_restart_starts_alignment_and_window_afresh() {
-    let (mut pipeline, model) = pipeline();
+    let (mut pipeline, model, mut directory) = pipeline();
+    let r1 = robot(&mut directory, "r1");
     let mut sink = Recorder::default();
     let q = [0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
     for i in 0..20 {
         let t = 1000.0 + f64::from(i) * 0.01;
         pipeline.joints(
-            "r1",
+            &r1,
             "twin/joints/r1",
             t,
             &sample(&model, q, true),
@@ -95,7 +117,7 @@ fn a_clock_restart_starts_alignment_and_window_afresh() {
     }
     // A small step back is an out-of-order sample (one rejection, its measured part included)...
     pipeline.joints(
-        "r1",
+        &r1,
         "twin/joints/r1",
         1000.1,
         &sample(&model, q, true),
@@ -105,7 +127,7 @@ fn a_clock_restart_starts_alignment_and_window_afresh() {
     for i in 0..5 {
         let t = f64::from(i) * 0.01;
         pipeline.joints(
-            "r1",
+            &r1,
             "twin/joints/r1",
             t,
             &sample(&model, q, true),
@@ -124,7 +146,7 @@ fn a_clock_restart_starts_alignment_and_window_afresh() {
         sink.events[1].1,
         EventDetail::Restart { from_s, to_s } if (from_s - 1000.19).abs() < 1e-9 && to_s == 0.0
     ));
-    let metrics = pipeline.metrics("r1").expect("tracked");
+    let metrics = pipeline.state(r1.index()).expect("tracked").metrics;
     assert_eq!(metrics.paired, 25);
     assert_eq!(metrics.rejected, 1);
     assert_eq!(metrics.cumulative.n, 25);
@@ -137,11 +159,12 @@ fn a_clock_restart_starts_alignment_and_window_afresh() {
 
 #[test]
 fn finish_reports_waiting_measurements_and_sends_final_metrics() {
-    let (mut pipeline, model) = pipeline();
+    let (mut pipeline, model, mut directory) = pipeline();
+    let r1 = robot(&mut directory, "r1");
     let mut sink = Recorder::default();
     let q = [0.0, -1.0, 1.0, -1.0, 1.0, 0.0];
     pipeline.joints(
-        "r1",
+        &r1,
         "twin/joints/r1",
         1.0,
         &sample(&model, q, false),
@@ -149,7 +172,7 @@ fn finish_reports_waiting_measurements_and_sends_final_metrics() {
     );
     let pose = model.pose(&q).expect("valid").readout();
     pipeline.measured(
-        "r1",
+        &r1,
         "twin/measured/r1",
         armtwin_core::pipeline::MeasuredStream::Robot,
         1.5,
@@ -175,7 +198,8 @@ fn finish_reports_waiting_measurements_and_sends_final_metrics() {
 
 #[test]
 fn streams_keep_their_own_stamp_order_and_the_window_ages_without_pairs() {
-    let (mut pipeline, model) = pipeline();
+    let (mut pipeline, model, mut directory) = pipeline();
+    let r1 = robot(&mut directory, "r1");
     let mut sink = Recorder::default();
     let q = [0.2, -1.1, 1.0, -1.2, 1.0, 0.3];
     let pose = model.pose(&q).expect("valid").readout();
@@ -183,14 +207,14 @@ fn streams_keep_their_own_stamp_order_and_the_window_ages_without_pairs() {
     for i in 0..100 {
         let t = f64::from(i) * 0.01;
         pipeline.joints(
-            "r1",
+            &r1,
             "twin/joints/r1",
             t,
             &sample(&model, q, true),
             &mut sink,
         );
         pipeline.measured(
-            "r1",
+            &r1,
             "mocap/r1",
             armtwin_core::pipeline::MeasuredStream::Sensor(0),
             t - 0.007,
@@ -198,7 +222,7 @@ fn streams_keep_their_own_stamp_order_and_the_window_ages_without_pairs() {
             &mut sink,
         );
     }
-    let metrics = pipeline.metrics("r1").expect("tracked");
+    let metrics = pipeline.state(r1.index()).expect("tracked").metrics;
     assert_eq!(metrics.rejected, 0, "{:?}", sink.events);
     // The first sensor pose (t = -0.007) precedes every joint sample; the others pair.
     assert_eq!((metrics.paired, metrics.unpaired), (199, 1));
@@ -206,14 +230,14 @@ fn streams_keep_their_own_stamp_order_and_the_window_ages_without_pairs() {
     for i in 100..2100 {
         let t = f64::from(i) * 0.01;
         pipeline.joints(
-            "r1",
+            &r1,
             "twin/joints/r1",
             t,
             &sample(&model, q, false),
             &mut sink,
         );
     }
-    let metrics = pipeline.metrics("r1").expect("tracked");
+    let metrics = pipeline.state(r1.index()).expect("tracked").metrics;
     assert_eq!(metrics.window.n, 0);
     assert_eq!(metrics.cumulative.n, 199);
     assert!((metrics.stamp_s - 20.99).abs() < 1e-9);
@@ -221,18 +245,19 @@ fn streams_keep_their_own_stamp_order_and_the_window_ages_without_pairs() {
 
 #[test]
 fn a_resent_message_is_one_rejection_and_bad_stamps_do_not_move_time() {
-    let (mut pipeline, model) = pipeline();
+    let (mut pipeline, model, mut directory) = pipeline();
+    let r1 = robot(&mut directory, "r1");
     let mut sink = Recorder::default();
     let q = [0.0, -1.0, 1.0, -1.0, 1.0, 0.0];
     pipeline.joints(
-        "r1",
+        &r1,
         "twin/joints/r1",
         1.0,
         &sample(&model, q, true),
         &mut sink,
     );
     pipeline.joints(
-        "r1",
+        &r1,
         "twin/joints/r1",
         1.0,
         &sample(&model, q, true),
@@ -240,8 +265,8 @@ fn a_resent_message_is_one_rejection_and_bad_stamps_do_not_move_time() {
     );
     let mut beyond_limits = sample(&model, q, false);
     beyond_limits.q_rad[2] = 9.0;
-    pipeline.joints("r1", "twin/joints/r1", 1e9, &beyond_limits, &mut sink);
-    let metrics = pipeline.metrics("r1").expect("tracked");
+    pipeline.joints(&r1, "twin/joints/r1", 1e9, &beyond_limits, &mut sink);
+    let metrics = pipeline.state(r1.index()).expect("tracked").metrics;
     assert_eq!(metrics.rejected, 2, "{:?}", sink.events);
     assert_eq!(metrics.paired, 1);
     assert_eq!(
@@ -252,46 +277,49 @@ fn a_resent_message_is_one_rejection_and_bad_stamps_do_not_move_time() {
 
 #[test]
 fn periodic_metrics_go_out_once_per_robot_with_new_results() {
-    let (mut pipeline, model) = pipeline();
+    let (mut pipeline, model, mut directory) = pipeline();
+    let r1 = robot(&mut directory, "r1");
     let mut sink = Recorder::default();
     let q = [0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
-    for robot in ["r1", "r2"] {
+    let r2 = robot(&mut directory, "r2");
+    for robot in [&r1, &r2] {
         pipeline.joints(
             robot,
-            &format!("twin/joints/{robot}"),
+            &format!("twin/joints/{}", robot.id()),
             1.0,
             &sample(&model, q, true),
             &mut sink,
         );
     }
-    let mut due = pipeline.robots_with_due_metrics();
+    let mut due = ids(&pipeline, &pipeline.robots_with_due_metrics());
     due.sort();
     assert_eq!(due, ["r1", "r2"]);
-    for robot in &due {
-        pipeline.publish_metrics_if_due(robot, &mut sink);
+    for robot in [&r1, &r2] {
+        publish_metrics_if_due(&mut pipeline, robot, &mut sink);
         // A second call before new results sends nothing.
-        pipeline.publish_metrics_if_due(robot, &mut sink);
+        publish_metrics_if_due(&mut pipeline, robot, &mut sink);
     }
     let robots: Vec<&str> = sink.metrics.iter().map(|m| m.robot.as_str()).collect();
     assert_eq!(robots, ["r1", "r2"]);
     assert!(pipeline.robots_with_due_metrics().is_empty());
     pipeline.joints(
-        "r2",
+        &r2,
         "twin/joints/r2",
         1.01,
         &sample(&model, q, true),
         &mut sink,
     );
-    assert_eq!(pipeline.robots_with_due_metrics(), ["r2"]);
+    assert_eq!(ids(&pipeline, &pipeline.robots_with_due_metrics()), ["r2"]);
     // Unknown robots have no metrics to send.
-    pipeline.publish_metrics_if_due("nobody", &mut sink);
+    let nobody = robot(&mut directory, "nobody");
+    publish_metrics_if_due(&mut pipeline, &nobody, &mut sink);
     assert_eq!(sink.metrics.len(), 2);
     // Taken instead of sent (the service encodes and sends them outside its lock): counted as
     // sent all the same.
-    assert!(pipeline.take_due_metrics("r1").is_none());
-    let taken = pipeline.take_due_metrics("r2").expect("new results");
+    assert!(pipeline.take_due_metrics(r1.index()).is_none());
+    let taken = pipeline.take_due_metrics(r2.index()).expect("new results");
     assert_eq!((taken.robot.as_str(), taken.stamp_s), ("r2", 1.01));
-    assert!(pipeline.take_due_metrics("r2").is_none());
+    assert!(pipeline.take_due_metrics(r2.index()).is_none());
     assert!(pipeline.robots_with_due_metrics().is_empty());
     assert_eq!(sink.metrics.len(), 2);
 }

@@ -2,8 +2,10 @@
 //!
 //! Owns the session, the wildcard subscriptions and queryables, the per-robot publishers and
 //! liveliness tokens, and the ordered teardown. Samples and queries are handled in Zenoh's
-//! callbacks, under one lock (see [`SharedTwin`]); a control thread declares newly tracked
-//! robots' entities, publishes the periodic metrics and finishes the pipeline at shutdown.
+//! callbacks: each sample resolves its robot and decodes against the robot's immutable settings
+//! first, then steps the pipeline under one lock (see [`SharedTwin`]); a control thread declares
+//! newly tracked robots' entities, publishes the periodic metrics and finishes the pipeline at
+//! shutdown.
 //!
 //! Flow control: inputs are received reliably; while a callback works, Zenoh does not read its
 //! link, which backpressures the transport and, through it, the gateways: nothing valid is
@@ -11,11 +13,10 @@
 //! slows the twin; after Zenoh's `wait_before_close` a subscriber that stopped reading is
 //! disconnected; `drop`: the twin never waits and a slow subscriber misses outputs).
 
-use std::collections::HashMap;
 use std::future::{Future, IntoFuture};
 use std::sync::Arc;
 use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, channel};
-use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::sync::{Mutex, MutexGuard, PoisonError, RwLock, RwLockReadGuard};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use thiserror::Error;
@@ -31,10 +32,13 @@ use zenoh::session::Session;
 
 use crate::codec::wire;
 use crate::config::{Congestion, EventBudget, ServiceConfig, ZenohSection};
-use crate::ingest;
+use crate::ingest::{self, JointMessage, MeasuredMessage};
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
-use crate::pipeline::{Event, EventKind, MeasuredStream, MetricsSnapshot, Pipeline, Sink};
+use crate::pipeline::{
+    Event, EventDetail, EventKind, MeasuredStream, MetricsSnapshot, Pipeline, Robot,
+    RobotDirectory, RobotIndex, Sink,
+};
 
 /// How long each teardown step may take.
 pub(crate) const TEARDOWN_STEP: Duration = Duration::from_secs(5);
@@ -174,12 +178,12 @@ pub async fn serve(
     };
     let twin = Arc::new(SharedTwin {
         prefix: prefix.clone(),
+        robots: RwLock::new(RobotDirectory::new(
+            config.default_robot.clone(),
+            config.robots.clone(),
+        )),
         state: Mutex::new(TwinState {
-            pipeline: Pipeline::new(
-                config.pipeline,
-                config.default_robot.clone(),
-                config.robots.clone(),
-            ),
+            pipeline: Pipeline::new(config.pipeline),
             sink: ZenohSink::new(declarer.clone(), control_tx.clone(), config.event_budget),
             inputs: 0,
             stopped: false,
@@ -285,10 +289,15 @@ async fn declare_intake(
             .await?,
     );
     for (robot, settings) in &config.robots {
+        // A configured robot is in the directory from the start: its sensors' samples need no
+        // look-up at all.
+        let Some(handle) = twin.read_robots().find(robot).cloned() else {
+            continue;
+        };
         for (index, sensor) in settings.sensors.iter().enumerate() {
             check_sensor_key(prefix, robot, &sensor.key_expr)?;
             let sensor_twin = twin.clone();
-            let robot: Arc<str> = Arc::from(robot.as_str());
+            let robot = handle.clone();
             subscribers.push(
                 session
                     .declare_subscriber(sensor.key_expr.clone())
@@ -359,18 +368,24 @@ fn robot_of<'k>(prefix: &str, key: &'k str, stream: &str) -> Option<&'k str> {
 }
 
 /// Answers one kind of query with the twin locked.
-type QueryHandler = fn(&mut TwinState, &Query);
+type QueryHandler = fn(&RobotDirectory, &mut TwinState, &Query);
 
 /// The twin shared by Zenoh's callbacks and the control thread.
 ///
 /// Samples are processed in Zenoh's receive callback itself, as the plain echo does: decode, FK,
 /// statistics and the outputs' `put` take a few microseconds, and doing them there saves a queue,
 /// a thread wake-up and a copy per sample. Backpressure is Zenoh's own: while the callback works,
-/// its link is not read. Callbacks of different links take turns on the lock. Nothing that can
-/// wait on the network runs under it except `put` (with `block` congestion control, as the echo):
-/// declarations are made on the control thread.
+/// its link is not read.
+///
+/// A sample finds its robot in `robots` under a read lock (one hash of the id; a robot under the
+/// default settings is admitted, under the write lock, on its first input), decodes against the
+/// robot's settings, and only then takes `state`, the lock that callbacks of different links take
+/// turns on. Lock order: `robots`, then `state`; nothing that holds `state` takes `robots`.
+/// Nothing that can wait on the network runs under `state` except `put` (with `block` congestion
+/// control, as the echo): declarations are made on the control thread.
 struct SharedTwin {
     prefix: String,
+    robots: RwLock<RobotDirectory>,
     state: Mutex<TwinState>,
 }
 
@@ -380,61 +395,105 @@ impl SharedTwin {
         self.state.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
+    fn read_robots(&self) -> RwLockReadGuard<'_, RobotDirectory> {
+        // The directory only grows, one whole entry at a time: a panic cannot leave half of one.
+        self.robots.read().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Runs `step` with the handle of robot `id`, whose input arrived on `key`: found under the
+    /// read lock or, on a robot's first input, admitted under the default settings. The input of
+    /// a robot that may not be tracked is rejected as such instead.
+    fn with_robot(
+        &self,
+        id: &str,
+        key: &str,
+        payload: &[u8],
+        fallback_s: impl FnOnce() -> f64,
+        step: impl FnOnce(&Robot),
+    ) {
+        let admits_unlisted = {
+            let robots = self.read_robots();
+            if let Some(robot) = robots.find(id) {
+                step(robot);
+                return;
+            }
+            robots.admits_unlisted()
+        };
+        // Made-up ids of a service that rejects unknown robots never take the write lock.
+        let admitted = admits_unlisted
+            && self
+                .robots
+                .write()
+                .unwrap_or_else(PoisonError::into_inner)
+                .admit(id)
+                .is_ok();
+        if !admitted {
+            let mut guard = self.lock();
+            if let Some(state) = guard.running() {
+                ingest::unknown_robot(id, key, payload, fallback_s, &mut state.sink);
+            }
+            return;
+        }
+        if let Some(robot) = self.read_robots().find(id) {
+            step(robot);
+        }
+    }
+
     fn joints(&self, sample: &Sample) {
         let key = sample.key_expr().as_str();
-        let Some(robot) = robot_of(&self.prefix, key, "joints") else {
+        let Some(id) = robot_of(&self.prefix, key, "joints") else {
             warn!(%key, "joint sample without a robot id in its key: ignored");
             return;
         };
         let payload = sample.payload().to_bytes();
-        let mut guard = self.lock();
-        let Some(state) = guard.running() else {
-            return;
-        };
-        ingest::joint_message(
-            &mut state.pipeline,
-            robot,
-            key,
-            &payload,
-            || transport_stamp_s(sample),
-            &mut state.sink,
-        );
+        let fallback_s = || transport_stamp_s(sample);
+        self.with_robot(id, key, &payload, fallback_s, |robot| {
+            let message = JointMessage::decode(robot, &payload, fallback_s);
+            let mut guard = self.lock();
+            if let Some(state) = guard.running() {
+                message.step(&mut state.pipeline, robot, key, &mut state.sink);
+            }
+        });
     }
 
     fn measured(&self, sample: &Sample) {
         let key = sample.key_expr().as_str();
-        let Some(robot) = robot_of(&self.prefix, key, "measured") else {
+        let Some(id) = robot_of(&self.prefix, key, "measured") else {
             warn!(%key, "measured pose without a robot id in its key: ignored");
             return;
         };
-        self.measured_pose(robot, MeasuredStream::Robot, sample);
-    }
-
-    fn sensor(&self, robot: &str, index: usize, sample: &Sample) {
-        self.measured_pose(robot, MeasuredStream::Sensor(index), sample);
-    }
-
-    fn measured_pose(&self, robot: &str, stream: MeasuredStream, sample: &Sample) {
         let payload = sample.payload().to_bytes();
+        let fallback_s = || transport_stamp_s(sample);
+        self.with_robot(id, key, &payload, fallback_s, |robot| {
+            self.measured_pose(robot, MeasuredStream::Robot, sample, &payload);
+        });
+    }
+
+    fn sensor(&self, robot: &Robot, index: usize, sample: &Sample) {
+        let payload = sample.payload().to_bytes();
+        self.measured_pose(robot, MeasuredStream::Sensor(index), sample, &payload);
+    }
+
+    fn measured_pose(
+        &self,
+        robot: &Robot,
+        stream: MeasuredStream,
+        sample: &Sample,
+        payload: &[u8],
+    ) {
+        let message = MeasuredMessage::decode(payload, || transport_stamp_s(sample));
         let mut guard = self.lock();
-        let Some(state) = guard.running() else {
-            return;
-        };
-        ingest::measured_message(
-            &mut state.pipeline,
-            robot,
-            sample.key_expr().as_str(),
-            stream,
-            &payload,
-            || transport_stamp_s(sample),
-            &mut state.sink,
-        );
+        if let Some(state) = guard.running() {
+            let key = sample.key_expr().as_str();
+            message.step(&mut state.pipeline, robot, key, stream, &mut state.sink);
+        }
     }
 
     fn query(&self, query: &Query, handler: QueryHandler) {
+        let robots = self.read_robots();
         let mut guard = self.lock();
         if let Some(state) = guard.running() {
-            handler(state, query);
+            handler(&robots, state, query);
         }
     }
 }
@@ -462,20 +521,22 @@ impl TwinState {
         &self.sink.declarer.prefix
     }
 
-    /// Tracked robots whose `<prefix>/<stream>/<robot>` key the query's key expression covers.
-    fn matching_robots(&self, query: &Query, stream: &str) -> Vec<(String, KeyExpr<'static>)> {
-        let mut robots: Vec<(String, KeyExpr<'static>)> = self
+    /// Tracked robots whose `<prefix>/<stream>/<robot>` key the query's key expression covers,
+    /// in id order.
+    fn matching_robots(&self, query: &Query, stream: &str) -> Vec<(Robot, KeyExpr<'static>)> {
+        let mut robots: Vec<(Robot, KeyExpr<'static>)> = self
             .pipeline
-            .tracked_robots()
+            .tracked()
             .filter_map(|robot| {
-                let key = KeyExpr::try_from(format!("{}/{stream}/{robot}", self.prefix())).ok()?;
+                let key =
+                    KeyExpr::try_from(format!("{}/{stream}/{}", self.prefix(), robot.id())).ok()?;
                 query
                     .key_expr()
                     .intersects(&key)
-                    .then(|| (robot.to_owned(), key))
+                    .then(|| (robot.clone(), key))
             })
             .collect();
-        robots.sort_by(|a, b| a.0.cmp(&b.0));
+        robots.sort_by(|a, b| a.0.id().cmp(b.0.id()));
         robots
     }
 
@@ -492,9 +553,9 @@ impl TwinState {
         }
     }
 
-    fn state(&mut self, query: &Query) {
-        for (robot, key) in self.matching_robots(query, "state") {
-            if let Some(state) = self.pipeline.state(&robot) {
+    fn state(_robots: &RobotDirectory, twin: &mut Self, query: &Query) {
+        for (robot, key) in twin.matching_robots(query, "state") {
+            if let Some(state) = twin.pipeline.state(robot.index()) {
                 Self::reply(
                     query,
                     &key,
@@ -504,14 +565,14 @@ impl TwinState {
         }
     }
 
-    fn reset(&mut self, query: &Query) {
-        let robots = self.matching_robots(query, "reset");
+    fn reset(_robots: &RobotDirectory, twin: &mut Self, query: &Query) {
+        let robots = twin.matching_robots(query, "reset");
         if robots.is_empty() {
             Self::reply_err(query, "no tracked robot matches this key expression");
         }
         for (robot, key) in robots {
-            if let Some(snapshot) = self.pipeline.reset(&robot, &mut self.sink) {
-                info!(%robot, "metrics reset");
+            if let Some(snapshot) = twin.pipeline.reset(robot.index(), &mut twin.sink) {
+                info!(robot = robot.id(), "metrics reset");
                 Self::reply(
                     query,
                     &key,
@@ -521,16 +582,16 @@ impl TwinState {
         }
     }
 
-    fn fk(&mut self, query: &Query) {
+    fn fk(robots: &RobotDirectory, twin: &mut Self, query: &Query) {
         let key = query.key_expr().as_str();
-        let Some(robot) = robot_of(self.prefix(), key, "fk") else {
+        let Some(robot) = robot_of(twin.prefix(), key, "fk") else {
             Self::reply_err(
                 query,
                 "ask one robot: <prefix>/fk/<robot id> with {\"q\": [...]}",
             );
             return;
         };
-        let Some(settings) = self.pipeline.settings_for(robot) else {
+        let Some(settings) = robots.settings_for(robot) else {
             Self::reply_err(query, &format!("robot '{robot}' is not configured"));
             return;
         };
@@ -545,18 +606,22 @@ impl TwinState {
                 return;
             }
         };
-        match self.pipeline.fk(robot, &joints.q_rad) {
-            Some(Ok(pose)) => {
+        match settings.model.pose(&joints.q_rad) {
+            Ok(pose) => {
                 let Ok(reply_key) = KeyExpr::try_from(key.to_owned()) else {
                     return;
                 };
                 let frame = settings.model.frame().as_str();
-                let message =
-                    wire::PoseMessage::new(robot, joints.stamp_s.unwrap_or(0.0), 0, frame, &pose);
+                let message = wire::PoseMessage::new(
+                    robot,
+                    joints.stamp_s.unwrap_or(0.0),
+                    0,
+                    frame,
+                    &pose.readout(),
+                );
                 Self::reply(query, &reply_key, message.to_json_bytes());
             }
-            Some(Err(e)) => Self::reply_err(query, &e.to_string()),
-            None => Self::reply_err(query, &format!("robot '{robot}' is not configured")),
+            Err(e) => Self::reply_err(query, &e.to_string()),
         }
     }
 }
@@ -576,9 +641,9 @@ fn publish_due_metrics(twin: &SharedTwin, declarer: &Declarer) {
         {
             let mut guard = twin.lock();
             let state = &mut *guard;
-            for robot in robots {
+            for &robot in robots {
                 if let Some(snapshot) = state.pipeline.take_due_metrics(robot) {
-                    turn.push((snapshot, state.sink.outputs.get(robot).cloned()));
+                    turn.push((snapshot, state.sink.outputs_of(Some(robot)).cloned()));
                 }
             }
         }
@@ -601,7 +666,7 @@ fn publish_due_metrics(twin: &SharedTwin, declarer: &Declarer) {
 /// What the control thread is asked to do.
 enum Control {
     /// Declare a newly tracked robot's publishers, token and input keys.
-    Track(String),
+    Track(Robot),
     /// Finish the pipeline, undeclare everything and stop.
     Stop,
 }
@@ -635,12 +700,15 @@ impl Control {
                 Ok(Self::Track(robot)) => {
                     // Declared without the lock: samples keep flowing meanwhile (their outputs
                     // go out with an undeclared key until the publishers exist).
-                    match declarer.declare(&robot) {
+                    let id = robot.id();
+                    match declarer.declare(id) {
                         Ok(outputs) => {
-                            info!(%robot, "tracking robot");
-                            twin.lock().sink.outputs.insert(robot, Arc::new(outputs));
+                            info!(robot = id, "tracking robot");
+                            twin.lock().sink.set_outputs(robot.index(), outputs);
                         }
-                        Err(e) => warn!(%robot, error = %e, "cannot declare the robot's outputs"),
+                        Err(e) => {
+                            warn!(robot = id, error = %e, "cannot declare the robot's outputs");
+                        }
                     }
                 }
                 Err(RecvTimeoutError::Timeout) => {}
@@ -659,10 +727,18 @@ impl Control {
             let report = ServeReport {
                 inputs: state.inputs,
                 poses: state.sink.poses,
-                robots: state.pipeline.tracked_robots().count(),
+                robots: state.pipeline.tracked().count(),
                 publish_errors: state.sink.publish_errors,
             };
-            (report, std::mem::take(&mut state.sink.outputs))
+            let outputs: Vec<(Arc<str>, Arc<RobotOutputs>)> = state
+                .pipeline
+                .tracked()
+                .filter_map(|robot| {
+                    let outputs = state.sink.outputs.get_mut(robot.index().get())?.take()?;
+                    Some((Arc::clone(robot.shared_id()), outputs))
+                })
+                .collect();
+            (report, outputs)
         };
         declarer.undeclare_all(outputs);
         report
@@ -791,7 +867,7 @@ impl Declarer {
         })
     }
 
-    fn undeclare_all(&self, outputs: HashMap<String, Arc<RobotOutputs>>) {
+    fn undeclare_all(&self, outputs: Vec<(Arc<str>, Arc<RobotOutputs>)>) {
         for (robot, outputs) in outputs {
             // The control thread, the only other holder, has finished its last metrics turn.
             let Some(outputs) = Arc::into_inner(outputs) else {
@@ -825,19 +901,23 @@ impl Declarer {
     }
 }
 
-/// Publishes the pipeline's results on Zenoh.
+/// Publishes the pipeline's results on Zenoh. Per-robot state is kept by [`RobotIndex`]: no
+/// output hashes the robot's id.
 struct ZenohSink {
     declarer: Declarer,
     /// Asks the control thread to declare newly tracked robots.
     control: Sender<Control>,
-    /// Shared with the control thread, which publishes metrics outside the lock.
-    outputs: HashMap<String, Arc<RobotOutputs>>,
+    /// By robot index, once declared; shared with the control thread, which publishes metrics
+    /// outside the lock.
+    outputs: Vec<Option<Arc<RobotOutputs>>>,
     poses: u64,
     publish_errors: u64,
     event_budget: EventBudget,
-    /// Per tracked robot; robots that are not tracked (unknown and rejected) share the entry
-    /// under the empty id, so a flood of made-up ids cannot grow it.
-    event_buckets: HashMap<String, EventBucket>,
+    /// By robot index, from tracking on.
+    event_buckets: Vec<Option<EventBucket>>,
+    /// Shared by the robots that may not be tracked, so a flood of made-up ids cannot grow the
+    /// buckets.
+    untracked_bucket: EventBucket,
 }
 
 /// A token bucket of events (wall-clock time: it protects subscribers and logs, not statistics).
@@ -880,69 +960,97 @@ impl ZenohSink {
         Self {
             declarer,
             control,
-            outputs: HashMap::new(),
+            outputs: Vec::new(),
             poses: 0,
             publish_errors: 0,
             event_budget,
-            event_buckets: HashMap::new(),
+            event_buckets: Vec::new(),
+            untracked_bucket: EventBucket::full(event_budget, Instant::now()),
         }
     }
 
+    /// The declared outputs of robot `index`, if it is tracked and they are declared.
+    fn outputs_of(&self, index: Option<RobotIndex>) -> Option<&Arc<RobotOutputs>> {
+        self.outputs.get(index?.get())?.as_ref()
+    }
+
+    fn set_outputs(&mut self, index: RobotIndex, outputs: RobotOutputs) {
+        let index = index.get();
+        if self.outputs.len() <= index {
+            self.outputs.resize_with(index + 1, || None);
+        }
+        self.outputs[index] = Some(Arc::new(outputs));
+    }
+
     /// Publishes `payload` on `robot`'s `stream` ([`Declarer::put`]).
-    fn put(&mut self, robot: &str, stream: Stream, payload: Vec<u8>) {
-        let outputs = self.outputs.get(robot).map(Arc::as_ref);
+    fn put(&mut self, robot: &str, index: Option<RobotIndex>, stream: Stream, payload: Vec<u8>) {
+        let outputs = self.outputs_of(index).map(Arc::as_ref);
         let sent = self.declarer.put(outputs, robot, stream, payload);
         self.publish_errors += u64::from(!sent);
     }
 }
 
 impl Sink for ZenohSink {
-    fn tracking(&mut self, robot: &str) {
-        let bucket = EventBucket::full(self.event_budget, Instant::now());
-        self.event_buckets.insert(robot.to_owned(), bucket);
+    fn tracking(&mut self, robot: &Robot) {
+        let index = robot.index().get();
+        if self.event_buckets.len() <= index {
+            self.event_buckets.resize_with(index + 1, || None);
+        }
+        self.event_buckets[index] = Some(EventBucket::full(self.event_budget, Instant::now()));
         // Fails only once the control thread has stopped, when nothing is declared any more.
-        let _ = self.control.send(Control::Track(robot.to_owned()));
+        let _ = self.control.send(Control::Track(robot.clone()));
     }
 
     fn pose(
         &mut self,
-        robot: &str,
+        robot: &Robot,
         stamp_s: f64,
         seq: u64,
         frame: OutputFrame,
         pose: &PoseReadout,
     ) {
-        let message = wire::PoseMessage::new(robot, stamp_s, seq, frame.as_str(), pose);
-        self.put(robot, Stream::Pose, message.to_json_bytes());
+        let message = wire::PoseMessage::new(robot.id(), stamp_s, seq, frame.as_str(), pose);
+        self.put(
+            robot.id(),
+            Some(robot.index()),
+            Stream::Pose,
+            message.to_json_bytes(),
+        );
         self.poses += 1;
     }
 
     fn deviation(
         &mut self,
-        robot: &str,
+        robot: &Robot,
         stamp_s: f64,
         _measured: &PoseReadout,
         deviation: &Deviation,
     ) {
-        let message = wire::DeviationMessage::new(robot, stamp_s, deviation);
-        self.put(robot, Stream::Deviation, message.to_json_bytes());
+        let message = wire::DeviationMessage::new(robot.id(), stamp_s, deviation);
+        self.put(
+            robot.id(),
+            Some(robot.index()),
+            Stream::Deviation,
+            message.to_json_bytes(),
+        );
     }
 
+    /// Publishes the event unless its robot's rate limit keeps it back, and logs it once (at
+    /// warn for rejections and alarms); a kept-back event is only counted, and formats nothing.
     fn event(&mut self, event: &Event<'_>) {
         let always = matches!(
             event.kind,
             EventKind::Alarm | EventKind::Recovered | EventKind::Restart
         );
-        let tracked = self.event_buckets.contains_key(event.robot);
-        let bucket_id = if tracked { event.robot } else { "" };
         let now = Instant::now();
         let budget = self.event_budget;
-        let bucket = match self.event_buckets.get_mut(bucket_id) {
+        let tracked = event
+            .index
+            .and_then(|index| self.event_buckets.get_mut(index.get()))
+            .and_then(Option::as_mut);
+        let bucket = match tracked {
             Some(bucket) => bucket,
-            None => self
-                .event_buckets
-                .entry(bucket_id.to_owned())
-                .or_insert_with(|| EventBucket::full(budget, now)),
+            None => &mut self.untracked_bucket,
         };
         if !bucket.admit(budget, now, always) {
             if bucket.suppressed == 1 {
@@ -952,22 +1060,39 @@ impl Sink for ZenohSink {
         }
         let mut message = wire::EventMessage::new(event);
         message.suppressed = std::mem::take(&mut bucket.suppressed);
-        self.put(event.robot, Stream::Events, wire::to_json_bytes(&message));
+        let cause = match event.detail {
+            EventDetail::Rejected { cause } => Some(cause.as_str()),
+            EventDetail::Unpaired { cause, .. } => Some(cause),
+            _ => None,
+        };
+        self.put(
+            event.robot,
+            event.index,
+            Stream::Events,
+            wire::to_json_bytes(&message),
+        );
+        let (robot, kind, key) = (event.robot, event.kind.as_str(), event.key);
+        let reason = message.reason.as_str();
         match event.kind {
             EventKind::Rejected | EventKind::Alarm => {
-                warn!(robot = %event.robot, kind = event.kind.as_str(), reason = %event.reason, "event");
+                warn!(robot, kind, cause, key, reason, "event");
             }
             EventKind::Recovered | EventKind::Restart => {
-                info!(robot = %event.robot, kind = event.kind.as_str(), reason = %event.reason, "event");
+                info!(robot, kind, cause, key, reason, "event");
             }
             EventKind::Gap | EventKind::Unpaired => {
-                debug!(robot = %event.robot, kind = event.kind.as_str(), reason = %event.reason, "event");
+                debug!(robot, kind, cause, key, reason, "event");
             }
         }
     }
 
-    fn metrics(&mut self, snapshot: &MetricsSnapshot) {
+    fn metrics(&mut self, robot: &Robot, snapshot: &MetricsSnapshot) {
         let message = wire::MetricsMessage::new(snapshot);
-        self.put(&snapshot.robot, Stream::Metrics, message.to_json_bytes());
+        self.put(
+            robot.id(),
+            Some(robot.index()),
+            Stream::Metrics,
+            message.to_json_bytes(),
+        );
     }
 }

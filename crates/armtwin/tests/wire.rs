@@ -16,7 +16,9 @@ use armtwin::codec::wire::{
 use armtwin::kinematics::PoseReadout;
 use armtwin::metrics::{Deviation, METRIC_NAMES, Stats, StatsSet};
 use armtwin::model::RobotModel;
-use armtwin::pipeline::{Event, EventDetail, EventKind, MetricsSnapshot, RobotState};
+use armtwin::pipeline::{
+    Event, EventDetail, EventKind, MetricsSnapshot, Reason, RejectCause, RobotState,
+};
 use nalgebra::{UnitQuaternion, Vector3};
 use serde_json::Value;
 
@@ -744,14 +746,20 @@ fn deviation_message_fields() {
 
 #[test]
 fn event_message_fields() {
+    let error = WireError::WrongType {
+        field: "q3".to_owned(),
+        expected: "a number",
+        got: "a string".to_owned(),
+    };
     let event = Event {
         robot: "ur10e_1",
+        index: None,
         stamp_s: 4.0,
         kind: EventKind::Rejected,
-        reason: "field 'q3': expected a number, got a string".to_owned(),
+        reason: Reason::Error(&error),
         key: Some("armtwin/joints/ur10e_1"),
         detail: EventDetail::Rejected {
-            cause: "wrong_type",
+            cause: RejectCause::WrongType,
         },
     };
     let json = parse(&to_json_bytes(&EventMessage::new(&event)));
@@ -800,7 +808,7 @@ fn event_message_fields() {
             kind,
             key: None,
             detail,
-            ..event.clone()
+            ..event
         };
         let json = parse(&to_json_bytes(&EventMessage::new(&event)));
         assert_eq!(

@@ -35,7 +35,7 @@ use super::flat_json::FlatObject;
 use crate::kinematics::PoseReadout;
 use crate::metrics::{Deviation, METRIC_NAMES, Stats, StatsSet};
 use crate::orientation::{self, Rpy};
-use crate::pipeline::{Event, EventDetail, MetricsSnapshot, RobotState};
+use crate::pipeline::{Event, EventDetail, MetricsSnapshot, RejectCause, RobotState};
 use crate::sample::{JointSample, MeasuredSample};
 
 /// Largest accepted payload (bytes); larger ones are rejected before parsing.
@@ -143,24 +143,31 @@ pub enum WireError {
 }
 
 impl WireError {
-    /// A stable `snake_case` name of the error class, for event messages and counters.
+    /// The rejection cause of the error's class.
+    #[must_use]
+    pub fn cause(&self) -> RejectCause {
+        match self {
+            Self::TooLarge { .. } => RejectCause::TooLarge,
+            Self::NotUtf8 { .. } => RejectCause::NotUtf8,
+            Self::NotJson { .. } => RejectCause::NotJson,
+            Self::NotObject { .. } => RejectCause::NotObject,
+            Self::MissingField { .. } => RejectCause::MissingField,
+            Self::WrongType { .. } => RejectCause::WrongType,
+            Self::NonFinite { .. } => RejectCause::NonFinite,
+            Self::JointCount { .. } => RejectCause::JointCount,
+            Self::AmbiguousFields { .. } => RejectCause::AmbiguousFields,
+            Self::DuplicateField { .. } => RejectCause::DuplicateField,
+            Self::Unit { .. } => RejectCause::Unit,
+            Self::OrientationForms { .. } => RejectCause::OrientationForms,
+            Self::QuaternionNorm { .. } => RejectCause::QuaternionNorm,
+        }
+    }
+
+    /// A stable `snake_case` name of the error class, for event messages and counters
+    /// ([`RejectCause::as_str`] of [`cause`](Self::cause)).
     #[must_use]
     pub fn kind(&self) -> &'static str {
-        match self {
-            Self::TooLarge { .. } => "too_large",
-            Self::NotUtf8 { .. } => "not_utf8",
-            Self::NotJson { .. } => "not_json",
-            Self::NotObject { .. } => "not_object",
-            Self::MissingField { .. } => "missing_field",
-            Self::WrongType { .. } => "wrong_type",
-            Self::NonFinite { .. } => "non_finite",
-            Self::JointCount { .. } => "joint_count",
-            Self::AmbiguousFields { .. } => "ambiguous_fields",
-            Self::DuplicateField { .. } => "duplicate_field",
-            Self::Unit { .. } => "unit",
-            Self::OrientationForms { .. } => "orientation_forms",
-            Self::QuaternionNorm { .. } => "quaternion_norm",
-        }
+        self.cause().as_str()
     }
 }
 
@@ -1387,11 +1394,11 @@ fn is_zero(n: &u64) -> bool {
 }
 
 impl EventMessage {
-    /// The message of a pipeline event.
+    /// The message of a pipeline event (its `reason` the event's sentence, written here).
     #[must_use]
     pub fn new(event: &Event<'_>) -> Self {
         let detail = match event.detail {
-            EventDetail::Rejected { cause } => json!({ "cause": cause }),
+            EventDetail::Rejected { cause } => json!({ "cause": cause.as_str() }),
             EventDetail::Alarm {
                 metric,
                 value,
@@ -1408,7 +1415,7 @@ impl EventMessage {
             robot: event.robot.to_owned(),
             t: event.stamp_s,
             kind: event.kind.as_str(),
-            reason: event.reason.clone(),
+            reason: event.to_string(),
             key: event.key.map(str::to_owned),
             detail,
             suppressed: 0,

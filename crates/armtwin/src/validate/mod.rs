@@ -16,7 +16,8 @@ use crate::ingest;
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::{Deviation, StatsSet};
 use crate::pipeline::{
-    Event, EventDetail, EventKind, MetricsSnapshot, Pipeline, PipelineConfig, RobotSettings, Sink,
+    Event, EventDetail, EventKind, MetricsSnapshot, Pipeline, PipelineConfig, Robot,
+    RobotDirectory, RobotSettings, Sink,
 };
 
 /// One recording row's outcome.
@@ -115,11 +116,11 @@ impl Collector {
 }
 
 impl Sink for Collector {
-    fn tracking(&mut self, _robot: &str) {}
+    fn tracking(&mut self, _robot: &Robot) {}
 
     fn pose(
         &mut self,
-        _robot: &str,
+        _robot: &Robot,
         stamp_s: f64,
         _seq: u64,
         frame: OutputFrame,
@@ -131,7 +132,7 @@ impl Sink for Collector {
 
     fn deviation(
         &mut self,
-        _robot: &str,
+        _robot: &Robot,
         stamp_s: f64,
         measured: &PoseReadout,
         deviation: &Deviation,
@@ -144,12 +145,12 @@ impl Sink for Collector {
             (EventKind::Rejected, EventDetail::Rejected { cause }) => {
                 // A rejection always concerns the input being fed.
                 let row = &mut self.rows[self.current];
-                row.rejected.push(cause);
+                row.rejected.push(cause.as_str());
                 let line = row.line;
                 self.rejections.push(Rejection {
                     line,
-                    cause,
-                    reason: event.reason.clone(),
+                    cause: cause.as_str(),
+                    reason: event.to_string(),
                 });
             }
             (EventKind::Alarm, _) => self.events.alarms += 1,
@@ -161,7 +162,7 @@ impl Sink for Collector {
         }
     }
 
-    fn metrics(&mut self, snapshot: &MetricsSnapshot) {
+    fn metrics(&mut self, _robot: &Robot, snapshot: &MetricsSnapshot) {
         self.metrics = Some(snapshot.clone());
     }
 }
@@ -188,11 +189,10 @@ pub fn validate(
         "a source time per entry"
     );
     let frame = settings.model.frame();
-    let mut pipeline = Pipeline::new(
-        config,
-        None,
-        HashMap::from([(ROBOT_ID.to_owned(), settings)]),
-    );
+    let robot = RobotDirectory::new(None, HashMap::from([(ROBOT_ID.to_owned(), settings)]))
+        .find(ROBOT_ID)
+        .cloned();
+    let mut pipeline = Pipeline::new(config);
     let mut collector = Collector {
         frame,
         current: 0,
@@ -225,14 +225,20 @@ pub fn validate(
             malformed_lines.push(malformed.line);
         }
         let rejections_before = collector.rejections.len();
-        ingest::joint_message(
-            &mut pipeline,
-            ROBOT_ID,
-            &key,
-            &recording::payload(entry, stamp_s),
-            || stamp_s,
-            &mut collector,
-        );
+        let payload = recording::payload(entry, stamp_s);
+        match &robot {
+            Some(robot) => {
+                ingest::joint_message(
+                    &mut pipeline,
+                    robot,
+                    &key,
+                    &payload,
+                    || stamp_s,
+                    &mut collector,
+                );
+            }
+            None => ingest::unknown_robot(ROBOT_ID, &key, &payload, || stamp_s, &mut collector),
+        }
         if let Err(malformed) = entry {
             // The service sees only the message; the file also knows why the line is bad.
             for rejection in &mut collector.rejections[rejections_before..] {

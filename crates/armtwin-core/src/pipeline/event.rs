@@ -1,0 +1,522 @@
+//! What the pipeline reports besides poses and metrics: events, with structured details for
+//! machines and, only when a sink asks for it, a sentence for people.
+//!
+//! An [`Event`] holds numbers, causes and borrowed errors, never text: its [`Display`] writes
+//! the sentence, so a sink that drops an event (a rate limit) formats nothing.
+//!
+//! [`Display`]: fmt::Display
+
+use std::error::Error;
+use std::fmt;
+
+use super::RobotIndex;
+use crate::align::{AlignConfig, UnpairedReason};
+
+/// What an event reports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EventKind {
+    /// Input rejected.
+    Rejected,
+    /// A deviation stayed above its threshold.
+    Alarm,
+    /// An alarm's deviation came back to or below its threshold.
+    Recovered,
+    /// A gap in a stream (joint stamps or gateway sequence numbers).
+    Gap,
+    /// A measured pose that could not be paired with the twin.
+    Unpaired,
+    /// The gateway's clock went back by more than `restart_s`: alignment and the metrics window
+    /// started afresh.
+    Restart,
+}
+
+impl EventKind {
+    /// The wire name.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Rejected => "rejected",
+            Self::Alarm => "alarm",
+            Self::Recovered => "recovered",
+            Self::Gap => "gap",
+            Self::Unpaired => "unpaired",
+            Self::Restart => "restart",
+        }
+    }
+}
+
+/// Why an input was rejected: the decoder's classes (one per `WireError` variant of the wire
+/// codec) and the pipeline's own checks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum RejectCause {
+    /// The payload exceeds the size limit.
+    TooLarge,
+    /// The payload is not UTF-8.
+    NotUtf8,
+    /// The payload is not JSON.
+    NotJson,
+    /// The payload is JSON but not an object.
+    NotObject,
+    /// A required field is absent.
+    MissingField,
+    /// A field holds the wrong JSON type.
+    WrongType,
+    /// A number, joint angle or stamp is not finite.
+    NonFinite,
+    /// Not as many joint angles as the arm has joints.
+    JointCount,
+    /// Two fields that mean the same thing are both present.
+    AmbiguousFields,
+    /// A field appears twice in one object.
+    DuplicateField,
+    /// The angle unit is neither `rad` nor `deg`.
+    Unit,
+    /// A measured pose has no orientation, or more than one form of it.
+    OrientationForms,
+    /// A quaternion's norm is too far from 1.
+    QuaternionNorm,
+    /// A joint angle lies outside the joint's limits.
+    JointLimits,
+    /// A stamp older than its stream's previous one.
+    OutOfOrder,
+    /// A stamp equal to its stream's previous one.
+    DuplicateStamp,
+    /// A gateway `seq` that does not increase.
+    SeqNotIncreasing,
+    /// A measured pose too far from the twin to be one of this robot.
+    OutOfRange,
+    /// The robot is neither configured nor covered by a default.
+    UnknownRobot,
+}
+
+impl RejectCause {
+    /// The stable `snake_case` wire name (the events' `detail.cause`, the validation report's
+    /// causes).
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::TooLarge => "too_large",
+            Self::NotUtf8 => "not_utf8",
+            Self::NotJson => "not_json",
+            Self::NotObject => "not_object",
+            Self::MissingField => "missing_field",
+            Self::WrongType => "wrong_type",
+            Self::NonFinite => "non_finite",
+            Self::JointCount => "joint_count",
+            Self::AmbiguousFields => "ambiguous_fields",
+            Self::DuplicateField => "duplicate_field",
+            Self::Unit => "unit",
+            Self::OrientationForms => "orientation_forms",
+            Self::QuaternionNorm => "quaternion_norm",
+            Self::JointLimits => "joint_limits",
+            Self::OutOfOrder => "out_of_order",
+            Self::DuplicateStamp => "duplicate_stamp",
+            Self::SeqNotIncreasing => "seq_not_increasing",
+            Self::OutOfRange => "out_of_range",
+            Self::UnknownRobot => "unknown_robot",
+        }
+    }
+}
+
+impl fmt::Display for RejectCause {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// Machine-readable details of an event (the event message's `detail`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum EventDetail {
+    /// Input rejected for this cause.
+    Rejected {
+        /// Why.
+        cause: RejectCause,
+    },
+    /// An alarm on a metric, or its recovery.
+    Alarm {
+        /// `position` or `angle`.
+        metric: &'static str,
+        /// The deviation that decided (m or rad).
+        value: f64,
+        /// The threshold (m or rad).
+        threshold: f64,
+    },
+    /// Joint samples further apart than `max_gap_s`.
+    StampGap {
+        /// Spacing (s).
+        gap_s: f64,
+    },
+    /// Gateway sequence numbers skipped.
+    SeqGap {
+        /// The sequence number expected.
+        expected: u64,
+        /// The one received.
+        got: u64,
+    },
+    /// A stream's clock went back.
+    Restart {
+        /// The stream's previous stamp (s).
+        from_s: f64,
+        /// The new stamp (s).
+        to_s: f64,
+    },
+    /// A measured pose left unpaired.
+    Unpaired {
+        /// The cause, e.g. `joint_gap`, `wait_expired`.
+        cause: &'static str,
+        /// The measured pose's stamp (s).
+        measured_s: f64,
+    },
+}
+
+/// What an event's sentence says beyond its [`EventDetail`]: the settings and values that
+/// explain it, or the error that refused an input.
+#[derive(Debug, Clone, Copy)]
+pub enum Reason<'a> {
+    /// The input did not decode, or its joints are invalid: the error says why.
+    Error(&'a dyn Error),
+    /// A stream's stamp is not finite.
+    StampNotFinite {
+        /// `joint` or `measured`.
+        stream: &'static str,
+    },
+    /// A stream's stamp does not come after its previous one.
+    StampOrder {
+        /// `joint` or `measured`.
+        stream: &'static str,
+        /// The previous stamp (s).
+        last_s: f64,
+    },
+    /// The gateway `seq` does not follow the previous one.
+    Seq {
+        /// The one received.
+        seq: u64,
+        /// The previous one.
+        last: u64,
+    },
+    /// A measured pose too far from the twin.
+    OutOfRange {
+        /// Its position (m, output frame).
+        position_m: [f64; 3],
+        /// Its distance from the twin's (m).
+        distance_m: f64,
+    },
+    /// The robot may not be tracked.
+    UnknownRobot,
+    /// An alarm or its recovery.
+    Alarm {
+        /// The metric's unit (`m`, `rad`).
+        unit: &'static str,
+        /// How long (s) the deviation had to stay on its side of the threshold.
+        hold_s: f64,
+    },
+    /// Joint samples too far apart.
+    StampGap {
+        /// The largest spacing (s) taken as no gap.
+        max_gap_s: f64,
+    },
+    /// Gateway sequence numbers skipped: the detail says it all.
+    SeqGap,
+    /// A stream's clock went back.
+    Restart {
+        /// `joint` or `measured`.
+        stream: &'static str,
+        /// How far back (s) a stamp must go to be a restart.
+        restart_s: f64,
+    },
+    /// A measured pose left unpaired.
+    Unpaired {
+        /// Why.
+        reason: UnpairedReason,
+        /// The alignment limits the reason refers to.
+        align: AlignConfig,
+    },
+}
+
+/// One event for a robot's events key.
+#[derive(Debug, Clone, Copy)]
+pub struct Event<'a> {
+    /// Robot id.
+    pub robot: &'a str,
+    /// The robot's index, if it is tracked (`None` for a robot that may not be).
+    pub index: Option<RobotIndex>,
+    /// Source time (s) of the sample concerned.
+    pub stamp_s: f64,
+    /// What happened.
+    pub kind: EventKind,
+    /// The key the input arrived on, where an input is concerned.
+    pub key: Option<&'a str>,
+    /// Details for machines.
+    pub detail: EventDetail,
+    /// What the sentence for people is made of beyond `detail` (written by [`fmt::Display`]).
+    pub reason: Reason<'a>,
+}
+
+impl fmt::Display for Event<'_> {
+    /// The sentence for people (the event message's `reason`).
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let stamp_s = self.stamp_s;
+        match (self.reason, self.detail) {
+            (Reason::Error(error), _) => write!(f, "{error}"),
+            (Reason::StampNotFinite { stream }, _) => {
+                write!(f, "{stream} stamp {stamp_s} is not finite")
+            }
+            (Reason::StampOrder { stream, last_s }, _) => {
+                let relation = if stamp_s < last_s {
+                    "older than"
+                } else {
+                    "equal to"
+                };
+                write!(
+                    f,
+                    "{stream} stamp {stamp_s} s is {relation} the previous one ({last_s} s)"
+                )
+            }
+            (Reason::Seq { seq, last }, _) => {
+                write!(f, "seq {seq} does not follow the previous seq {last}")
+            }
+            (
+                Reason::OutOfRange {
+                    position_m,
+                    distance_m,
+                },
+                _,
+            ) => write!(
+                f,
+                "measured pose {position_m:?} m is {distance_m} m from the twin: not a pose of this robot"
+            ),
+            (Reason::UnknownRobot, _) => write!(
+                f,
+                "robot '{}' is not configured and unknown robots are rejected",
+                self.robot
+            ),
+            (
+                Reason::Alarm { unit, hold_s },
+                EventDetail::Alarm {
+                    metric,
+                    value,
+                    threshold,
+                },
+            ) => {
+                let relation = if self.kind == EventKind::Recovered {
+                    "back at or below"
+                } else {
+                    "above"
+                };
+                write!(
+                    f,
+                    "{metric} deviation {value} {unit} {relation} {threshold} {unit} for at least {hold_s} s"
+                )
+            }
+            (Reason::StampGap { max_gap_s }, EventDetail::StampGap { gap_s }) => {
+                write!(f, "no joint sample for {gap_s} s (max_gap_s = {max_gap_s})")
+            }
+            (Reason::SeqGap, EventDetail::SeqGap { expected, got }) => write!(
+                f,
+                "gateway seq jumped from {} to {got}: {} samples missing upstream",
+                expected.saturating_sub(1),
+                got.saturating_sub(expected)
+            ),
+            (Reason::Restart { stream, restart_s }, EventDetail::Restart { from_s, to_s }) => {
+                write!(
+                    f,
+                    "{stream} stamp went back from {from_s} s to {to_s} s (more than restart_s = {restart_s} s): \
+                     taken as a gateway clock restart; alignment and the metrics window start afresh"
+                )
+            }
+            (Reason::Unpaired { reason, align }, EventDetail::Unpaired { measured_s, .. }) => {
+                write!(
+                    f,
+                    "measured pose at t = {measured_s} s unpaired: {}",
+                    reason.describe(&align)
+                )
+            }
+            // A reason made for another kind of detail: the kind at least.
+            (_, EventDetail::Rejected { cause }) => write!(f, "rejected: {cause}"),
+            _ => f.write_str(self.kind.as_str()),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kinematics::KinematicsError;
+
+    fn event(kind: EventKind, detail: EventDetail, reason: Reason<'_>) -> Event<'_> {
+        Event {
+            robot: "r1",
+            index: None,
+            stamp_s: 2.5,
+            kind,
+            key: Some("twin/joints/r1"),
+            detail,
+            reason,
+        }
+    }
+
+    /// Each sentence is the one the events key has always carried.
+    #[test]
+    #[allow(clippy::too_many_lines, reason = "one case per sentence, in a table")]
+    fn sentences() {
+        let rejected = |cause| EventDetail::Rejected { cause };
+        let error = KinematicsError::JointCount {
+            expected: 6,
+            got: 5,
+        };
+        let align = AlignConfig::default();
+        let cases = [
+            (
+                event(
+                    EventKind::Rejected,
+                    rejected(RejectCause::JointCount),
+                    Reason::Error(&error),
+                ),
+                "expected 6 joint angles, got 5".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Rejected,
+                    rejected(RejectCause::NonFinite),
+                    Reason::StampNotFinite { stream: "joint" },
+                ),
+                "joint stamp 2.5 is not finite".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Rejected,
+                    rejected(RejectCause::OutOfOrder),
+                    Reason::StampOrder {
+                        stream: "measured",
+                        last_s: 3.0,
+                    },
+                ),
+                "measured stamp 2.5 s is older than the previous one (3 s)".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Rejected,
+                    rejected(RejectCause::DuplicateStamp),
+                    Reason::StampOrder {
+                        stream: "joint",
+                        last_s: 2.5,
+                    },
+                ),
+                "joint stamp 2.5 s is equal to the previous one (2.5 s)".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Rejected,
+                    rejected(RejectCause::SeqNotIncreasing),
+                    Reason::Seq { seq: 4, last: 7 },
+                ),
+                "seq 4 does not follow the previous seq 7".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Rejected,
+                    rejected(RejectCause::OutOfRange),
+                    Reason::OutOfRange {
+                        position_m: [1.0, 2.0, 300.5],
+                        distance_m: 300.25,
+                    },
+                ),
+                "measured pose [1.0, 2.0, 300.5] m is 300.25 m from the twin: not a pose of this robot"
+                    .to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Rejected,
+                    rejected(RejectCause::UnknownRobot),
+                    Reason::UnknownRobot,
+                ),
+                "robot 'r1' is not configured and unknown robots are rejected".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Alarm,
+                    EventDetail::Alarm {
+                        metric: "position",
+                        value: 0.02,
+                        threshold: 0.01,
+                    },
+                    Reason::Alarm {
+                        unit: "m",
+                        hold_s: 0.5,
+                    },
+                ),
+                "position deviation 0.02 m above 0.01 m for at least 0.5 s".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Recovered,
+                    EventDetail::Alarm {
+                        metric: "angle",
+                        value: 0.001,
+                        threshold: 0.01,
+                    },
+                    Reason::Alarm {
+                        unit: "rad",
+                        hold_s: 0.0,
+                    },
+                ),
+                "angle deviation 0.001 rad back at or below 0.01 rad for at least 0 s".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Gap,
+                    EventDetail::StampGap { gap_s: 1.5 },
+                    Reason::StampGap { max_gap_s: 0.25 },
+                ),
+                "no joint sample for 1.5 s (max_gap_s = 0.25)".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Gap,
+                    EventDetail::SeqGap {
+                        expected: 5,
+                        got: 9,
+                    },
+                    Reason::SeqGap,
+                ),
+                "gateway seq jumped from 4 to 9: 4 samples missing upstream".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Restart,
+                    EventDetail::Restart {
+                        from_s: 1000.19,
+                        to_s: 0.0,
+                    },
+                    Reason::Restart {
+                        stream: "joint",
+                        restart_s: 5.0,
+                    },
+                ),
+                "joint stamp went back from 1000.19 s to 0 s (more than restart_s = 5 s): taken as a \
+                 gateway clock restart; alignment and the metrics window start afresh"
+                    .to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Unpaired,
+                    EventDetail::Unpaired {
+                        cause: UnpairedReason::WaitExpired.kind(),
+                        measured_s: 2.5,
+                    },
+                    Reason::Unpaired {
+                        reason: UnpairedReason::WaitExpired,
+                        align,
+                    },
+                ),
+                format!(
+                    "measured pose at t = 2.5 s unpaired: {}",
+                    UnpairedReason::WaitExpired.describe(&align)
+                ),
+            ),
+        ];
+        for (event, sentence) in cases {
+            assert_eq!(event.to_string(), sentence);
+        }
+    }
+}

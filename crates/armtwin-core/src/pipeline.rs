@@ -229,8 +229,8 @@ struct RobotTwin {
     /// Its index, id and settings (shared with the directory).
     robot: Robot,
     aligner: Aligner<Waiting>,
-    /// Created by the first paired measurement (about 1.6 KB): a robot that only streams joints
-    /// never needs them.
+    /// Created by the first paired measurement (the window's ring buffers are most of a twin's
+    /// memory): a robot that only streams joints never needs them.
     stats: Option<Box<DeviationStats>>,
     /// The metrics window's length (s) and cap on samples.
     window_s: f64,
@@ -696,7 +696,7 @@ impl RobotTwin {
     fn resolve(&mut self, key: &str, stamp_s: f64, pose: PoseReadout, sink: &mut impl Sink) {
         let twin_pose = match self.aligner.bracket(stamp_s) {
             // Recomputed rather than kept for every sample of history: the same pure function of
-            // the same angles, so the same pose, for about 0.1 µs instead of 80 bytes per sample.
+            // the same angles, so the same pose: one FK costs less than keeping a pose per sample.
             Bracket::Exact(q_rad) => self
                 .robot
                 .settings()

@@ -632,7 +632,7 @@ const METRICS_PER_TURN: usize = 16;
 
 /// Publishes the metrics of every robot with new results: a few robots' snapshots per turn of
 /// the lock, then their encoding and `put` after it is released, so samples wait at most for a
-/// few snapshots (about 2 µs each), never for a metrics message's encoding and sending.
+/// few snapshots, never for a metrics message's encoding and sending.
 fn publish_due_metrics(twin: &SharedTwin, declarer: &Declarer) {
     let due = twin.lock().pipeline.robots_with_due_metrics();
     let mut turn = Vec::with_capacity(METRICS_PER_TURN);

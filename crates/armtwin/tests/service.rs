@@ -791,14 +791,15 @@ async fn replaying_the_sample_recordings_twins_every_row() {
             robot: robot.to_owned(),
             speed: None,
         };
-        // The seed's file: its time column is a row index; 0.1 s apart as the seed streamed it.
+        // The UR10e FMU report's FMPy input: its time column is a row index; 0.1 s apart as the
+        // report streamed it.
         let text = std::fs::read_to_string(data.join("fmpy_inputs.csv")).expect("data");
-        let seed = recording::read(&text).expect("recognised");
-        let times = recording::source_times(&seed, Some(0.1));
+        let fmpy = recording::read(&text).expect("recognised");
+        let times = recording::source_times(&fmpy, Some(0.1));
         let report = replay(
-            &seed,
+            &fmpy,
             &times,
-            &settings("seed"),
+            &settings("fmpy"),
             std::future::pending(),
             |_| {},
         )
@@ -827,18 +828,18 @@ async fn replaying_the_sample_recordings_twins_every_row() {
                     .find(|(k, _)| k == key)
                     .map(|(_, m)| (m["paired"].as_u64(), m["rejected"].as_u64()))
             };
-            last("twin/metrics/seed") == Some((Some(54), Some(0)))
+            last("twin/metrics/fmpy") == Some((Some(54), Some(0)))
                 && last("twin/metrics/lasttest") == Some((Some(29_054), Some(7)))
         })
         .await;
-        assert_eq!(h.on("twin/pose/seed").len(), 54);
+        assert_eq!(h.on("twin/pose/fmpy").len(), 54);
         assert_eq!(h.on("twin/pose/lasttest").len(), 29_054);
         // Offline validation of the same recordings gives exactly the service's metrics.
         let config = ServiceConfig::parse(CONFIG, "test", Path::new("."), &Overrides::default())
             .expect("config");
         let robot = config.default_robot.clone().expect("default robot");
         for (name, recording, times) in [
-            ("seed", &seed, recording::source_times(&seed, Some(0.1))),
+            ("fmpy", &fmpy, recording::source_times(&fmpy, Some(0.1))),
             ("lasttest", &ros, recording::source_times(&ros, None)),
         ] {
             let offline = validate(recording, &times, config.pipeline, robot.clone(), |_| {});

@@ -420,7 +420,7 @@ pub fn plots(validation: &Validation) -> Vec<(&'static str, String)> {
     ]
 }
 
-/// `report.md`: the seed-style table and a short reading of it.
+/// `report.md`: the UR10e FMU report's table and a short reading of it.
 #[must_use]
 pub fn report_md(validation: &Validation, report: &ReportJson) -> String {
     let mut md = String::new();

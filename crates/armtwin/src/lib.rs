@@ -18,7 +18,7 @@
 //! - [`cli`]: the `armtwin` command line (with `main.rs`).
 
 pub use armtwin_core::{
-    align, fmi, kinematics, metrics, model, orientation, pipeline, pose_fields, sample, trig,
+    align, fmi, ik, kinematics, metrics, model, orientation, pipeline, pose_fields, sample, trig,
 };
 
 pub mod cli;

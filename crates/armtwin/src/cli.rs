@@ -56,6 +56,9 @@ pub enum Command {
     Validate(ValidateArgs),
     /// FMI 2.0 co-simulation FMU of the forward kinematics.
     Fmu(FmuArgs),
+    /// Inverse kinematics: every joint configuration reaching a TCP pose (JSON), nearest the
+    /// seed first; exits 1 with the reason when the pose is unreachable.
+    Ik(IkArgs),
 }
 
 /// `armtwin fmu` arguments.
@@ -303,6 +306,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Fmu(FmuArgs {
             command: FmuCommand::Build(args),
         }) => run_fmu_build(&args),
+        Command::Ik(args) => run_ik(&args),
     }
 }
 
@@ -806,5 +810,90 @@ fn run_models(args: &ModelsArgs) -> Result<()> {
         out,
         "Every other joint: ±360°. `armtwin models --json` for full tables."
     )?;
+    Ok(())
+}
+
+/// `armtwin ik` arguments.
+#[derive(Debug, Args)]
+pub struct IkArgs {
+    /// The robot.
+    #[command(flatten)]
+    pub robot: RobotArgs,
+    /// The TCP pose `x,y,z,qx,qy,qz,qw` in the output frame (metres; quaternion in wire order,
+    /// normalised here). Write `--pose=-0.4,...` when the first value is negative.
+    #[arg(
+        long,
+        value_name = "X,Y,Z,QX,QY,QZ,QW",
+        value_delimiter = ',',
+        allow_negative_numbers = true,
+        required = true
+    )]
+    pub pose: Vec<f64>,
+    /// Joint angles q1,…,q6 (rad) to order the solutions by (nearest first) and to pick each
+    /// joint's turn; also gives q6 where the wrist is singular.
+    #[arg(
+        long,
+        value_name = "Q1,…,Q6",
+        value_delimiter = ',',
+        allow_negative_numbers = true
+    )]
+    pub seed: Vec<f64>,
+}
+
+#[derive(Serialize)]
+struct IkSolutionJson {
+    q: [f64; 6],
+    shoulder: &'static str,
+    elbow: &'static str,
+    wrist: &'static str,
+    position_error_m: f64,
+    angle_error_rad: f64,
+    distance_from_seed_rad: f64,
+}
+
+#[derive(Serialize)]
+struct IkOutput {
+    solutions: Vec<IkSolutionJson>,
+    wrist_singular: bool,
+    outside_limits: usize,
+}
+
+fn run_ik(args: &IkArgs) -> Result<()> {
+    let model = args.robot.load()?;
+    let [x, y, z, qx, qy, qz, qw]: [f64; 7] = args.pose.as_slice().try_into().map_err(|_| {
+        anyhow::anyhow!(
+            "--pose takes 7 values x,y,z,qx,qy,qz,qw, got {}",
+            args.pose.len()
+        )
+    })?;
+    let orientation = crate::orientation::quaternion_from_xyzw([qx, qy, qz, qw])
+        .context("--pose: the quaternion must be finite and non-zero")?;
+    let target = crate::kinematics::Pose {
+        position_m: nalgebra::Vector3::new(x, y, z),
+        rotation: crate::orientation::matrix_from_quaternion(&orientation),
+    };
+    let seed = (!args.seed.is_empty()).then_some(args.seed.as_slice());
+    let answer = crate::ik::solve(&model, &target, seed)?;
+    let output = IkOutput {
+        solutions: answer
+            .solutions
+            .iter()
+            .map(|solution| IkSolutionJson {
+                q: solution.q_rad,
+                shoulder: solution.configuration.shoulder.as_str(),
+                elbow: solution.configuration.elbow.as_str(),
+                wrist: solution.configuration.wrist.as_str(),
+                position_error_m: solution.position_error_m,
+                angle_error_rad: solution.angle_error_rad,
+                distance_from_seed_rad: solution.distance_from_seed_rad,
+            })
+            .collect(),
+        wrist_singular: answer.wrist_singular,
+        outside_limits: answer.outside_limits,
+    };
+    let stdout = io::stdout();
+    let mut out = stdout.lock();
+    serde_json::to_writer(&mut out, &output)?;
+    writeln!(out)?;
     Ok(())
 }

@@ -12,6 +12,8 @@
 //!   conversions, and the orientation error measures.
 //! - [`trig`]: batched, vectorisable sine and cosine for the kinematics hot path.
 //! - [`kinematics`]: DH tables, tool and output frame, compiled chains, forward kinematics.
+//! - [`identify`]: a UR arm's `calibration.conf` deltas (and tool) fitted to its own paired
+//!   joint and pose samples.
 //! - [`ik`]: inverse kinematics of Universal Robots arms (closed form, Newton on calibrated
 //!   chains).
 //! - [`model`]: the Universal Robots catalog, custom arms, factory calibration
@@ -27,6 +29,7 @@
 
 pub mod align;
 pub mod fmi;
+pub mod identify;
 pub mod ik;
 pub mod kinematics;
 pub mod metrics;

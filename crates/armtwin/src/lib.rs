@@ -18,7 +18,8 @@
 //! - [`cli`]: the `armtwin` command line (with `main.rs`).
 
 pub use armtwin_core::{
-    align, fmi, ik, kinematics, metrics, model, orientation, pipeline, pose_fields, sample, trig,
+    align, fmi, identify, ik, kinematics, metrics, model, orientation, pipeline, pose_fields,
+    sample, trig,
 };
 
 pub mod cli;

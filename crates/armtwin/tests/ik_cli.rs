@@ -35,7 +35,9 @@ fn every_solution_reproduces_the_pose_through_fk() {
     let [qx, qy, qz, qw] = ["qx", "qy", "qz", "qw"].map(|k| pose[k].as_f64().unwrap());
     let pose_arg = format!("--pose={x:?},{y:?},{z:?},{qx:?},{qy:?},{qz:?},{qw:?}");
     let seed_arg = format!("--seed={}", q.join(","));
-    let answer = json(&armtwin(&["ik", "--model", "ur5e", tcp, &pose_arg, &seed_arg]));
+    let answer = json(&armtwin(&[
+        "ik", "--model", "ur5e", tcp, &pose_arg, &seed_arg,
+    ]));
     let solutions = answer["solutions"].as_array().unwrap();
     assert_eq!(solutions.len(), 8);
     assert_eq!(answer["wrist_singular"], false);
@@ -46,7 +48,10 @@ fn every_solution_reproduces_the_pose_through_fk() {
         .map(|v| v.as_f64().unwrap())
         .collect();
     for (got, want) in first.iter().zip(q) {
-        assert!((got - want.parse::<f64>().unwrap()).abs() < 1e-9, "{first:?}");
+        assert!(
+            (got - want.parse::<f64>().unwrap()).abs() < 1e-9,
+            "{first:?}"
+        );
     }
     for solution in solutions {
         let angles: Vec<String> = solution["q"]

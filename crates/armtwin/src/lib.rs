@@ -14,6 +14,7 @@
 //! - [`replay`]: `armtwin replay`, a recording published as a gateway would.
 //! - [`validate`]: `armtwin validate`, a recording through the pipeline offline, with its report
 //!   and plots.
+//! - [`calibrate`]: `armtwin calibrate`, a recording's kinematics identified, with its report.
 //! - [`fmu_package`]: `armtwin fmu build`, the FMU archive.
 //! - [`cli`]: the `armtwin` command line (with `main.rs`).
 
@@ -22,6 +23,7 @@ pub use armtwin_core::{
     sample, trig,
 };
 
+pub mod calibrate;
 pub mod cli;
 pub mod codec;
 pub mod config;

@@ -1,4 +1,4 @@
-//! Kinematic identification of 30 000 paired rows (the target: under 5 s): a UR10e with
+//! Kinematic identification of 30 000 paired rows (the target: under 5 s): a `UR10e` with
 //! millimetre-sized deltas, a smooth trajectory, poses rounded to 1 µm and 1e-6.
 #![allow(
     clippy::expect_used,

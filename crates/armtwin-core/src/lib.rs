@@ -12,6 +12,10 @@
 //!   conversions, and the orientation error measures.
 //! - [`trig`]: batched, vectorisable sine and cosine for the kinematics hot path.
 //! - [`kinematics`]: DH tables, tool and output frame, compiled chains, forward kinematics.
+//! - [`identify`]: a UR arm's `calibration.conf` deltas (and tool) fitted to its own paired
+//!   joint and pose samples.
+//! - [`ik`]: inverse kinematics of Universal Robots arms (closed form, Newton on calibrated
+//!   chains).
 //! - [`model`]: the Universal Robots catalog, custom arms, factory calibration
 //!   (`calibration.conf`, `ur_calibration` YAML) and [`model::RobotModel`].
 //! - [`pose_fields`]: a pose as the named output fields every mode writes.
@@ -25,6 +29,8 @@
 
 pub mod align;
 pub mod fmi;
+pub mod identify;
+pub mod ik;
 pub mod kinematics;
 pub mod metrics;
 pub mod model;

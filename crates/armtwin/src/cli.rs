@@ -56,6 +56,12 @@ pub enum Command {
     Validate(ValidateArgs),
     /// FMI 2.0 co-simulation FMU of the forward kinematics.
     Fmu(FmuArgs),
+    /// Inverse kinematics: every joint configuration reaching a TCP pose (JSON), nearest the
+    /// seed first; exits 1 with the reason when the pose is unreachable.
+    Ik(IkArgs),
+    /// Identify the robot's kinematics (calibration.conf deltas, optionally the tool) from a
+    /// recording with measured poses; writes calibration.conf, report.json, report.md and a plot.
+    Calibrate(CalibrateArgs),
 }
 
 /// `armtwin fmu` arguments.
@@ -323,6 +329,8 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Fmu(FmuArgs {
             command: FmuCommand::Build(args),
         }) => run_fmu_build(&args),
+        Command::Ik(args) => run_ik(&args),
+        Command::Calibrate(args) => run_calibrate(&args),
     }
 }
 
@@ -815,5 +823,222 @@ fn run_models(args: &ModelsArgs) -> Result<()> {
         out,
         "Every other joint: ±360°. `armtwin models --json` for full tables."
     )?;
+    Ok(())
+}
+
+/// `armtwin ik` arguments.
+#[derive(Debug, Args)]
+pub struct IkArgs {
+    /// The robot.
+    #[command(flatten)]
+    pub robot: RobotArgs,
+    /// The TCP pose `x,y,z,qx,qy,qz,qw` in the output frame (metres; quaternion in wire order,
+    /// normalised here). Write `--pose=-0.4,...` when the first value is negative.
+    #[arg(
+        long,
+        value_name = "X,Y,Z,QX,QY,QZ,QW",
+        value_delimiter = ',',
+        allow_negative_numbers = true,
+        required = true
+    )]
+    pub pose: Vec<f64>,
+    /// Joint angles q1,…,q6 (rad) to order the solutions by (nearest first) and to pick each
+    /// joint's turn; also gives q6 where the wrist is singular.
+    #[arg(
+        long,
+        value_name = "Q1,…,Q6",
+        value_delimiter = ',',
+        allow_negative_numbers = true
+    )]
+    pub seed: Vec<f64>,
+}
+
+#[derive(Serialize)]
+struct IkSolutionJson {
+    q: [f64; 6],
+    shoulder: &'static str,
+    elbow: &'static str,
+    wrist: &'static str,
+    position_error_m: f64,
+    angle_error_rad: f64,
+    distance_from_seed_rad: f64,
+}
+
+#[derive(Serialize)]
+struct IkOutput {
+    solutions: Vec<IkSolutionJson>,
+    wrist_singular: bool,
+    outside_limits: usize,
+}
+
+fn run_ik(args: &IkArgs) -> Result<()> {
+    let model = args.robot.load()?;
+    let [x, y, z, qx, qy, qz, qw]: [f64; 7] = args.pose.as_slice().try_into().map_err(|_| {
+        anyhow::anyhow!(
+            "--pose takes 7 values x,y,z,qx,qy,qz,qw, got {}",
+            args.pose.len()
+        )
+    })?;
+    let orientation = crate::orientation::quaternion_from_xyzw([qx, qy, qz, qw])
+        .context("--pose: the quaternion must be finite and non-zero")?;
+    let target = crate::kinematics::Pose {
+        position_m: nalgebra::Vector3::new(x, y, z),
+        rotation: crate::orientation::matrix_from_quaternion(&orientation),
+    };
+    let seed = (!args.seed.is_empty()).then_some(args.seed.as_slice());
+    let answer = crate::ik::solve(&model, &target, seed)?;
+    let output = IkOutput {
+        solutions: answer
+            .solutions
+            .iter()
+            .map(|solution| IkSolutionJson {
+                q: solution.q_rad,
+                shoulder: solution.configuration.shoulder.as_str(),
+                elbow: solution.configuration.elbow.as_str(),
+                wrist: solution.configuration.wrist.as_str(),
+                position_error_m: solution.position_error_m,
+                angle_error_rad: solution.angle_error_rad,
+                distance_from_seed_rad: solution.distance_from_seed_rad,
+            })
+            .collect(),
+        wrist_singular: answer.wrist_singular,
+        outside_limits: answer.outside_limits,
+    };
+    let stdout = io::stdout();
+    let mut out = stdout.lock();
+    serde_json::to_writer(&mut out, &output)?;
+    writeln!(out)?;
+    Ok(())
+}
+
+/// `armtwin calibrate` arguments.
+#[derive(Debug, Args)]
+pub struct CalibrateArgs {
+    /// The recording (any layout `validate` reads; it must carry measured poses).
+    #[command(flatten)]
+    pub input: RecordingArgs,
+    /// The robot: the nominal model and the tool the recording was made with (`--calibration`
+    /// is refused: the fit starts from the nominal arm).
+    #[command(flatten)]
+    pub robot: RobotArgs,
+    /// Also fit the tool offset, starting from --tcp (or the flange).
+    #[arg(long)]
+    pub fit_tcp: bool,
+    /// Fraction of the rows, taken from the end of the recording, held out from the fit.
+    #[arg(long, default_value_t = 0.3, value_name = "FRACTION")]
+    pub holdout: f64,
+    /// Metres one radian of orientation error weighs as in the fit.
+    #[arg(long, default_value_t = 1.0, value_name = "M_PER_RAD")]
+    pub orientation_weight: f64,
+    /// Directory for calibration.conf and the report.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+}
+
+#[allow(
+    clippy::too_many_lines,
+    reason = "one command: pair, fit, evaluate, write"
+)]
+fn run_calibrate(args: &CalibrateArgs) -> Result<()> {
+    if args.robot.calibration.is_some() {
+        bail!("calibrate fits deltas to the nominal arm: leave out --calibration");
+    }
+    if !(args.holdout.is_finite() && (0.0..0.9).contains(&args.holdout)) {
+        bail!("--holdout must be in [0, 0.9), got {}", args.holdout);
+    }
+    let model = Arc::new(args.robot.load()?);
+    let config = ServiceConfig::load(None, &Overrides::default())?;
+    let (recording, times) = args.input.load()?;
+    if !recording.has_pose {
+        bail!("the recording has no measured poses to identify from");
+    }
+    let settings = RobotSettings {
+        model: Arc::clone(&model),
+        alarm: crate::pipeline::AlarmConfig::default(),
+        sensors: Vec::new(),
+    };
+    let validation = validate::validate(&recording, &times, config.pipeline, settings, |_| {});
+    let (samples, lines) = crate::calibrate::paired_samples(&recording, &validation);
+    let split = crate::identify::holdout_start(samples.len(), args.holdout);
+    let options = crate::identify::IdentifyOptions {
+        fit_tool: args.fit_tcp,
+        orientation_weight_m_per_rad: args.orientation_weight,
+        ..crate::identify::IdentifyOptions::default()
+    };
+    let fit = crate::identify::identify(
+        model.arm(),
+        model.frame(),
+        model.tool(),
+        &samples[..split],
+        &options,
+    )?;
+    let identified = RobotModel::new(
+        model.arm().clone(),
+        Some(Calibration {
+            source_name: "identified".to_owned(),
+            form: crate::model::CalibrationForm::MountingDeltas(fit.deltas),
+        }),
+        fit.tool,
+        model.frame(),
+    )?;
+    let held_out = &samples[split..];
+    let per_row = |m: &RobotModel| -> Vec<f64> {
+        held_out
+            .iter()
+            .map(|s| {
+                m.pose(&s.q_rad).map_or(f64::NAN, |p| {
+                    (p.position_m - s.measured.position_m).norm() * 1e3
+                })
+            })
+            .collect()
+    };
+    let recording_name = args.input.recording.display().to_string();
+    let report = crate::calibrate::report(
+        &recording_name,
+        &model.arm().name,
+        &fit,
+        split,
+        lines.get(split).copied(),
+        crate::identify::pose_errors(&model, held_out),
+        crate::identify::pose_errors(&identified, held_out),
+        crate::identify::pose_errors(&identified, &samples[..split]),
+    );
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let comment = format!(
+        "Identified by armtwin calibrate from {recording_name} ({} rows fitted, {} held out).\nTool [x, y, z, rx, ry, rz] = {:?}",
+        split,
+        held_out.len(),
+        fit.tool.to_ur_pose()
+    );
+    let files = [
+        ("calibration.conf", fit.deltas.to_conf_text(&comment)),
+        ("report.json", serde_json::to_string_pretty(&report)? + "\n"),
+        ("report.md", crate::calibrate::report_md(&report)),
+        (
+            "held_out_error.svg",
+            crate::calibrate::held_out_plot(
+                &lines[split..],
+                &per_row(&model),
+                &per_row(&identified),
+            ),
+        ),
+    ];
+    for (name, text) in &files {
+        let path = args.out.join(name);
+        std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    eprintln!(
+        "held out {} rows: position MAE nominal {:.4} mm → identified {:.4} mm; angle MAE {:.4} → {:.4} mrad; {} of {} parameters identified; wrote {} files into {}",
+        report.held_out_rows,
+        report.nominal.position_mae_mm,
+        report.identified.position_mae_mm,
+        report.nominal.angle_mae_mrad,
+        report.identified.angle_mae_mrad,
+        fit.excitation.identified,
+        fit.excitation.candidates,
+        files.len(),
+        args.out.display()
+    );
     Ok(())
 }

@@ -14,13 +14,16 @@
 //! - [`replay`]: `armtwin replay`, a recording published as a gateway would.
 //! - [`validate`]: `armtwin validate`, a recording through the pipeline offline, with its report
 //!   and plots.
+//! - [`calibrate`]: `armtwin calibrate`, a recording's kinematics identified, with its report.
 //! - [`fmu_package`]: `armtwin fmu build`, the FMU archive.
 //! - [`cli`]: the `armtwin` command line (with `main.rs`).
 
 pub use armtwin_core::{
-    align, fmi, kinematics, metrics, model, orientation, pipeline, pose_fields, sample, trig,
+    align, fmi, identify, ik, kinematics, metrics, model, orientation, pipeline, pose_fields,
+    sample, trig,
 };
 
+pub mod calibrate;
 pub mod cli;
 pub mod codec;
 pub mod config;

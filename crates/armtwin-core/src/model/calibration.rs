@@ -86,6 +86,37 @@ impl MountingDeltas {
         delta_alpha_rad: [0.0; 6],
     };
 
+    /// The text of a `calibration.conf` holding these deltas in its `[mounting]` section, with
+    /// `comment` lines (each prefixed `# `) above. Values are written with the shortest digits
+    /// that read back to the same `f64`, so [`Calibration::parse_conf`] returns these deltas
+    /// exactly.
+    #[must_use]
+    pub fn to_conf_text(&self, comment: &str) -> String {
+        let list = |values: &[f64; 6]| {
+            let items: Vec<String> = values.iter().map(|v| format!("{v:?}")).collect();
+            format!("[ {} ]", items.join(", "))
+        };
+        let mut text = String::new();
+        for line in comment.lines() {
+            text.push_str("# ");
+            text.push_str(line);
+            text.push('\n');
+        }
+        text.push_str("[mounting]\n");
+        for (key, values) in CONF_KEYS.iter().zip([
+            &self.delta_theta_rad,
+            &self.delta_a_m,
+            &self.delta_d_m,
+            &self.delta_alpha_rad,
+        ]) {
+            text.push_str(key);
+            text.push_str(" = ");
+            text.push_str(&list(values));
+            text.push('\n');
+        }
+        text
+    }
+
     /// The nominal table with these deltas added.
     #[must_use]
     pub fn apply(&self, nominal: &[DhParameters]) -> Vec<DhParameters> {

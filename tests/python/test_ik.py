@@ -19,8 +19,8 @@ from scipy.spatial.transform import Rotation
 import ur_reference as ur
 from conftest import run_armtwin
 
-POSES_PER_MODEL = 3
-STARTS = 60
+POSES_PER_MODEL = 2
+STARTS = 24
 FK_TOL = 1e-9
 SAME_SOLUTION_RAD = 1e-5
 

@@ -7,6 +7,7 @@
 //!
 //! This crate is the outer ring, around the core:
 //! - [`codec`]: the core's types to and from CSV and the service's JSON wire messages.
+//! - [`rosbag`]: rosbag2 recordings (MCAP, sqlite3) read into the rows a CSV becomes.
 //! - [`ingest`]: a gateway message's bytes into the pipeline, shared by the service and
 //!   `validate`.
 //! - [`config`]: the service's TOML configuration and command-line overrides.
@@ -27,5 +28,6 @@ pub mod config;
 pub mod fmu_package;
 pub mod ingest;
 pub mod replay;
+pub mod rosbag;
 pub mod service;
 pub mod validate;

@@ -45,22 +45,13 @@ impl Default for BagTopics {
 }
 
 /// How to read a bag of one robot.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct BagOptions {
     /// The topics.
     pub topics: BagTopics,
     /// The robot's `tf_prefix` (`""`, or e.g. `alice_`): of its joint names and of the pose's
     /// expected frame `<tf_prefix>base`.
     pub tf_prefix: String,
-}
-
-impl Default for BagOptions {
-    fn default() -> Self {
-        Self {
-            topics: BagTopics::default(),
-            tf_prefix: String::new(),
-        }
-    }
 }
 
 /// Why a bag cannot be read at all.
@@ -310,16 +301,14 @@ fn read_mcap(
     for message in mcap::MessageStream::new(&bytes).map_err(mcap_error)? {
         let message = message.map_err(mcap_error)?;
         let channel = &message.channel;
-        let stream = match streams.get(&channel.id) {
-            Some(stream) => *stream,
-            None => {
-                topics_found.push(channel.topic.clone());
-                let type_name = channel.schema.as_ref().map_or("", |s| s.name.as_str());
-                let stream =
-                    stream_of(topics, &channel.topic, type_name, &channel.message_encoding)?;
-                streams.insert(channel.id, stream);
-                stream
-            }
+        let stream = if let Some(stream) = streams.get(&channel.id) {
+            *stream
+        } else {
+            topics_found.push(channel.topic.clone());
+            let type_name = channel.schema.as_ref().map_or("", |s| s.name.as_str());
+            let stream = stream_of(topics, &channel.topic, type_name, &channel.message_encoding)?;
+            streams.insert(channel.id, stream);
+            stream
         };
         if let Some(stream) = stream {
             messages.push(BagMessage {

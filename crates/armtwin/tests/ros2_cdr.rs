@@ -313,3 +313,33 @@ proptest! {
         }
     }
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(2000))]
+
+    /// Damaged messages (bytes changed, cut, inserted) are refused or read, never a panic and
+    /// never an allocation of a claimed size (the decoder allocates only the arm's angles).
+    #[test]
+    fn damaged_messages_never_panic(
+        file in proptest::sample::select(vec![
+            "joint_state_driver_order.cdr",
+            "joint_state_tf_prefix_gripper.cdr",
+            "joint_state_big_endian.cdr",
+            "pose_stamped_base.cdr",
+        ]),
+        edits in proptest::collection::vec((0_usize..3, any::<usize>(), any::<u8>()), 1..6),
+    ) {
+        let mut bytes = std::fs::read(fixtures().join(file)).expect("fixture");
+        for (kind, position, byte) in edits {
+            let at = position % (bytes.len() + 1);
+            match kind {
+                0 if at < bytes.len() => bytes[at] = byte,
+                1 => bytes.truncate(at),
+                _ => bytes.insert(at, byte),
+            }
+        }
+        let _ = cdr::decode_joint_state(&bytes, &JointNames::ur(""));
+        let _ = cdr::decode_joint_state(&bytes, &JointNames::ur("alice_"));
+        let _ = cdr::decode_pose_stamped(&bytes);
+    }
+}

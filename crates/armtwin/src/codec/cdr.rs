@@ -301,31 +301,30 @@ impl<'a> Reader<'a> {
         Ok(count)
     }
 
-    /// A string: u32 length including the NUL, the bytes, the NUL (a length of 0, which some
-    /// writers use for the empty string, reads as empty).
-    fn string(&mut self, field: Field) -> Result<&'a str, CdrError> {
+    /// A string's bytes: u32 length including the NUL, the bytes, the NUL (a length of 0, which
+    /// some writers use for the empty string, reads as empty). Not checked for UTF-8: joint
+    /// names are only compared with the arm's.
+    fn string_bytes(&mut self, field: Field) -> Result<&'a [u8], CdrError> {
         let length = self.count(field, 1, MAX_STRING_BYTES)?;
         let bytes = self.take(length, 1, field)?;
-        let Some((&last, text)) = bytes.split_last() else {
-            return Ok("");
-        };
-        if last != 0 {
-            return Err(CdrError::Unterminated {
+        match bytes.split_last() {
+            None => Ok(&[]),
+            Some((0, text)) => Ok(text),
+            Some(_) => Err(CdrError::Unterminated {
                 field: field.to_string(),
-            });
+            }),
         }
-        std::str::from_utf8(text).map_err(|_| CdrError::NotUtf8 {
+    }
+
+    /// A UTF-8 string.
+    fn string(&mut self, field: Field) -> Result<&'a str, CdrError> {
+        std::str::from_utf8(self.string_bytes(field)?).map_err(|_| CdrError::NotUtf8 {
             field: field.to_string(),
         })
     }
 
-    /// `std_msgs/Header`: the stamp (s; `None` for the unset stamp 0.0) and the frame id.
-    fn header(
-        &mut self,
-        sec: Field,
-        nanosec: Field,
-        frame_id: Field,
-    ) -> Result<(Option<f64>, &'a str), CdrError> {
+    /// `std_msgs/Header`: the stamp (s; `None` for the unset stamp 0.0); the frame id follows.
+    fn stamp(&mut self, sec: Field, nanosec: Field) -> Result<Option<f64>, CdrError> {
         let seconds = self.i32(sec)?;
         let nanoseconds = self.u32(nanosec)?;
         if nanoseconds >= 1_000_000_000 {
@@ -335,9 +334,8 @@ impl<'a> Reader<'a> {
             });
         }
         // The same sum a ROS 2 export's `header.stamp.sec` and `.nanosec` columns give.
-        let stamp_s = (seconds != 0 || nanoseconds != 0)
-            .then(|| f64::from(seconds) + f64::from(nanoseconds) * 1e-9);
-        Ok((stamp_s, self.string(frame_id)?))
+        Ok((seconds != 0 || nanoseconds != 0)
+            .then(|| f64::from(seconds) + f64::from(nanoseconds) * 1e-9))
     }
 }
 
@@ -383,27 +381,36 @@ const POSITION: &str = "JointState.position";
 /// `stamp_s` is `header.stamp` (sec + nanosec · 1e-9), `None` when the stamp is unset (0).
 pub fn decode_joint_state(payload: &[u8], joints: &JointNames) -> Result<JointSample, CdrError> {
     let mut reader = Reader::new(payload)?;
-    let (stamp_s, _frame_id) = reader.header(
+    let stamp_s = reader.stamp(
         Field::plain("JointState.header.stamp.sec"),
         Field::plain("JointState.header.stamp.nanosec"),
-        Field::plain("JointState.header.frame_id"),
     )?;
+    reader.string_bytes(Field::plain("JointState.header.frame_id"))?;
     let wanted = joints.as_slice();
     // Message index of each of the arm's joints.
     let mut index_of = [usize::MAX; MAX_ARM_JOINTS];
     // A string takes at least its 4-byte length.
     let name_count = reader.count(Field::plain(NAME), 4, MAX_JOINT_STATE_ENTRIES)?;
+    // The joint after the last one matched is tried first: a driver's order, whether the arm's
+    // or rotated (the UR driver's), then costs one comparison per name.
+    let mut next = 0;
     for index in 0..name_count {
         let field = Field::at(NAME, index);
-        let name = reader.string(field)?;
-        if let Some(joint) = wanted.iter().position(|wanted| wanted == name) {
+        let name = reader.string_bytes(field)?;
+        let joint = if wanted[next].as_bytes() == name {
+            Some(next)
+        } else {
+            wanted.iter().position(|wanted| wanted.as_bytes() == name)
+        };
+        if let Some(joint) = joint {
             if index_of[joint] != usize::MAX {
                 return Err(CdrError::DuplicateJoint {
-                    joint: name.to_owned(),
+                    joint: wanted[joint].clone(),
                     field: field.to_string(),
                 });
             }
             index_of[joint] = index;
+            next = (joint + 1) % wanted.len();
         }
     }
     if let Some(joint) = index_of[..wanted.len()]
@@ -425,25 +432,22 @@ pub fn decode_joint_state(payload: &[u8], joints: &JointNames) -> Result<JointSa
     // `count` checked that the values fit: take them all, then pick the arm's.
     let positions = reader.take(8 * position_count, 8, Field::plain(POSITION))?;
     let big_endian = reader.big_endian;
-    let q_rad = index_of[..wanted.len()]
-        .iter()
-        .map(|&index| {
-            let mut bytes = [0; 8];
-            bytes.copy_from_slice(&positions[8 * index..8 * index + 8]);
-            let value = if big_endian {
-                f64::from_be_bytes(bytes)
-            } else {
-                f64::from_le_bytes(bytes)
-            };
-            if value.is_finite() {
-                Ok(value)
-            } else {
-                Err(CdrError::NonFinite {
-                    field: Field::at(POSITION, index).to_string(),
-                })
-            }
-        })
-        .collect::<Result<Vec<f64>, CdrError>>()?;
+    let mut q_rad = Vec::with_capacity(wanted.len());
+    for &index in &index_of[..wanted.len()] {
+        let mut bytes = [0; 8];
+        bytes.copy_from_slice(&positions[8 * index..8 * index + 8]);
+        let value = if big_endian {
+            f64::from_be_bytes(bytes)
+        } else {
+            f64::from_le_bytes(bytes)
+        };
+        if !value.is_finite() {
+            return Err(CdrError::NonFinite {
+                field: Field::at(POSITION, index).to_string(),
+            });
+        }
+        q_rad.push(value);
+    }
     for name in ["JointState.velocity", "JointState.effort"] {
         let count = reader.count(Field::plain(name), 8, MAX_JOINT_STATE_ENTRIES)?;
         reader.take(8 * count, 8, Field::plain(name))?;
@@ -472,11 +476,11 @@ pub struct DecodedPose<'a> {
 /// within 5 % of unit norm, normalised and canonicalised to `w ≥ 0` (the JSON decoder's checks).
 pub fn decode_pose_stamped(payload: &[u8]) -> Result<DecodedPose<'_>, CdrError> {
     let mut reader = Reader::new(payload)?;
-    let (stamp_s, frame_id) = reader.header(
+    let stamp_s = reader.stamp(
         Field::plain("PoseStamped.header.stamp.sec"),
         Field::plain("PoseStamped.header.stamp.nanosec"),
-        Field::plain("PoseStamped.header.frame_id"),
     )?;
+    let frame_id = reader.string(Field::plain("PoseStamped.header.frame_id"))?;
     let position_m = [
         reader.finite(Field::plain("PoseStamped.pose.position.x"))?,
         reader.finite(Field::plain("PoseStamped.pose.position.y"))?,

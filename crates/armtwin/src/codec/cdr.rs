@@ -219,6 +219,7 @@ impl<'a> Reader<'a> {
         })
     }
 
+    #[cold]
     fn truncated(&self, field: Field, needed: usize, offset: usize) -> CdrError {
         CdrError::Truncated {
             field: field.to_string(),
@@ -230,6 +231,7 @@ impl<'a> Reader<'a> {
 
     /// `n` bytes at the next multiple of `align` (nothing, not even padding, for `n = 0`: an
     /// empty sequence has no element to align).
+    #[inline]
     fn take(&mut self, n: usize, align: usize, field: Field) -> Result<&'a [u8], CdrError> {
         if n == 0 {
             return Ok(&[]);
@@ -243,6 +245,7 @@ impl<'a> Reader<'a> {
         Ok(bytes)
     }
 
+    #[inline]
     fn array<const N: usize>(&mut self, field: Field) -> Result<[u8; N], CdrError> {
         let bytes = self.take(N, N, field)?;
         let mut array = [0; N];
@@ -254,14 +257,17 @@ impl<'a> Reader<'a> {
         Ok(array)
     }
 
+    #[inline]
     fn u32(&mut self, field: Field) -> Result<u32, CdrError> {
         self.array(field).map(u32::from_le_bytes)
     }
 
+    #[inline]
     fn i32(&mut self, field: Field) -> Result<i32, CdrError> {
         self.array(field).map(i32::from_le_bytes)
     }
 
+    #[inline]
     fn f64(&mut self, field: Field) -> Result<f64, CdrError> {
         self.array(field).map(f64::from_le_bytes)
     }
@@ -279,6 +285,7 @@ impl<'a> Reader<'a> {
     }
 
     /// A sequence count, at most `limit`, whose `element_bytes`-sized elements fit in the body.
+    #[inline]
     fn count(
         &mut self,
         field: Field,
@@ -304,6 +311,7 @@ impl<'a> Reader<'a> {
     /// A string's bytes: u32 length including the NUL, the bytes, the NUL (a length of 0, which
     /// some writers use for the empty string, reads as empty). Not checked for UTF-8: joint
     /// names are only compared with the arm's.
+    #[inline]
     fn string_bytes(&mut self, field: Field) -> Result<&'a [u8], CdrError> {
         let length = self.count(field, 1, MAX_STRING_BYTES)?;
         let bytes = self.take(length, 1, field)?;

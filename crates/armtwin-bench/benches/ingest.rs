@@ -15,7 +15,7 @@
 use std::hint::black_box;
 use std::time::{Duration, Instant};
 
-use armtwin::codec::wire;
+use armtwin::codec::{cdr, wire};
 use armtwin::kinematics::OutputFrame;
 use armtwin::metrics::Deviation;
 use armtwin::model::RobotModel;
@@ -58,6 +58,14 @@ fn parts(c: &mut Criterion) {
     let (_, joints, measured) = &load.samples[7];
     c.bench_function("decode/joints", |b| {
         b.iter(|| wire::decode_joints(black_box(joints.as_bytes()), 6));
+    });
+    // The UR driver's `/joint_states` as CDR (six joints in the driver's order, with velocity
+    // and effort), written by `rosbags`: the binary counterpart of `decode/joints`.
+    let joint_state: &[u8] =
+        include_bytes!("../../../tests/data/ros2/joint_state_driver_order.cdr");
+    let joint_names = cdr::JointNames::ur("");
+    c.bench_function("decode/joint_state_cdr", |b| {
+        b.iter(|| cdr::decode_joint_state(black_box(joint_state), &joint_names));
     });
     c.bench_function("decode/measured", |b| {
         b.iter(|| wire::decode_measured(black_box(measured.as_bytes())));

@@ -28,6 +28,7 @@ use crate::kinematics::{OutputFrame, TcpOffset};
 use crate::model::{Calibration, RobotModel, catalog, custom};
 use crate::pipeline::RobotSettings;
 use crate::replay::{self, ReplaySettings};
+use crate::rosbag::{self, BagOptions, BagTopics};
 use crate::service;
 use crate::validate;
 
@@ -98,8 +99,9 @@ pub struct FmuBuildArgs {
 /// Which recording and how to read it; shared by `replay` and `validate`.
 #[derive(Debug, Args)]
 pub struct RecordingArgs {
-    /// The recording: the UR10e FMU report's CSV form, a ROS 2 export or a UR RTDE recording (recognised from the
-    /// header), or any CSV with --joint-columns.
+    /// The recording: the UR10e FMU report's CSV form, a ROS 2 export or a UR RTDE recording
+    /// (recognised from the header), any CSV with --joint-columns, or a rosbag2 recording (a bag
+    /// directory, or its `.mcap` / `.db3` file).
     pub recording: PathBuf,
     /// Seconds between rows, ignoring the recording's time column (e.g. 0.1 for the report's
     /// `fmpy_inputs.csv`, whose time column is a row index).
@@ -127,6 +129,21 @@ pub struct RecordingArgs {
     /// With --pose-columns: the orientation form.
     #[arg(long, value_enum, default_value_t = PoseFormArg::Quaternion)]
     pub pose_form: PoseFormArg,
+    /// For a rosbag2 recording: the `sensor_msgs/msg/JointState` topic.
+    #[arg(long, value_name = "TOPIC", default_value = "/joint_states")]
+    pub joint_topic: String,
+    /// For a rosbag2 recording: the `geometry_msgs/msg/PoseStamped` topic of the measured pose,
+    /// in the robot's `base` frame.
+    #[arg(
+        long,
+        value_name = "TOPIC",
+        default_value = "/tcp_pose_broadcaster/pose"
+    )]
+    pub pose_topic: String,
+    /// For a rosbag2 recording: the robot's `tf_prefix`, of its joint names and of its `base`
+    /// frame.
+    #[arg(long, value_name = "PREFIX", default_value = "")]
+    pub tf_prefix: String,
 }
 
 /// `--time-unit` values.
@@ -360,9 +377,13 @@ impl RecordingArgs {
                 (form, self.pose_columns.clone())
             }),
         });
-        let text = read_text(&self.recording)?;
-        let recording = recording::read_with(&text, map.as_ref())
-            .with_context(|| self.recording.display().to_string())?;
+        let recording = if rosbag::is_bag(&self.recording) {
+            self.read_bag()?
+        } else {
+            let text = read_text(&self.recording)?;
+            recording::read_with(&text, map.as_ref())
+                .with_context(|| self.recording.display().to_string())?
+        };
         let times = recording::source_times(&recording, self.period);
         let malformed: Vec<_> = recording
             .entries
@@ -388,6 +409,29 @@ impl RecordingArgs {
             eprintln!("  … and {} more", malformed.len() - 5);
         }
         Ok((recording, times))
+    }
+
+    /// Reads a rosbag2 recording into rows, and says on stderr what its topics held.
+    fn read_bag(&self) -> Result<Recording> {
+        let options = BagOptions {
+            topics: BagTopics {
+                joint_states: self.joint_topic.clone(),
+                pose: self.pose_topic.clone(),
+            },
+            tf_prefix: self.tf_prefix.clone(),
+        };
+        let bag = rosbag::read(&self.recording, &options)
+            .with_context(|| self.recording.display().to_string())?;
+        eprintln!(
+            "{}: {:?} storage, {}",
+            self.recording.display(),
+            bag.storage,
+            bag.summary
+        );
+        for (number, reason) in bag.summary.pose_errors.iter().take(5) {
+            eprintln!("  {} message {number}: {reason}", self.pose_topic);
+        }
+        Ok(bag.recording)
     }
 }
 

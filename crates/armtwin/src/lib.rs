@@ -6,7 +6,9 @@
 //! command line, the live service, offline validation and the FMU.
 //!
 //! This crate is the outer ring, around the core:
-//! - [`codec`]: the core's types to and from CSV and the service's JSON wire messages.
+//! - [`codec`]: the core's types to and from CSV, the service's JSON wire messages and ROS 2
+//!   CDR messages.
+//! - [`rosbag`]: rosbag2 recordings (MCAP, sqlite3) read into the rows a CSV becomes.
 //! - [`ingest`]: a gateway message's bytes into the pipeline, shared by the service and
 //!   `validate`.
 //! - [`config`]: the service's TOML configuration and command-line overrides.
@@ -30,5 +32,6 @@ pub mod config;
 pub mod fmu_package;
 pub mod ingest;
 pub mod replay;
+pub mod rosbag;
 pub mod service;
 pub mod validate;

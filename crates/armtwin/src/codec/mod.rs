@@ -1,7 +1,8 @@
 //! Codecs: the core's types to and from the formats armtwin reads and writes (JSON field sets,
-//! CSV). They know the core types, never the network or the filesystem: callers hand in readers
-//! and writers.
+//! CSV, ROS 2 CDR messages). They know the core types, never the network or the filesystem:
+//! callers hand in bytes, readers and writers.
 
+pub mod cdr;
 mod flat_json;
 pub mod joint_csv;
 pub mod recording;

@@ -30,6 +30,8 @@ pub enum Format {
     Rtde,
     /// Columns named on the command line ([`ColumnMap`]).
     Mapped,
+    /// A rosbag2 recording of `JointState` and `PoseStamped` topics (`crate::rosbag`).
+    Rosbag2,
 }
 
 impl Format {
@@ -41,6 +43,7 @@ impl Format {
             Self::Ros2 => "ROS 2 export (header.stamp, <joint>.position, tcp_pose.*)",
             Self::Rtde => "UR RTDE recording (timestamp, actual_q_*, actual_TCP_pose_*)",
             Self::Mapped => "columns mapped on the command line",
+            Self::Rosbag2 => "rosbag2 recording (JointState and PoseStamped topics)",
         }
     }
 }

@@ -401,6 +401,16 @@ fn pose_of(
     ))
 }
 
+/// A measured pose of a position (m) and a quaternion in wire order `[x, y, z, w]`, with this
+/// decoder's checks (norm within 5 % of 1, then normalised and canonicalised to `qw ≥ 0`): for
+/// the binary codecs that carry the same pose.
+pub(crate) fn pose_from_quaternion(
+    position_m: [f64; 3],
+    xyzw: [f64; 4],
+) -> Result<PoseReadout, WireError> {
+    pose_of("", position_m, OrientationForm::Quaternion, xyzw)
+}
+
 /// A quaternion in wire order `[x, y, z, w]`, normalised if its norm is within 5 % of 1.
 fn quaternion(prefix: &str, xyzw: [f64; 4]) -> Result<UnitQuaternion<f64>, WireError> {
     let norm = xyzw.iter().map(|c| c * c).sum::<f64>().sqrt();

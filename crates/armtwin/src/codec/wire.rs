@@ -1811,6 +1811,30 @@ mod tests {
         }
     }
 
+    /// One of four valid messages with `edits` applied: (0 remove, 1 replace, 2 insert; position,
+    /// byte).
+    fn damaged(message: usize, edits: Vec<(usize, usize, u8)>) -> Vec<u8> {
+        let mut bytes = [
+            r#"{"t":1.25,"seq":3,"unit":"deg","q":[0.5,-1e-3,2E2,0,-0,12],"note":{"a":[true,null,"b"]}}"#,
+            r#"{"t":1.25,"q":[0.5,-1,2,0,0,1],"measured":{"t":1,"x":0.25,"y":-1,"z":3,"qx":0,"qy":0,"qz":0,"qw":1}}"#,
+            r#"{"time":7,"x":0.25,"y":-1,"z":3,"roll":0.1,"pitch":-0.2,"yaw":3.1,"extra":[]}"#,
+            r#"{"t":7,"x":0.25,"y":-1,"z":3,"rx":0.1,"ry":-0.2,"rz":1.5}"#,
+        ][message]
+            .as_bytes()
+            .to_vec();
+        for (kind, position, byte) in edits {
+            let at = position % (bytes.len() + 1);
+            match kind {
+                0 if at < bytes.len() => {
+                    bytes.remove(at);
+                }
+                1 if at < bytes.len() => bytes[at] = byte,
+                _ => bytes.insert(at, byte),
+            }
+        }
+        bytes
+    }
+
     proptest::proptest! {
         #![proptest_config(proptest::test_runner::Config::with_cases(4000))]
 
@@ -1826,24 +1850,7 @@ mod tests {
                 1..4,
             ),
         ) {
-            let mut bytes = [
-                r#"{"t":1.25,"seq":3,"unit":"deg","q":[0.5,-1e-3,2E2,0,-0,12],"note":{"a":[true,null,"b"]}}"#,
-                r#"{"t":1.25,"q":[0.5,-1,2,0,0,1],"measured":{"t":1,"x":0.25,"y":-1,"z":3,"qx":0,"qy":0,"qz":0,"qw":1}}"#,
-                r#"{"time":7,"x":0.25,"y":-1,"z":3,"roll":0.1,"pitch":-0.2,"yaw":3.1,"extra":[]}"#,
-                r#"{"t":7,"x":0.25,"y":-1,"z":3,"rx":0.1,"ry":-0.2,"rz":1.5}"#,
-            ][message]
-                .as_bytes()
-                .to_vec();
-            for (kind, position, byte) in edits {
-                let at = position % (bytes.len() + 1);
-                match kind {
-                    0 if at < bytes.len() => {
-                        bytes.remove(at);
-                    }
-                    1 if at < bytes.len() => bytes[at] = byte,
-                    _ => bytes.insert(at, byte),
-                }
-            }
+            let bytes = damaged(message, edits);
             if let Ok(text) = std::str::from_utf8(&bytes) {
                 assert_paths_agree(text, 6);
             }
@@ -1905,24 +1912,7 @@ mod tests {
                 1..4,
             ),
         ) {
-            let mut bytes = [
-                r#"{"t":1.25,"seq":3,"unit":"deg","q":[0.5,-1e-3,2E2,0,-0,12],"note":{"a":[true,null,"b"]}}"#,
-                r#"{"t":1.25,"q":[0.5,-1,2,0,0,1],"measured":{"t":1,"x":0.25,"y":-1,"z":3,"qx":0,"qy":0,"qz":0,"qw":1}}"#,
-                r#"{"time":7,"x":0.25,"y":-1,"z":3,"roll":0.1,"pitch":-0.2,"yaw":3.1,"extra":[]}"#,
-                r#"{"t":7,"x":0.25,"y":-1,"z":3,"rx":0.1,"ry":-0.2,"rz":1.5}"#,
-            ][message]
-                .as_bytes()
-                .to_vec();
-            for (kind, position, byte) in edits {
-                let at = position % (bytes.len() + 1);
-                match kind {
-                    0 if at < bytes.len() => {
-                        bytes.remove(at);
-                    }
-                    1 if at < bytes.len() => bytes[at] = byte,
-                    _ => bytes.insert(at, byte),
-                }
-            }
+            let bytes = damaged(message, edits);
             let offered = [
                 read_joints(&bytes, 6).err().map(|refused| (refused.error, refused.stamp_s)),
                 read_measured(&bytes).err().map(|refused| (refused.error, refused.stamp_s)),

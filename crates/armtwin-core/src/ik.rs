@@ -18,7 +18,7 @@ use std::f64::consts::{PI, TAU};
 use nalgebra::{IsometryMatrix3, Matrix3, Matrix6, Rotation3, Translation3, Vector3, Vector6};
 use thiserror::Error;
 
-use crate::kinematics::{DhConvention, DhParameters, Pose};
+use crate::kinematics::{self, DhConvention, DhParameters, Pose};
 use crate::model::{ArmDescription, JointLimits, RobotModel};
 use crate::orientation;
 
@@ -42,34 +42,16 @@ pub struct UrGeometry {
 }
 
 impl UrGeometry {
-    /// The geometry of `arm` if it is a standard-DH table with the UR structure.
+    /// The geometry of `arm` if it is a standard-DH table with the UR structure
+    /// ([`kinematics::ur_lengths_m`]) and the lengths the closed form divides by are not zero.
     #[must_use]
-    #[allow(
-        clippy::float_cmp,
-        reason = "the structure is exact in every catalog table"
-    )]
     pub fn from_arm(arm: &ArmDescription) -> Option<Self> {
-        const ALPHA_RAD: [f64; 6] = [PI / 2.0, 0.0, 0.0, PI / 2.0, -PI / 2.0, 0.0];
         if arm.convention != DhConvention::Standard {
             return None;
         }
-        let [r1, r2, r3, r4, r5, r6] = arm.dh.as_slice() else {
-            return None;
-        };
-        let structure = arm
-            .dh
-            .iter()
-            .zip(ALPHA_RAD)
-            .all(|(row, alpha)| row.alpha_rad == alpha && row.theta_offset_rad == 0.0)
-            && [r1.a_m, r4.a_m, r5.a_m, r6.a_m, r2.d_m, r3.d_m]
-                .iter()
-                .all(|&v| v == 0.0);
-        let lengths = [r1.d_m, r2.a_m, r3.a_m, r4.d_m, r5.d_m, r6.d_m];
-        let usable = lengths.iter().all(|v| v.is_finite())
-            && r2.a_m != 0.0
-            && r3.a_m != 0.0
-            && r6.d_m != 0.0;
-        (structure && usable).then_some(Self {
+        let lengths = kinematics::ur_lengths_m(&arm.dh)?;
+        let [_, a2, a3, _, _, d6] = lengths;
+        (a2 != 0.0 && a3 != 0.0 && d6 != 0.0).then_some(Self {
             d1_a2_a3_d4_d5_d6_m: lengths,
         })
     }

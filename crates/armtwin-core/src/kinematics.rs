@@ -225,26 +225,35 @@ fn two_sum(a: f64, b: f64) -> (f64, f64) {
     (sum, (a - a_part) + (b - b_part))
 }
 
+/// `[d1, a2, a3, d4, d5, d6]` (m) of a standard-DH table with exactly the Universal Robots
+/// structure (`α = [π/2, 0, 0, π/2, −π/2, 0]`, `a₁ = a₄ = a₅ = a₆ = 0`, `d₂ = d₃ = 0`, `θ = 0`,
+/// compared bit for bit) and finite lengths, else `None`. The closed forms of FK and IK both rest
+/// on it.
+#[must_use]
+#[allow(
+    clippy::float_cmp,
+    reason = "only an exact match has the structure the closed forms assume"
+)]
+pub fn ur_lengths_m(rows: &[DhParameters]) -> Option<[f64; 6]> {
+    const ALPHA_RAD: [f64; 6] = [FRAC_PI_2, 0.0, 0.0, FRAC_PI_2, -FRAC_PI_2, 0.0];
+    let [r1, r2, r3, r4, r5, r6] = rows else {
+        return None;
+    };
+    let structure = rows
+        .iter()
+        .zip(ALPHA_RAD)
+        .all(|(row, alpha)| row.alpha_rad == alpha && row.theta_offset_rad == 0.0)
+        && [r1.a_m, r4.a_m, r5.a_m, r6.a_m, r2.d_m, r3.d_m]
+            .iter()
+            .all(|&v| v == 0.0);
+    let lengths = [r1.d_m, r2.a_m, r3.a_m, r4.d_m, r5.d_m, r6.d_m];
+    (structure && lengths.iter().all(|v| v.is_finite())).then_some(lengths)
+}
+
 impl UrClosedForm {
     /// The closed form of `rows` if they have the UR structure exactly, else `None`.
-    #[allow(
-        clippy::float_cmp,
-        reason = "only an exact match may take the closed form"
-    )]
     fn detect(rows: &[DhParameters]) -> Option<Self> {
-        const ALPHA_RAD: [f64; 6] = [FRAC_PI_2, 0.0, 0.0, FRAC_PI_2, -FRAC_PI_2, 0.0];
-        let [r1, r2, r3, r4, r5, r6] = rows else {
-            return None;
-        };
-        let structure = rows
-            .iter()
-            .zip(ALPHA_RAD)
-            .all(|(row, alpha)| row.alpha_rad == alpha && row.theta_offset_rad == 0.0)
-            && [r1.a_m, r4.a_m, r5.a_m, r6.a_m, r2.d_m, r3.d_m]
-                .iter()
-                .all(|&v| v == 0.0);
-        let lengths = [r1.d_m, r2.a_m, r3.a_m, r4.d_m, r5.d_m, r6.d_m];
-        (structure && lengths.iter().all(|v| v.is_finite())).then_some(Self {
+        ur_lengths_m(rows).map(|lengths| Self {
             d1_a2_a3_d4_d5_d6_m: lengths,
             negate_xy: false,
             flange_from_tcp: None,

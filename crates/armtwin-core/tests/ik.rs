@@ -13,27 +13,9 @@ use armtwin_core::kinematics::{OutputFrame, Pose, TcpOffset};
 use armtwin_core::model::{Calibration, RobotModel, catalog};
 use armtwin_core::orientation;
 
-/// A small deterministic generator (`SplitMix64`), so every run tests the same poses.
-struct Rng(u64);
+mod common;
 
-impl Rng {
-    fn next_unit(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^= z >> 31;
-        (z >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    fn angle(&mut self) -> f64 {
-        (2.0 * self.next_unit() - 1.0) * PI
-    }
-
-    fn joints(&mut self) -> [f64; 6] {
-        std::array::from_fn(|_| self.angle())
-    }
-}
+use common::Rng;
 
 fn errors(model: &RobotModel, q: &[f64; 6], target: &Pose) -> (f64, f64) {
     let pose = model.pose(q).unwrap();

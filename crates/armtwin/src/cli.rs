@@ -1047,8 +1047,6 @@ fn run_calibrate(args: &CalibrateArgs) -> Result<()> {
         crate::identify::pose_errors(&identified, held_out),
         crate::identify::pose_errors(&identified, &samples[..split]),
     );
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create {}", args.out.display()))?;
     let comment = format!(
         "Identified by armtwin calibrate from {recording_name} ({} rows fitted, {} held out).\nTool [x, y, z, rx, ry, rz] = {:?}",
         split,
@@ -1067,11 +1065,10 @@ fn run_calibrate(args: &CalibrateArgs) -> Result<()> {
                 &per_row(&identified),
             ),
         ),
-    ];
-    for (name, text) in &files {
-        let path = args.out.join(name);
-        std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
-    }
+    ]
+    .map(|(name, text)| (name, text.into_bytes()));
+    validate::report::write_files(&args.out, &files)
+        .with_context(|| format!("cannot write the report into {}", args.out.display()))?;
     eprintln!(
         "held out {} rows: position MAE nominal {:.4} mm → identified {:.4} mm; angle MAE {:.4} → {:.4} mrad; {} of {} parameters identified; wrote {} files into {}",
         report.held_out_rows,

@@ -17,7 +17,10 @@ impl Rng {
     }
 
     /// Six joint angles, each uniform in [−π, π) (rad).
-    #[allow(dead_code, reason = "each test file compiles the helpers, and uses a part of them")]
+    #[allow(
+        dead_code,
+        reason = "each test file compiles the helpers, and uses a part of them"
+    )]
     pub fn joints(&mut self) -> [f64; 6] {
         std::array::from_fn(|_| (2.0 * self.unit() - 1.0) * PI)
     }

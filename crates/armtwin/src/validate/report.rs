@@ -593,23 +593,33 @@ pub fn write_all(
     validation: &Validation,
     context: &Context<'_>,
 ) -> io::Result<(ReportJson, Vec<PathBuf>)> {
-    std::fs::create_dir_all(dir)?;
     let report = report_json(validation, context);
-    let mut written = Vec::new();
-    let mut put = |name: &str, bytes: &[u8]| -> io::Result<()> {
-        let path = dir.join(name);
-        std::fs::write(&path, bytes)?;
-        written.push(path);
-        Ok(())
-    };
     let json = serde_json::to_vec_pretty(&report).map_err(io::Error::other)?;
-    put("report.json", &json)?;
-    put("report.md", report_md(validation, &report).as_bytes())?;
     let mut csv = Vec::new();
     write_rows_csv(validation, &mut csv)?;
-    put("rows.csv", &csv)?;
-    for (name, text) in plots(validation) {
-        put(name, text.as_bytes())?;
-    }
-    Ok((report, written))
+    let mut files = vec![
+        ("report.json", json),
+        ("report.md", report_md(validation, &report).into_bytes()),
+        ("rows.csv", csv),
+    ];
+    files.extend(
+        plots(validation)
+            .into_iter()
+            .map(|(name, text)| (name, text.into_bytes())),
+    );
+    Ok((report, write_files(dir, &files)?))
+}
+
+/// Writes each `(file name, bytes)` into `dir` (created if needed); returns the paths written.
+/// Shared by the commands that leave a report folder (`validate`, `calibrate`).
+pub fn write_files(dir: &Path, files: &[(&str, Vec<u8>)]) -> io::Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(dir)?;
+    files
+        .iter()
+        .map(|(name, bytes)| {
+            let path = dir.join(name);
+            std::fs::write(&path, bytes)?;
+            Ok(path)
+        })
+        .collect()
 }

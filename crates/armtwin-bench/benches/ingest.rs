@@ -131,6 +131,7 @@ fn metrics_message(robot: &str) -> wire::MetricsMessage {
         paired: 123_456,
         unpaired: 3,
         rejected: 0,
+        epoch: 0,
         cumulative: set(123_456, 0.3),
         window: wire::WindowJson {
             seconds: 10.0,

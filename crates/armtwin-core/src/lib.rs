@@ -22,6 +22,8 @@
 //! - [`sample`]: decoded joint and measured-pose samples, whatever their source.
 //! - [`metrics`]: deviation of one paired sample; cumulative and exact sliding-window statistics.
 //! - [`align`]: pairing measured poses with joint samples in source time.
+//! - [`self_calibration`]: a live robot's reservoir of pairs and the re-fit of its kinematics
+//!   from them, judged on held-out time blocks.
 //! - [`pipeline`]: the per-robot twin core every mode runs: samples in, poses, deviations,
 //!   metrics and events out to a [`pipeline::Sink`].
 //! - [`fmi`]: the FMI 2.0 FMU's interface contract (variables, resource file), shared by
@@ -38,4 +40,5 @@ pub mod orientation;
 pub mod pipeline;
 pub mod pose_fields;
 pub mod sample;
+pub mod self_calibration;
 pub mod trig;

@@ -37,6 +37,7 @@ use crate::metrics::{CumulativeStats, Deviation, StatsSet, WindowStats};
 use crate::model::RobotModel;
 use crate::orientation;
 use crate::sample::JointSample;
+use crate::self_calibration::{PairReservoir, ReservoirConfig};
 
 /// Largest deviation (m or rad) taken as a comparison (no arm reaches 100 m); beyond it a measured
 /// pose is refused as not belonging to the robot, which also keeps the statistics finite and
@@ -84,6 +85,8 @@ pub struct RobotSettings {
     pub alarm: AlarmConfig,
     /// Extra measured-pose streams.
     pub sensors: Vec<SensorStream>,
+    /// Keep a reservoir of the robot's pairs for self-calibration ([`crate::self_calibration`]).
+    pub self_calibration: Option<ReservoirConfig>,
 }
 
 /// Settings shared by every robot.
@@ -135,6 +138,9 @@ pub struct MetricsSnapshot {
     pub window: StatsSet,
     /// The window's length (s).
     pub window_s: f64,
+    /// The metrics epoch: 0 from the start, one more each time the robot's model was replaced
+    /// ([`Pipeline::replace_model`]); the counters and statistics cover this epoch only.
+    pub epoch: u64,
 }
 
 /// Where the pipeline's results go. Every result names its robot by [`Robot`] (or, for events,
@@ -177,12 +183,29 @@ impl Sink for Discard {
     fn metrics(&mut self, _robot: &Robot, _snapshot: &MetricsSnapshot) {}
 }
 
+/// Why a robot's model was not replaced.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum ReplaceModelError {
+    /// The robot has no twin yet.
+    #[error("the robot is not tracked")]
+    NotTracked,
+    /// The model has another number of joints.
+    #[error("the model has {got} joints, the robot {expected}")]
+    JointCount {
+        /// The robot's.
+        expected: usize,
+        /// The model's.
+        got: usize,
+    },
+}
+
 /// A robot's last values, for the state view.
 #[derive(Debug, Clone)]
 pub struct RobotState<'a> {
     /// Robot id.
     pub robot: &'a str,
-    /// Its model (model, calibration, tool, frame).
+    /// Its current model (model, calibration, tool, frame): the configured one, or the one that
+    /// replaced it.
     pub model: &'a RobotModel,
     /// Last valid joint sample: stamp (s) and angles (rad).
     pub last_joints: Option<(f64, &'a [f64])>,
@@ -228,6 +251,11 @@ struct DeviationStats {
 struct RobotTwin {
     /// Its index, id and settings (shared with the directory).
     robot: Robot,
+    /// The model its FK runs: the configured one until [`Pipeline::replace_model`].
+    model: Arc<RobotModel>,
+    /// Pairs kept for self-calibration, when the robot's settings ask for it.
+    reservoir: Option<Box<PairReservoir>>,
+    epoch: u64,
     aligner: Aligner<Waiting>,
     /// Created by the first paired measurement (the window's ring buffers are most of a twin's
     /// memory): a robot that only streams joints never needs them.
@@ -352,8 +380,11 @@ impl Pipeline {
                 twin.pair_ready(sink);
                 if let Some(measured) = &sample.measured {
                     let measured = twin.to_output_frame(measured, MeasuredStream::Robot);
-                    if twin.accept_measured_stamp(key, MeasuredStream::Robot, stamp_s, sink) {
-                        twin.pair(key, stamp_s, &pose, measured, sink);
+                    if twin.accept_measured_stamp(key, MeasuredStream::Robot, stamp_s, sink)
+                        && twin.pair(key, stamp_s, &pose, measured, sink)
+                        && let Some(reservoir) = &mut twin.reservoir
+                    {
+                        reservoir.offer(stamp_s, &sample.q_rad, &measured);
                     }
                 }
             }
@@ -415,17 +446,61 @@ impl Pipeline {
     pub fn reset(&mut self, robot: RobotIndex, sink: &mut impl Sink) -> Option<MetricsSnapshot> {
         let twin = self.twin_mut(robot)?;
         let last = twin.snapshot();
-        if let Some(stats) = &mut twin.stats {
-            stats.cumulative.reset();
-            stats.window.reset();
-        }
-        twin.paired = 0;
-        twin.unpaired = 0;
-        twin.rejected = 0;
-        // Alarms stay as they are: clearing one silently would leave dashboards waiting for a
-        // `recovered` that never comes.
+        twin.restart_statistics();
         sink.metrics(&twin.robot, &last);
         Some(last)
+    }
+
+    /// The model `robot`'s FK runs, if it is tracked.
+    #[must_use]
+    pub fn model(&self, robot: RobotIndex) -> Option<&Arc<RobotModel>> {
+        self.twin(robot).map(|twin| &twin.model)
+    }
+
+    /// `robot`'s self-calibration reservoir, if it is tracked and keeps one.
+    #[must_use]
+    pub fn reservoir(&self, robot: RobotIndex) -> Option<&PairReservoir> {
+        self.twin(robot)?.reservoir.as_deref()
+    }
+
+    /// Replaces `robot`'s model (an applied calibration) and starts a new metrics epoch: the
+    /// old epoch's final snapshot is sent and returned, counters and statistics start afresh
+    /// (deviations of two models must not mix), and an `epoch` event says why. The model must
+    /// keep the robot's joint count, against which its inputs are decoded.
+    pub fn replace_model(
+        &mut self,
+        robot: RobotIndex,
+        model: Arc<RobotModel>,
+        sink: &mut impl Sink,
+    ) -> Result<MetricsSnapshot, ReplaceModelError> {
+        let twin = self.twin_mut(robot).ok_or(ReplaceModelError::NotTracked)?;
+        let expected = twin.model.joint_count();
+        if model.joint_count() != expected {
+            return Err(ReplaceModelError::JointCount {
+                expected,
+                got: model.joint_count(),
+            });
+        }
+        let last = twin.snapshot();
+        sink.metrics(&twin.robot, &last);
+        twin.restart_statistics();
+        twin.model = model;
+        twin.epoch += 1;
+        twin.dirty = true;
+        let detail = EventDetail::Epoch { epoch: twin.epoch };
+        let source = twin
+            .model
+            .calibration()
+            .map_or("the nominal model", |c| c.source_name.as_str());
+        let event = twin.event(
+            last.stamp_s,
+            EventKind::Epoch,
+            None,
+            detail,
+            Reason::ModelReplaced { source },
+        );
+        sink.event(&event);
+        Ok(last)
     }
 
     /// The state view of `robot`, if it is tracked.
@@ -434,7 +509,7 @@ impl Pipeline {
         let twin = self.twin(robot)?;
         Some(RobotState {
             robot: twin.robot.id(),
-            model: &twin.robot.settings().model,
+            model: &twin.model,
             last_joints: twin
                 .last_joint_s
                 .map(|stamp_s| (stamp_s, twin.last_joints.as_slice())),
@@ -462,6 +537,12 @@ impl RobotTwin {
     fn new(robot: Robot, config: &PipelineConfig) -> Self {
         let joint_count = robot.settings().model.joint_count();
         Self {
+            model: Arc::clone(&robot.settings().model),
+            reservoir: robot
+                .settings()
+                .self_calibration
+                .map(|config| Box::new(PairReservoir::new(config))),
+            epoch: 0,
             aligner: Aligner::new(config.align),
             stats: None,
             window_s: config.window_s,
@@ -504,6 +585,18 @@ impl RobotTwin {
         }
     }
 
+    /// Counters and statistics start afresh (a reset, a new epoch). Alarms stay as they are:
+    /// clearing one silently would leave dashboards waiting for a `recovered` that never comes.
+    fn restart_statistics(&mut self) {
+        if let Some(stats) = &mut self.stats {
+            stats.cumulative.reset();
+            stats.window.reset();
+        }
+        self.paired = 0;
+        self.unpaired = 0;
+        self.rejected = 0;
+    }
+
     /// One rejection: an event and a count.
     fn reject(
         &mut self,
@@ -527,7 +620,7 @@ impl RobotTwin {
         sample: &JointSample,
         sink: &mut impl Sink,
     ) -> Result<PoseReadout, Refusal> {
-        if let Err(error) = self.robot.settings().model.check_joints(&sample.q_rad) {
+        if let Err(error) = self.model.check_joints(&sample.q_rad) {
             let cause = match error {
                 KinematicsError::JointCount { .. } => RejectCause::JointCount,
                 KinematicsError::NonFinite { .. } => RejectCause::NonFinite,
@@ -570,22 +663,10 @@ impl RobotTwin {
             sink.event(&self.event(stamp_s, EventKind::Gap, Some(key), detail, reason));
         }
         self.advance_time(stamp_s);
-        let pose = self
-            .robot
-            .settings()
-            .model
-            .chain()
-            .pose_unchecked(&sample.q_rad)
-            .readout();
+        let pose = self.model.chain().pose_unchecked(&sample.q_rad).readout();
         let seq = self.next_pose_seq;
         self.next_pose_seq += 1;
-        sink.pose(
-            &self.robot,
-            stamp_s,
-            seq,
-            self.robot.settings().model.frame(),
-            &pose,
-        );
+        sink.pose(&self.robot, stamp_s, seq, self.model.frame(), &pose);
         self.aligner.push_joints(stamp_s, &sample.q_rad);
         self.last_joint_s = Some(stamp_s);
         self.last_joints.clear();
@@ -694,24 +775,15 @@ impl RobotTwin {
 
     /// Pairs a measured pose through the aligner, or queues it, or reports it unpaired.
     fn resolve(&mut self, key: &str, stamp_s: f64, pose: PoseReadout, sink: &mut impl Sink) {
-        let twin_pose = match self.aligner.bracket(stamp_s) {
-            // Recomputed rather than kept for every sample of history: the same pure function of
-            // the same angles, so the same pose: one FK costs less than keeping a pose per sample.
-            Bracket::Exact(q_rad) => self
-                .robot
-                .settings()
-                .model
-                .chain()
-                .pose_unchecked(q_rad)
-                .readout(),
+        // The joint angles at the measured stamp go to `scratch_q`, where the pair's
+        // self-calibration sample is taken from.
+        match self.aligner.bracket(stamp_s) {
+            Bracket::Exact(q_rad) => {
+                self.scratch_q.clear();
+                self.scratch_q.extend_from_slice(q_rad);
+            }
             Bracket::Between { q0, q1, fraction } => {
                 align::interpolate(q0, q1, fraction, &mut self.scratch_q);
-                self.robot
-                    .settings()
-                    .model
-                    .chain()
-                    .pose_unchecked(&self.scratch_q)
-                    .readout()
             }
             Bracket::Later => {
                 let waiting = Waiting {
@@ -734,8 +806,15 @@ impl RobotTwin {
                 self.unpaired_event(&pending, reason, sink);
                 return;
             }
-        };
-        self.pair(key, stamp_s, &twin_pose, pose, sink);
+        }
+        // Recomputed rather than kept for every sample of history: the same pure function of the
+        // same angles, so the same pose: one FK costs less than keeping a pose per sample.
+        let twin_pose = self.model.chain().pose_unchecked(&self.scratch_q).readout();
+        if self.pair(key, stamp_s, &twin_pose, pose, sink)
+            && let Some(reservoir) = &mut self.reservoir
+        {
+            reservoir.offer(stamp_s, &self.scratch_q, &pose);
+        }
     }
 
     /// Pairs the measured poses that the newest joint sample now brackets.
@@ -766,6 +845,8 @@ impl RobotTwin {
         sink.event(&self.event(pending.stamp_s, EventKind::Unpaired, key, detail, reason));
     }
 
+    /// Compares a measured pose with the twin's at its stamp; false if it was refused as too
+    /// far from the twin to be this robot's.
     fn pair(
         &mut self,
         key: &str,
@@ -773,7 +854,7 @@ impl RobotTwin {
         twin_pose: &PoseReadout,
         measured: PoseReadout,
         sink: &mut impl Sink,
-    ) {
+    ) -> bool {
         let deviation = Deviation::between(twin_pose, &measured);
         let magnitudes = deviation.magnitudes();
         if !magnitudes
@@ -785,7 +866,7 @@ impl RobotTwin {
                 distance_m: deviation.position_m,
             };
             self.reject(key, stamp_s, RejectCause::OutOfRange, reason, sink);
-            return;
+            return false;
         }
         sink.deviation(&self.robot, stamp_s, &measured, &deviation);
         let stats = self.stats.get_or_insert_with(|| {
@@ -838,11 +919,12 @@ impl RobotTwin {
             };
             sink.event(&self.event(stamp_s, kind, None, detail, reason));
         }
+        true
     }
 
     /// A measured pose from `stream` in the model's output frame.
     fn to_output_frame(&self, pose: &PoseReadout, stream: MeasuredStream) -> PoseReadout {
-        let frame = self.robot.settings().model.frame();
+        let frame = self.model.frame();
         let sensor = match stream {
             MeasuredStream::Robot => None,
             MeasuredStream::Sensor(index) => self
@@ -882,6 +964,7 @@ impl RobotTwin {
                 .map(|stats| stats.window.snapshot())
                 .unwrap_or_default(),
             window_s: self.window_s,
+            epoch: self.epoch,
         }
     }
 }
@@ -928,6 +1011,7 @@ mod tests {
             model: Arc::clone(&model),
             alarm: AlarmConfig::default(),
             sensors: Vec::new(),
+            self_calibration: None,
         };
         let mut robots = RobotDirectory::new(Some(settings), HashMap::new());
         let r1 = robots.admit("r1").expect("default settings").clone();

@@ -13,10 +13,11 @@ use armtwin_core::kinematics::{OutputFrame, PoseReadout};
 use armtwin_core::metrics::Deviation;
 use armtwin_core::model::RobotModel;
 use armtwin_core::pipeline::{
-    AlarmConfig, Event, EventDetail, EventKind, MetricsSnapshot, Pipeline, PipelineConfig, Robot,
-    RobotDirectory, RobotIndex, RobotSettings, Sink,
+    AlarmConfig, Event, EventDetail, EventKind, MetricsSnapshot, Pipeline, PipelineConfig,
+    ReplaceModelError, Robot, RobotDirectory, RobotIndex, RobotSettings, Sink,
 };
 use armtwin_core::sample::JointSample;
+use armtwin_core::self_calibration::ReservoirConfig;
 
 /// Everything the pipeline sends, in order.
 #[derive(Default)]
@@ -62,6 +63,7 @@ fn pipeline() -> (Pipeline, Arc<RobotModel>, RobotDirectory) {
         model: model.clone(),
         alarm: AlarmConfig::default(),
         sensors: Vec::new(),
+        self_calibration: None,
     };
     (
         Pipeline::new(PipelineConfig::default()),
@@ -322,4 +324,79 @@ fn periodic_metrics_go_out_once_per_robot_with_new_results() {
     assert!(pipeline.take_due_metrics(r2.index()).is_none());
     assert!(pipeline.robots_with_due_metrics().is_empty());
     assert_eq!(sink.metrics.len(), 2);
+}
+
+#[test]
+fn a_replaced_model_starts_a_new_epoch_and_self_calibration_keeps_only_accepted_pairs() {
+    let model = Arc::new(RobotModel::nominal("ur10e").expect("catalog"));
+    let settings = RobotSettings {
+        model: model.clone(),
+        alarm: AlarmConfig::default(),
+        sensors: Vec::new(),
+        self_calibration: Some(ReservoirConfig {
+            min_spacing_s: 0.0,
+            ..ReservoirConfig::default()
+        }),
+    };
+    let mut directory = RobotDirectory::new(Some(settings), HashMap::new());
+    let mut pipeline = Pipeline::new(PipelineConfig::default());
+    let r1 = robot(&mut directory, "r1");
+    let mut sink = Recorder::default();
+    let q = [0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
+    for i in 0..10 {
+        let t = f64::from(i) * 0.01;
+        pipeline.joints(&r1, "k", t, &sample(&model, q, true), &mut sink);
+    }
+    // A measured pose 200 m off is refused, and not kept for calibration either.
+    let mut far = sample(&model, q, true);
+    far.measured.as_mut().expect("measured").position_m[0] += 200.0;
+    pipeline.joints(&r1, "k", 0.2, &far, &mut sink);
+    let reservoir = pipeline.reservoir(r1.index()).expect("kept");
+    assert_eq!(
+        (reservoir.offered(), reservoir.kept().0 + reservoir.kept().1),
+        (10, 10)
+    );
+    assert_eq!(
+        pipeline.state(r1.index()).expect("tracked").metrics.paired,
+        10
+    );
+
+    // Another model (here: a tool 0.1 m along the flange): the old epoch's final metrics, the
+    // event, counters from zero, poses from the new model.
+    let tooled = Arc::new(
+        RobotModel::new(
+            model.arm().clone(),
+            None,
+            armtwin_core::kinematics::TcpOffset::from_ur_pose([0.0, 0.0, 0.1, 0.0, 0.0, 0.0])
+                .expect("finite"),
+            OutputFrame::Base,
+        )
+        .expect("model"),
+    );
+    let last = pipeline
+        .replace_model(r1.index(), Arc::clone(&tooled), &mut sink)
+        .expect("tracked");
+    assert_eq!((last.epoch, last.paired), (0, 10));
+    assert_eq!(sink.metrics.last().map(|m| m.paired), Some(10));
+    assert!(matches!(
+        sink.events.last(),
+        Some((EventKind::Epoch, EventDetail::Epoch { epoch: 1 }, _))
+    ));
+    let state = pipeline.state(r1.index()).expect("tracked");
+    assert_eq!((state.metrics.epoch, state.metrics.paired), (1, 0));
+    assert!(Arc::ptr_eq(
+        pipeline.model(r1.index()).expect("model"),
+        &tooled
+    ));
+    // The controller still reports the flange: now 0.1 m from the twin.
+    pipeline.joints(&r1, "k", 0.3, &sample(&model, q, true), &mut sink);
+    let state = pipeline.state(r1.index()).expect("tracked");
+    assert_eq!(state.metrics.paired, 1);
+    assert!((state.metrics.cumulative.stats[0].max - 0.1).abs() < 1e-12);
+    // A robot without a twin has no model to replace.
+    let r2 = robot(&mut directory, "r2");
+    assert_eq!(
+        pipeline.replace_model(r2.index(), tooled, &mut sink).err(),
+        Some(ReplaceModelError::NotTracked)
+    );
 }

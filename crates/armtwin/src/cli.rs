@@ -19,6 +19,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use serde::Serialize;
 
 use crate::codec::PoseFields;
+use crate::codec::ik::{IkAnswerJson, IkRequest};
 use crate::codec::joint_csv::{JointCsvReader, PoseCsvWriter};
 use crate::codec::recording::{self, ColumnMap, PoseForm, Recording};
 use crate::config::{Overrides, ServiceConfig, ZenohInsert, ZenohMode, ZenohSection};
@@ -570,6 +571,7 @@ fn run_validate(args: &ValidateArgs) -> Result<()> {
         model: Arc::clone(&model),
         alarm,
         sensors: Vec::new(),
+        self_calibration: None,
     };
     let bar = progress_bar(recording.entries.len(), "validate");
     let validation = validate::validate(&recording, &times, config.pipeline, settings, |done| {
@@ -897,57 +899,11 @@ pub struct IkArgs {
     pub seed: Vec<f64>,
 }
 
-#[derive(Serialize)]
-struct IkSolutionJson {
-    q: [f64; 6],
-    shoulder: &'static str,
-    elbow: &'static str,
-    wrist: &'static str,
-    position_error_m: f64,
-    angle_error_rad: f64,
-    distance_from_seed_rad: f64,
-}
-
-#[derive(Serialize)]
-struct IkOutput {
-    solutions: Vec<IkSolutionJson>,
-    wrist_singular: bool,
-    outside_limits: usize,
-}
-
 fn run_ik(args: &IkArgs) -> Result<()> {
     let model = args.robot.load()?;
-    let [x, y, z, qx, qy, qz, qw]: [f64; 7] = args.pose.as_slice().try_into().map_err(|_| {
-        anyhow::anyhow!(
-            "--pose takes 7 values x,y,z,qx,qy,qz,qw, got {}",
-            args.pose.len()
-        )
-    })?;
-    let orientation = crate::orientation::quaternion_from_xyzw([qx, qy, qz, qw])
-        .context("--pose: the quaternion must be finite and non-zero")?;
-    let target = crate::kinematics::Pose {
-        position_m: nalgebra::Vector3::new(x, y, z),
-        rotation: crate::orientation::matrix_from_quaternion(&orientation),
-    };
-    let seed = (!args.seed.is_empty()).then_some(args.seed.as_slice());
-    let answer = crate::ik::solve(&model, &target, seed)?;
-    let output = IkOutput {
-        solutions: answer
-            .solutions
-            .iter()
-            .map(|solution| IkSolutionJson {
-                q: solution.q_rad,
-                shoulder: solution.configuration.shoulder.as_str(),
-                elbow: solution.configuration.elbow.as_str(),
-                wrist: solution.configuration.wrist.as_str(),
-                position_error_m: solution.position_error_m,
-                angle_error_rad: solution.angle_error_rad,
-                distance_from_seed_rad: solution.distance_from_seed_rad,
-            })
-            .collect(),
-        wrist_singular: answer.wrist_singular,
-        outside_limits: answer.outside_limits,
-    };
+    let request = IkRequest::new(&args.pose, args.seed.clone()).context("--pose")?;
+    let answer = crate::ik::solve(&model, &request.target, request.seed())?;
+    let output = IkAnswerJson::from(&answer);
     let stdout = io::stdout();
     let mut out = stdout.lock();
     serde_json::to_writer(&mut out, &output)?;
@@ -1000,6 +956,7 @@ fn run_calibrate(args: &CalibrateArgs) -> Result<()> {
         model: Arc::clone(&model),
         alarm: crate::pipeline::AlarmConfig::default(),
         sensors: Vec::new(),
+        self_calibration: None,
     };
     let validation = validate::validate(&recording, &times, config.pipeline, settings, |_| {});
     let (samples, lines) = crate::calibrate::paired_samples(&recording, &validation);

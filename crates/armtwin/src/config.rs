@@ -14,10 +14,12 @@ use serde::Deserialize;
 use thiserror::Error;
 
 use crate::align::AlignConfig;
+use crate::identify::IdentifyOptions;
 use crate::kinematics::{OutputFrame, TcpOffset};
 use crate::model::{Calibration, ModelError, RobotModel, catalog, custom};
 use crate::orientation;
 use crate::pipeline::{AlarmConfig, PipelineConfig, RobotSettings, SensorStream};
+use crate::self_calibration::ReservoirConfig;
 
 /// The embedded default configuration (`config/armtwin.toml`).
 pub const DEFAULT_CONFIG_TOML: &str = include_str!("../../../config/armtwin.toml");
@@ -73,7 +75,50 @@ struct File {
     #[serde(default)]
     align: AlignSection,
     #[serde(default)]
+    self_calibration: SelfCalibrationSection,
+    #[serde(default)]
     robots: HashMap<String, RobotSection>,
+}
+
+/// `[self_calibration]`: how robots with `self_calibrate = true` keep their pairs and re-fit.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct SelfCalibrationSection {
+    refit_period_s: f64,
+    train_capacity: usize,
+    held_out_capacity: usize,
+    block_s: f64,
+    holdout_every: u64,
+    min_spacing_s: f64,
+    fit_tool: bool,
+    orientation_weight_m_per_rad: f64,
+}
+
+impl Default for SelfCalibrationSection {
+    fn default() -> Self {
+        let reservoir = ReservoirConfig::default();
+        Self {
+            refit_period_s: 10.0,
+            train_capacity: reservoir.train_capacity,
+            held_out_capacity: reservoir.held_out_capacity,
+            block_s: reservoir.block_s,
+            holdout_every: reservoir.holdout_every,
+            min_spacing_s: reservoir.min_spacing_s,
+            fit_tool: false,
+            orientation_weight_m_per_rad: IdentifyOptions::default().orientation_weight_m_per_rad,
+        }
+    }
+}
+
+/// Self-calibration settings shared by the robots that opt in.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SelfCalibrationConfig {
+    /// How often each opted-in robot's pairs are fitted again (when new ones came in).
+    pub refit_period: Duration,
+    /// How pairs are kept.
+    pub reservoir: ReservoirConfig,
+    /// How they are fitted.
+    pub options: IdentifyOptions,
 }
 
 /// `[zenoh]`: how armtwin joins the mesh.
@@ -317,6 +362,7 @@ struct RobotSection {
     alarm_position_m: Option<f64>,
     alarm_angle_rad: Option<f64>,
     alarm_hold_s: Option<f64>,
+    self_calibrate: Option<bool>,
     #[serde(default)]
     sensors: Vec<SensorSection>,
 }
@@ -353,6 +399,8 @@ pub struct ServiceConfig {
     pub default_robot: Option<RobotSettings>,
     /// Every `[robots."<id>"]`.
     pub robots: HashMap<String, RobotSettings>,
+    /// `[self_calibration]`.
+    pub self_calibration: SelfCalibrationConfig,
 }
 
 /// Command-line overrides, Zenoh style (`-m`, `-l`, `-e`, `--cfg`).
@@ -404,7 +452,12 @@ impl ServiceConfig {
         zenoh.file = zenoh.file.map(|f| base_dir.join(f));
         let service = file.service;
         let align = check_service_and_align(&service, &file.align, source_name)?;
-        let (default_robot, robots) = load_robots(&file.robots, source_name, base_dir)?;
+        let self_calibration = check_self_calibration(&file.self_calibration, source_name)?;
+        let (default_robot, robots) = load_robots(
+            &file.robots,
+            (source_name, base_dir),
+            self_calibration.reservoir,
+        )?;
         Ok(Self {
             source_name: source_name.to_owned(),
             zenoh,
@@ -427,8 +480,82 @@ impl ServiceConfig {
                 Some(default_robot)
             },
             robots,
+            self_calibration,
         })
     }
+}
+
+/// Checks `[self_calibration]`.
+fn check_self_calibration(
+    section: &SelfCalibrationSection,
+    source_name: &str,
+) -> Result<SelfCalibrationConfig, ConfigError> {
+    let invalid = |field: &str, problem: String| ConfigError::Invalid {
+        source_name: source_name.to_owned(),
+        field: format!("self_calibration.{field}"),
+        problem,
+    };
+    let positive = |field: &str, value: f64| {
+        if value.is_finite() && value > 0.0 {
+            Ok(value)
+        } else {
+            Err(invalid(field, format!("{value} must be a positive number")))
+        }
+    };
+    let refit_period_s = positive("refit_period_s", section.refit_period_s)?;
+    let block_s = positive("block_s", section.block_s)?;
+    let orientation_weight = positive(
+        "orientation_weight_m_per_rad",
+        section.orientation_weight_m_per_rad,
+    )?;
+    if !(section.min_spacing_s.is_finite() && section.min_spacing_s >= 0.0) {
+        return Err(invalid(
+            "min_spacing_s",
+            format!("{} must be a non-negative number", section.min_spacing_s),
+        ));
+    }
+    // Identification needs twice its parameters in rows; judging needs `MIN_HELD_OUT`.
+    let min_train = 60;
+    if section.train_capacity < min_train || section.train_capacity > 100_000 {
+        return Err(invalid(
+            "train_capacity",
+            format!(
+                "{} must be in [{min_train}, 100000]",
+                section.train_capacity
+            ),
+        ));
+    }
+    let min_held_out = crate::self_calibration::MIN_HELD_OUT;
+    if section.held_out_capacity < min_held_out || section.held_out_capacity > 100_000 {
+        return Err(invalid(
+            "held_out_capacity",
+            format!(
+                "{} must be in [{min_held_out}, 100000]",
+                section.held_out_capacity
+            ),
+        ));
+    }
+    if section.holdout_every < 2 {
+        return Err(invalid(
+            "holdout_every",
+            format!("{} must be at least 2", section.holdout_every),
+        ));
+    }
+    Ok(SelfCalibrationConfig {
+        refit_period: Duration::from_secs_f64(refit_period_s),
+        reservoir: ReservoirConfig {
+            train_capacity: section.train_capacity,
+            held_out_capacity: section.held_out_capacity,
+            block_s,
+            holdout_every: section.holdout_every,
+            min_spacing_s: section.min_spacing_s,
+        },
+        options: IdentifyOptions {
+            fit_tool: section.fit_tool,
+            orientation_weight_m_per_rad: orientation_weight,
+            ..IdentifyOptions::default()
+        },
+    })
 }
 
 /// Checks `[service]` and builds the alignment limits of `[align]`.
@@ -497,8 +624,8 @@ fn check_service_and_align(
 /// `[robots.default]` (built in when absent: the `ur10e`, no tool) and every robot's own section.
 fn load_robots(
     sections: &HashMap<String, RobotSection>,
-    source_name: &str,
-    base_dir: &Path,
+    (source_name, base_dir): (&str, &Path),
+    reservoir: ReservoirConfig,
 ) -> Result<(RobotSettings, HashMap<String, RobotSettings>), ConfigError> {
     let default_section = sections.get("default");
     let mut default_robot = None;
@@ -510,6 +637,7 @@ fn load_robots(
             section,
             default_section,
             (source_name, base_dir),
+            reservoir,
             &mut models,
         )?;
         if id == "default" {
@@ -536,6 +664,7 @@ fn load_robots(
             &RobotSection::default(),
             None,
             (source_name, base_dir),
+            reservoir,
             &mut models,
         )?,
     };
@@ -685,6 +814,7 @@ fn robot_settings(
     section: &RobotSection,
     default_section: Option<&RobotSection>,
     (source_name, base_dir): (&str, &Path),
+    reservoir: ReservoirConfig,
     models: &mut HashMap<ModelSource, Arc<RobotModel>>,
 ) -> Result<RobotSettings, ConfigError> {
     let source = RobotSource {
@@ -717,6 +847,10 @@ fn robot_settings(
         model,
         alarm: source.alarm()?,
         sensors: source.sensors()?,
+        self_calibration: source
+            .pick(|s| s.self_calibrate)
+            .unwrap_or(false)
+            .then_some(reservoir),
     })
 }
 

@@ -22,7 +22,7 @@
 
 pub use armtwin_core::{
     align, fmi, identify, ik, kinematics, metrics, model, orientation, pipeline, pose_fields,
-    sample, trig,
+    sample, self_calibration, trig,
 };
 
 pub mod calibrate;

@@ -30,15 +30,19 @@ use zenoh::query::Query;
 use zenoh::sample::Sample;
 use zenoh::session::Session;
 
+use crate::calibrate::EstimateMessage;
+use crate::codec::ik::{IkAnswerJson, IkRequest};
 use crate::codec::wire;
-use crate::config::{Congestion, EventBudget, ServiceConfig, ZenohSection};
+use crate::config::{Congestion, EventBudget, SelfCalibrationConfig, ServiceConfig, ZenohSection};
 use crate::ingest::{self, JointMessage, MeasuredMessage};
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
+use crate::model::RobotModel;
 use crate::pipeline::{
     Event, EventDetail, EventKind, MeasuredStream, MetricsSnapshot, Pipeline, Robot,
     RobotDirectory, RobotIndex, Sink,
 };
+use crate::self_calibration::{self, CalibrationBatch, Estimate};
 
 /// How long each teardown step may take.
 pub(crate) const TEARDOWN_STEP: Duration = Duration::from_secs(5);
@@ -185,11 +189,18 @@ pub async fn serve(
         state: Mutex::new(TwinState {
             pipeline: Pipeline::new(config.pipeline),
             sink: ZenohSink::new(declarer.clone(), control_tx.clone(), config.event_budget),
+            calibrations: Vec::new(),
             inputs: 0,
             stopped: false,
         }),
     });
-    let control = Control::thread(twin.clone(), declarer, control_rx, config.metrics_period)?;
+    let control = Control::thread(
+        twin.clone(),
+        declarer,
+        control_rx,
+        config.metrics_period,
+        config.self_calibration,
+    )?;
 
     let intake = match declare_intake(&session, &prefix, &config, &twin).await {
         Ok(intake) => intake,
@@ -306,10 +317,12 @@ async fn declare_intake(
             );
         }
     }
-    let queries: [(&str, QueryHandler); 3] = [
+    let queries: [(&str, QueryHandler); 5] = [
         ("state", TwinState::state),
         ("fk", TwinState::fk),
         ("reset", TwinState::reset),
+        ("ik", TwinState::ik),
+        ("calibrate", TwinState::calibrate),
     ];
     for (stream, handler) in queries {
         let query_twin = twin.clone();
@@ -502,6 +515,8 @@ impl SharedTwin {
 struct TwinState {
     pipeline: Pipeline,
     sink: ZenohSink,
+    /// Self-calibration of the robots that opt in, by robot index.
+    calibrations: Vec<CalibrationSlot>,
     inputs: u64,
     /// Set once the pipeline is finished: late callbacks are ignored.
     stopped: bool,
@@ -591,7 +606,7 @@ impl TwinState {
             );
             return;
         };
-        let Some(settings) = robots.settings_for(robot) else {
+        let Some(model) = twin.current_model(robots, robot) else {
             Self::reply_err(query, &format!("robot '{robot}' is not configured"));
             return;
         };
@@ -599,19 +614,19 @@ impl TwinState {
             .payload()
             .map(|p| p.to_bytes().into_owned())
             .unwrap_or_default();
-        let joints = match wire::decode_joints(&payload, settings.model.joint_count()) {
+        let joints = match wire::decode_joints(&payload, model.joint_count()) {
             Ok(decoded) => decoded.sample,
             Err(e) => {
                 Self::reply_err(query, &e.to_string());
                 return;
             }
         };
-        match settings.model.pose(&joints.q_rad) {
+        match model.pose(&joints.q_rad) {
             Ok(pose) => {
                 let Ok(reply_key) = KeyExpr::try_from(key.to_owned()) else {
                     return;
                 };
-                let frame = settings.model.frame().as_str();
+                let frame = model.frame().as_str();
                 let message = wire::PoseMessage::new(
                     robot,
                     joints.stamp_s.unwrap_or(0.0),
@@ -624,6 +639,326 @@ impl TwinState {
             Err(e) => Self::reply_err(query, &e.to_string()),
         }
     }
+
+    /// The model robot `id`'s FK runs: its twin's (which an applied calibration replaces), else
+    /// the one its settings give it.
+    fn current_model(&self, robots: &RobotDirectory, id: &str) -> Option<Arc<RobotModel>> {
+        if let Some(model) = robots
+            .find(id)
+            .and_then(|robot| self.pipeline.model(robot.index()))
+        {
+            return Some(Arc::clone(model));
+        }
+        robots
+            .settings_for(id)
+            .map(|settings| Arc::clone(&settings.model))
+    }
+
+    /// `<prefix>/ik/<robot>` with `{"pose": [x, y, z, qx, qy, qz, qw], "seed": [...]}`: the joint
+    /// configurations that reach the pose with the robot's current model.
+    fn ik(robots: &RobotDirectory, twin: &mut Self, query: &Query) {
+        let key = query.key_expr().as_str();
+        let Some(robot) = robot_of(twin.prefix(), key, "ik") else {
+            Self::reply_err(
+                query,
+                "ask one robot: <prefix>/ik/<robot id> with {\"pose\": [x, y, z, qx, qy, qz, qw]}",
+            );
+            return;
+        };
+        let Some(model) = twin.current_model(robots, robot) else {
+            Self::reply_err(query, &format!("robot '{robot}' is not configured"));
+            return;
+        };
+        let payload = query
+            .payload()
+            .map(|p| p.to_bytes().into_owned())
+            .unwrap_or_default();
+        let answer = IkRequest::decode(&payload)
+            .and_then(|request| Ok(crate::ik::solve(&model, &request.target, request.seed())?));
+        match answer {
+            Ok(answer) => {
+                let Ok(reply_key) = KeyExpr::try_from(key.to_owned()) else {
+                    return;
+                };
+                Self::reply(
+                    query,
+                    &reply_key,
+                    wire::to_json_bytes(&IkAnswerJson::from(&answer)),
+                );
+            }
+            Err(e) => Self::reply_err(query, &e.to_string()),
+        }
+    }
+
+    /// `<prefix>/calibrate/<robot>` with `apply`, `discard` or `status` (the default), as the
+    /// payload or the selector's `action` parameter.
+    fn calibrate(robots: &RobotDirectory, twin: &mut Self, query: &Query) {
+        let key = query.key_expr().as_str();
+        let Some(id) = robot_of(twin.prefix(), key, "calibrate") else {
+            Self::reply_err(
+                query,
+                "ask one robot: <prefix>/calibrate/<robot id> with apply, discard or status",
+            );
+            return;
+        };
+        let payload = query
+            .payload()
+            .map(|p| p.to_bytes().into_owned())
+            .unwrap_or_default();
+        let action = query.parameters().get("action").map_or_else(
+            || String::from_utf8_lossy(&payload).trim().to_owned(),
+            str::to_owned,
+        );
+        let Some(robot) = robots.find(id).cloned() else {
+            Self::reply_err(query, &format!("robot '{id}' is not tracked"));
+            return;
+        };
+        if robot.settings().self_calibration.is_none() {
+            Self::reply_err(
+                query,
+                &format!(
+                    "robot '{id}' does not self-calibrate (self_calibrate = true in its section)"
+                ),
+            );
+            return;
+        }
+        let Ok(reply_key) = KeyExpr::try_from(key.to_owned()) else {
+            return;
+        };
+        let index = robot.index();
+        match action.as_str() {
+            "" | "status" => {
+                let status = twin.calibration_status(&robot);
+                Self::reply(query, &reply_key, wire::to_json_bytes(&status));
+            }
+            "discard" => {
+                let discarded = twin
+                    .calibrations
+                    .get_mut(index.get())
+                    .and_then(|slot| slot.pending.take())
+                    .is_some();
+                let body = serde_json::json!({ "robot": id, "discarded": discarded });
+                Self::reply(query, &reply_key, body.to_string().into_bytes());
+            }
+            "apply" => {
+                let Some(pending) = twin
+                    .calibrations
+                    .get_mut(index.get())
+                    .and_then(|slot| slot.pending.take())
+                else {
+                    Self::reply_err(query, &format!("robot '{id}' has no estimate to apply"));
+                    return;
+                };
+                let model = Arc::clone(&pending.estimate.model);
+                match twin.pipeline.replace_model(index, model, &mut twin.sink) {
+                    Ok(_) => {
+                        info!(
+                            robot = id,
+                            improvement = pending.estimate.improvement(),
+                            "self-calibration applied"
+                        );
+                        let status = twin.calibration_status(&robot);
+                        Self::reply(query, &reply_key, wire::to_json_bytes(&status));
+                    }
+                    Err(e) => Self::reply_err(query, &e.to_string()),
+                }
+            }
+            other => Self::reply_err(query, &format!("'{other}' is not apply, discard or status")),
+        }
+    }
+
+    /// What `status` answers for a self-calibrating robot.
+    fn calibration_status(&self, robot: &Robot) -> CalibrationStatus {
+        let index = robot.index();
+        let slot = self.calibrations.get(index.get());
+        let reservoir = self.pipeline.reservoir(index);
+        let (train, held_out) = reservoir.map_or((0, 0), self_calibration::PairReservoir::kept);
+        let state = self.pipeline.state(index);
+        CalibrationStatus {
+            robot: robot.id().to_owned(),
+            epoch: state.as_ref().map_or(0, |state| state.metrics.epoch),
+            calibration: state
+                .as_ref()
+                .and_then(|state| state.model.calibration())
+                .map(|c| c.source_name.clone()),
+            offered: reservoir.map_or(0, self_calibration::PairReservoir::offered),
+            train_pairs: train,
+            held_out_pairs: held_out,
+            fits: slot.map_or(0, |slot| slot.fits),
+            fitting: slot.is_some_and(|slot| slot.in_flight),
+            pending: slot
+                .and_then(|slot| slot.pending.as_ref())
+                .map(|pending| pending.message.clone()),
+            last: slot.and_then(|slot| slot.last.clone()),
+        }
+    }
+
+    fn calibration_slot(&mut self, index: RobotIndex) -> &mut CalibrationSlot {
+        let index = index.get();
+        if self.calibrations.len() <= index {
+            self.calibrations
+                .resize_with(index + 1, CalibrationSlot::default);
+        }
+        &mut self.calibrations[index]
+    }
+}
+
+/// A self-calibrating robot's fits.
+#[derive(Debug, Default)]
+struct CalibrationSlot {
+    /// The estimate waiting to be applied or discarded.
+    pending: Option<Pending>,
+    /// The last fit's message (an estimate or a refusal).
+    last: Option<EstimateMessage>,
+    /// Fits made.
+    fits: u64,
+    /// A fit is running.
+    in_flight: bool,
+    /// Pairs the reservoir had taken into account at the last fit: none new, no fit.
+    fitted_offered: u64,
+}
+
+/// An estimate waiting for `apply` or `discard`.
+#[derive(Debug)]
+struct Pending {
+    estimate: Estimate,
+    message: EstimateMessage,
+}
+
+/// The `status` answer of `<prefix>/calibrate/<robot>`.
+#[derive(Debug, serde::Serialize)]
+struct CalibrationStatus {
+    robot: String,
+    /// The metrics epoch.
+    epoch: u64,
+    /// The source of the calibration the twin runs (`self-calibration` once one was applied).
+    calibration: Option<String>,
+    offered: u64,
+    train_pairs: usize,
+    held_out_pairs: usize,
+    fits: u64,
+    fitting: bool,
+    pending: Option<EstimateMessage>,
+    last: Option<EstimateMessage>,
+}
+
+/// One robot's pairs to fit, taken from its reservoir under the lock and fitted without it.
+struct FitJob {
+    robot: Robot,
+    model: Arc<RobotModel>,
+    epoch: u64,
+    batch: CalibrationBatch,
+}
+
+/// Hands the pairs of every self-calibrating robot with pairs new since its last fit to the
+/// fitting thread: one robot per turn of the lock (a batch copy is a few thousand pairs).
+fn schedule_fits(twin: &SharedTwin, jobs: &Sender<FitJob>) {
+    let due: Vec<Robot> = {
+        let guard = twin.lock();
+        guard
+            .pipeline
+            .tracked()
+            .filter(|robot| {
+                let offered = guard
+                    .pipeline
+                    .reservoir(robot.index())
+                    .map_or(0, self_calibration::PairReservoir::offered);
+                let slot = guard.calibrations.get(robot.index().get());
+                offered > slot.map_or(0, |slot| slot.fitted_offered)
+                    && !slot.is_some_and(|slot| slot.in_flight)
+            })
+            .cloned()
+            .collect()
+    };
+    for robot in due {
+        let job = {
+            let mut guard = twin.lock();
+            let state = &mut *guard;
+            let index = robot.index();
+            let (Some(reservoir), Some(model), Some(view)) = (
+                state.pipeline.reservoir(index),
+                state.pipeline.model(index),
+                state.pipeline.state(index),
+            ) else {
+                continue;
+            };
+            let job = FitJob {
+                batch: reservoir.batch(),
+                model: Arc::clone(model),
+                epoch: view.metrics.epoch,
+                robot: robot.clone(),
+            };
+            let slot = state.calibration_slot(index);
+            slot.in_flight = true;
+            slot.fitted_offered = job.batch.offered;
+            job
+        };
+        if jobs.send(job).is_err() {
+            return;
+        }
+    }
+}
+
+/// Starts the thread that fits self-calibrating robots' pairs, one after another, off the
+/// sample path and off the control thread (a fit of a few thousand pairs takes a tenth of a
+/// second and more); it ends when `jobs` closes.
+fn fitting_thread(
+    twin: Arc<SharedTwin>,
+    declarer: Declarer,
+    jobs: Receiver<FitJob>,
+    config: SelfCalibrationConfig,
+) -> Result<std::thread::JoinHandle<()>, ServiceError> {
+    std::thread::Builder::new()
+        .name("armtwin-calibrate".to_owned())
+        .spawn(move || {
+            for job in jobs {
+                let FitJob {
+                    robot,
+                    model,
+                    epoch,
+                    batch,
+                } = job;
+                let fit = self_calibration::fit(&model, &batch, &config.options);
+                let message = match &fit {
+                    Ok(estimate) => EstimateMessage::estimate(robot.id(), epoch, estimate),
+                    Err(e) => EstimateMessage::refused(robot.id(), epoch, &batch, e),
+                };
+                let payload = wire::to_json_bytes(&message);
+                let (message_status, message_improvement) = (message.status, message.improvement);
+                {
+                    let mut guard = twin.lock();
+                    let state = &mut *guard;
+                    // Judged against a model the twin no longer runs: fit again next period.
+                    let current = state
+                        .pipeline
+                        .model(robot.index())
+                        .is_some_and(|now| Arc::ptr_eq(now, &model));
+                    let slot = state.calibration_slot(robot.index());
+                    slot.in_flight = false;
+                    if !current {
+                        slot.fitted_offered = 0;
+                        continue;
+                    }
+                    slot.fits += 1;
+                    slot.last = Some(message.clone());
+                    if let Ok(estimate) = fit {
+                        slot.pending = Some(Pending { estimate, message });
+                    }
+                }
+                info!(
+                    robot = robot.id(),
+                    status = message_status,
+                    improvement = message_improvement,
+                    offered = batch.offered,
+                    "self-calibration fit"
+                );
+                let sent = declarer.put(None, robot.id(), Stream::Calibration, payload);
+                if !sent {
+                    twin.lock().sink.publish_errors += 1;
+                }
+            }
+        })
+        .map_err(|e| ServiceError::Worker(e.to_string()))
 }
 
 /// Robots whose metrics snapshots one turn of the lock takes: a fleet's metrics go out in short
@@ -679,10 +1014,27 @@ impl Control {
         declarer: Declarer,
         rx: Receiver<Self>,
         metrics_period: Duration,
+        self_calibration: SelfCalibrationConfig,
     ) -> Result<std::thread::JoinHandle<ServeReport>, ServiceError> {
+        let (jobs_tx, jobs_rx) = channel::<FitJob>();
+        let fitting = fitting_thread(
+            Arc::clone(&twin),
+            declarer.clone(),
+            jobs_rx,
+            self_calibration,
+        )?;
         std::thread::Builder::new()
             .name("armtwin-control".to_owned())
-            .spawn(move || Self::run(&twin, &declarer, &rx, metrics_period))
+            .spawn(move || {
+                let periods = (metrics_period, self_calibration.refit_period);
+                let report = Self::run(&twin, &declarer, &rx, periods, &jobs_tx);
+                // Closing the queue ends the fitting thread after its current fit.
+                drop(jobs_tx);
+                if fitting.join().is_err() {
+                    warn!("the self-calibration thread panicked");
+                }
+                report
+            })
             .map_err(|e| ServiceError::Worker(e.to_string()))
     }
 
@@ -690,11 +1042,15 @@ impl Control {
         twin: &SharedTwin,
         declarer: &Declarer,
         rx: &Receiver<Self>,
-        metrics_period: Duration,
+        (metrics_period, refit_period): (Duration, Duration),
+        jobs: &Sender<FitJob>,
     ) -> ServeReport {
         let mut next_metrics = Instant::now() + metrics_period;
+        let mut next_refit = Instant::now() + refit_period;
         loop {
-            let wait = next_metrics.saturating_duration_since(Instant::now());
+            let wait = next_metrics
+                .min(next_refit)
+                .saturating_duration_since(Instant::now());
             match rx.recv_timeout(wait) {
                 Ok(Self::Stop) | Err(RecvTimeoutError::Disconnected) => break,
                 Ok(Self::Track(robot)) => {
@@ -717,6 +1073,10 @@ impl Control {
             if now >= next_metrics {
                 publish_due_metrics(twin, declarer);
                 next_metrics = now + metrics_period;
+            }
+            if now >= next_refit {
+                schedule_fits(twin, jobs);
+                next_refit = now + refit_period;
             }
         }
         let (report, outputs) = {
@@ -763,10 +1123,18 @@ enum Stream {
     Deviation,
     Metrics,
     Events,
+    /// Self-calibration estimates: a few per minute, put without a publisher.
+    Calibration,
 }
 
 impl Stream {
-    const ALL: [Self; 4] = [Self::Pose, Self::Deviation, Self::Metrics, Self::Events];
+    const ALL: [Self; 5] = [
+        Self::Pose,
+        Self::Deviation,
+        Self::Metrics,
+        Self::Events,
+        Self::Calibration,
+    ];
 
     fn as_str(self) -> &'static str {
         match self {
@@ -774,15 +1142,17 @@ impl Stream {
             Self::Deviation => "deviation",
             Self::Metrics => "metrics",
             Self::Events => "events",
+            Self::Calibration => "calibration",
         }
     }
 
-    fn publisher(self, outputs: &RobotOutputs) -> &Publisher<'static> {
+    fn publisher(self, outputs: &RobotOutputs) -> Option<&Publisher<'static>> {
         match self {
-            Self::Pose => &outputs.pose,
-            Self::Deviation => &outputs.deviation,
-            Self::Metrics => &outputs.metrics,
-            Self::Events => &outputs.events,
+            Self::Pose => Some(&outputs.pose),
+            Self::Deviation => Some(&outputs.deviation),
+            Self::Metrics => Some(&outputs.metrics),
+            Self::Events => Some(&outputs.events),
+            Self::Calibration => None,
         }
     }
 }
@@ -817,8 +1187,8 @@ impl Declarer {
         stream: Stream,
         payload: Vec<u8>,
     ) -> bool {
-        let result = match outputs {
-            Some(outputs) => stream.publisher(outputs).put(payload).wait(),
+        let result = match outputs.and_then(|outputs| stream.publisher(outputs)) {
+            Some(publisher) => publisher.put(payload).wait(),
             None => self
                 .session
                 .put(self.key(stream.as_str(), robot), payload)
@@ -1040,7 +1410,7 @@ impl Sink for ZenohSink {
     fn event(&mut self, event: &Event<'_>) {
         let always = matches!(
             event.kind,
-            EventKind::Alarm | EventKind::Recovered | EventKind::Restart
+            EventKind::Alarm | EventKind::Recovered | EventKind::Restart | EventKind::Epoch
         );
         let now = Instant::now();
         let budget = self.event_budget;
@@ -1077,7 +1447,7 @@ impl Sink for ZenohSink {
             EventKind::Rejected | EventKind::Alarm => {
                 warn!(robot, kind, cause, key, reason, "event");
             }
-            EventKind::Recovered | EventKind::Restart => {
+            EventKind::Recovered | EventKind::Restart | EventKind::Epoch => {
                 info!(robot, kind, cause, key, reason, "event");
             }
             EventKind::Gap | EventKind::Unpaired => {

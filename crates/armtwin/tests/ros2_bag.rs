@@ -25,6 +25,7 @@ fn run(recording: &Recording) -> Validation {
         model: Arc::new(RobotModel::nominal("ur10e").expect("catalog")),
         alarm: AlarmConfig::default(),
         sensors: Vec::new(),
+        self_calibration: None,
     };
     let times = recording::source_times(recording, None);
     validate(

@@ -35,6 +35,11 @@ const TEST_LIMIT: Duration = Duration::from_secs(180);
 /// How long to wait for an expected message.
 const RECEIVE_LIMIT: Duration = Duration::from_secs(30);
 
+/// Held by the tests that replay a whole recording at full rate: Zenoh's runtime is shared by
+/// every session of a process, and two services each taking 29 000 samples as fast as they come,
+/// with blocking puts in their callbacks, starve each other's links until Zenoh closes one.
+static FULL_RATE_REPLAY: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
+
 fn free_port() -> u16 {
     TcpListener::bind("127.0.0.1:0")
         .and_then(|listener| listener.local_addr())
@@ -774,6 +779,7 @@ base_from_sensor = [1.0, -0.5, 0.2, 0.0, 0.0, 1.5707963267948966]
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn replaying_the_sample_recordings_twins_every_row() {
+    let _alone = FULL_RATE_REPLAY.lock().await;
     tokio::time::timeout(TEST_LIMIT, async {
         let mut h = start(CONFIG).await;
         let endpoint = h.endpoint.clone();
@@ -927,4 +933,158 @@ base_from_sensor = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
         "{error}"
     );
     assert!(error.to_string().contains("twin/*/lab/**"), "{error}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn self_calibration_converges_on_a_replayed_recording_and_applies_on_request() {
+    let _alone = FULL_RATE_REPLAY.lock().await;
+    tokio::time::timeout(TEST_LIMIT, async {
+        let config = format!(
+            "{CONFIG}[robots.lasttest]\nmodel = \"ur10e\"\nself_calibrate = true\n\
+             [self_calibration]\nrefit_period_s = 0.3\ntrain_capacity = 1500\nheld_out_capacity = 500\n"
+        );
+        let mut h = start(&config).await;
+        // Configured, no input yet: nothing kept, nothing fitted.
+        let before = h.get("twin/calibrate/lasttest", None).await;
+        let [Ok((_, before))] = before.as_slice() else {
+            panic!("status answered: {before:?}");
+        };
+        assert_eq!((before["offered"].as_u64(), before["fits"].as_u64()), (Some(0), Some(0)));
+        assert!(before["pending"].is_null());
+        let data = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../..")).join("tests/data");
+        let text = std::fs::read_to_string(data.join("ur10e_lasttest.csv")).expect("data");
+        let ros = recording::read(&text).expect("recognised");
+        let times = recording::source_times(&ros, None);
+        let settings = ReplaySettings {
+            zenoh: ZenohSection {
+                mode: ZenohMode::Peer,
+                listen: Vec::new(),
+                connect: vec![h.endpoint.clone()],
+                file: None,
+                multicast_scouting: false,
+                cfg: Vec::new(),
+            },
+            key_prefix: "twin".to_owned(),
+            robot: "lasttest".to_owned(),
+            speed: None,
+        };
+        replay(&ros, &times, &settings, std::future::pending(), |_| {})
+            .await
+            .expect("replay");
+        h.receive_until("every row paired", |r| {
+            r.iter()
+                .rev()
+                .find(|(k, _)| k == "twin/metrics/lasttest")
+                .is_some_and(|(_, m)| m["paired"].as_u64() == Some(29_054))
+        })
+        .await;
+        // The fit of every pair offered (the reservoir skips pairs closer than 8 ms): the last
+        // fit has seen as many as the reservoir has.
+        let deadline = tokio::time::Instant::now() + RECEIVE_LIMIT;
+        let status = loop {
+            let status = h.get("twin/calibrate/lasttest", None).await;
+            let [Ok((_, status))] = status.as_slice() else {
+                panic!("one status: {status:?}");
+            };
+            if status["offered"].as_u64().is_some_and(|n| n > 5000)
+                && status["last"]["offered"] == status["offered"]
+                && status["fitting"] == false
+            {
+                break status.clone();
+            }
+            assert!(tokio::time::Instant::now() < deadline, "no final fit: {status}");
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        };
+        let offered = status["offered"].clone();
+        h.receive_until("the final estimate published", |r| {
+            r.iter()
+                .any(|(k, m)| k == "twin/calibration/lasttest" && m["offered"] == offered)
+        })
+        .await;
+        let pending = &status["pending"];
+        assert_eq!(pending["status"], "estimate", "{status}");
+        assert_eq!(status["epoch"], 0);
+        let current_mm = number(pending, &["current", "position_mae_mm"]);
+        let identified_mm = number(pending, &["identified", "position_mae_mm"]);
+        // The recording is rounded to 1 mm / 1 mrad: nominal DH is ~1 mm off, the rounding
+        // floor ~0.5 mm (see `armtwin calibrate` on the same file).
+        assert!(current_mm > 0.9 && identified_mm < 0.75, "held out: {current_mm} mm → {identified_mm} mm");
+        assert!(number(pending, &["improvement"]) > 1.3);
+        assert!(pending["held_out_pairs"].as_u64().unwrap_or(0) >= 400);
+        assert!(pending["calibration_conf"].as_str().is_some_and(|c| c.contains("delta_d")));
+        apply_then_fk_and_ik_answer_with_the_estimate(&mut h).await;
+        h.stop().await;
+    })
+    .await
+    .expect("test finished in time");
+}
+
+/// Applies `lasttest`'s pending estimate; checks the epoch, and that FK and IK use it.
+async fn apply_then_fk_and_ik_answer_with_the_estimate(h: &mut Harness) {
+    // Applying starts epoch 1: the old epoch's final metrics, an `epoch` event, the twin's
+    // model replaced (FK and IK answer with it).
+    let q = [0.3, -1.2, 1.1, -1.4, -1.5, 0.2];
+    let fk_before = h.get("twin/fk/lasttest", Some(json!({ "q": q }))).await;
+    let applied = h.get("twin/calibrate/lasttest?action=apply", None).await;
+    let [Ok((_, applied))] = applied.as_slice() else {
+        panic!("apply answered: {applied:?}");
+    };
+    assert_eq!(applied["epoch"], 1, "{applied}");
+    assert_eq!(applied["calibration"], "self-calibration");
+    assert!(applied["pending"].is_null());
+    h.receive_until("the epoch event", |r| {
+        r.iter()
+            .any(|(k, m)| k == "twin/events/lasttest" && m["kind"] == "epoch")
+    })
+    .await;
+    let event = h
+        .on("twin/events/lasttest")
+        .into_iter()
+        .find(|m| m["kind"] == "epoch")
+        .expect("epoch");
+    assert_eq!(event["detail"]["epoch"], 1);
+    let again = h.get("twin/calibrate/lasttest?action=apply", None).await;
+    assert!(
+        matches!(again.as_slice(), [Err(_)]),
+        "nothing left to apply: {again:?}"
+    );
+    let fk_after = h.get("twin/fk/lasttest", Some(json!({ "q": q }))).await;
+    let (Ok((_, before)), Ok((_, after))) = (&fk_before[0], &fk_after[0]) else {
+        panic!("fk answered: {fk_before:?} {fk_after:?}");
+    };
+    let moved_m = ["x", "y", "z"]
+        .map(|k| number(before, &[k]) - number(after, &[k]))
+        .iter()
+        .map(|d| d * d)
+        .sum::<f64>()
+        .sqrt();
+    assert!(
+        moved_m > 1e-4 && moved_m < 0.02,
+        "the calibrated FK moved the TCP by {moved_m} m"
+    );
+    // IK with the applied model inverts its FK.
+    let pose = ["x", "y", "z", "qx", "qy", "qz", "qw"].map(|k| number(after, &[k]));
+    let ik = h
+        .get("twin/ik/lasttest", Some(json!({ "pose": pose, "seed": q })))
+        .await;
+    let [Ok((_, ik))] = ik.as_slice() else {
+        panic!("ik answered: {ik:?}");
+    };
+    let nearest = &ik["solutions"][0];
+    for (i, expected) in q.iter().enumerate() {
+        let got = nearest["q"][i].as_f64().expect("angle");
+        assert!(
+            (got - expected).abs() < 1e-9,
+            "joint {i}: {got} vs {expected}"
+        );
+    }
+    let bad = h
+        .get("twin/ik/lasttest", Some(json!({ "pose": [1.0] })))
+        .await;
+    assert!(
+        matches!(bad.as_slice(), [Err(e)] if e["error"].as_str().is_some_and(|e| e.contains("7 values"))),
+        "{bad:?}"
+    );
+    let unknown = h.get("twin/calibrate/lasttest?action=undo", None).await;
+    assert!(matches!(unknown.as_slice(), [Err(_)]), "{unknown:?}");
 }

@@ -26,6 +26,7 @@ fn settings() -> RobotSettings {
         model: Arc::new(RobotModel::nominal("ur10e").expect("catalog")),
         alarm: AlarmConfig::default(),
         sensors: Vec::new(),
+        self_calibration: None,
     }
 }
 

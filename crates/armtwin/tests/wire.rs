@@ -647,6 +647,7 @@ fn snapshot() -> MetricsSnapshot {
         cumulative: stats_set(10, 0.0),
         window: stats_set(4, 100.0),
         window_s: 5.0,
+        epoch: 0,
     }
 }
 
@@ -802,6 +803,11 @@ fn event_message_fields() {
             },
             vec!["cause", "measured_s"],
         ),
+        (
+            EventKind::Epoch,
+            EventDetail::Epoch { epoch: 1 },
+            vec!["epoch"],
+        ),
     ];
     for (kind, detail, detail_fields) in details {
         let event = Event {
@@ -839,6 +845,7 @@ fn metrics_message_fields() {
             "paired",
             "unpaired",
             "rejected",
+            "epoch",
             "cumulative",
             "window"
         ])
@@ -995,18 +1002,19 @@ mod fixed_layout {
         fn a_metrics_message_is_written_as_serde_json_writes_it(
             robot in any_robot(),
             t in any_f64(),
-            counts in prop::array::uniform3(any::<u64>()),
+            counts in prop::array::uniform4(any::<u64>()),
             cumulative in any_stats_set(),
             seconds in any_f64(),
             window in any_stats_set(),
         ) {
-            let [paired, unpaired, rejected] = counts;
+            let [paired, unpaired, rejected, epoch] = counts;
             let message = MetricsMessage {
                 robot,
                 t,
                 paired,
                 unpaired,
                 rejected,
+                epoch,
                 cumulative,
                 window: WindowJson { seconds, stats: window },
             };

@@ -28,6 +28,8 @@ pub enum EventKind {
     /// The gateway's clock went back by more than `restart_s`: alignment and the metrics window
     /// started afresh.
     Restart,
+    /// The robot's model was replaced (a calibration applied): a new metrics epoch began.
+    Epoch,
 }
 
 impl EventKind {
@@ -41,6 +43,7 @@ impl EventKind {
             Self::Gap => "gap",
             Self::Unpaired => "unpaired",
             Self::Restart => "restart",
+            Self::Epoch => "epoch",
         }
     }
 }
@@ -167,6 +170,11 @@ pub enum EventDetail {
         /// The measured pose's stamp (s).
         measured_s: f64,
     },
+    /// A metrics epoch began.
+    Epoch {
+        /// Its number (0 is the start).
+        epoch: u64,
+    },
 }
 
 /// What an event's sentence says beyond its [`EventDetail`]: the settings and values that
@@ -230,6 +238,11 @@ pub enum Reason<'a> {
         reason: UnpairedReason,
         /// The alignment limits the reason refers to.
         align: AlignConfig,
+    },
+    /// The robot's model was replaced.
+    ModelReplaced {
+        /// The calibration's source name (a file, `self-calibration`).
+        source: &'a str,
     },
 }
 
@@ -331,6 +344,11 @@ impl fmt::Display for Event<'_> {
                     reason.describe(&align)
                 )
             }
+            (Reason::ModelReplaced { source }, EventDetail::Epoch { epoch }) => write!(
+                f,
+                "model replaced by the calibration from {source}: metrics epoch {epoch} begins, \
+                 counters and statistics start afresh"
+            ),
             // A reason made for another kind of detail: the kind at least.
             (_, EventDetail::Rejected { cause }) => write!(f, "rejected: {cause}"),
             _ => f.write_str(self.kind.as_str()),
@@ -513,6 +531,18 @@ mod tests {
                     "measured pose at t = 2.5 s unpaired: {}",
                     UnpairedReason::WaitExpired.describe(&align)
                 ),
+            ),
+            (
+                event(
+                    EventKind::Epoch,
+                    EventDetail::Epoch { epoch: 2 },
+                    Reason::ModelReplaced {
+                        source: "self-calibration",
+                    },
+                ),
+                "model replaced by the calibration from self-calibration: metrics epoch 2 begins, \
+                 counters and statistics start afresh"
+                    .to_owned(),
             ),
         ];
         for (event, sentence) in cases {

@@ -1420,6 +1420,7 @@ impl EventMessage {
             EventDetail::Unpaired { cause, measured_s } => {
                 json!({ "cause": cause, "measured_s": measured_s })
             }
+            EventDetail::Epoch { epoch } => json!({ "epoch": epoch }),
         };
         Self {
             robot: event.robot.to_owned(),
@@ -1537,7 +1538,7 @@ pub struct WindowJson {
     pub stats: StatsSetJson,
 }
 
-/// A robot's metrics: `{robot, t, paired, unpaired, rejected, cumulative, window}`.
+/// A robot's metrics: `{robot, t, paired, unpaired, rejected, epoch, cumulative, window}`.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct MetricsMessage {
     /// Robot id.
@@ -1550,6 +1551,8 @@ pub struct MetricsMessage {
     pub unpaired: u64,
     /// Inputs rejected.
     pub rejected: u64,
+    /// The metrics epoch (one more each time the robot's model was replaced).
+    pub epoch: u64,
     /// Since start or the last reset.
     pub cumulative: StatsSetJson,
     /// Over the sliding window.
@@ -1566,6 +1569,7 @@ impl MetricsMessage {
             paired: snapshot.paired,
             unpaired: snapshot.unpaired,
             rejected: snapshot.rejected,
+            epoch: snapshot.epoch,
             cumulative: StatsSetJson::from(&snapshot.cumulative),
             window: WindowJson {
                 seconds: snapshot.window_s,
@@ -1584,6 +1588,7 @@ impl MetricsMessage {
         object.unsigned("paired", self.paired);
         object.unsigned("unpaired", self.unpaired);
         object.unsigned("rejected", self.rejected);
+        object.unsigned("epoch", self.epoch);
         object.open("cumulative");
         self.cumulative.write_members(&mut object);
         object.close();

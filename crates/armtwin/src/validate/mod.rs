@@ -158,7 +158,8 @@ impl Sink for Collector {
             (EventKind::Gap, _) => self.events.gaps += 1,
             (EventKind::Unpaired, _) => self.events.unpaired += 1,
             (EventKind::Restart, _) => self.events.restarts += 1,
-            (EventKind::Rejected, _) => {}
+            // Validation never replaces its model.
+            (EventKind::Rejected | EventKind::Epoch, _) => {}
         }
     }
 
@@ -261,6 +262,7 @@ pub fn validate(
         cumulative: StatsSet::default(),
         window: StatsSet::default(),
         window_s: config.window_s,
+        epoch: 0,
     });
     Validation {
         format: recording.format,

@@ -2,12 +2,26 @@
 //! angles, measured TCP pose) samples in, `calibration.conf` deltas (and optionally the tool)
 //! out.
 //!
-//! Owns the damped least-squares fit (Levenberg–Marquardt with an analytic Jacobian of the
-//! standard-DH chain), the choice of an identifiable subset of parameters (pivoted Cholesky of
-//! the column-scaled normal matrix: the parallel axes of joints 2–4 make three `δd` one, and weak
-//! excitation makes more parameters indistinguishable), the robust (Huber) weighting of rows, the
-//! excitation check and the error figures of a model on samples. Pure and deterministic: the same
-//! samples give the same estimate; no I/O, no clock.
+//! Owns the damped least-squares fit (Levenberg–Marquardt with an analytic Jacobian), the choice
+//! of an identifiable subset of parameters (pivoted Cholesky of the column-scaled normal matrix:
+//! weak excitation makes parameters indistinguishable), the robust (Huber) weighting of rows, the
+//! excitation check, the exact conversion of the fitted chain to `calibration.conf`'s deltas and
+//! the error figures of a model on samples. Pure and deterministic: the same samples give the
+//! same estimate; no I/O, no clock.
+//!
+//! The fit is not done in `calibration.conf`'s own form. Axes 2–4 of a UR arm are nominally
+//! parallel; a real arm's are slightly skew, and standard DH puts the common normal of two
+//! nearly parallel axes hundreds of metres away (the controller's files carry `δd` of that size,
+//! cancelling along the three axes). Small steps from the nominal table cannot reach that point,
+//! and at nominal the three `δd` are one translation. So joints whose axis is nominally parallel
+//! to the next (joints 2 and 3) are fitted in Hayati's form, `Rz(q + θ) · Tx(a) · Rx(α) · Ry(β)`:
+//! a tilt `β` about the link's y axis in place of `δd`, well conditioned for parallel and skew
+//! axes alike. The fitted chain is then rewritten in standard DH: for each pair of consecutive
+//! axes their common normal gives `θ`, `d`, `a` and `α`; base and flange stay what UR defines
+//! (frame 0 is the base, whose z axis is joint 1's; the flange is the last DH frame). FK with
+//! the written deltas equals the fitted chain's to rounding.
+
+use std::f64::consts::TAU;
 
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 use thiserror::Error;
@@ -74,16 +88,23 @@ pub enum ParameterKind {
     DeltaD,
     /// `delta_alpha` of a joint (rad).
     DeltaAlpha,
+    /// Hayati's `β` of a joint whose axis is nominally parallel to the next: the link's tilt
+    /// about its own y axis (rad), fitted in place of `delta_d`.
+    Tilt,
     /// Tool position along a flange axis (m).
     ToolPosition,
     /// Tool rotation about a flange axis (rad).
     ToolRotation,
 }
 
-/// One parameter's estimate.
+/// One parameter's estimate, in the fit's own form (the module doc): small deltas to the nominal
+/// table, with a tilt `beta[j]` in place of `delta_d[j]` at joints whose axis is nominally
+/// parallel to the next. [`Identification::deltas`] holds the same chain in `calibration.conf`'s
+/// form, whose `δθ` and `δd` at skew axes can be far larger than these.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ParameterEstimate {
-    /// `delta_d[2]` (0-based joint, as in `calibration.conf`'s lists), `tool_x`, `tool_rz`.
+    /// `delta_theta[1]`, `beta[2]` (0-based joint, as in `calibration.conf`'s lists), `tool_x`,
+    /// `tool_rz`.
     pub name: String,
     /// Its kind.
     pub kind: ParameterKind,
@@ -111,11 +132,13 @@ pub struct Excitation {
 /// The result of a fit.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Identification {
-    /// The identified deltas, in `calibration.conf`'s form.
+    /// The identified chain as `calibration.conf` deltas to the nominal table: FK with them is
+    /// the fitted chain's FK (skew axes give `δd` of up to hundreds of metres, as the
+    /// controller's own files have).
     pub deltas: MountingDeltas,
     /// The tool (fitted, or the one given).
     pub tool: TcpOffset,
-    /// Every candidate parameter, identified or fixed.
+    /// Every candidate parameter of the fit, identified or fixed.
     pub parameters: Vec<ParameterEstimate>,
     /// Excitation figures.
     pub excitation: Excitation,
@@ -171,13 +194,30 @@ const JOINT_KINDS: [ParameterKind; 4] = [
     ParameterKind::DeltaAlpha,
 ];
 
-/// Candidate parameters: per joint `δθ, δa, δd, δα` (index `4·joint + kind`), then the tool's
-/// `x, y, z, rx, ry, rz` when fitted.
-fn parameter_name(index: usize) -> (String, ParameterKind) {
+/// `|sin α|` of a nominal link below which its joint's axis counts as parallel to the next.
+const NOMINALLY_PARALLEL_SIN: f64 = 1e-9;
+
+/// `|sin|` of the angle between two consecutive axes below which the conversion to DH takes them
+/// as parallel (the common normal through the frame's origin, `d = 0`). Below it, the tilt left
+/// out moves the flange by at most this times the arm's reach; above it, the common normal lies
+/// `offset / sin` away and FK through that `d` rounds to about `1e-16 · offset / sin`. Both are
+/// tens of nanometres at the threshold; at real skews (~1e-3) the rounding is ~1e-13 m.
+const PARALLEL_SIN: f64 = 1e-8;
+
+/// Candidate parameters: per joint `δθ, δa, δd (or β where tilted), δα` (index
+/// `4·joint + kind`), then the tool's `x, y, z, rx, ry, rz` when fitted.
+fn parameter_name(index: usize, tilted: [bool; 6]) -> (String, ParameterKind) {
     if index < 24 {
-        let kind = JOINT_KINDS[index % 4];
-        let key = ["delta_theta", "delta_a", "delta_d", "delta_alpha"][index % 4];
-        (format!("{key}[{}]", index / 4), kind)
+        let joint = index / 4;
+        let (key, kind) = if index % 4 == 2 && tilted[joint] {
+            ("beta", ParameterKind::Tilt)
+        } else {
+            (
+                ["delta_theta", "delta_a", "delta_d", "delta_alpha"][index % 4],
+                JOINT_KINDS[index % 4],
+            )
+        };
+        (format!("{key}[{joint}]"), kind)
     } else {
         let k = index - 24;
         let name = [
@@ -192,32 +232,45 @@ fn parameter_name(index: usize) -> (String, ParameterKind) {
     }
 }
 
-/// The state being fitted: the DH table and the tool.
+/// One link of the fitted chain: `Rz(q + θ) · Tz(d) · Tx(a) · Rx(α)`, followed by `Ry(β)` when
+/// `tilt_rad` is given (Hayati's form; `d` then stays at its nominal value).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct FitLink {
+    dh: DhParameters,
+    tilt_rad: Option<f64>,
+}
+
+/// The state being fitted: the chain's deltas and the tool.
 #[derive(Debug, Clone)]
 struct State {
     nominal: [DhParameters; 6],
+    /// Joints fitted in Hayati's form (their axis is nominally parallel to the next).
+    tilted: [bool; 6],
+    /// Per joint `δθ, δa, δd (or β where tilted), δα`.
     deltas: [f64; 24],
     tool_position_m: Vector3<f64>,
     tool_rotation: Matrix3<f64>,
 }
 
 impl State {
-    fn table(&self) -> [DhParameters; 6] {
-        std::array::from_fn(|i| DhParameters {
-            theta_offset_rad: self.nominal[i].theta_offset_rad + self.deltas[4 * i],
-            a_m: self.nominal[i].a_m + self.deltas[4 * i + 1],
-            d_m: self.nominal[i].d_m + self.deltas[4 * i + 2],
-            alpha_rad: self.nominal[i].alpha_rad + self.deltas[4 * i + 3],
+    fn links(&self) -> [FitLink; 6] {
+        std::array::from_fn(|i| {
+            let nominal = self.nominal[i];
+            let third = self.deltas[4 * i + 2];
+            FitLink {
+                dh: DhParameters {
+                    theta_offset_rad: nominal.theta_offset_rad + self.deltas[4 * i],
+                    a_m: nominal.a_m + self.deltas[4 * i + 1],
+                    d_m: nominal.d_m + if self.tilted[i] { 0.0 } else { third },
+                    alpha_rad: nominal.alpha_rad + self.deltas[4 * i + 3],
+                },
+                tilt_rad: self.tilted[i].then_some(third),
+            }
         })
     }
 
     fn mounting_deltas(&self) -> MountingDeltas {
-        MountingDeltas {
-            delta_theta_rad: std::array::from_fn(|i| self.deltas[4 * i]),
-            delta_a_m: std::array::from_fn(|i| self.deltas[4 * i + 1]),
-            delta_d_m: std::array::from_fn(|i| self.deltas[4 * i + 2]),
-            delta_alpha_rad: std::array::from_fn(|i| self.deltas[4 * i + 3]),
-        }
+        mounting_deltas_of(&self.links(), &self.nominal)
     }
 
     fn tool(&self) -> TcpOffset {
@@ -241,45 +294,92 @@ impl State {
     }
 }
 
-/// FK of `table` and tool for `q`, with the Jacobian columns of every parameter (position and
-/// rotation rows, base frame): returns `(position, rotation, columns)`.
+/// The frames of a fitted chain at `q_rad`, base frame: origins and rotations of frames 0..=6
+/// (6: the flange), and each joint's x axis after its `Rz` (where `δa` and `δα` act).
+struct Frames {
+    origins: [Vector3<f64>; 7],
+    rotations: [Matrix3<f64>; 7],
+    x_axes: [Vector3<f64>; 6],
+}
+
+fn frames(links: &[FitLink; 6], q_rad: &[f64; 6]) -> Frames {
+    let mut origins = [Vector3::zeros(); 7];
+    let mut rotations = [Matrix3::identity(); 7];
+    let mut x_axes = [Vector3::zeros(); 6];
+    for (i, link) in links.iter().enumerate() {
+        (origins[i + 1], rotations[i + 1], x_axes[i]) =
+            through_link(&origins[i], &rotations[i], link, q_rad[i]);
+    }
+    Frames {
+        origins,
+        rotations,
+        x_axes,
+    }
+}
+
+/// The frame after `link` turned by `q_rad` from the frame at `origin` with `rotation`:
+/// `(origin, rotation, x axis after Rz)`.
+fn through_link(
+    origin: &Vector3<f64>,
+    rotation: &Matrix3<f64>,
+    link: &FitLink,
+    q_rad: f64,
+) -> (Vector3<f64>, Matrix3<f64>, Vector3<f64>) {
+    let row = &link.dh;
+    let (s, c) = (q_rad + row.theta_offset_rad).sin_cos();
+    let (sa, ca) = row.alpha_rad.sin_cos();
+    let x = rotation.column(0) * c + rotation.column(1) * s;
+    let y = rotation.column(1) * c - rotation.column(0) * s;
+    let z = rotation.column(2).into_owned();
+    let next_origin = origin + z * row.d_m + x * row.a_m;
+    let y_alpha = y * ca + z * sa;
+    let z_alpha = z * ca - y * sa;
+    let next_rotation = match link.tilt_rad {
+        Some(beta) => {
+            let (sb, cb) = beta.sin_cos();
+            Matrix3::from_columns(&[x * cb - z_alpha * sb, y_alpha, x * sb + z_alpha * cb])
+        }
+        None => Matrix3::from_columns(&[x, y_alpha, z_alpha]),
+    };
+    (next_origin, next_rotation, x)
+}
+
+/// FK of `links` and tool for `q`, with the Jacobian columns of every parameter (position and
+/// rotation rows, base frame) when `columns` has room for them: returns `(position, rotation)`.
 fn pose_and_jacobian(
-    table: &[DhParameters; 6],
+    links: &[FitLink; 6],
     tool_position_m: &Vector3<f64>,
     tool_rotation: &Matrix3<f64>,
     q_rad: &[f64; 6],
     columns: &mut [[f64; 6]],
 ) -> (Vector3<f64>, Matrix3<f64>) {
-    // Frames 0..=6: origin and rotation.
-    let mut origins = [Vector3::zeros(); 7];
-    let mut rotations = [Matrix3::identity(); 7];
-    // Frame i's x axis after joint i's Rz (before Rx(α)), and its origin: where δa and δα act.
-    let mut x_axes = [Vector3::zeros(); 6];
-    for (i, row) in table.iter().enumerate() {
-        let (s, c) = (q_rad[i] + row.theta_offset_rad).sin_cos();
-        let (sa, ca) = row.alpha_rad.sin_cos();
-        let r = rotations[i];
-        let x = r.column(0) * c + r.column(1) * s;
-        let y = r.column(1) * c - r.column(0) * s;
-        let z = r.column(2).into_owned();
-        origins[i + 1] = origins[i] + z * row.d_m + x * row.a_m;
-        x_axes[i] = x;
-        rotations[i + 1] = Matrix3::from_columns(&[x, y * ca + z * sa, z * ca - y * sa]);
-    }
+    let Frames {
+        origins,
+        rotations,
+        x_axes,
+    } = frames(links, q_rad);
     let flange = rotations[6];
     let position = origins[6] + flange * tool_position_m;
     let rotation = flange * tool_rotation;
     if columns.len() < 24 {
         return (position, rotation);
     }
-    for i in 0..6 {
+    for (i, link) in links.iter().enumerate() {
         let z = rotations[i].column(2).into_owned();
         let x = x_axes[i];
         let dtheta_p = z.cross(&(position - origins[i]));
         let dalpha_p = x.cross(&(position - origins[i + 1]));
         columns[4 * i] = [dtheta_p.x, dtheta_p.y, dtheta_p.z, z.x, z.y, z.z];
         columns[4 * i + 1] = [x.x, x.y, x.z, 0.0, 0.0, 0.0];
-        columns[4 * i + 2] = [z.x, z.y, z.z, 0.0, 0.0, 0.0];
+        columns[4 * i + 2] = if link.tilt_rad.is_some() {
+            // `Ry(β)` turns everything after it about the link's y axis (after `Rx(α)`, which
+            // `Ry` leaves in place) through the link's origin.
+            let y = rotations[i + 1].column(1).into_owned();
+            let dbeta_p = y.cross(&(position - origins[i + 1]));
+            [dbeta_p.x, dbeta_p.y, dbeta_p.z, y.x, y.y, y.z]
+        } else {
+            [z.x, z.y, z.z, 0.0, 0.0, 0.0]
+        };
         columns[4 * i + 3] = [dalpha_p.x, dalpha_p.y, dalpha_p.z, x.x, x.y, x.z];
     }
     if columns.len() == 30 {
@@ -290,6 +390,110 @@ fn pose_and_jacobian(
         }
     }
     (position, rotation)
+}
+
+/// `angle` taken into (−π, π].
+fn wrapped(angle_rad: f64) -> f64 {
+    angle_rad - TAU * (angle_rad / TAU).round()
+}
+
+/// The standard-DH table with the FK of `links` (any mix of DH and Hayati links).
+///
+/// Walks the fitted chain's axes at `q = 0`: frame 0 is the base (joint 1's axis is its z axis in
+/// both forms); for joints 1–5 the common normal of axis `i` and axis `i + 1` is frame `i`'s x
+/// axis, its foot on axis `i + 1` frame `i`'s origin, which fixes `θ`, `d`, `a` and `α`; the
+/// flange row takes the fitted flange frame as it is (its x axis is normal to axis 6 and its origin
+/// on a normal of it, as in every DH row). Each DH frame is advanced from the row just found, as
+/// FK does, so rounding does not accumulate along the chain. The sign of each common normal
+/// follows the fitted frame's x axis, so the table stays near the nominal one wherever the axes
+/// allow it.
+fn dh_table_of(links: &[FitLink; 6]) -> [DhParameters; 6] {
+    let fitted = frames(links, &[0.0; 6]);
+    let mut origin = Vector3::zeros();
+    let mut rotation = Matrix3::identity();
+    let mut rows = [DhParameters {
+        a_m: 0.0,
+        alpha_rad: 0.0,
+        d_m: 0.0,
+        theta_offset_rad: 0.0,
+    }; 6];
+    for (i, row) in rows.iter_mut().enumerate() {
+        let x = rotation.column(0).into_owned();
+        let z = rotation.column(2).into_owned();
+        let next = fitted.rotations[i + 1];
+        let z_next = next.column(2).into_owned();
+        let (d_m, x_next, a_m) = if i + 1 < links.len() {
+            let (d_m, mut x_next, mut a_m) =
+                common_normal(&origin, &x, &z, &fitted.origins[i + 1], &z_next);
+            if x_next.dot(&next.column(0)) < 0.0 {
+                x_next = -x_next;
+                a_m = -a_m;
+            }
+            (d_m, x_next, a_m)
+        } else {
+            let offset = fitted.origins[i + 1] - origin;
+            let x_flange = next.column(0);
+            let x_next = (x_flange - z * z.dot(&x_flange)).normalize();
+            (offset.dot(&z), x_next, offset.dot(&x_next))
+        };
+        *row = DhParameters {
+            theta_offset_rad: x.cross(&x_next).dot(&z).atan2(x.dot(&x_next)),
+            d_m,
+            a_m,
+            alpha_rad: z.cross(&z_next).dot(&x_next).atan2(z.dot(&z_next)),
+        };
+        let dh_link = FitLink {
+            dh: *row,
+            tilt_rad: None,
+        };
+        (origin, rotation, _) = through_link(&origin, &rotation, &dh_link, 0.0);
+    }
+    rows
+}
+
+/// The common normal of the axis of the frame at `origin` (axes `x`, `z`) and the axis through
+/// `point` along `direction` (unit vectors): `(d, normal, a)`, its foot on the first axis at
+/// `origin + d·z`, its direction and its signed length `a` along it to the second axis. Parallel
+/// axes (within [`PARALLEL_SIN`]) take the normal through `origin`; coincident ones the frame's
+/// own `x`.
+fn common_normal(
+    origin: &Vector3<f64>,
+    x: &Vector3<f64>,
+    z: &Vector3<f64>,
+    point: &Vector3<f64>,
+    direction: &Vector3<f64>,
+) -> (f64, Vector3<f64>, f64) {
+    let offset = point - origin;
+    let normal = z.cross(direction);
+    let sin_squared = normal.norm_squared();
+    if sin_squared > PARALLEL_SIN * PARALLEL_SIN {
+        // The closest points of the two lines, from `normal` itself rather than `1 − cos²`,
+        // which cancels for nearly parallel axes.
+        let d_m = offset.cross(direction).dot(&normal) / sin_squared;
+        let along_m = offset.cross(z).dot(&normal) / sin_squared;
+        let unit_normal = normal / sin_squared.sqrt();
+        let a_m = (offset + direction * along_m - z * d_m).dot(&unit_normal);
+        (d_m, unit_normal, a_m)
+    } else {
+        // Where the second axis crosses the plane normal to the first through `origin`.
+        let in_plane = offset - direction * (offset.dot(z) / direction.dot(z));
+        let a_m = in_plane.norm();
+        let unit_normal = if a_m > 0.0 { in_plane / a_m } else { *x };
+        (0.0, unit_normal, a_m)
+    }
+}
+
+/// `links` as `calibration.conf` deltas to `nominal`, angles taken within π of the nominal.
+fn mounting_deltas_of(links: &[FitLink; 6], nominal: &[DhParameters; 6]) -> MountingDeltas {
+    let rows = dh_table_of(links);
+    MountingDeltas {
+        delta_theta_rad: std::array::from_fn(|i| {
+            wrapped(rows[i].theta_offset_rad - nominal[i].theta_offset_rad)
+        }),
+        delta_a_m: std::array::from_fn(|i| rows[i].a_m - nominal[i].a_m),
+        delta_d_m: std::array::from_fn(|i| rows[i].d_m - nominal[i].d_m),
+        delta_alpha_rad: std::array::from_fn(|i| wrapped(rows[i].alpha_rad - nominal[i].alpha_rad)),
+    }
 }
 
 /// The normal equations of one pass over the samples, in base-frame residuals.
@@ -307,15 +511,10 @@ struct Normal {
 }
 
 /// Residual of each row (base frame, orientation weighted), without Jacobian.
-fn row_residual(
-    state: &State,
-    table: &[DhParameters; 6],
-    sample: &BaseSample,
-    weight: f64,
-) -> [f64; 6] {
+fn row_residual(state: &State, links: &[FitLink; 6], sample: &BaseSample, weight: f64) -> [f64; 6] {
     let mut none: [[f64; 6]; 0] = [];
     let (p, r) = pose_and_jacobian(
-        table,
+        links,
         &state.tool_position_m,
         &state.tool_rotation,
         &sample.q_rad,
@@ -369,14 +568,14 @@ fn normal_equations(
     threshold: f64,
     count: usize,
 ) -> Normal {
-    let table = state.table();
+    let links = state.links();
     let mut matrix = DMatrix::zeros(count, count);
     let mut gradient = DVector::zeros(count);
     let mut columns = vec![[0.0; 6]; count];
     let (mut cost, mut downweighted, mut weighted_squares) = (0.0, 0, 0.0);
     for sample in samples {
         let (p, r) = pose_and_jacobian(
-            &table,
+            &links,
             &state.tool_position_m,
             &state.tool_rotation,
             &sample.q_rad,
@@ -420,11 +619,11 @@ fn normal_equations(
 
 /// Robust threshold of the current residuals: `factor × median`, never below a micrometre.
 fn threshold_of(state: &State, samples: &[BaseSample], weight: f64, factor: f64) -> f64 {
-    let table = state.table();
+    let links = state.links();
     let norms = samples
         .iter()
         .map(|s| {
-            row_residual(state, &table, s, weight)
+            row_residual(state, &links, s, weight)
                 .iter()
                 .map(|v| v * v)
                 .sum::<f64>()
@@ -541,8 +740,12 @@ pub fn identify(
                 )),
         })
         .collect();
+    let nominal = geometry.dh();
     let mut state = State {
-        nominal: geometry.dh(),
+        nominal,
+        tilted: std::array::from_fn(|i| {
+            i + 1 < nominal.len() && nominal[i].alpha_rad.sin().abs() < NOMINALLY_PARALLEL_SIN
+        }),
         deltas: [0.0; 24],
         tool_position_m: Vector3::from(tool.position_m),
         tool_rotation: *tool.flange_from_tcp().rotation.matrix(),
@@ -658,7 +861,7 @@ pub fn identify(
     };
     let parameters = (0..count)
         .map(|k| {
-            let (name, kind) = parameter_name(k);
+            let (name, kind) = parameter_name(k, state.tilted);
             ParameterEstimate {
                 name,
                 kind,
@@ -751,4 +954,205 @@ pub fn holdout_start(len: usize, holdout_fraction: f64) -> usize {
     )]
     let held_out = (len as f64 * fraction).round() as usize;
     len - held_out.min(len)
+}
+
+#[cfg(test)]
+#[allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "a test that fails an expectation fails the test"
+)]
+mod tests {
+    use super::*;
+    use crate::kinematics::{Chain, DhConvention};
+    use crate::model::calibration::{Calibration, CalibrationForm};
+    use crate::model::catalog;
+    use std::f64::consts::PI;
+
+    fn ur10e() -> [DhParameters; 6] {
+        UrGeometry::from_arm(&catalog::arm("ur10e").unwrap())
+            .unwrap()
+            .dh()
+    }
+
+    /// Element `k` of a Weyl sequence in [−1, 1): evenly spread, deterministic test inputs.
+    fn spread(k: usize, stride: f64) -> f64 {
+        2.0 * (k as f64 * stride).fract() - 1.0
+    }
+
+    fn configurations(count: usize) -> impl Iterator<Item = [f64; 6]> {
+        const STRIDES: [f64; 6] = [
+            0.618_033_988_7,
+            0.414_213_562_4,
+            0.732_050_807_6,
+            0.236_067_977_5,
+            0.645_751_311_1,
+            0.162_277_660_2,
+        ];
+        (1..=count).map(|k| std::array::from_fn(|j| PI * spread(k, STRIDES[j])))
+    }
+
+    /// The UR10e's fitted chain with deltas of the given sizes; `skew_rad` the tilts (`α` and
+    /// `β`) of the nominally parallel axes.
+    fn state_with(seed: usize, skew_rad: f64) -> State {
+        let nominal = ur10e();
+        let tilted = [false, true, true, false, false, false];
+        let deltas = std::array::from_fn(|k| {
+            let v = spread(seed * 24 + k + 1, 0.754_877_666_2);
+            match (k % 4, tilted[k / 4]) {
+                (0, _) => 0.2 * v,
+                (1, _) | (2, false) => 0.02 * v,
+                (2 | 3, true) => skew_rad * v.signum() * (0.5 + 0.5 * v.abs()),
+                _ => 3e-3 * v,
+            }
+        });
+        State {
+            nominal,
+            tilted,
+            deltas,
+            tool_position_m: Vector3::zeros(),
+            tool_rotation: Matrix3::identity(),
+        }
+    }
+
+    fn fitted_pose(links: &[FitLink; 6], q: &[f64; 6]) -> (Vector3<f64>, Matrix3<f64>) {
+        pose_and_jacobian(links, &Vector3::zeros(), &Matrix3::identity(), q, &mut [])
+    }
+
+    /// The largest position (m) and rotation (Frobenius) difference between the chain of
+    /// `links` and FK with `deltas` on `nominal`.
+    fn largest_difference(
+        links: &[FitLink; 6],
+        nominal: &[DhParameters; 6],
+        deltas: &MountingDeltas,
+    ) -> (f64, f64) {
+        let chain = Chain::from_dh(DhConvention::Standard, &deltas.apply(nominal));
+        configurations(500).fold((0.0, 0.0), |(position, rotation), q| {
+            let (p, r) = fitted_pose(links, &q);
+            let pose = chain.pose_unchecked(&q);
+            (
+                f64::max(position, (pose.position_m - p).norm()),
+                f64::max(rotation, (pose.rotation - r).norm()),
+            )
+        })
+    }
+
+    #[test]
+    fn the_written_deltas_reproduce_the_fitted_chain_whatever_the_skew() {
+        // Real skews (~1e-3) put the common normals hundreds of metres away; 1e-12 and 0 take
+        // the parallel branch.
+        for skew_rad in [3e-3, 1e-4, 1e-6, 1e-12, 0.0] {
+            for seed in 0..4 {
+                let state = state_with(seed, skew_rad);
+                let links = state.links();
+                let deltas = mounting_deltas_of(&links, &state.nominal);
+                let (position_m, rotation) = largest_difference(&links, &state.nominal, &deltas);
+                assert!(
+                    position_m < 1e-9 && rotation < 1e-9,
+                    "skew {skew_rad:e}, seed {seed}: {position_m:e} m, {rotation:e}; {deltas:?}"
+                );
+                if skew_rad >= 1e-4 {
+                    let far = deltas.delta_d_m[1..4].iter().any(|d| d.abs() > 10.0);
+                    assert!(far, "skew {skew_rad:e}: {deltas:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_standard_dh_chain_is_written_as_its_own_table() {
+        // The example file's chain, given link by link in DH, comes back as the file's deltas:
+        // the common normals (and their signs) are the ones the controller writes.
+        let Calibration {
+            form: CalibrationForm::MountingDeltas(example),
+            ..
+        } = Calibration::parse(
+            include_str!("../../../config/examples/calibration.conf"),
+            "calibration.conf",
+        )
+        .unwrap()
+        else {
+            panic!("conf form");
+        };
+        let nominal = ur10e();
+        let rows = example.apply(&nominal);
+        let links: [FitLink; 6] = std::array::from_fn(|i| FitLink {
+            dh: rows[i],
+            tilt_rad: None,
+        });
+        let written = mounting_deltas_of(&links, &nominal);
+        for i in 0..6 {
+            let pairs = [
+                (
+                    written.delta_theta_rad[i],
+                    example.delta_theta_rad[i],
+                    1e-12,
+                ),
+                (written.delta_a_m[i], example.delta_a_m[i], 1e-12),
+                (written.delta_d_m[i], example.delta_d_m[i], 1e-9),
+                (
+                    written.delta_alpha_rad[i],
+                    example.delta_alpha_rad[i],
+                    1e-12,
+                ),
+            ];
+            for (got, want, tolerance) in pairs {
+                assert!(
+                    (got - want).abs() < tolerance,
+                    "joint {i}: {got} against {want}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_jacobian_columns_are_the_derivatives_of_the_pose() {
+        let mut state = state_with(2, 2e-3);
+        state.tool_position_m = Vector3::new(0.01, -0.02, 0.15);
+        state.tool_rotation =
+            orientation::matrix_from_rotation_vector(&Vector3::new(0.1, 0.2, -0.3));
+        let pose_of = |state: &State, q: &[f64; 6]| {
+            pose_and_jacobian(
+                &state.links(),
+                &state.tool_position_m,
+                &state.tool_rotation,
+                q,
+                &mut [],
+            )
+        };
+        for q in configurations(20) {
+            let mut columns = [[0.0; 6]; 30];
+            pose_and_jacobian(
+                &state.links(),
+                &state.tool_position_m,
+                &state.tool_rotation,
+                &q,
+                &mut columns,
+            );
+            for (k, column) in columns.iter().enumerate() {
+                let h = 1e-6;
+                let mut step = [0.0; 30];
+                step[k] = h;
+                let mut plus = state.clone();
+                plus.apply(&step);
+                step[k] = -h;
+                let mut minus = state.clone();
+                minus.apply(&step);
+                let (p_plus, r_plus) = pose_of(&plus, &q);
+                let (p_minus, r_minus) = pose_of(&minus, &q);
+                let dp = (p_plus - p_minus) / (2.0 * h);
+                let dr = orientation::rotation_vector_from_matrix(&(r_plus * r_minus.transpose()))
+                    / (2.0 * h);
+                let numeric = [dp.x, dp.y, dp.z, dr.x, dr.y, dr.z];
+                let error = (0..6)
+                    .map(|i| (numeric[i] - column[i]).abs())
+                    .fold(0.0, f64::max);
+                assert!(
+                    error < 1e-7,
+                    "{}: {column:?} against {numeric:?}",
+                    parameter_name(k, state.tilted).0
+                );
+            }
+        }
+    }
 }

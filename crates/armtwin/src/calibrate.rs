@@ -82,7 +82,7 @@ impl From<PoseErrors> for ErrorsJson {
 /// One parameter in the report.
 #[derive(Debug, Clone, Serialize)]
 pub struct ParameterJson {
-    /// `delta_d[2]`, `tool_x`, …
+    /// `delta_theta[1]`, `beta[2]`, `tool_x`, …
     pub name: String,
     /// Value (m or rad).
     pub value: f64,

@@ -199,6 +199,10 @@ pub fn joint_message(
 }
 
 /// A measured-pose message of `robot` from `stream`, arrived on `key`.
+#[allow(
+    clippy::too_many_arguments,
+    reason = "what `MeasuredMessage::decode` and `step` take, in one call"
+)]
 pub fn measured_message(
     pipeline: &mut Pipeline,
     robot: &Robot,

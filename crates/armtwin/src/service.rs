@@ -868,16 +868,15 @@ impl Declarer {
         stream: Stream,
         payload: Vec<u8>,
     ) -> bool {
-        let result = match outputs {
-            Some(outputs) => stream.publisher(outputs).put(payload).wait(),
-            None => {
-                let (congestion, encoding) = self.qos(stream);
-                self.session
-                    .put(self.key(stream.as_str(), robot), payload)
-                    .congestion_control(congestion)
-                    .encoding(encoding)
-                    .wait()
-            }
+        let result = if let Some(outputs) = outputs {
+            stream.publisher(outputs).put(payload).wait()
+        } else {
+            let (congestion, encoding) = self.qos(stream);
+            self.session
+                .put(self.key(stream.as_str(), robot), payload)
+                .congestion_control(congestion)
+                .encoding(encoding)
+                .wait()
         };
         if let Err(e) = &result {
             warn!(error = %e, %robot, stream = stream.as_str(), "publish failed");

@@ -169,7 +169,9 @@ pub struct LoadArgs {
     #[arg(long)]
     pub seq_file: Option<PathBuf>,
     /// A second session subscribes to the first robot's poses and sleeps this long (ms) in its
-    /// callback per pose; latencies are then those of the other robots only.
+    /// callback per pose; latencies are then those of the other robots only. Its link has a
+    /// 64 KiB receive buffer (a dashboard on a slow network), so that it fills in seconds, not
+    /// after the kernel has buffered megabytes.
     #[arg(long)]
     pub slow_subscriber_ms: Option<u64>,
 }
@@ -245,6 +247,8 @@ struct Replies {
     binary: bool,
     /// The pose key whose latencies are not recorded (the slow subscriber's robot).
     untimed_key: Option<String>,
+    /// Poses the slow subscriber received.
+    slow_poses: AtomicU64,
 }
 
 /// What a subscriber does with a reply.
@@ -404,6 +408,9 @@ pub struct LoadReport {
     pub memory: Option<Memory>,
     /// Replies over the whole run.
     pub totals: Counts,
+    /// Poses the slow subscriber received (`--slow-subscriber-ms`), of `totals.poses / robots`
+    /// or so sent to it: the difference was dropped for it.
+    pub slow_subscriber_poses: Option<u64>,
 }
 
 /// One robot's publishers and the reply keys it declared.
@@ -450,6 +457,7 @@ pub fn run(args: LoadArgs) -> Result<LoadReport, LoadError> {
         check: None,
         memory: None,
         totals: Counts::default(),
+        slow_subscriber_poses: None,
     };
     if let Some(base_robots) = load.args.memory_base_robots {
         report.memory = Some(load.memory(base_robots.clamp(1, robots))?);
@@ -476,6 +484,10 @@ pub fn run(args: LoadArgs) -> Result<LoadReport, LoadError> {
         }
     }
     report.totals = load.replies.counts();
+    report.slow_subscriber_poses = load
+        .slow
+        .as_ref()
+        .map(|_| load.replies.slow_poses.load(Ordering::Relaxed));
     load.save_seq()?;
     load.close();
     Ok(report)
@@ -520,6 +532,7 @@ impl Load {
             untimed_key: args
                 .slow_subscriber_ms
                 .map(|_| net::key(net::POSE, &net::robot_id(0))),
+            slow_poses: AtomicU64::new(0),
         });
         let mut streams: Vec<(&str, OnReply)> = vec![
             (net::POSE, Replies::pose),
@@ -545,11 +558,19 @@ impl Load {
         }
         let slow = match args.slow_subscriber_ms {
             Some(sleep_ms) => {
-                let slow_session = zenoh::open(net::config_of(&args.zenoh)?).wait()?;
+                let mut zenoh = args.zenoh.clone();
+                for endpoint in &mut zenoh.connect {
+                    endpoint.push_str("#so_rcvbuf=65536");
+                }
+                let slow_session = zenoh::open(net::config_of(&zenoh)?).wait()?;
                 let sleep = Duration::from_millis(sleep_ms);
+                let replies = replies.clone();
                 let subscriber = slow_session
                     .declare_subscriber(net::key(net::POSE, &net::robot_id(0)))
-                    .callback(move |_| thread::sleep(sleep))
+                    .callback(move |_| {
+                        thread::sleep(sleep);
+                        replies.slow_poses.fetch_add(1, Ordering::Relaxed);
+                    })
                     .wait()?;
                 Some((slow_session, subscriber))
             }

@@ -5,7 +5,8 @@
 //! `ingest::measured_message`), and the outputs encoded as the service encodes them (a pose and a
 //! deviation message). Also each part alone: decoding, encoding (the fixed-layout writer the
 //! service uses, and `serde_json` writing the same bytes, as the baseline), and a robot's metrics
-//! message.
+//! message; the binary messages (Zenoh's serialization) next to their JSON counterparts, decoded
+//! by armtwin's reader and by zenoh-ext's `z_deserialize`.
 //!
 //! `cargo bench -p armtwin-bench --bench ingest`
 #![allow(
@@ -15,14 +16,16 @@
 use std::hint::black_box;
 use std::time::{Duration, Instant};
 
-use armtwin::codec::{cdr, wire};
+use armtwin::codec::{PoseFields, cdr, wire, zser};
 use armtwin::kinematics::OutputFrame;
 use armtwin::metrics::Deviation;
 use armtwin::model::RobotModel;
 use armtwin::pipeline::{Discard, Sink};
 use armtwin_bench::fleet::robot_id;
 use armtwin_bench::ingest_fixture::{Encode, Load, RENDERED};
+use armtwin_bench::workload::Workload;
 use criterion::{Criterion, criterion_group, criterion_main};
+use zenoh::bytes::ZBytes;
 
 /// Time of `iterations` samples into fresh pipelines through `sink`.
 fn run(load: &Load, iterations: u64, sink: &mut impl Sink) -> Duration {
@@ -70,6 +73,7 @@ fn parts(c: &mut Criterion) {
     c.bench_function("decode/measured", |b| {
         b.iter(|| wire::decode_measured(black_box(measured.as_bytes())));
     });
+    binary_decoding(c);
     let model = RobotModel::nominal("ur10e").expect("catalog");
     let twin = model
         .pose(&[0.1, -1.2, 1.4, -0.3, 1.1, 0.5])
@@ -103,6 +107,44 @@ fn parts(c: &mut Criterion) {
             );
             message.to_json_bytes()
         });
+    });
+    c.bench_function("encode/pose_zser", |b| {
+        b.iter(|| zser::twin_pose_bytes(1000.25, 42, &PoseFields::from(black_box(&twin))));
+    });
+    c.bench_function("encode/deviation_zser", |b| {
+        b.iter(|| zser::deviation_bytes(1000.25, black_box(&deviation)));
+    });
+}
+
+/// The binary messages next to their JSON counterparts (same sample, same values): the joint
+/// message alone (`decode/joints`' content plus the schema's `seq`), also through zenoh-ext's
+/// `z_deserialize` (the same values into `Vec`s, no pose to build), and with its measured pose
+/// embedded; the measured pose alone.
+fn binary_decoding(c: &mut Criterion) {
+    let workload = Workload::ur10e().expect("the ur10e's payloads");
+    let binary = workload.joints_zser(7, 1000.07, 7, false);
+    c.bench_function("decode/joints_zser", |b| {
+        b.iter(|| zser::read_joints(black_box(&binary), 6));
+    });
+    let bytes = ZBytes::from(binary.clone());
+    c.bench_function("decode/joints_zenoh_ext", |b| {
+        b.iter(|| {
+            let values: (f64, Vec<f64>, u64, Vec<f64>) =
+                zenoh_ext::z_deserialize(black_box(&bytes)).expect("zenoh-ext reads its bytes");
+            values
+        });
+    });
+    let json = workload.joints_with_measured(7, 1000.07);
+    c.bench_function("decode/joints_with_measured", |b| {
+        b.iter(|| wire::decode_joints(black_box(json.as_bytes()), 6));
+    });
+    let binary = workload.joints_zser(7, 1000.07, 7, true);
+    c.bench_function("decode/joints_with_measured_zser", |b| {
+        b.iter(|| zser::read_joints(black_box(&binary), 6));
+    });
+    let binary = workload.measured_zser(7, 1000.07);
+    c.bench_function("decode/measured_zser", |b| {
+        b.iter(|| zser::read_measured(black_box(&binary)));
     });
 }
 

@@ -20,7 +20,7 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicIsize, AtomicUsize, Ordering};
 
 use armtwin::align::Aligner;
-use armtwin::ingest;
+use armtwin::ingest::{self, Codec};
 use armtwin::kinematics::PoseReadout;
 use armtwin::metrics::{CumulativeStats, Deviation, WindowStats};
 use armtwin::model::RobotModel;
@@ -126,6 +126,7 @@ fn feed(
                 pipeline,
                 robot,
                 &joint_key,
+                Codec::Json,
                 joints.as_bytes(),
                 || stamp_s,
                 &mut sink,
@@ -138,6 +139,7 @@ fn feed(
                 robot,
                 &measured_key,
                 MeasuredStream::Robot,
+                Codec::Json,
                 measured.as_bytes(),
                 || stamp_s,
                 &mut sink,

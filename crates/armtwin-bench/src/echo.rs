@@ -1,9 +1,10 @@
 //! `armtwin-bench echo`: the best plain-Zenoh echo of armtwin's message pattern, the baseline
 //! every armtwin figure is divided by.
 //!
-//! One wildcard subscriber per input stream republishes each payload unchanged, straight from
-//! Zenoh's receive callback (no queue, no thread hop, no decoding), through a publisher declared
-//! up front per robot: `joints/<robot>` → `pose/<robot>`, `measured/<robot>` → `deviation/<robot>`.
+//! One wildcard subscriber per input stream republishes each payload unchanged with its encoding
+//! (a JSON and a Zenoh-serialized load cost it the same, so it needs no encoding flag), straight
+//! from Zenoh's receive callback (no queue, no thread hop, no decoding), through a publisher
+//! declared up front per robot: `joints/<robot>` → `pose/<robot>`, `measured/<robot>` → `deviation/<robot>`.
 //! Each robot's input keys are declared (`declare_keyexpr`) so Zenoh caches their routes, as
 //! armtwin does; `--naive` leaves them undeclared to measure what that costs.
 //!
@@ -77,7 +78,10 @@ fn forward(routes: &Routes, input: &str, sample: &Sample) {
     let robot = net::robot_of(sample.key_expr().as_str(), input);
     if let Some(publisher) = robot.and_then(|robot| routes.get(robot)) {
         // Only fails when the session is closing.
-        let _ = publisher.put(sample.payload().clone()).wait();
+        let _ = publisher
+            .put(sample.payload().clone())
+            .encoding(sample.encoding().clone())
+            .wait();
     }
 }
 

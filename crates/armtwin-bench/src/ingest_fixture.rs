@@ -10,7 +10,7 @@
 use std::hint::black_box;
 
 use armtwin::codec::wire;
-use armtwin::ingest;
+use armtwin::ingest::{self, Codec};
 use armtwin::kinematics::{OutputFrame, PoseReadout};
 use armtwin::metrics::Deviation;
 use armtwin::pipeline::{
@@ -123,6 +123,7 @@ impl Load {
             &mut twin.pipeline,
             robot,
             &self.joint_key,
+            Codec::Json,
             joints.as_bytes(),
             || *stamp_s,
             sink,
@@ -138,6 +139,7 @@ impl Load {
             robot,
             &self.measured_key,
             MeasuredStream::Robot,
+            Codec::Json,
             measured.as_bytes(),
             || *stamp_s,
             sink,

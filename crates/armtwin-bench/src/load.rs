@@ -10,6 +10,12 @@
 //! It declares every key it publishes (through its publishers) and every reply key it receives
 //! (`declare_keyexpr`), so it does not pay Zenoh's per-key route computation itself.
 //!
+//! With `--encoding zenoh-serialized` the samples go out in Zenoh's serialization
+//! (`armtwin/joints/v1`, `armtwin/pose/v1`) and replies are read as binary (a twin pose's and an
+//! echoed joint message's first 8 bytes are both `t`). With `--slow-subscriber-ms` a second
+//! session subscribes to the first robot's poses and sleeps in its callback for each one, and
+//! only the other robots' poses are timed: what a slow dashboard costs everyone else.
+//!
 //! What it runs, in order, each optional: a latency run at a fixed moderate rate; the search for
 //! the highest sustained rate (doubling until a rate fails, then bisecting; a failed trial is run
 //! again before its rate counts as failed); a check at one fixed rate; or (alone) the memory
@@ -21,17 +27,20 @@
     reason = "a benchmark command's progress and report, on its terminal"
 )]
 
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::thread;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use armtwin::cli::ZenohArgs;
+use armtwin::codec::zser;
 use armtwin::service::ServiceError;
 use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 use zenoh::Wait;
+use zenoh::bytes::Encoding;
 use zenoh::key_expr::KeyExpr;
 use zenoh::pubsub::{Publisher, Subscriber};
 use zenoh::qos::CongestionControl;
@@ -63,6 +72,28 @@ pub enum Target {
     Echo,
     /// `armtwin serve`: twin poses, deviations, metrics and events.
     Armtwin,
+}
+
+/// The format of the samples sent (and of armtwin's poses and deviations).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum WireEncoding {
+    /// JSON objects.
+    #[default]
+    Json,
+    /// Zenoh's serialization with armtwin's schemas.
+    ZenohSerialized,
+}
+
+impl WireEncoding {
+    /// The command-line and configuration name.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Json => "json",
+            Self::ZenohSerialized => "zenoh-serialized",
+        }
+    }
 }
 
 /// `armtwin-bench load` arguments.
@@ -129,6 +160,20 @@ pub struct LoadArgs {
     /// Memory measurement: samples each robot sends.
     #[arg(long, default_value_t = 4)]
     pub memory_samples: u64,
+    /// The format of the samples (armtwin must be configured with the same `encoding`).
+    #[arg(long, value_enum, default_value_t = WireEncoding::Json)]
+    pub encoding: WireEncoding,
+    /// Binary messages carry a gateway `seq` that must keep increasing per robot over every
+    /// load process sent to one system under test: each robot's next `seq` is read from this
+    /// file at the start (if it exists) and written back at the end.
+    #[arg(long)]
+    pub seq_file: Option<PathBuf>,
+    /// A second session subscribes to the first robot's poses and sleeps this long (ms) in its
+    /// callback per pose; latencies are then those of the other robots only. Its link has a
+    /// 64 KiB receive buffer (a dashboard on a slow network), so that it fills in seconds, not
+    /// after the kernel has buffered megabytes.
+    #[arg(long)]
+    pub slow_subscriber_ms: Option<u64>,
 }
 
 /// Why the load generator failed.
@@ -149,6 +194,14 @@ pub enum LoadError {
     /// The system under test never answered.
     #[error("{0}")]
     NoAnswer(String),
+    /// The `seq` file could not be read or written.
+    #[error("seq file {path}: {detail}")]
+    SeqFile {
+        /// The file.
+        path: String,
+        /// What failed.
+        detail: String,
+    },
 }
 
 /// Reply counts.
@@ -190,6 +243,12 @@ struct Replies {
     /// Whether twin poses' latencies are being recorded.
     recording: AtomicBool,
     latencies_ns: Mutex<Vec<u64>>,
+    /// Replies are binary: the stamp is the first 8 bytes.
+    binary: bool,
+    /// The pose key whose latencies are not recorded (the slow subscriber's robot).
+    untimed_key: Option<String>,
+    /// Poses the slow subscriber received.
+    slow_poses: AtomicU64,
 }
 
 /// What a subscriber does with a reply.
@@ -220,12 +279,27 @@ impl Replies {
         }
     }
 
+    /// The stamp a reply carries back.
+    fn stamp_of(&self, sample: &Sample) -> Option<f64> {
+        let payload = sample.payload().to_bytes();
+        if self.binary {
+            payload.get(..8)?.try_into().ok().map(f64::from_le_bytes)
+        } else {
+            serde_json::from_slice::<Stamp>(&payload).ok().map(|s| s.t)
+        }
+    }
+
     fn pose(&self, sample: &Sample) {
         let now_ns = self.elapsed_ns();
-        if self.recording.load(Ordering::Relaxed)
-            && let Ok(stamp) = serde_json::from_slice::<Stamp>(&sample.payload().to_bytes())
+        let timed = self
+            .untimed_key
+            .as_deref()
+            .is_none_or(|key| sample.key_expr().as_str() != key);
+        if timed
+            && self.recording.load(Ordering::Relaxed)
+            && let Some(stamp_s) = self.stamp_of(sample)
         {
-            let latency_s = self.start_s + now_ns as f64 / 1e9 - stamp.t;
+            let latency_s = self.start_s + now_ns as f64 / 1e9 - stamp_s;
             self.latencies_ns
                 .lock()
                 .unwrap_or_else(PoisonError::into_inner)
@@ -334,6 +408,9 @@ pub struct LoadReport {
     pub memory: Option<Memory>,
     /// Replies over the whole run.
     pub totals: Counts,
+    /// Poses the slow subscriber received (`--slow-subscriber-ms`), of `totals.poses / robots`
+    /// or so sent to it: the difference was dropped for it.
+    pub slow_subscriber_poses: Option<u64>,
 }
 
 /// One robot's publishers and the reply keys it declared.
@@ -343,6 +420,8 @@ struct RobotKeys {
     _replies: Vec<KeyExpr<'static>>,
     /// Samples sent so far (which joint configuration comes next).
     next_seq: u64,
+    /// The next gateway `seq` of a binary message.
+    gateway_seq: u64,
     /// The last stamp sent (stamps increase strictly per robot).
     last_t_s: f64,
 }
@@ -354,6 +433,10 @@ struct Load {
     replies: Arc<Replies>,
     robots: Vec<RobotKeys>,
     subscribers: Vec<Subscriber<()>>,
+    /// The slow subscriber's session and subscriber.
+    slow: Option<(Session, Subscriber<()>)>,
+    /// Each robot's first gateway `seq` (from `--seq-file`).
+    seq_start: Vec<u64>,
     /// The next robot (round robin over all trials).
     cursor: usize,
     /// Replies already accounted to earlier trials.
@@ -374,6 +457,7 @@ pub fn run(args: LoadArgs) -> Result<LoadReport, LoadError> {
         check: None,
         memory: None,
         totals: Counts::default(),
+        slow_subscriber_poses: None,
     };
     if let Some(base_robots) = load.args.memory_base_robots {
         report.memory = Some(load.memory(base_robots.clamp(1, robots))?);
@@ -400,8 +484,23 @@ pub fn run(args: LoadArgs) -> Result<LoadReport, LoadError> {
         }
     }
     report.totals = load.replies.counts();
+    report.slow_subscriber_poses = load
+        .slow
+        .as_ref()
+        .map(|_| load.replies.slow_poses.load(Ordering::Relaxed));
+    load.save_seq()?;
     load.close();
     Ok(report)
+}
+
+/// Each robot's next gateway `seq`, as [`Load::save_seq`] wrote them.
+fn read_seq_file(path: &std::path::Path) -> Result<Vec<u64>, LoadError> {
+    let error = |detail: String| LoadError::SeqFile {
+        path: path.display().to_string(),
+        detail,
+    };
+    let text = std::fs::read_to_string(path).map_err(|e| error(e.to_string()))?;
+    serde_json::from_str(&text).map_err(|e| error(e.to_string()))
 }
 
 fn percentile_us(sorted_ns: &[u64], fraction: f64) -> f64 {
@@ -429,6 +528,11 @@ impl Load {
             last_ns: AtomicU64::new(0),
             recording: AtomicBool::new(false),
             latencies_ns: Mutex::new(Vec::new()),
+            binary: args.encoding == WireEncoding::ZenohSerialized,
+            untimed_key: args
+                .slow_subscriber_ms
+                .map(|_| net::key(net::POSE, &net::robot_id(0))),
+            slow_poses: AtomicU64::new(0),
         });
         let mut streams: Vec<(&str, OnReply)> = vec![
             (net::POSE, Replies::pose),
@@ -452,6 +556,30 @@ impl Load {
                     .wait()?,
             );
         }
+        let slow = match args.slow_subscriber_ms {
+            Some(sleep_ms) => {
+                let mut zenoh = args.zenoh.clone();
+                for endpoint in &mut zenoh.connect {
+                    endpoint.push_str("#so_rcvbuf=65536");
+                }
+                let slow_session = zenoh::open(net::config_of(&zenoh)?).wait()?;
+                let sleep = Duration::from_millis(sleep_ms);
+                let replies = replies.clone();
+                let subscriber = slow_session
+                    .declare_subscriber(net::key(net::POSE, &net::robot_id(0)))
+                    .callback(move |_| {
+                        thread::sleep(sleep);
+                        replies.slow_poses.fetch_add(1, Ordering::Relaxed);
+                    })
+                    .wait()?;
+                Some((slow_session, subscriber))
+            }
+            None => None,
+        };
+        let seq_start = match &args.seq_file {
+            Some(path) if path.exists() => read_seq_file(path)?,
+            _ => Vec::new(),
+        };
         Ok(Self {
             workload: Workload::ur10e()?,
             args,
@@ -459,14 +587,39 @@ impl Load {
             replies,
             robots: Vec::new(),
             subscribers,
+            slow,
+            seq_start,
             cursor: 0,
             accounted: Counts::default(),
         })
     }
 
+    /// Writes each robot's next gateway `seq` to `--seq-file`.
+    fn save_seq(&self) -> Result<(), LoadError> {
+        let Some(path) = &self.args.seq_file else {
+            return Ok(());
+        };
+        let next: Vec<u64> = (0..self.robots.len().max(self.seq_start.len()))
+            .map(|robot| match self.robots.get(robot) {
+                Some(keys) => keys.gateway_seq,
+                None => self.seq_start[robot],
+            })
+            .collect();
+        let error = |detail: String| LoadError::SeqFile {
+            path: path.display().to_string(),
+            detail,
+        };
+        let text = serde_json::to_string(&next).map_err(|e| error(e.to_string()))?;
+        std::fs::write(path, text).map_err(|e| error(e.to_string()))
+    }
+
     fn close(self) {
         drop(self.robots);
         drop(self.subscribers);
+        if let Some((slow_session, subscriber)) = self.slow {
+            drop(subscriber);
+            let _ = slow_session.close().wait();
+        }
         // Failing to close a session at exit changes nothing measured.
         let _ = self.session.close().wait();
     }
@@ -482,14 +635,21 @@ impl Load {
         };
         for index in self.robots.len()..count {
             let robot = net::robot_id(index);
-            let publisher = |stream: &str| {
+            let binary = self.args.encoding == WireEncoding::ZenohSerialized;
+            let publisher = |stream: &str, schema: &str| {
+                let encoding = if binary {
+                    Encoding::ZENOH_SERIALIZED.with_schema(schema)
+                } else {
+                    Encoding::APPLICATION_JSON
+                };
                 self.session
                     .declare_publisher(net::key(stream, &robot))
                     .congestion_control(CongestionControl::Block)
+                    .encoding(encoding)
                     .wait()
             };
-            let joints = publisher(net::JOINTS)?;
-            let measured = publisher(net::MEASURED)?;
+            let joints = publisher(net::JOINTS, zser::JOINTS_SCHEMA)?;
+            let measured = publisher(net::MEASURED, zser::POSE_SCHEMA)?;
             let replies = reply_streams
                 .iter()
                 .map(|stream| {
@@ -503,6 +663,7 @@ impl Load {
                 measured,
                 _replies: replies,
                 next_seq: 0,
+                gateway_seq: self.seq_start.get(index).copied().unwrap_or(0),
                 last_t_s: f64::NEG_INFINITY,
             });
         }
@@ -546,7 +707,22 @@ impl Load {
         keys.last_t_s = stamp_s;
         let seq = keys.next_seq;
         keys.next_seq += 1;
-        if self.args.embedded {
+        if self.args.encoding == WireEncoding::ZenohSerialized {
+            let gateway_seq = keys.gateway_seq;
+            keys.gateway_seq += 1;
+            let embedded = self.args.embedded;
+            keys.joints
+                .put(
+                    self.workload
+                        .joints_zser(seq, stamp_s, gateway_seq, embedded),
+                )
+                .wait()?;
+            if !embedded {
+                keys.measured
+                    .put(self.workload.measured_zser(seq, stamp_s))
+                    .wait()?;
+            }
+        } else if self.args.embedded {
             keys.joints
                 .put(self.workload.joints_with_measured(seq, stamp_s))
                 .wait()?;

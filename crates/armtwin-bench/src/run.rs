@@ -22,8 +22,8 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use serde::Serialize;
 
-use crate::fleet::service_config;
-use crate::load::{Latency, LoadReport, Target};
+use crate::fleet::service_config_encoded;
+use crate::load::{Latency, LoadReport, Target, WireEncoding};
 use crate::net;
 
 /// How long a system under test may take to listen.
@@ -83,6 +83,9 @@ pub struct RunArgs {
     /// as a joint and a measured message.
     #[arg(long)]
     pub embedded: bool,
+    /// The samples' format, and armtwin's poses' and deviations' (`[service] encoding`).
+    #[arg(long, value_enum, default_value_t = WireEncoding::Json)]
+    pub encoding: WireEncoding,
     /// The `armtwin` binary (default: next to this one).
     #[arg(long)]
     pub armtwin: Option<PathBuf>,
@@ -126,6 +129,8 @@ pub struct Settings {
     pub fleet_duration_s: f64,
     /// Measured poses embedded in the joint messages.
     pub embedded: bool,
+    /// The samples' format, and armtwin's poses' and deviations'.
+    pub encoding: WireEncoding,
 }
 
 impl Settings {
@@ -161,6 +166,7 @@ impl Settings {
             fleet_hz: pick(args.fleet_hz, 100.0, 10.0),
             fleet_duration_s: pick(args.fleet_duration, 10.0, 0.5),
             embedded: args.embedded,
+            encoding: args.encoding,
         }
     }
 }
@@ -420,8 +426,11 @@ impl Orchestrator {
         let port = free_port()?;
         let endpoint = net::loopback_endpoint(port);
         let config = self.work_dir.join(format!("armtwin-{robots}.toml"));
-        std::fs::write(&config, service_config(robots))
-            .with_context(|| format!("writing {}", config.display()))?;
+        std::fs::write(
+            &config,
+            service_config_encoded(robots, self.settings.encoding.as_str()),
+        )
+        .with_context(|| format!("writing {}", config.display()))?;
         let mut child = Command::new(&self.armtwin)
             .arg("serve")
             .arg("-c")
@@ -441,9 +450,17 @@ impl Orchestrator {
             Target::Echo => "echo",
             Target::Armtwin => "armtwin",
         };
+        // One file per system under test: binary messages' gateway `seq` goes on from one load
+        // process to the next.
+        let seq_file = self
+            .work_dir
+            .join(format!("seq-{target_name}-{}.json", sut.pid()));
         let output = Command::new(&self.bench)
             .args(["load", "-e", &sut.endpoint, "--target", target_name])
             .args(["--sut-pid", &sut.pid().to_string()])
+            .args(["--encoding", self.settings.encoding.as_str()])
+            .arg("--seq-file")
+            .arg(&seq_file)
             .args(extra)
             .stdin(Stdio::null())
             .stderr(Stdio::inherit())

@@ -1,7 +1,7 @@
 //! The messages of the load: joint samples and measured poses shaped exactly like the contract's
 //! (`docs/protocol.md`), as a gateway streaming an RTDE-like robot sends them.
 //!
-//! Owns the payload text; knows nothing of the network. The joint angles cycle through a few
+//! Owns the payloads, JSON text or Zenoh-serialized bytes; knows nothing of the network. The joint angles cycle through a few
 //! fixed configurations of a `ur10e`, and each measured pose is the nominal FK of its joint sample
 //! moved by half a millimetre: a realistic deviation that raises no alarm, so armtwin's outputs
 //! are exactly one pose and one deviation per sample plus its periodic metrics.
@@ -36,6 +36,10 @@ struct Configuration {
     joints_json: String,
     /// `"x":…,"qw":…` (no braces, no stamp).
     measured_fields: String,
+    /// The angles (rad).
+    q_rad: Vec<f64>,
+    /// The measured pose: `x, y, z` (m), `qx, qy, qz, qw`.
+    measured_values: [f64; 7],
 }
 
 /// The load's payloads.
@@ -75,6 +79,8 @@ impl Workload {
                 Ok(Configuration {
                     joints_json,
                     measured_fields,
+                    measured_values: [x + dx, y + dy, z + dz, qx, qy, qz, qw],
+                    q_rad,
                 })
             })
             .collect::<Result<_, KinematicsError>>()?;
@@ -114,6 +120,35 @@ impl Workload {
         text
     }
 
+    /// The joint message in Zenoh's serialization (`armtwin/joints/v1`):
+    /// `(t, q, seq, measured)`, `measured` the same sample's pose when `embedded`, else empty.
+    /// The schema's `seq` is required: the caller gives one that keeps increasing across load
+    /// processes.
+    #[must_use]
+    pub fn joints_zser(&self, sample: u64, stamp_s: f64, seq: u64, embedded: bool) -> Vec<u8> {
+        let configuration = self.configuration(sample);
+        let mut bytes = Vec::with_capacity(8 + 1 + 8 * 6 + 8 + 1 + 8 * 7);
+        bytes.extend_from_slice(&stamp_s.to_le_bytes());
+        push_f64s(&mut bytes, &configuration.q_rad);
+        bytes.extend_from_slice(&seq.to_le_bytes());
+        let measured: &[f64] = if embedded {
+            &configuration.measured_values
+        } else {
+            &[]
+        };
+        push_f64s(&mut bytes, measured);
+        bytes
+    }
+
+    /// The measured pose in Zenoh's serialization (`armtwin/pose/v1`): `(t, pose)`.
+    #[must_use]
+    pub fn measured_zser(&self, sample: u64, stamp_s: f64) -> Vec<u8> {
+        let mut bytes = Vec::with_capacity(8 + 1 + 8 * 7);
+        bytes.extend_from_slice(&stamp_s.to_le_bytes());
+        push_f64s(&mut bytes, &self.configuration(sample).measured_values);
+        bytes
+    }
+
     /// The measured pose that goes with the same sample: `{"t":…,"x":…,…,"qw":…}`.
     #[must_use]
     pub fn measured(&self, sample: u64, stamp_s: f64) -> String {
@@ -127,10 +162,18 @@ impl Workload {
     }
 }
 
+/// A sequence of fewer than 128 values: a one-byte LEB128 length, then the values.
+fn push_f64s(bytes: &mut Vec<u8>, values: &[f64]) {
+    bytes.push(values.len() as u8);
+    for value in values {
+        bytes.extend_from_slice(&value.to_le_bytes());
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use armtwin::codec::wire;
+    use armtwin::codec::{wire, zser};
 
     #[test]
     fn messages_decode_as_the_contract_says() {
@@ -158,6 +201,25 @@ mod tests {
                     .expect("joint message with its measured pose");
             assert_eq!(embedded.sample.q_rad, joints.sample.q_rad);
             assert_eq!(embedded.sample.measured, Some(measured.pose));
+            // The binary messages: zenoh-ext's bytes, and the same samples once decoded.
+            let configuration = workload.configuration(sample);
+            let binary = workload.joints_zser(sample, 1.25, 9, true);
+            let oracle = zenoh_ext::z_serialize(&(
+                1.25,
+                configuration.q_rad.clone(),
+                9_u64,
+                configuration.measured_values.to_vec(),
+            ));
+            assert_eq!(binary, oracle.to_bytes().as_ref());
+            let decoded = zser::read_joints(&binary, 6).expect("binary joint message");
+            assert_eq!(decoded.sample.q_rad, joints.sample.q_rad);
+            assert_eq!(decoded.sample.measured, Some(measured.pose));
+            let decoded = zser::read_joints(&workload.joints_zser(sample, 1.25, 9, false), 6)
+                .expect("binary joint message without measured pose");
+            assert_eq!(decoded.sample.measured, None);
+            let binary = zser::read_measured(&workload.measured_zser(sample, 1.25))
+                .expect("binary measured pose");
+            assert_eq!(binary.pose, measured.pose);
         }
     }
 }

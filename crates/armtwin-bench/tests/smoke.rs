@@ -107,3 +107,55 @@ fn a_quick_run_reports_every_figure_and_loses_nothing() {
     assert!(report["fleet"]["armtwin_sustained"].is_boolean());
     assert_eq!(report["memory"]["memory"]["robots"], 6);
 }
+
+/// Binary in and out: every reply of every load process comes back and armtwin raises no event,
+/// so each load process took up each robot's gateway `seq` where the one before left it.
+#[test]
+fn a_quick_zenoh_serialized_run_loses_nothing_and_raises_no_event() {
+    let bench = PathBuf::from(env!("CARGO_BIN_EXE_armtwin-bench"));
+    let armtwin = armtwin_binary(&bench);
+    let dir = tempfile::tempdir().expect("temporary directory");
+    let out = dir.path().join("bench.json");
+    let status = Command::new(&bench)
+        .arg("run")
+        .arg("--quick")
+        .args(["--encoding", "zenoh-serialized", "--robots", "2"])
+        .args(["--memory-robots", "0", "--fleet-duration", "0"])
+        .args([
+            "--start-rate",
+            "40",
+            "--max-rate",
+            "40",
+            "--duration",
+            "0.25",
+        ])
+        .args(["--latency-rate", "40", "--latency-duration", "0.25"])
+        .args(["--latency-rounds", "2"])
+        .arg("--armtwin")
+        .arg(&armtwin)
+        .arg("--out")
+        .arg(&out)
+        .status()
+        .expect("running armtwin-bench");
+    assert!(status.success(), "armtwin-bench run failed: {status}");
+    let report: Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).expect("bench.json")).expect("JSON");
+    assert_eq!(report["settings"]["encoding"], "zenoh-serialized");
+    let comparison = &report["by_robots"][0];
+    for system in ["echo", "armtwin"] {
+        let rounds = comparison[format!("{system}_latency")]["rounds"]
+            .as_array()
+            .expect("latency rounds");
+        assert_eq!(rounds.len(), 2);
+        assert!(number(&rounds[1], "/count") > 0.0, "{system}: poses timed");
+        for trial in comparison[system]["search"]["trials"]
+            .as_array()
+            .expect("trials")
+            .iter()
+            .chain(rounds.iter().map(|round| &round["trial"]))
+        {
+            assert_eq!(trial["lost"], 0, "{system}: {trial:#}");
+        }
+    }
+    assert_eq!(comparison["armtwin"]["totals"]["events"], 0);
+}

@@ -267,15 +267,30 @@ impl ZenohSection {
     }
 }
 
-/// What to do when an output cannot be sent as fast as it is produced.
+/// What to do when a pose or deviation cannot be sent to a subscriber as fast as it is produced
+/// (metrics and events always wait: they are few, and must not be lost).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
 pub enum Congestion {
-    /// Wait (nothing is lost; a slow subscriber slows the twin, and through it the gateways).
-    #[default]
+    /// Wait: nothing is lost, and a slow subscriber slows the twin and, through it, every
+    /// gateway.
     Block,
-    /// Drop the output (the twin never waits; a slow subscriber misses messages).
+    /// Drop the message for the congested subscriber only: the twin never waits for it, other
+    /// subscribers get every message, and the congested one sees a gap in the pose `seq`.
+    #[default]
     Drop,
+}
+
+/// The format of the pose and deviation outputs (metrics, events and query replies are JSON).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum OutputEncoding {
+    /// JSON objects (`application/json`).
+    #[default]
+    Json,
+    /// Zenoh's own serialization (`zenoh/serialized;armtwin/twin-pose/v1`,
+    /// `zenoh/serialized;armtwin/deviation/v1`).
+    ZenohSerialized,
 }
 
 #[derive(Debug, Deserialize)]
@@ -286,7 +301,8 @@ struct ServiceSection {
     window_s: f64,
     window_max_samples: usize,
     reject_unknown: bool,
-    congestion: Congestion,
+    encoding: OutputEncoding,
+    pose_congestion: Congestion,
     events_per_s: f64,
     events_burst: u32,
 }
@@ -300,7 +316,8 @@ impl Default for ServiceSection {
             window_s: pipeline.window_s,
             window_max_samples: pipeline.window_max_samples,
             reject_unknown: false,
-            congestion: Congestion::Block,
+            encoding: OutputEncoding::Json,
+            pose_congestion: Congestion::Drop,
             events_per_s: EventBudget::default().per_s,
             events_burst: EventBudget::default().burst,
         }
@@ -387,8 +404,10 @@ pub struct ServiceConfig {
     pub key_prefix: String,
     /// Period of metrics publication while data flows.
     pub metrics_period: Duration,
-    /// Congestion policy of every output.
-    pub congestion: Congestion,
+    /// The format of the pose and deviation outputs.
+    pub encoding: OutputEncoding,
+    /// Congestion policy of the pose and deviation outputs (metrics and events block).
+    pub pose_congestion: Congestion,
     /// How many events per robot are published.
     pub event_budget: EventBudget,
     /// Reject robots that are not configured (else they get `[robots.default]`).
@@ -463,7 +482,8 @@ impl ServiceConfig {
             zenoh,
             key_prefix: service.key_prefix,
             metrics_period: Duration::from_millis(service.metrics_period_ms),
-            congestion: service.congestion,
+            encoding: service.encoding,
+            pose_congestion: service.pose_congestion,
             event_budget: EventBudget {
                 per_s: service.events_per_s,
                 burst: service.events_burst,

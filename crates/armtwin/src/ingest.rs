@@ -8,6 +8,9 @@
 //! [`MeasuredMessage::step`]) is the only part that touches the twin. [`joint_message`] and
 //! [`measured_message`] do both.
 //!
+//! The decoder is chosen per message ([`Codec`]): armtwin's JSON, or Zenoh's own serialization
+//! with one of armtwin's schemas ([`zser`]), as the sample's encoding says.
+//!
 //! A message that does not decode becomes one rejection (an event and a count) at the best stamp
 //! it offers; an invalid embedded `measured` part is rejected on its own while the joints it came
 //! with still yield their pose. Must not know the network or the filesystem: callers pass the key
@@ -15,9 +18,74 @@
 //! transport's or the arrival time, read only then; or the recording's). Nothing is logged here:
 //! the sink reports each rejection once.
 
-use crate::codec::wire::{self, DecodedJoints, WireError};
+use std::borrow::Cow;
+use std::sync::LazyLock;
+
+use zenoh::bytes::Encoding;
+
+use crate::codec::wire::{self, DecodedJoints, Undecodable, WireError};
+use crate::codec::zser;
 use crate::pipeline::{self, MeasuredStream, Pipeline, Robot, Sink};
 use crate::sample::MeasuredSample;
+
+/// How a message's payload is decoded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Codec {
+    /// armtwin's JSON messages ([`wire`]).
+    Json,
+    /// Zenoh's own serialization ([`zser`]) with the schema the encoding names; `None` for a
+    /// schema armtwin does not read (or none), which is rejected.
+    ZenohSerialized(Option<zser::Schema>),
+}
+
+/// `zenoh/serialized;armtwin/joints/v1`, built once: comparing with it needs no allocation.
+static JOINTS_ENCODING: LazyLock<Encoding> =
+    LazyLock::new(|| Encoding::ZENOH_SERIALIZED.with_schema(zser::JOINTS_SCHEMA));
+/// `zenoh/serialized;armtwin/pose/v1`.
+static POSE_ENCODING: LazyLock<Encoding> =
+    LazyLock::new(|| Encoding::ZENOH_SERIALIZED.with_schema(zser::POSE_SCHEMA));
+
+impl Codec {
+    /// The codec of a sample's encoding: `zenoh/serialized` (with its schema) is Zenoh's
+    /// serialization; any other encoding, the default `zenoh/bytes` included, is JSON, so a
+    /// gateway that sets none keeps working.
+    #[must_use]
+    pub fn from_encoding(encoding: &Encoding) -> Self {
+        if *encoding == *JOINTS_ENCODING {
+            return Self::ZenohSerialized(Some(zser::Schema::Joints));
+        }
+        if *encoding == *POSE_ENCODING {
+            return Self::ZenohSerialized(Some(zser::Schema::Pose));
+        }
+        if *encoding == Encoding::ZENOH_SERIALIZED {
+            return Self::ZenohSerialized(None);
+        }
+        // Allocates only for an encoding with a schema, which JSON gateways rarely set.
+        let text = Cow::<str>::from(encoding);
+        match text.strip_prefix("zenoh/serialized;") {
+            Some(schema) => Self::ZenohSerialized(zser::Schema::from_name(schema)),
+            None => Self::Json,
+        }
+    }
+
+    /// The stamp a message of this codec offers without being decoded.
+    fn stamp_hint(self, payload: &[u8]) -> Option<f64> {
+        match self {
+            Self::Json => wire::stamp_hint(payload),
+            Self::ZenohSerialized(_) => zser::stamp_hint(payload),
+        }
+    }
+
+    /// The error of a `zenoh/serialized` message on a key that takes `expected`.
+    fn wrong_schema(self, payload: &[u8], expected: zser::Schema) -> Undecodable {
+        Undecodable {
+            error: WireError::Schema {
+                expected: expected.as_str(),
+            },
+            stamp_s: self.stamp_hint(payload),
+        }
+    }
+}
 
 /// A joint message decoded against its robot's joint count, with the stamp it goes in at.
 #[derive(Debug, Clone, PartialEq)]
@@ -27,11 +95,25 @@ pub struct JointMessage {
 }
 
 impl JointMessage {
-    /// Decodes `payload` for `robot`; `fallback_s` gives the stamp of a message without one.
+    /// Decodes `payload` with `codec` for `robot`; `fallback_s` gives the stamp of a message
+    /// without one.
     #[must_use]
-    pub fn decode(robot: &Robot, payload: &[u8], fallback_s: impl FnOnce() -> f64) -> Self {
+    pub fn decode(
+        robot: &Robot,
+        codec: Codec,
+        payload: &[u8],
+        fallback_s: impl FnOnce() -> f64,
+    ) -> Self {
+        let joint_count = robot.settings().model.joint_count();
         // One pass: a refused message comes back with the best stamp it offers.
-        match wire::read_joints(payload, robot.settings().model.joint_count()) {
+        let read = match codec {
+            Codec::Json => wire::read_joints(payload, joint_count),
+            Codec::ZenohSerialized(Some(zser::Schema::Joints)) => {
+                zser::read_joints(payload, joint_count)
+            }
+            Codec::ZenohSerialized(_) => Err(codec.wrong_schema(payload, zser::Schema::Joints)),
+        };
+        match read {
             Ok(decoded) => Self {
                 stamp_s: decoded.sample.stamp_s.unwrap_or_else(fallback_s),
                 decoded: Ok(decoded),
@@ -65,10 +147,15 @@ pub struct MeasuredMessage {
 }
 
 impl MeasuredMessage {
-    /// Decodes `payload`; `fallback_s` gives the stamp of a message without one.
+    /// Decodes `payload` with `codec`; `fallback_s` gives the stamp of a message without one.
     #[must_use]
-    pub fn decode(payload: &[u8], fallback_s: impl FnOnce() -> f64) -> Self {
-        match wire::read_measured(payload) {
+    pub fn decode(codec: Codec, payload: &[u8], fallback_s: impl FnOnce() -> f64) -> Self {
+        let read = match codec {
+            Codec::Json => wire::read_measured(payload),
+            Codec::ZenohSerialized(Some(zser::Schema::Pose)) => zser::read_measured(payload),
+            Codec::ZenohSerialized(_) => Err(codec.wrong_schema(payload, zser::Schema::Pose)),
+        };
+        match read {
             Ok(measured) => Self {
                 stamp_s: measured.stamp_s.unwrap_or_else(fallback_s),
                 decoded: Ok(measured),
@@ -103,24 +190,30 @@ pub fn joint_message(
     pipeline: &mut Pipeline,
     robot: &Robot,
     key: &str,
+    codec: Codec,
     payload: &[u8],
     fallback_s: impl FnOnce() -> f64,
     sink: &mut impl Sink,
 ) {
-    JointMessage::decode(robot, payload, fallback_s).step(pipeline, robot, key, sink);
+    JointMessage::decode(robot, codec, payload, fallback_s).step(pipeline, robot, key, sink);
 }
 
 /// A measured-pose message of `robot` from `stream`, arrived on `key`.
+#[allow(
+    clippy::too_many_arguments,
+    reason = "what `MeasuredMessage::decode` and `step` take, in one call"
+)]
 pub fn measured_message(
     pipeline: &mut Pipeline,
     robot: &Robot,
     key: &str,
     stream: MeasuredStream,
+    codec: Codec,
     payload: &[u8],
     fallback_s: impl FnOnce() -> f64,
     sink: &mut impl Sink,
 ) {
-    MeasuredMessage::decode(payload, fallback_s).step(pipeline, robot, key, stream, sink);
+    MeasuredMessage::decode(codec, payload, fallback_s).step(pipeline, robot, key, stream, sink);
 }
 
 /// A message of a robot that may not be tracked (`robot` is the id its key names): one
@@ -128,11 +221,12 @@ pub fn measured_message(
 pub fn unknown_robot(
     robot: &str,
     key: &str,
+    codec: Codec,
     payload: &[u8],
     fallback_s: impl FnOnce() -> f64,
     sink: &mut impl Sink,
 ) {
-    let stamp_s = wire::stamp_hint(payload).unwrap_or_else(fallback_s);
+    let stamp_s = codec.stamp_hint(payload).unwrap_or_else(fallback_s);
     pipeline::reject_unknown_robot(robot, key, stamp_s, sink);
 }
 

@@ -9,9 +9,11 @@
 //!
 //! Flow control: inputs are received reliably; while a callback works, Zenoh does not read its
 //! link, which backpressures the transport and, through it, the gateways: nothing valid is
-//! dropped. Outputs use the configured congestion control (`block` by default: a slow subscriber
-//! slows the twin; after Zenoh's `wait_before_close` a subscriber that stopped reading is
-//! disconnected; `drop`: the twin never waits and a slow subscriber misses outputs).
+//! dropped. Poses and deviations use `[service] pose_congestion` (`drop` by default: a message a
+//! subscriber's link cannot take is dropped for that subscriber alone, after at most Zenoh's
+//! `wait_before_drop`, and the twin goes on; `block` waits). Metrics, events and query replies
+//! always block: they are few and must arrive; a subscriber that stops reading them is
+//! disconnected after Zenoh's `wait_before_close`. Every output carries its encoding.
 
 use std::future::{Future, IntoFuture};
 use std::sync::Arc;
@@ -22,6 +24,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use thiserror::Error;
 use tracing::{debug, info, warn};
 use zenoh::Wait;
+use zenoh::bytes::Encoding;
 use zenoh::key_expr::KeyExpr;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Publisher;
@@ -32,9 +35,11 @@ use zenoh::session::Session;
 
 use crate::calibrate::EstimateMessage;
 use crate::codec::ik::{IkAnswerJson, IkRequest};
-use crate::codec::wire;
-use crate::config::{Congestion, EventBudget, SelfCalibrationConfig, ServiceConfig, ZenohSection};
-use crate::ingest::{self, JointMessage, MeasuredMessage};
+use crate::codec::{PoseFields, wire, zser};
+use crate::config::{
+    Congestion, EventBudget, OutputEncoding, SelfCalibrationConfig, ServiceConfig, ZenohSection,
+};
+use crate::ingest::{self, Codec, JointMessage, MeasuredMessage};
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
 use crate::model::RobotModel;
@@ -175,11 +180,12 @@ pub async fn serve(
     );
     let prefix = config.key_prefix.clone();
     let (control_tx, control_rx) = channel::<Control>();
-    let declarer = Declarer {
-        session: session.clone(),
-        prefix: prefix.clone(),
-        congestion: congestion_of(config.congestion),
-    };
+    let declarer = Declarer::new(
+        session.clone(),
+        prefix.clone(),
+        config.encoding,
+        config.pose_congestion,
+    );
     let twin = Arc::new(SharedTwin {
         prefix: prefix.clone(),
         robots: RwLock::new(RobotDirectory::new(
@@ -420,6 +426,7 @@ impl SharedTwin {
         &self,
         id: &str,
         key: &str,
+        codec: Codec,
         payload: &[u8],
         fallback_s: impl FnOnce() -> f64,
         step: impl FnOnce(&Robot),
@@ -443,7 +450,7 @@ impl SharedTwin {
         if !admitted {
             let mut guard = self.lock();
             if let Some(state) = guard.running() {
-                ingest::unknown_robot(id, key, payload, fallback_s, &mut state.sink);
+                ingest::unknown_robot(id, key, codec, payload, fallback_s, &mut state.sink);
             }
             return;
         }
@@ -459,9 +466,10 @@ impl SharedTwin {
             return;
         };
         let payload = sample.payload().to_bytes();
+        let codec = Codec::from_encoding(sample.encoding());
         let fallback_s = || transport_stamp_s(sample);
-        self.with_robot(id, key, &payload, fallback_s, |robot| {
-            let message = JointMessage::decode(robot, &payload, fallback_s);
+        self.with_robot(id, key, codec, &payload, fallback_s, |robot| {
+            let message = JointMessage::decode(robot, codec, &payload, fallback_s);
             let mut guard = self.lock();
             if let Some(state) = guard.running() {
                 message.step(&mut state.pipeline, robot, key, &mut state.sink);
@@ -476,8 +484,9 @@ impl SharedTwin {
             return;
         };
         let payload = sample.payload().to_bytes();
+        let codec = Codec::from_encoding(sample.encoding());
         let fallback_s = || transport_stamp_s(sample);
-        self.with_robot(id, key, &payload, fallback_s, |robot| {
+        self.with_robot(id, key, codec, &payload, fallback_s, |robot| {
             self.measured_pose(robot, MeasuredStream::Robot, sample, &payload);
         });
     }
@@ -494,7 +503,8 @@ impl SharedTwin {
         sample: &Sample,
         payload: &[u8],
     ) {
-        let message = MeasuredMessage::decode(payload, || transport_stamp_s(sample));
+        let codec = Codec::from_encoding(sample.encoding());
+        let message = MeasuredMessage::decode(codec, payload, || transport_stamp_s(sample));
         let mut guard = self.lock();
         if let Some(state) = guard.running() {
             let key = sample.key_expr().as_str();
@@ -556,14 +566,21 @@ impl TwinState {
     }
 
     fn reply(query: &Query, key: &KeyExpr<'static>, payload: Vec<u8>) {
-        if let Err(e) = query.reply(key.clone(), payload).wait() {
+        let reply = query
+            .reply(key.clone(), payload)
+            .encoding(Encoding::APPLICATION_JSON);
+        if let Err(e) = reply.wait() {
             warn!(error = %e, %key, "reply failed");
         }
     }
 
     fn reply_err(query: &Query, message: &str) {
         let body = serde_json::json!({ "error": message }).to_string();
-        if let Err(e) = query.reply_err(body).wait() {
+        if let Err(e) = query
+            .reply_err(body)
+            .encoding(Encoding::APPLICATION_JSON)
+            .wait()
+        {
             warn!(error = %e, "error reply failed");
         }
     }
@@ -1157,22 +1174,58 @@ impl Stream {
     }
 }
 
-fn congestion_of(congestion: Congestion) -> CongestionControl {
-    match congestion {
-        Congestion::Block => CongestionControl::Block,
-        Congestion::Drop => CongestionControl::Drop,
-    }
-}
-
 /// Declares and undeclares robots' Zenoh entities.
 #[derive(Clone)]
 struct Declarer {
     session: Session,
     prefix: String,
-    congestion: CongestionControl,
+    /// The format of poses and deviations.
+    encoding: OutputEncoding,
+    /// Of poses and deviations.
+    pose_congestion: CongestionControl,
+    pose_encoding: Encoding,
+    deviation_encoding: Encoding,
 }
 
 impl Declarer {
+    fn new(
+        session: Session,
+        prefix: String,
+        encoding: OutputEncoding,
+        pose_congestion: Congestion,
+    ) -> Self {
+        let (pose_encoding, deviation_encoding) = match encoding {
+            OutputEncoding::Json => (Encoding::APPLICATION_JSON, Encoding::APPLICATION_JSON),
+            OutputEncoding::ZenohSerialized => (
+                Encoding::ZENOH_SERIALIZED.with_schema(zser::TWIN_POSE_SCHEMA),
+                Encoding::ZENOH_SERIALIZED.with_schema(zser::DEVIATION_SCHEMA),
+            ),
+        };
+        Self {
+            session,
+            prefix,
+            encoding,
+            pose_congestion: match pose_congestion {
+                Congestion::Block => CongestionControl::Block,
+                Congestion::Drop => CongestionControl::Drop,
+            },
+            pose_encoding,
+            deviation_encoding,
+        }
+    }
+
+    /// The congestion control and encoding of `stream`: poses and deviations as configured,
+    /// metrics and events blocking JSON.
+    fn qos(&self, stream: Stream) -> (CongestionControl, Encoding) {
+        match stream {
+            Stream::Pose => (self.pose_congestion, self.pose_encoding.clone()),
+            Stream::Deviation => (self.pose_congestion, self.deviation_encoding.clone()),
+            Stream::Metrics | Stream::Events | Stream::Calibration => {
+                (CongestionControl::Block, Encoding::APPLICATION_JSON)
+            }
+        }
+    }
+
     fn key(&self, stream: &str, robot: &str) -> String {
         format!("{}/{stream}/{robot}", self.prefix)
     }
@@ -1187,13 +1240,16 @@ impl Declarer {
         stream: Stream,
         payload: Vec<u8>,
     ) -> bool {
-        let result = match outputs.and_then(|outputs| stream.publisher(outputs)) {
-            Some(publisher) => publisher.put(payload).wait(),
-            None => self
-                .session
+        let result = if let Some(publisher) = outputs.and_then(|outputs| stream.publisher(outputs))
+        {
+            publisher.put(payload).wait()
+        } else {
+            let (congestion, encoding) = self.qos(stream);
+            self.session
                 .put(self.key(stream.as_str(), robot), payload)
-                .congestion_control(self.congestion)
-                .wait(),
+                .congestion_control(congestion)
+                .encoding(encoding)
+                .wait()
         };
         if let Err(e) = &result {
             warn!(error = %e, %robot, stream = stream.as_str(), "publish failed");
@@ -1202,9 +1258,11 @@ impl Declarer {
     }
 
     fn publisher(&self, stream: Stream, robot: &str) -> zenoh::Result<Publisher<'static>> {
+        let (congestion, encoding) = self.qos(stream);
         self.session
             .declare_publisher(self.key(stream.as_str(), robot))
-            .congestion_control(self.congestion)
+            .congestion_control(congestion)
+            .encoding(encoding)
             .wait()
     }
 
@@ -1379,13 +1437,16 @@ impl Sink for ZenohSink {
         frame: OutputFrame,
         pose: &PoseReadout,
     ) {
-        let message = wire::PoseMessage::new(robot.id(), stamp_s, seq, frame.as_str(), pose);
-        self.put(
-            robot.id(),
-            Some(robot.index()),
-            Stream::Pose,
-            message.to_json_bytes(),
-        );
+        let payload = match self.declarer.encoding {
+            OutputEncoding::Json => {
+                wire::PoseMessage::new(robot.id(), stamp_s, seq, frame.as_str(), pose)
+                    .to_json_bytes()
+            }
+            OutputEncoding::ZenohSerialized => {
+                zser::twin_pose_bytes(stamp_s, seq, &PoseFields::from(pose))
+            }
+        };
+        self.put(robot.id(), Some(robot.index()), Stream::Pose, payload);
         self.poses += 1;
     }
 
@@ -1396,13 +1457,13 @@ impl Sink for ZenohSink {
         _measured: &PoseReadout,
         deviation: &Deviation,
     ) {
-        let message = wire::DeviationMessage::new(robot.id(), stamp_s, deviation);
-        self.put(
-            robot.id(),
-            Some(robot.index()),
-            Stream::Deviation,
-            message.to_json_bytes(),
-        );
+        let payload = match self.declarer.encoding {
+            OutputEncoding::Json => {
+                wire::DeviationMessage::new(robot.id(), stamp_s, deviation).to_json_bytes()
+            }
+            OutputEncoding::ZenohSerialized => zser::deviation_bytes(stamp_s, deviation),
+        };
+        self.put(robot.id(), Some(robot.index()), Stream::Deviation, payload);
     }
 
     /// Publishes the event unless its robot's rate limit keeps it back, and logs it once (at

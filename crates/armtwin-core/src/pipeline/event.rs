@@ -78,6 +78,16 @@ pub enum RejectCause {
     OrientationForms,
     /// A quaternion's norm is too far from 1.
     QuaternionNorm,
+    /// A binary message ends inside a field.
+    Truncated,
+    /// A binary message goes on after its last field.
+    TrailingBytes,
+    /// A binary sequence length is not a LEB128 number of at most 64 bits.
+    MalformedLength,
+    /// A binary sequence holds a number of values its schema does not allow.
+    SequenceLength,
+    /// A binary message's encoding names no schema armtwin reads on that key.
+    Schema,
     /// A joint angle lies outside the joint's limits.
     JointLimits,
     /// A stamp older than its stream's previous one.
@@ -111,6 +121,11 @@ impl RejectCause {
             Self::Unit => "unit",
             Self::OrientationForms => "orientation_forms",
             Self::QuaternionNorm => "quaternion_norm",
+            Self::Truncated => "truncated",
+            Self::TrailingBytes => "trailing_bytes",
+            Self::MalformedLength => "malformed_length",
+            Self::SequenceLength => "sequence_length",
+            Self::Schema => "schema",
             Self::JointLimits => "joint_limits",
             Self::OutOfOrder => "out_of_order",
             Self::DuplicateStamp => "duplicate_stamp",

@@ -45,7 +45,7 @@ pub const MAX_PAYLOAD_BYTES: usize = 64 * 1024;
 /// (gateways round their components; a larger error means a wrong field, not rounding).
 const QUATERNION_NORM_TOLERANCE: f64 = 0.05;
 
-/// Why a gateway message was rejected.
+/// Why a gateway message was rejected (JSON, or zenoh-ext serialized: [`super::zser`]).
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum WireError {
     /// The payload exceeds [`MAX_PAYLOAD_BYTES`].
@@ -140,6 +140,54 @@ pub enum WireError {
         /// Its norm.
         norm: f64,
     },
+    /// A binary message ends inside a field.
+    #[error("field '{field}': needs {needed} bytes at offset {offset}, the payload has {bytes}")]
+    Truncated {
+        /// The field (`q[3]`, the length of `measured`).
+        field: String,
+        /// Bytes the field needs.
+        needed: usize,
+        /// Where it starts.
+        offset: usize,
+        /// Payload size.
+        bytes: usize,
+    },
+    /// A binary message goes on after its last field.
+    #[error("{extra} bytes after the last field (the message ends at offset {end})")]
+    TrailingBytes {
+        /// Bytes left over.
+        extra: usize,
+        /// Where the last field ends.
+        end: usize,
+    },
+    /// A binary sequence length is not a LEB128 number of at most 64 bits.
+    #[error(
+        "field '{field}': the length at offset {offset} is not a LEB128 number of at most 64 bits"
+    )]
+    MalformedLength {
+        /// The sequence.
+        field: String,
+        /// Where its length starts.
+        offset: usize,
+    },
+    /// A binary sequence holds a number of values its schema does not allow.
+    #[error("field '{field}': expected {expected} values, got {got}")]
+    SequenceLength {
+        /// The sequence.
+        field: String,
+        /// What the schema allows (`7`, `0 or 7`).
+        expected: &'static str,
+        /// The length the message gives (not allocated: the values need not be there).
+        got: u64,
+    },
+    /// A `zenoh/serialized` message without the schema its key expects.
+    #[error(
+        "encoding zenoh/serialized without the schema '{expected}' this key takes: tag the sample with it"
+    )]
+    Schema {
+        /// The schema the key takes.
+        expected: &'static str,
+    },
 }
 
 impl WireError {
@@ -160,6 +208,11 @@ impl WireError {
             Self::Unit { .. } => RejectCause::Unit,
             Self::OrientationForms { .. } => RejectCause::OrientationForms,
             Self::QuaternionNorm { .. } => RejectCause::QuaternionNorm,
+            Self::Truncated { .. } => RejectCause::Truncated,
+            Self::TrailingBytes { .. } => RejectCause::TrailingBytes,
+            Self::MalformedLength { .. } => RejectCause::MalformedLength,
+            Self::SequenceLength { .. } => RejectCause::SequenceLength,
+            Self::Schema { .. } => RejectCause::Schema,
         }
     }
 

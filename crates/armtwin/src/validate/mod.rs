@@ -12,7 +12,7 @@ pub mod svg;
 use std::collections::HashMap;
 
 use crate::codec::recording::{self, Format, Recording};
-use crate::ingest;
+use crate::ingest::{self, Codec};
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::{Deviation, StatsSet};
 use crate::pipeline::{
@@ -233,12 +233,20 @@ pub fn validate(
                     &mut pipeline,
                     robot,
                     &key,
+                    Codec::Json,
                     &payload,
                     || stamp_s,
                     &mut collector,
                 );
             }
-            None => ingest::unknown_robot(ROBOT_ID, &key, &payload, || stamp_s, &mut collector),
+            None => ingest::unknown_robot(
+                ROBOT_ID,
+                &key,
+                Codec::Json,
+                &payload,
+                || stamp_s,
+                &mut collector,
+            ),
         }
         if let Err(malformed) = entry {
             // The service sees only the message; the file also knows why the line is bad.

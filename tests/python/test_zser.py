@@ -1,0 +1,279 @@
+"""``armtwin serve`` with Zenoh-serialized messages (docs/protocol.md, "Binary messages").
+
+The gateway side is eclipse-zenoh's own ``zenoh.ext.z_serialize``, an implementation independent of
+armtwin's reader: each recording is streamed once as JSON and once in binary into the same service,
+and the two robots' metrics must be identical; binary twin poses and deviations are read back with
+``z_deserialize`` and checked against the numpy reference FK.
+
+Run: ``.venv/bin/python -m pytest tests/python/test_zser.py -q``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import struct
+import time
+
+import numpy as np
+import pytest
+import zenoh
+from zenoh.ext import UInt64, z_deserialize, z_serialize
+
+from armtwin_service import PREFIX, ArmtwinProcess, Collector, TwinClient, wait_until
+from test_service import (
+    TOL_ANGLE,
+    TOL_EULER,
+    TOL_POS,
+    TOL_QUAT,
+    Checks,
+    check_metrics,
+    joint_message,
+    load_fmpy,
+    load_lasttest_naive,
+    reference_deviations,
+    reference_poses,
+    reference_stats,
+)
+
+CONFIG = """\
+[service]
+metrics_period_ms = 50
+encoding = "zenoh-serialized"
+
+[robots.default]
+model = "ur10e"
+"""
+WATCHDOG_S = 420.0
+
+JOINTS_ENCODING = zenoh.Encoding.ZENOH_SERIALIZED.with_schema("armtwin/joints/v1")
+POSE_ENCODING = zenoh.Encoding.ZENOH_SERIALIZED.with_schema("armtwin/pose/v1")
+DEVIATION_KEYS = ("dx", "dy", "dz", "position", "quat_distance", "angle", "droll", "dpitch", "dyaw")
+
+
+class EncodingCollector(Collector):
+    """A Collector that also records each output stream's encodings."""
+
+    def __init__(self):
+        super().__init__()
+        self.encodings: dict[str, set[str]] = {}
+
+    def __call__(self, sample: zenoh.Sample) -> None:
+        super().__call__(sample)
+        stream = str(sample.key_expr).split("/", 2)[1]
+        with self._lock:
+            self.encodings.setdefault(stream, set()).add(str(sample.encoding))
+
+
+@pytest.fixture
+def twin(armtwin_bin, tmp_path):
+    proc = ArmtwinProcess(armtwin_bin, tmp_path, CONFIG, WATCHDOG_S)
+    proc.start()
+    client = None
+    try:
+        client = TwinClient(proc.endpoint)
+        client.subscriber.undeclare()
+        client.collector = EncodingCollector()
+        client.subscriber = client.session.declare_subscriber(f"{PREFIX}/**", client.collector)
+        yield proc, client
+    finally:
+        code, _ = proc.stop()
+        if client is not None:
+            client.close()
+    if proc.watchdog_fired:
+        pytest.fail(f"watchdog: armtwin killed after {WATCHDOG_S} s\n{proc.logs()}")
+    if code != 0:
+        pytest.fail(f"armtwin exited with code {code} after SIGINT\n{proc.logs()}")
+
+
+def binary_joints(t, q, seq, measured=()):
+    """``armtwin/joints/v1``: ``seq`` wrapped in UInt64 (a plain int would be an i32)."""
+    return z_serialize((float(t), [float(v) for v in q], UInt64(seq), [float(v) for v in measured]))
+
+
+def naive_float(v):
+    """What a binary gateway makes of a field that does not parse: NaN (armtwin rejects it)."""
+    return v if isinstance(v, float) else math.nan
+
+
+def twin_poses(collector, robot):
+    """Binary twin poses: (t, seq, [x y z roll pitch yaw qx qy qz qw]) in arrival order."""
+    return [
+        z_deserialize(tuple[float, UInt64, list[float]], zenoh.ZBytes(i.payload)) for i in collector.items("pose", robot)
+    ]
+
+
+def deviations(collector, robot):
+    return [z_deserialize(tuple[float, list[float]], zenoh.ZBytes(i.payload)) for i in collector.items("deviation", robot)]
+
+
+def check_binary_poses(checks, poses, t, q, label):
+    checks.equal(len(poses), len(q), f"{label}: number of twin poses")
+    checks.equal([p[1] for p in poses], list(range(len(poses))), f"{label}: pose seq")
+    if len(poses) != len(q):
+        return
+    checks.close([p[0] for p in poses], t, 0.0, f"{label}: pose t")
+    pos, quat, rpy = reference_poses(q)
+    values = np.array([p[2] for p in poses], float)
+    checks.equal(values.shape[1], 10, f"{label}: values per pose")
+    checks.close(values[:, 0:3], pos, TOL_POS, f"{label}: pose position vs reference FK")
+    checks.angles_close(values[:, 3:6], rpy, TOL_EULER, f"{label}: pose roll/pitch/yaw vs reference")
+    checks.close(values[:, 6:10], quat, TOL_QUAT, f"{label}: pose quaternion vs reference FK")
+
+
+def check_binary_deviations(checks, devs, t, q, meas, label):
+    checks.equal(len(devs), len(t), f"{label}: number of deviations")
+    by_t = {d[0]: d[1] for d in devs}
+    checks.equal(sorted(by_t), sorted(t), f"{label}: deviation stamps")
+    if sorted(by_t) != sorted(t):
+        return
+    ref = reference_deviations(q, meas)
+    rows = np.array([by_t[s] for s in t], float)
+    tolerances = {"quat_distance": TOL_QUAT, "angle": TOL_ANGLE, "droll": TOL_EULER, "dpitch": TOL_EULER, "dyaw": TOL_EULER}
+    for j, key in enumerate(DEVIATION_KEYS):
+        checks.close(rows[:, j], ref[key], tolerances.get(key, TOL_POS), f"{label}: deviation {key}")
+
+
+def metrics_when(collector, robot, predicate, timeout=30.0):
+    return collector.wait_message("metrics", robot, predicate, timeout)
+
+
+def without_robot(metrics):
+    return {k: v for k, v in (metrics or {}).items() if k != "robot"}
+
+
+# ----------------------------------------------------------------------------------------------
+
+
+def test_fmpy_inputs_in_both_formats(twin):
+    """fmpy_inputs.csv as JSON, as binary joints with embedded measured poses, and as binary
+    joints plus binary measured poses: the same metrics; binary outputs checked against the
+    reference; every output stream tagged with its encoding."""
+    proc, client = twin
+    q, meas = load_fmpy()
+    n = len(q)
+    t = [i * 0.1 for i in range(n)]
+    robots = ("fmpy-json", "fmpy-zser", "fmpy-split")
+    client.ready(robots, measured=True)
+    for i in range(n):
+        client.put_json(client.joints("fmpy-json"), joint_message(t[i], q[i], meas[i]))
+        client.joints("fmpy-zser").put(binary_joints(t[i], q[i], i, meas[i]), encoding=JOINTS_ENCODING)
+        client.joints("fmpy-split").put(binary_joints(t[i], q[i], i), encoding=JOINTS_ENCODING)
+        client.measured("fmpy-split").put(
+            z_serialize((t[i], [float(v) for v in meas[i]])), encoding=POSE_ENCODING
+        )
+    c = client.collector
+    assert wait_until(lambda: all(c.count("deviation", r) >= n for r in robots), 60), {
+        r: (c.count("pose", r), c.count("deviation", r)) for r in robots
+    }
+
+    checks = Checks()
+    stats = reference_stats(reference_deviations(q, meas))
+    finals = {}
+    for robot in robots:
+        check_binary_poses(checks, twin_poses(c, robot), t, q, robot)
+        check_binary_deviations(checks, deviations(c, robot), t, q, meas, robot)
+        finals[robot] = metrics_when(c, robot, lambda m: m.get("paired") == n)
+        check_metrics(checks, finals[robot], robot, n, 0, stats, f"{robot} metrics", t=t[-1])
+        checks.equal(c.messages("events", robot), [], f"{robot}: events")
+    checks.equal(without_robot(finals["fmpy-zser"]), without_robot(finals["fmpy-json"]), "binary vs JSON metrics")
+    checks.equal(
+        [p[2] for p in twin_poses(c, "fmpy-zser")], [p[2] for p in twin_poses(c, "fmpy-json")], "binary vs JSON poses"
+    )
+    checks.equal(
+        c.encodings,
+        {
+            "pose": {"zenoh/serialized;armtwin/twin-pose/v1"},
+            "deviation": {"zenoh/serialized;armtwin/deviation/v1"},
+            "metrics": {"application/json"},
+        },
+        "output encodings",
+    )
+    oks = [r.ok for r in client.get(f"{PREFIX}/state/fmpy-zser") if r.ok is not None]
+    checks.equal([str(r.encoding) for r in oks], ["application/json"], "state reply encoding")
+    checks.done(proc.logs())
+
+
+def test_lasttest_in_both_formats_gives_identical_metrics(twin):
+    """ur10e_lasttest.csv (29 061 rows, 7 corrupted measured fields) through a naive JSON gateway
+    and a naive binary one (NaN where a field does not parse): identical metrics, 7 rejections
+    each, every row twinned."""
+    proc, client = twin
+    rows = load_lasttest_naive()
+    n = len(rows)
+    t = [i * 0.002 for i in range(n)]
+    client.ready(("last-json", "last-zser"))
+    json_pub, zser_pub = client.joints("last-json"), client.joints("last-zser")
+    json_payloads = [json.dumps(joint_message(t[i], r[1:7], r[7:14])) for i, r in enumerate(rows)]
+    zser_payloads = [
+        binary_joints(t[i], r[1:7], i, [naive_float(v) for v in r[7:14]]) for i, r in enumerate(rows)
+    ]
+    started = time.monotonic()
+    for i in range(n):
+        json_pub.put(json_payloads[i])
+        zser_pub.put(zser_payloads[i], encoding=JOINTS_ENCODING)
+    sent_s = time.monotonic() - started
+
+    c = client.collector
+    good = n - 7
+    done = lambda m: m.get("paired") == good and m.get("rejected") == 7 and m.get("t") == t[-1]  # noqa: E731
+    finals = {r: metrics_when(c, r, done, timeout=120) for r in ("last-json", "last-zser")}
+    checks = Checks()
+    for robot, final in finals.items():
+        checks.true(final is not None, f"{robot}: final metrics (last {c.last('metrics', robot)})")
+        checks.equal(c.count("pose", robot), n, f"{robot}: twin poses")
+    checks.equal(without_robot(finals["last-zser"]), without_robot(finals["last-json"]), "binary vs JSON metrics")
+    causes = {
+        r: [(e.get("detail") or {}).get("cause") for e in c.messages("events", r) if e.get("kind") == "rejected"]
+        for r in finals
+    }
+    checks.equal(causes["last-json"], ["wrong_type"] * 7, "JSON rejections")
+    checks.equal(causes["last-zser"], ["non_finite"] * 7, "binary rejections")
+    reasons = [e.get("reason", "") for e in c.messages("events", "last-zser") if e.get("kind") == "rejected"]
+    checks.true(all("measured[" in r for r in reasons), f"binary rejections name the measured value: {reasons}")
+    print(f"\n[ur10e_lasttest.csv] {n} rows × 2 formats published in {sent_s:.2f} s; metrics identical")
+    checks.done(proc.logs())
+
+
+def test_bad_binary_input_is_rejected_like_bad_json(twin):
+    """Each damaged message is one rejection event (its own cause, a reason naming the field) and
+    one count; the valid messages around them are all twinned."""
+    proc, client = twin
+    robot = "bad-zser"
+    client.ready([robot], measured=True)
+    q, meas = load_fmpy()
+    good = binary_joints(1.0, q[0], 0).to_bytes()
+    absurd = struct.pack("<d", 2.0) + bytes([0x80] * 9 + [0x01])  # q claims 2^63 values
+    bad = [
+        (good[:20], JOINTS_ENCODING, "truncated", "q[1]"),
+        (binary_joints(2.0, q[1], 1).to_bytes() + b"\0", JOINTS_ENCODING, "trailing_bytes", "after the last field"),
+        (absurd, JOINTS_ENCODING, "joint_count", "9223372036854775808"),
+        (struct.pack("<d", 2.0) + b"\xff" * 11, JOINTS_ENCODING, "malformed_length", "q.length"),
+        (binary_joints(math.inf, q[1], 1).to_bytes(), JOINTS_ENCODING, "non_finite", "'t'"),
+        (binary_joints(2.0, q[1], 1).to_bytes(), POSE_ENCODING, "schema", "armtwin/joints/v1"),
+        (binary_joints(2.0, q[1], 1).to_bytes(), zenoh.Encoding.ZENOH_SERIALIZED, "schema", "armtwin/joints/v1"),
+    ]
+    pub = client.joints(robot)
+    pub.put(good, encoding=JOINTS_ENCODING)
+    for payload, encoding, _, _ in bad:
+        pub.put(payload, encoding=encoding)
+    # A bad measured part (a quaternion of norm 0.5) still yields the joints' pose.
+    pub.put(binary_joints(3.0, q[2], 2, [0, 0, 0, 0, 0, 0, 0.5]), encoding=JOINTS_ENCODING)
+    client.measured(robot).put(z_serialize((4.0, [0.0] * 6)), encoding=POSE_ENCODING)
+    pub.put(binary_joints(5.0, q[3], 3), encoding=JOINTS_ENCODING)
+    c = client.collector
+    want = [b[2] for b in bad] + ["quaternion_norm", "sequence_length"]
+    wait_until(lambda: c.count("events", robot) >= len(want) + 1 and c.count("pose", robot) >= 3, 20)
+
+    checks = Checks()
+    # The seq jump over the refused messages is a gap event besides.
+    events = [e for e in c.messages("events", robot) if e.get("kind") == "rejected"]
+    checks.equal([(e.get("detail") or {}).get("cause") for e in events], want, "rejection causes in order")
+    for e, (_, _, cause, named) in zip(events, bad):
+        checks.true(named in e.get("reason", ""), f"{cause}: reason names {named!r}: {e.get('reason')!r}")
+    stamps = [e.get("t") for e in events]
+    checks.equal(stamps[:2], [1.0, 2.0], "a refused message is reported at its own stamp")
+    checks.equal([p[0] for p in twin_poses(c, robot)], [1.0, 3.0, 5.0], "valid joint messages twinned")
+    final = metrics_when(c, robot, lambda m: m.get("rejected") == len(want), timeout=10)
+    checks.true(final is not None, f"rejections counted (last metrics {c.last('metrics', robot)})")
+    checks.done(proc.logs())

@@ -18,6 +18,7 @@ use thiserror::Error;
 use super::wire::{self, MAX_PAYLOAD_BYTES, WireError};
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::model::catalog::UR_JOINT_NAMES;
+use crate::pipeline::RejectCause;
 use crate::sample::{JointSample, MeasuredSample};
 
 /// Most names (and values per array) a `JointState` may carry; more is a damaged message.
@@ -132,6 +133,14 @@ pub enum CdrError {
         /// Its norm.
         norm: f64,
     },
+    /// A `PoseStamped` in another frame than the one the robot's poses are read in.
+    #[error("'PoseStamped.header.frame_id' is '{frame_id}', expected '{expected}'")]
+    FrameId {
+        /// The frame sent.
+        frame_id: String,
+        /// The frame expected (`<tf_prefix>base`).
+        expected: String,
+    },
 }
 
 impl CdrError {
@@ -153,6 +162,29 @@ impl CdrError {
             Self::DuplicateJoint { .. } => "duplicate_joint",
             Self::NonFinite { .. } => "non_finite",
             Self::QuaternionNorm { .. } => "quaternion_norm",
+            Self::FrameId { .. } => "frame_id",
+        }
+    }
+
+    /// The rejection cause of a message refused for this error: the JSON decoder's where both
+    /// decoders share the class, else a CDR one (`cdr_header`, `cdr_truncated`, `cdr_malformed`,
+    /// `missing_joint`, `duplicate_joint`, `frame_id`).
+    #[must_use]
+    pub fn cause(&self) -> RejectCause {
+        match self {
+            Self::TooLarge { .. } => RejectCause::TooLarge,
+            Self::NoHeader { .. } | Self::Representation { .. } => RejectCause::CdrHeader,
+            Self::Truncated { .. } => RejectCause::CdrTruncated,
+            Self::Count { .. }
+            | Self::Unterminated { .. }
+            | Self::Nanosec { .. }
+            | Self::LengthMismatch { .. } => RejectCause::CdrMalformed,
+            Self::NotUtf8 { .. } => RejectCause::NotUtf8,
+            Self::MissingJoint { .. } => RejectCause::MissingJoint,
+            Self::DuplicateJoint { .. } => RejectCause::DuplicateJoint,
+            Self::NonFinite { .. } => RejectCause::NonFinite,
+            Self::QuaternionNorm { .. } => RejectCause::QuaternionNorm,
+            Self::FrameId { .. } => RejectCause::FrameId,
         }
     }
 }
@@ -515,6 +547,37 @@ pub fn decode_pose_stamped(payload: &[u8]) -> Result<DecodedPose<'_>, CdrError> 
         frame_id,
         xyzw_as_sent: xyzw,
     })
+}
+
+/// [`decode_pose_stamped`], refusing a pose whose `header.frame_id` is not `expected_frame`.
+pub fn decode_pose_stamped_in<'a>(
+    payload: &'a [u8],
+    expected_frame: &str,
+) -> Result<DecodedPose<'a>, CdrError> {
+    let pose = decode_pose_stamped(payload)?;
+    if pose.frame_id == expected_frame {
+        Ok(pose)
+    } else {
+        Err(CdrError::FrameId {
+            frame_id: pose.frame_id.to_owned(),
+            expected: expected_frame.to_owned(),
+        })
+    }
+}
+
+/// The `header.stamp` (s) of a message that starts with a `std_msgs/Header` (`JointState`,
+/// `PoseStamped`), if the header reads and the stamp is set: the stamp a refused message is
+/// reported at.
+#[must_use]
+pub fn stamp_hint(payload: &[u8]) -> Option<f64> {
+    let mut reader = Reader::new(payload).ok()?;
+    reader
+        .stamp(
+            Field::plain("header.stamp.sec"),
+            Field::plain("header.stamp.nanosec"),
+        )
+        .ok()
+        .flatten()
 }
 
 /// The ROS frame id of a twin pose expressed in `frame`, for an arm with `tf_prefix`:

@@ -332,6 +332,10 @@ impl<'a> Reader<'a> {
                 limit,
             });
         }
+        // An empty sequence has no element to align: the message may end at its count.
+        if count == 0 {
+            return Ok(0);
+        }
         let start = self.at.next_multiple_of(element_bytes.max(1));
         let needed = count * element_bytes;
         if start.saturating_add(needed) > self.body.len() {

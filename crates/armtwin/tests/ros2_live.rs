@@ -291,6 +291,7 @@ robot = "solo"
 "#;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[allow(clippy::too_many_lines, reason = "one scenario, in the order it runs")]
 async fn ros2_namespaces_name_robots_under_both_key_schemes() {
     tokio::time::timeout(TEST_LIMIT, async {
         let rmw_joints = format!(
@@ -315,7 +316,7 @@ async fn ros2_namespaces_name_robots_under_both_key_schemes() {
         let (joints, poses) = bag_messages();
         let gid = [3_u8; 16];
         for (i, (joint, pose)) in joints.iter().zip(&poses).enumerate() {
-            let seq = i as i64 + 1;
+            let seq = i64::try_from(i).unwrap() + 1;
             h.put(&rmw_joints, joint, Some(attachment(seq, 1, &gid)))
                 .await;
             h.put(&rmw_poses, pose, Some(attachment(seq, 1, &gid)))
@@ -426,6 +427,7 @@ tf_prefix = "alice_"
 "#;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[allow(clippy::too_many_lines, reason = "one scenario, in the order it runs")]
 async fn rmw_sequence_numbers_raise_gaps_refuse_repeats_and_survive_damage_and_restarts() {
     tokio::time::timeout(TEST_LIMIT, async {
         let joints_key = format!(
@@ -595,11 +597,11 @@ async fn the_twin_pose_goes_out_as_pose_stamped_for_ros_tools() {
             .duration_since(UNIX_EPOCH)
             .unwrap()
             .as_nanos() as i64;
-        let n = 20;
+        let n = 20_usize;
         for robot in ["ur", "bob", "bl", "quiet"] {
             for i in 0..n {
-                let q = [-0.7 + 0.01 * f64::from(i), -0.8, 0.9, 1.1, 1.5, 1.7];
-                let message = json!({"t": 1_748_954_669.0 + 0.002 * f64::from(i), "q": q});
+                let q = [-0.7 + 0.01 * i as f64, -0.8, 0.9, 1.1, 1.5, 1.7];
+                let message = json!({"t": 1_748_954_669.0 + 0.002 * i as f64, "q": q});
                 h.put(
                     &format!("twin/joints/{robot}"),
                     message.to_string().as_bytes(),
@@ -618,8 +620,8 @@ async fn the_twin_pose_goes_out_as_pose_stamped_for_ros_tools() {
             })
         })
         .await;
-        let from_rmw = drain(&rmw, 2 * n as usize).await;
-        let from_bridge = drain(&bridge, n as usize).await;
+        let from_rmw = drain(&rmw, 2 * n).await;
+        let from_bridge = drain(&bridge, n).await;
         let key_of = |robot: &str| {
             format!(
                 "0/{robot}/armtwin/tcp_pose/{POSE_TYPE}/{}",
@@ -672,7 +674,11 @@ async fn the_twin_pose_goes_out_as_pose_stamped_for_ros_tools() {
                 );
                 let (seq, stamp_ns, gid): (i64, i64, [u8; 16]) =
                     zenoh_ext::z_deserialize(&bytes).expect("i64, i64, 16-byte gid");
-                assert_eq!(seq, i as i64 + 1, "{robot}: seq from 1, increasing");
+                assert_eq!(
+                    seq,
+                    i64::try_from(i).unwrap() + 1,
+                    "{robot}: seq from 1, increasing"
+                );
                 assert!(stamp_ns >= started_ns, "{robot}: publication time");
                 gids.insert(gid);
             }
@@ -708,7 +714,10 @@ fn attachments_read_in_both_forms_and_every_damage_is_named() {
             assert_eq!(parsed.sequence_number, 42);
             assert_eq!(parsed.source_timestamp_ns, 1_700_000_000_123_456_789);
             assert_eq!(parsed.gid(), gid);
-            assert_eq!(parsed.source_timestamp_s(), Some(1_700_000_000.123_456_789));
+            assert_eq!(
+                parsed.source_timestamp_s(),
+                Some(1_700_000_000.0 + 123_456_789.0 * 1e-9)
+            );
         }
     }
     let good = attachment(7, 1, &[1; 16]);
@@ -916,9 +925,8 @@ fn sources_that_cannot_work_are_refused_at_load_time() {
             "intersects the twin pose output '0/**/armtwin/tcp_pose/geometry_msgs::msg::dds_::PoseStamped_/RIHS01_10f3",
         ),
         (
-            format!(
-                "[robots.r]\n[[robots.r.sensors]]\nkey_expr = \"0/x\"\n[robots.default.ros2_pose]\nscheme = \"bridge\"\ntopic = \"x\"\n"
-            ),
+            "[robots.r]\n[[robots.r.sensors]]\nkey_expr = \"0/x\"\n[robots.default.ros2_pose]\nscheme = \"bridge\"\ntopic = \"x\"\n"
+                .to_owned(),
             "robots.\"r\".sensors[0].key_expr: '0/x' intersects the twin pose output '**/x'",
         ),
         (
@@ -975,4 +983,62 @@ fn sources_that_cannot_work_are_refused_at_load_time() {
         "the default's fills in"
     );
     assert!(config.ros2_pose.of("quiet").is_none());
+}
+
+/// The `toml` block of README.md after `marker`.
+fn readme_toml(marker: &str) -> String {
+    let readme = std::fs::read_to_string(data().join("../../../README.md")).expect("README");
+    let after = &readme[readme.find(marker).expect("marker")..];
+    let block = &after[after.find("```toml\n").expect("a toml block") + 8..];
+    block[..block.find("```").expect("its end")].to_owned()
+}
+
+#[test]
+fn the_readme_recipes_load_as_documented() {
+    let block = readme_toml("The exact lines for a UR driver");
+    let recipes: Vec<&str> = block.split("\n\n").collect();
+    assert_eq!(recipes.len(), 4, "{block}");
+    for (recipe, from_key) in recipes.iter().zip([true, false, true, false]) {
+        let config = parse(recipe, Vec::new()).unwrap_or_else(|e| panic!("{recipe}\n→ {e}"));
+        assert_eq!(config.sources.len(), 2);
+        for source in &config.sources {
+            assert_eq!(
+                matches!(source.robot, SourceRobot::FromKey(_)),
+                from_key,
+                "{recipe}"
+            );
+        }
+        let prefixed = recipe.replace(
+            "codec = \"ros2\"",
+            "codec = \"ros2\"\ntf_prefix = \"alice_\"",
+        );
+        let config = parse(&prefixed, Vec::new()).expect("with a tf_prefix");
+        let ros2 = config.sources[1].ros2.as_ref().expect("ros2");
+        assert_eq!(ros2.base_frame, "alice_base");
+    }
+    // As the README says: the two bridge recipes combine, the two rmw_zenoh ones do not.
+    parse(&format!("{}\n{}", recipes[2], recipes[3]), Vec::new()).expect("bridge forms combine");
+    let error = parse(&format!("{}\n{}", recipes[0], recipes[1]), Vec::new()).unwrap_err();
+    assert!(error.contains("a sample would be taken twice"), "{error}");
+    let pose = readme_toml("**The twin in RViz.**");
+    let config = parse(&pose, Vec::new()).expect("the ros2_pose example");
+    let fixed = config.ros2_pose.of("ur10e-07").expect("output");
+    assert_eq!(
+        fixed.key("ur10e-07"),
+        format!(
+            "0/armtwin/tcp_pose/{POSE_TYPE}/{}",
+            ros2::POSE_STAMPED_TYPE_HASH
+        )
+    );
+    assert_eq!(
+        config
+            .ros2_pose
+            .of("plant_a/ur7")
+            .expect("output")
+            .key("plant_a/ur7"),
+        format!(
+            "0/plant_a/ur7/armtwin/tcp_pose/{POSE_TYPE}/{}",
+            ros2::POSE_STAMPED_TYPE_HASH
+        )
+    );
 }

@@ -540,6 +540,44 @@ mod tests {
         assert_eq!(reader.length("x"), Ok(u64::MAX));
     }
 
+    fn from(gid: u8, sequence_number: u64) -> Attachment {
+        let mut bytes = [0; MAX_GID_BYTES];
+        bytes[0] = gid;
+        Attachment {
+            sequence_number,
+            source_timestamp_ns: 0,
+            gid: bytes,
+            gid_len: 16,
+        }
+    }
+
+    #[test]
+    fn a_publishers_numbers_pass_on_and_a_new_publisher_carries_on_from_them() {
+        let mut seq = PublisherSeq::default();
+        let mapped: Vec<(u64, bool)> = [from(1, 10), from(1, 11), from(1, 13), from(1, 12)]
+            .iter()
+            .map(|attachment| seq.gateway_seq(attachment))
+            .collect();
+        // As sent: the pipeline sees the skip (gap) and the step back (refused).
+        assert_eq!(mapped, [(10, false), (11, false), (13, false), (12, false)]);
+        // A restart: numbers from 1 again under another gid continue from the highest, 13.
+        assert_eq!(seq.gateway_seq(&from(2, 1)), (14, true));
+        assert_eq!(seq.gateway_seq(&from(2, 2)), (15, false));
+        assert_eq!(
+            seq.gateway_seq(&from(2, 4)),
+            (17, false),
+            "a skip stays a skip"
+        );
+        // A publisher that starts high, and a number far below the one it switched at.
+        assert_eq!(seq.gateway_seq(&from(3, 1000)), (18, true));
+        assert_eq!(
+            seq.gateway_seq(&from(3, 1)),
+            (0, false),
+            "a step back, as such"
+        );
+        assert_eq!(seq.gateway_seq(&from(3, 1001)), (19, false));
+    }
+
     #[test]
     fn publisher_gids_differ_per_robot_and_session() {
         let zid = [7; 16];

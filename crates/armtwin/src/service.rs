@@ -1,11 +1,12 @@
 //! `armtwin serve`: the pipeline on a Zenoh mesh.
 //!
-//! Owns the session, the wildcard subscriptions and queryables, the per-robot publishers and
-//! liveliness tokens, and the ordered teardown. Samples and queries are handled in Zenoh's
-//! callbacks: each sample resolves its robot and decodes against the robot's immutable settings
-//! first, then steps the pipeline under one lock (see [`SharedTwin`]); a control thread declares
-//! newly tracked robots' entities, publishes the periodic metrics and finishes the pipeline at
-//! shutdown.
+//! Owns the session, the wildcard subscriptions and queryables (and one subscription per
+//! `[[sources]]` entry: JSON or ROS 2 on keys of their own), the per-robot publishers (the twin
+//! pose as a ROS 2 `PoseStamped` among them, for robots with `ros2_pose`) and liveliness tokens,
+//! and the ordered teardown. Samples and queries are handled in Zenoh's callbacks: each sample
+//! resolves its robot and decodes against the robot's immutable settings first, then steps the
+//! pipeline under one lock (see [`SharedTwin`]); a control thread declares newly tracked robots'
+//! entities, publishes the periodic metrics and finishes the pipeline at shutdown.
 //!
 //! Flow control: inputs are received reliably; while a callback works, Zenoh does not read its
 //! link, which backpressures the transport and, through it, the gateways: nothing valid is
@@ -615,7 +616,10 @@ impl SharedTwin {
             .and_then(|parsed| parsed.as_ref().ok())
             .and_then(Attachment::source_timestamp_s);
         let fallback_s = || source_stamp_s.unwrap_or_else(|| transport_stamp_s(sample));
-        self.with_robot(id, key, payload, fallback_s, |robot| {
+        // A robot that may not be tracked is rejected at the header's stamp (the JSON stamp
+        // hint `with_robot` reads has nothing to read in CDR).
+        let unknown_stamp_s = || cdr::stamp_hint(payload).unwrap_or_else(fallback_s);
+        self.with_robot(id, key, &[], unknown_stamp_s, |robot| {
             let reject_attachment = |state: &mut TwinState, stamp_s: f64| {
                 if let Some(Err(error)) = &attachment {
                     ingest::reject_attachment(

@@ -1042,3 +1042,47 @@ fn the_readme_recipes_load_as_documented() {
         )
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_namespace_that_is_no_known_robot_is_rejected_at_its_header_stamp() {
+    tokio::time::timeout(TEST_LIMIT, async {
+        let config = r#"
+[service]
+reject_unknown = true
+[robots.ur7]
+model = "ur10e"
+[[sources]]
+key = "0/**/joint_states/sensor_msgs::msg::dds_::JointState_/*"
+codec = "ros2"
+stream = "joints"
+scheme = "rmw_zenoh"
+robot_from_key = "ros2_namespace"
+"#;
+        let key = |namespace: &str| {
+            format!(
+                "0/{namespace}/joint_states/{JOINT_TYPE}/{}",
+                ros2::JOINT_STATE_TYPE_HASH
+            )
+        };
+        let mut h = start(config, &[&key("ur7")]).await;
+        let (joints, _) = bag_messages();
+        h.put(&key("ur7"), &joints[0], None).await;
+        h.put(&key("stranger"), &joints[0], None).await;
+        h.round_trip().await;
+        h.receive_until("the rejection", |r| {
+            r.iter().any(|(k, _)| k == "twin/events/stranger")
+                && r.iter().any(|(k, _)| k == "twin/pose/ur7")
+        })
+        .await;
+        let stamp_s = cdr::decode_joint_state(&joints[0], &cdr::JointNames::ur(""))
+            .unwrap()
+            .stamp_s;
+        let event = h.on("twin/events/stranger")[0];
+        assert_eq!(event["detail"]["cause"], "unknown_robot");
+        assert_eq!(event["t"].as_f64(), stamp_s);
+        assert_eq!(h.round_trip().await, ["ur7"]);
+        h.stop().await;
+    })
+    .await
+    .expect("test finished in time");
+}

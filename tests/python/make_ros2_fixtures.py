@@ -151,6 +151,13 @@ def message_fixtures() -> list[tuple[str, bytes, dict]]:
         stamp_s=stamp_s,
         q_rad=q,
     )
+    joints(
+        "joint_state_empty_effort.cdr",
+        # An empty last sequence: its count ends the message, with no padding after it.
+        joint_state(sec, nanosec, "", shuffled, shuffled_q, velocity),
+        stamp_s=stamp_s,
+        q_rad=q,
+    )
     empty = joints(
         "joint_state_empty_velocity_effort.cdr",
         joint_state(sec, nanosec, "", UR_JOINTS, q),

@@ -21,6 +21,7 @@ use armtwin::kinematics::OutputFrame;
 use armtwin::metrics::Deviation;
 use armtwin::model::RobotModel;
 use armtwin::pipeline::{Discard, Sink};
+use armtwin::ros2;
 use armtwin_bench::fleet::robot_id;
 use armtwin_bench::ingest_fixture::{Encode, Load, RENDERED};
 use armtwin_bench::workload::Workload;
@@ -70,6 +71,12 @@ fn parts(c: &mut Criterion) {
     c.bench_function("decode/joint_state_cdr", |b| {
         b.iter(|| cdr::decode_joint_state(black_box(joint_state), &joint_names));
     });
+    // What a ROS 2 joint sample on an `rmw_zenoh` key adds: its attachment (sequence number,
+    // source time, 16-byte gid), read before the twin lock.
+    let attachment = ros2::encode_attachment(1042, 1_748_954_669_250_000_000, &[7; 16]);
+    c.bench_function("decode/rmw_attachment", |b| {
+        b.iter(|| ros2::Attachment::parse(black_box(&attachment)));
+    });
     c.bench_function("decode/measured", |b| {
         b.iter(|| wire::decode_measured(black_box(measured.as_bytes())));
     });
@@ -94,6 +101,14 @@ fn parts(c: &mut Criterion) {
     };
     c.bench_function("encode/pose", |b| {
         b.iter(|| pose_message().to_json_bytes());
+    });
+    // The twin pose for ROS tools, beside its JSON message: a `PoseStamped` and its attachment.
+    c.bench_function("encode/pose_stamped_cdr", |b| {
+        b.iter(|| {
+            let payload = cdr::encode_pose_stamped(1000.25, "base", black_box(&twin));
+            let attachment = ros2::encode_attachment(42, 1_748_954_669_250_000_000, &[7; 16]);
+            (payload, attachment)
+        });
     });
     c.bench_function("encode/pose_serde_json", |b| {
         b.iter(|| wire::to_json_bytes(&pose_message()));

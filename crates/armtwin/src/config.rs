@@ -14,11 +14,14 @@ use serde::Deserialize;
 use thiserror::Error;
 
 use crate::align::AlignConfig;
+use crate::codec::cdr::JointNames;
 use crate::identify::IdentifyOptions;
+use crate::ingest::SourceCodec;
 use crate::kinematics::{OutputFrame, TcpOffset};
 use crate::model::{Calibration, ModelError, RobotModel, catalog, custom};
 use crate::orientation;
 use crate::pipeline::{AlarmConfig, PipelineConfig, RobotSettings, SensorStream};
+use crate::ros2::{self, KeyScheme, NamespaceRule, PoseOutput, PoseOutputs};
 use crate::self_calibration::ReservoirConfig;
 
 /// The embedded default configuration (`config/armtwin.toml`).
@@ -78,6 +81,8 @@ struct File {
     self_calibration: SelfCalibrationSection,
     #[serde(default)]
     robots: HashMap<String, RobotSection>,
+    #[serde(default)]
+    sources: Vec<SourceSection>,
 }
 
 /// `[self_calibration]`: how robots with `self_calibrate = true` keep their pairs and re-fit.
@@ -382,6 +387,7 @@ struct RobotSection {
     self_calibrate: Option<bool>,
     #[serde(default)]
     sensors: Vec<SensorSection>,
+    ros2_pose: Option<Ros2PoseSection>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -420,6 +426,10 @@ pub struct ServiceConfig {
     pub robots: HashMap<String, RobotSettings>,
     /// `[self_calibration]`.
     pub self_calibration: SelfCalibrationConfig,
+    /// `[[sources]]`: inputs on keys of the robots' own (ROS 2 topics, JSON elsewhere).
+    pub sources: Vec<SourceConfig>,
+    /// `ros2_pose` of `[robots.default]` and of each robot: the twin pose for ROS tools.
+    pub ros2_pose: PoseOutputs,
 }
 
 /// Command-line overrides, Zenoh style (`-m`, `-l`, `-e`, `--cfg`).
@@ -477,6 +487,17 @@ impl ServiceConfig {
             (source_name, base_dir),
             self_calibration.reservoir,
         )?;
+        let ros2_pose = load_pose_outputs(&file.robots, source_name)?;
+        let sources = load_sources(
+            &file.sources,
+            &SourceContext {
+                source_name,
+                key_prefix: &service.key_prefix,
+                robots: &robots,
+                default_robot: (!service.reject_unknown).then_some(&default_robot),
+                ros2_pose: &ros2_pose,
+            },
+        )?;
         Ok(Self {
             source_name: source_name.to_owned(),
             zenoh,
@@ -501,6 +522,8 @@ impl ServiceConfig {
             },
             robots,
             self_calibration,
+            sources,
+            ros2_pose,
         })
     }
 }
@@ -872,6 +895,513 @@ fn robot_settings(
             .unwrap_or(false)
             .then_some(reservoir),
     })
+}
+
+/// Which stream of its robot a source feeds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SourceStream {
+    /// Joint samples (`JointState` for ROS 2).
+    Joints,
+    /// Measured TCP poses in the robot's `base` frame (`PoseStamped` for ROS 2).
+    Measured,
+}
+
+impl SourceStream {
+    /// The configuration's name.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Joints => "joints",
+            Self::Measured => "measured",
+        }
+    }
+}
+
+/// How a source finds the robot of a sample.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum SourceRobot {
+    /// Every sample is this robot's (`robot = "<id>"`).
+    Fixed(String),
+    /// The ROS namespace in the sample's key (`robot_from_key = "ros2_namespace"`).
+    FromKey(NamespaceRule),
+}
+
+/// What a `codec = "ros2"` source reads.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Ros2Source {
+    /// Whether samples carry `rmw_zenoh`'s attachment (and how keys are laid out).
+    pub scheme: KeyScheme,
+    /// The joints' names in `JointState` (`tf_prefix` included).
+    pub joint_names: JointNames,
+    /// The frame a `PoseStamped` must be in: `<tf_prefix>base`.
+    pub base_frame: String,
+}
+
+/// One `[[sources]]` entry, checked.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SourceConfig {
+    /// The key expression subscribed to.
+    pub key_expr: String,
+    /// How payloads are encoded.
+    pub codec: SourceCodec,
+    /// The stream fed.
+    pub stream: SourceStream,
+    /// The robot of each sample.
+    pub robot: SourceRobot,
+    /// `Some` exactly for `codec = "ros2"`.
+    pub ros2: Option<Ros2Source>,
+}
+
+/// How `robot_from_key` reads a robot id.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+enum RobotFromKey {
+    /// The ROS namespace of the key's topic.
+    Ros2Namespace,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SourceSection {
+    key: String,
+    codec: SourceCodec,
+    stream: SourceStream,
+    robot: Option<String>,
+    robot_from_key: Option<RobotFromKey>,
+    scheme: Option<KeyScheme>,
+    topic: Option<String>,
+    tf_prefix: Option<String>,
+    joint_names: Option<Vec<String>>,
+}
+
+/// `ros2_pose` of a robot section (fields the robot's own leaves out come from
+/// `[robots.default.ros2_pose]`).
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Ros2PoseSection {
+    enabled: Option<bool>,
+    scheme: Option<KeyScheme>,
+    domain_id: Option<u32>,
+    namespace: Option<String>,
+    topic: Option<String>,
+    tf_prefix: Option<String>,
+    type_hash: Option<String>,
+}
+
+/// The twin pose outputs of `[robots.default]` and of every robot section.
+fn load_pose_outputs(
+    sections: &HashMap<String, RobotSection>,
+    source_name: &str,
+) -> Result<PoseOutputs, ConfigError> {
+    let fallback = sections.get("default").and_then(|s| s.ros2_pose.as_ref());
+    let mut outputs = PoseOutputs {
+        default: pose_output("default", fallback, None, source_name)?,
+        robots: HashMap::new(),
+    };
+    if fallback.is_some_and(|section| section.namespace.is_some()) {
+        return Err(ConfigError::Invalid {
+            source_name: source_name.to_owned(),
+            field: "robots.default.ros2_pose.namespace".to_owned(),
+            problem: "would give every robot the same key: set it per robot (without it, a \
+                      robot's namespace is its id)"
+                .to_owned(),
+        });
+    }
+    for (id, section) in sections {
+        if id != "default" {
+            let output = pose_output(id, section.ros2_pose.as_ref(), fallback, source_name)?;
+            outputs.robots.insert(id.clone(), output);
+        }
+    }
+    Ok(outputs)
+}
+
+/// One robot's twin pose output: its own `ros2_pose` fields, else the default section's.
+fn pose_output(
+    id: &str,
+    own: Option<&Ros2PoseSection>,
+    fallback: Option<&Ros2PoseSection>,
+    source_name: &str,
+) -> Result<Option<PoseOutput>, ConfigError> {
+    if own.is_none() && fallback.is_none() {
+        return Ok(None);
+    }
+    let invalid = |name: &str, problem: String| ConfigError::Invalid {
+        source_name: source_name.to_owned(),
+        field: format!("robots.\"{id}\".ros2_pose.{name}"),
+        problem,
+    };
+    let pick = |field: fn(&Ros2PoseSection) -> Option<&str>| {
+        own.and_then(field).or_else(|| fallback.and_then(field))
+    };
+    let enabled = own
+        .and_then(|s| s.enabled)
+        .or_else(|| fallback.and_then(|s| s.enabled))
+        .unwrap_or(true);
+    if !enabled {
+        return Ok(None);
+    }
+    let scheme = own
+        .and_then(|s| s.scheme)
+        .or_else(|| fallback.and_then(|s| s.scheme))
+        .ok_or_else(|| {
+            invalid(
+                "scheme",
+                "is needed: \"rmw_zenoh\" (ROS 2 on Zenoh) or \"bridge\" (zenoh-bridge-ros2dds)"
+                    .to_owned(),
+            )
+        })?;
+    let namespace = own
+        .and_then(|s| s.namespace.as_deref())
+        .map(|namespace| {
+            ros2::relative_ros_name(namespace, true)
+                .map(str::to_owned)
+                .map_err(|e| invalid("namespace", e.to_string()))
+        })
+        .transpose()?;
+    let topic = pick(|s| s.topic.as_deref()).unwrap_or(ros2::DEFAULT_POSE_OUTPUT_TOPIC);
+    let topic = ros2::relative_ros_name(topic, false)
+        .map_err(|e| invalid("topic", e.to_string()))?
+        .to_owned();
+    let type_hash = pick(|s| s.type_hash.as_deref()).unwrap_or(ros2::POSE_STAMPED_TYPE_HASH);
+    if type_hash.is_empty() || type_hash.contains(['/', '*', '$', '?', '#']) {
+        return Err(invalid(
+            "type_hash",
+            format!("'{type_hash}' is not one key chunk"),
+        ));
+    }
+    Ok(Some(PoseOutput {
+        scheme,
+        domain_id: own
+            .and_then(|s| s.domain_id)
+            .or_else(|| fallback.and_then(|s| s.domain_id))
+            .unwrap_or(0),
+        namespace,
+        topic,
+        tf_prefix: pick(|s| s.tf_prefix.as_deref()).unwrap_or("").to_owned(),
+        type_hash: type_hash.to_owned(),
+    }))
+}
+
+/// What `[[sources]]` are checked against.
+struct SourceContext<'a> {
+    source_name: &'a str,
+    key_prefix: &'a str,
+    robots: &'a HashMap<String, RobotSettings>,
+    /// `None` when unknown robots are rejected.
+    default_robot: Option<&'a RobotSettings>,
+    ros2_pose: &'a PoseOutputs,
+}
+
+impl SourceContext<'_> {
+    fn invalid(&self, index: usize, name: &str, problem: String) -> ConfigError {
+        ConfigError::Invalid {
+            source_name: self.source_name.to_owned(),
+            field: if name.is_empty() {
+                format!("sources[{index}]")
+            } else {
+                format!("sources[{index}].{name}")
+            },
+            problem,
+        }
+    }
+}
+
+/// Checks every `[[sources]]` entry: a combination that cannot work is refused here, with the
+/// field and the reason, rather than silently taking nothing at run time.
+fn load_sources(
+    sections: &[SourceSection],
+    context: &SourceContext<'_>,
+) -> Result<Vec<SourceConfig>, ConfigError> {
+    let mut sources: Vec<SourceConfig> = Vec::with_capacity(sections.len());
+    let mut keys: Vec<zenoh::key_expr::KeyExpr<'static>> = Vec::new();
+    for (index, section) in sections.iter().enumerate() {
+        let source = load_source(index, section, context)?;
+        let key = check_source_key(index, &source, &keys, context)?;
+        keys.push(key);
+        sources.push(source);
+    }
+    for (id, settings) in context.robots {
+        for (index, sensor) in settings.sensors.iter().enumerate() {
+            let Ok(sensor_key) = zenoh::key_expr::KeyExpr::try_from(sensor.key_expr.as_str())
+            else {
+                // The service names a malformed sensor key when it declares it.
+                continue;
+            };
+            let field = format!("robots.\"{id}\".sensors[{index}].key_expr");
+            let clash = keys
+                .iter()
+                .enumerate()
+                .find(|(_, key)| key.intersects(&sensor_key))
+                .map(|(source, _)| format!("intersects sources[{source}].key"))
+                .or_else(|| own_pose_output(&sensor_key, context.ros2_pose));
+            if let Some(problem) = clash {
+                return Err(ConfigError::Invalid {
+                    source_name: context.source_name.to_owned(),
+                    field,
+                    problem: format!("'{}' {problem}", sensor.key_expr),
+                });
+            }
+        }
+    }
+    Ok(sources)
+}
+
+/// Why `key` would receive armtwin's own twin pose output, if it would.
+fn own_pose_output(key: &zenoh::key_expr::KeyExpr<'_>, outputs: &PoseOutputs) -> Option<String> {
+    outputs.key_patterns().into_iter().find_map(|pattern| {
+        let output = zenoh::key_expr::KeyExpr::try_from(pattern.as_str()).ok()?;
+        key.intersects(&output).then(|| {
+            format!("intersects the twin pose output '{pattern}': armtwin would read its own poses")
+        })
+    })
+}
+
+/// The ROS 2 settings of a source (`None` for JSON, which takes none of them).
+fn ros2_source(
+    index: usize,
+    section: &SourceSection,
+    context: &SourceContext<'_>,
+) -> Result<Option<Ros2Source>, ConfigError> {
+    let invalid = |name: &str, problem: String| context.invalid(index, name, problem);
+    let ros2_only = [
+        ("robot_from_key", section.robot_from_key.is_some()),
+        ("scheme", section.scheme.is_some()),
+        ("topic", section.topic.is_some()),
+        ("tf_prefix", section.tf_prefix.is_some()),
+        ("joint_names", section.joint_names.is_some()),
+    ];
+    match section.codec {
+        SourceCodec::Json | SourceCodec::ZenohSerialized => {
+            if let Some((name, _)) = ros2_only.iter().find(|(_, given)| *given) {
+                return Err(invalid(
+                    name,
+                    "is read only with codec = \"ros2\" (a JSON source names its robot with \
+                     robot = \"<id>\")"
+                        .to_owned(),
+                ));
+            }
+            Ok(None)
+        }
+        SourceCodec::Ros2 => {
+            let scheme = section.scheme.ok_or_else(|| {
+                invalid(
+                    "scheme",
+                    "codec = \"ros2\" needs scheme = \"rmw_zenoh\" (ROS 2 on Zenoh: keys \
+                     <domain>/<namespace>/<topic>/<type>/<hash>, an attachment per sample) or \
+                     \"bridge\" (zenoh-bridge-ros2dds: keys <namespace>/<topic>)"
+                        .to_owned(),
+                )
+            })?;
+            let tf_prefix = section.tf_prefix.clone().unwrap_or_default();
+            let joint_names = match (&section.joint_names, section.stream) {
+                (None, _) => JointNames::ur(&tf_prefix),
+                (Some(_), SourceStream::Measured) => {
+                    return Err(invalid(
+                        "joint_names",
+                        "is read only with stream = \"joints\"".to_owned(),
+                    ));
+                }
+                (Some(names), SourceStream::Joints) => JointNames::new(
+                    names
+                        .iter()
+                        .map(|name| format!("{tf_prefix}{name}"))
+                        .collect(),
+                )
+                .ok_or_else(|| {
+                    invalid(
+                        "joint_names",
+                        "needs 1 to 32 names, base to flange".to_owned(),
+                    )
+                })?,
+            };
+            Ok(Some(Ros2Source {
+                scheme,
+                base_frame: format!("{tf_prefix}base"),
+                joint_names,
+            }))
+        }
+    }
+}
+
+fn load_source(
+    index: usize,
+    section: &SourceSection,
+    context: &SourceContext<'_>,
+) -> Result<SourceConfig, ConfigError> {
+    let invalid = |name: &str, problem: String| context.invalid(index, name, problem);
+    let ros2 = ros2_source(index, section, context)?;
+    let robot = match (&section.robot, section.robot_from_key) {
+        (Some(_), Some(_)) => {
+            return Err(invalid(
+                "",
+                "robot and robot_from_key exclude each other".to_owned(),
+            ));
+        }
+        (None, None) => {
+            return Err(invalid(
+                "",
+                "needs robot = \"<id>\" (every sample is that robot's) or, with codec = \
+                 \"ros2\", robot_from_key = \"ros2_namespace\" (the robot is the topic's \
+                 namespace)"
+                    .to_owned(),
+            ));
+        }
+        (Some(id), None) => {
+            if section.topic.is_some() {
+                return Err(invalid(
+                    "topic",
+                    "is read only with robot_from_key (it tells the namespace from the topic)"
+                        .to_owned(),
+                ));
+            }
+            let settings = fixed_robot(index, id, context)?;
+            check_joint_count(index, id, settings, ros2.as_ref(), section.stream, context)?;
+            SourceRobot::Fixed(id.clone())
+        }
+        (None, Some(RobotFromKey::Ros2Namespace)) => {
+            // A JSON source with robot_from_key is refused above, with the field named.
+            let Some(ros2) = &ros2 else {
+                return Err(invalid(
+                    "robot_from_key",
+                    "is read only with codec = \"ros2\"".to_owned(),
+                ));
+            };
+            let (default_topic, dds_type) = match section.stream {
+                SourceStream::Joints => (ros2::UR_JOINT_TOPIC, ros2::JOINT_STATE_DDS_TYPE),
+                SourceStream::Measured => (ros2::UR_POSE_TOPIC, ros2::POSE_STAMPED_DDS_TYPE),
+            };
+            let topic = section.topic.as_deref().unwrap_or(default_topic);
+            let rule = NamespaceRule::new(ros2.scheme, topic, dds_type)
+                .map_err(|e| invalid("topic", e.to_string()))?;
+            SourceRobot::FromKey(rule)
+        }
+    };
+    Ok(SourceConfig {
+        key_expr: section.key.clone(),
+        codec: section.codec,
+        stream: section.stream,
+        robot,
+        ros2,
+    })
+}
+
+/// The settings of a source's fixed robot, if it may be tracked at all.
+fn fixed_robot<'a>(
+    index: usize,
+    id: &str,
+    context: &SourceContext<'a>,
+) -> Result<&'a RobotSettings, ConfigError> {
+    if id.is_empty()
+        || id.contains(['*', '$', '?', '#'])
+        || id.starts_with('/')
+        || id.ends_with('/')
+    {
+        return Err(context.invalid(
+            index,
+            "robot",
+            format!("'{id}' is not a robot id (one or more key chunks without wildcards)"),
+        ));
+    }
+    context
+        .robots
+        .get(id)
+        .or(context.default_robot)
+        .ok_or_else(|| {
+            context.invalid(
+                index,
+                "robot",
+                format!(
+                    "robot '{id}' is not configured and service.reject_unknown is true: every \
+                     sample would be rejected"
+                ),
+            )
+        })
+}
+
+/// A ROS 2 joint source of a fixed robot must name as many joints as the robot's arm has.
+fn check_joint_count(
+    index: usize,
+    id: &str,
+    settings: &RobotSettings,
+    ros2: Option<&Ros2Source>,
+    stream: SourceStream,
+    context: &SourceContext<'_>,
+) -> Result<(), ConfigError> {
+    let (Some(ros2), SourceStream::Joints) = (ros2, stream) else {
+        return Ok(());
+    };
+    let names = ros2.joint_names.as_slice().len();
+    let joints = settings.model.joint_count();
+    if names == joints {
+        Ok(())
+    } else {
+        Err(context.invalid(
+            index,
+            "joint_names",
+            format!(
+                "{names} joint names for robot '{id}', whose arm has {joints} joints (name them \
+                 with joint_names = [...])"
+            ),
+        ))
+    }
+}
+
+/// Checks a source's key expression: valid, clear of armtwin's own inputs and outputs and of
+/// its twin pose outputs (a local put is delivered in the publishing thread, which holds the twin's lock),
+/// disjoint from the sources before it, and able to name a robot under its rule.
+fn check_source_key(
+    index: usize,
+    source: &SourceConfig,
+    earlier: &[zenoh::key_expr::KeyExpr<'static>],
+    context: &SourceContext<'_>,
+) -> Result<zenoh::key_expr::KeyExpr<'static>, ConfigError> {
+    use zenoh::key_expr::KeyExpr;
+    let invalid = |problem: String| context.invalid(index, "key", problem);
+    let text = &source.key_expr;
+    let key = KeyExpr::try_from(text.clone())
+        .map_err(|e| invalid(format!("'{text}' is not a key expression: {e}")))?;
+    // Outputs would feed back into the twin; the built-in inputs would be taken twice.
+    for stream in [
+        "pose",
+        "deviation",
+        "metrics",
+        "events",
+        "joints",
+        "measured",
+    ] {
+        let own = format!("{}/{stream}/**", context.key_prefix);
+        if KeyExpr::try_from(own.as_str()).is_ok_and(|own_key| key.intersects(&own_key)) {
+            return Err(invalid(format!(
+                "'{text}' intersects armtwin's own '{own}' (its inputs and outputs are not \
+                 sources)"
+            )));
+        }
+    }
+    if let Some(problem) = own_pose_output(&key, context.ros2_pose) {
+        return Err(invalid(format!("'{text}' {problem}")));
+    }
+    if let Some(other) = earlier.iter().position(|other| other.intersects(&key)) {
+        return Err(invalid(format!(
+            "'{text}' intersects sources[{other}].key '{}': a sample would be taken twice",
+            earlier[other]
+        )));
+    }
+    if let SourceRobot::FromKey(rule) = &source.robot {
+        let pattern = rule.key_pattern();
+        let matches = KeyExpr::try_from(pattern.as_str()).is_ok_and(|p| key.intersects(&p));
+        if !matches {
+            let scheme = source.ros2.as_ref().map_or("", |ros2| ros2.scheme.as_str());
+            return Err(invalid(format!(
+                "'{text}' never carries topic '/{}' under a namespace in the {scheme} layout \
+                 ('{pattern}'): no sample could name a robot (set topic, or robot = \"<id>\" \
+                 for a robot without a namespace)",
+                rule.topic()
+            )));
+        }
+    }
+    Ok(key)
 }
 
 #[cfg(test)]

@@ -6,7 +6,8 @@
 //! ([`JointMessage::decode`], [`MeasuredMessage::decode`]) needs only the robot's immutable
 //! settings; stepping the pipeline with the result ([`JointMessage::step`],
 //! [`MeasuredMessage::step`]) is the only part that touches the twin. [`joint_message`] and
-//! [`measured_message`] do both.
+//! [`measured_message`] do both. ROS 2 messages of a `codec = "ros2"` source take the same two
+//! steps ([`Ros2JointMessage`], [`Ros2PoseMessage`]) into the same pipeline calls.
 //!
 //! The decoder is chosen per message ([`Codec`]): armtwin's JSON, or Zenoh's own serialization
 //! with one of armtwin's schemas ([`zser`]), as the sample's encoding says.
@@ -21,12 +22,40 @@
 use std::borrow::Cow;
 use std::sync::LazyLock;
 
+use serde::Deserialize;
 use zenoh::bytes::Encoding;
 
+use crate::codec::cdr::{self, CdrError, JointNames};
 use crate::codec::wire::{self, DecodedJoints, Undecodable, WireError};
 use crate::codec::zser;
-use crate::pipeline::{self, MeasuredStream, Pipeline, Robot, Sink};
-use crate::sample::MeasuredSample;
+use crate::pipeline::{self, MeasuredStream, Pipeline, RejectCause, Robot, Sink};
+use crate::ros2::AttachmentError;
+use crate::sample::{JointSample, MeasuredSample};
+
+/// How a source's payloads are encoded (`[[sources]] codec`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SourceCodec {
+    /// armtwin's own messages, read as on armtwin's keys: JSON, or Zenoh's serialization when
+    /// the sample's encoding says so.
+    Json,
+    /// Zenoh's serialization with the schema of the source's stream, whatever the encoding.
+    ZenohSerialized,
+    /// ROS 2 CDR: `sensor_msgs/msg/JointState` joints, `geometry_msgs/msg/PoseStamped` poses.
+    Ros2,
+}
+
+impl SourceCodec {
+    /// The configuration's name.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Json => "json",
+            Self::ZenohSerialized => "zenoh-serialized",
+            Self::Ros2 => "ros2",
+        }
+    }
+}
 
 /// How a message's payload is decoded.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -240,4 +269,113 @@ fn reject(
     sink: &mut impl Sink,
 ) {
     pipeline.reject(robot, key, stamp_s, error.cause(), error, sink);
+}
+
+/// A ROS 2 `sensor_msgs/msg/JointState` decoded for its robot (joints matched by name), with the
+/// stamp it goes in at: `header.stamp`, else the caller's fallback.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Ros2JointMessage {
+    stamp_s: f64,
+    decoded: Result<JointSample, CdrError>,
+}
+
+impl Ros2JointMessage {
+    /// Decodes `payload` for the arm whose `JointState` names are `joint_names`.
+    #[must_use]
+    pub fn decode(
+        payload: &[u8],
+        joint_names: &JointNames,
+        fallback_s: impl FnOnce() -> f64,
+    ) -> Self {
+        let decoded = cdr::decode_joint_state(payload, joint_names);
+        let stamp_s = match &decoded {
+            Ok(sample) => sample.stamp_s,
+            Err(_) => cdr::stamp_hint(payload),
+        };
+        Self {
+            stamp_s: stamp_s.unwrap_or_else(fallback_s),
+            decoded,
+        }
+    }
+
+    /// The stamp the message goes in at (s).
+    #[must_use]
+    pub fn stamp_s(&self) -> f64 {
+        self.stamp_s
+    }
+
+    /// Gives the sample the gateway sequence number `seq` (the `rmw_zenoh` attachment's).
+    pub fn set_seq(&mut self, seq: u64) {
+        if let Ok(sample) = &mut self.decoded {
+            sample.seq = Some(seq);
+        }
+    }
+
+    /// Steps `pipeline` with the message, which arrived on `key`.
+    pub fn step(&self, pipeline: &mut Pipeline, robot: &Robot, key: &str, sink: &mut impl Sink) {
+        match &self.decoded {
+            Ok(sample) => pipeline.joints(robot, key, self.stamp_s, sample, sink),
+            Err(error) => pipeline.reject(robot, key, self.stamp_s, error.cause(), error, sink),
+        }
+    }
+}
+
+/// A ROS 2 `geometry_msgs/msg/PoseStamped` decoded, its frame checked, with the stamp it goes in
+/// at: `header.stamp`, else the caller's fallback.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Ros2PoseMessage {
+    stamp_s: f64,
+    decoded: Result<MeasuredSample, CdrError>,
+}
+
+impl Ros2PoseMessage {
+    /// Decodes `payload`, a pose in `expected_frame` (the robot's `<tf_prefix>base`).
+    #[must_use]
+    pub fn decode(payload: &[u8], expected_frame: &str, fallback_s: impl FnOnce() -> f64) -> Self {
+        let decoded = cdr::decode_pose_stamped_in(payload, expected_frame).map(|pose| pose.sample);
+        let stamp_s = match &decoded {
+            Ok(sample) => sample.stamp_s,
+            Err(_) => cdr::stamp_hint(payload),
+        };
+        Self {
+            stamp_s: stamp_s.unwrap_or_else(fallback_s),
+            decoded,
+        }
+    }
+
+    /// The stamp the message goes in at (s).
+    #[must_use]
+    pub fn stamp_s(&self) -> f64 {
+        self.stamp_s
+    }
+
+    /// Steps `pipeline` with the pose of `robot`'s `stream`, which arrived on `key`.
+    pub fn step(
+        &self,
+        pipeline: &mut Pipeline,
+        robot: &Robot,
+        key: &str,
+        stream: MeasuredStream,
+        sink: &mut impl Sink,
+    ) {
+        match &self.decoded {
+            Ok(measured) => {
+                pipeline.measured(robot, key, stream, self.stamp_s, &measured.pose, sink);
+            }
+            Err(error) => pipeline.reject(robot, key, self.stamp_s, error.cause(), error, sink),
+        }
+    }
+}
+
+/// One rejection (event and count) for an `rmw_zenoh` attachment that does not parse; the
+/// sample it came with is stepped on its own, without a sequence number.
+pub fn reject_attachment(
+    pipeline: &mut Pipeline,
+    robot: &Robot,
+    key: &str,
+    stamp_s: f64,
+    error: &AttachmentError,
+    sink: &mut impl Sink,
+) {
+    pipeline.reject(robot, key, stamp_s, RejectCause::Attachment, error, sink);
 }

@@ -9,6 +9,8 @@
 //! - [`codec`]: the core's types to and from CSV, the service's JSON wire messages and ROS 2
 //!   CDR messages.
 //! - [`rosbag`]: rosbag2 recordings (MCAP, sqlite3) read into the rows a CSV becomes.
+//! - [`ros2`]: ROS 2 on Zenoh: `rmw_zenoh` and bridge key layouts, the robot a key names,
+//!   `rmw_zenoh`'s attachment, the twin pose output's key.
 //! - [`ingest`]: a gateway message's bytes into the pipeline, shared by the service and
 //!   `validate`.
 //! - [`config`]: the service's TOML configuration and command-line overrides.
@@ -32,6 +34,7 @@ pub mod config;
 pub mod fmu_package;
 pub mod ingest;
 pub mod replay;
+pub mod ros2;
 pub mod rosbag;
 pub mod service;
 pub mod validate;

@@ -1,11 +1,12 @@
 //! `armtwin serve`: the pipeline on a Zenoh mesh.
 //!
-//! Owns the session, the wildcard subscriptions and queryables, the per-robot publishers and
-//! liveliness tokens, and the ordered teardown. Samples and queries are handled in Zenoh's
-//! callbacks: each sample resolves its robot and decodes against the robot's immutable settings
-//! first, then steps the pipeline under one lock (see [`SharedTwin`]); a control thread declares
-//! newly tracked robots' entities, publishes the periodic metrics and finishes the pipeline at
-//! shutdown.
+//! Owns the session, the wildcard subscriptions and queryables (and one subscription per
+//! `[[sources]]` entry: JSON or ROS 2 on keys of their own), the per-robot publishers (the twin
+//! pose as a ROS 2 `PoseStamped` among them, for robots with `ros2_pose`) and liveliness tokens,
+//! and the ordered teardown. Samples and queries are handled in Zenoh's callbacks: each sample
+//! resolves its robot and decodes against the robot's immutable settings first, then steps the
+//! pipeline under one lock (see [`SharedTwin`]); a control thread declares newly tracked robots'
+//! entities, publishes the periodic metrics and finishes the pipeline at shutdown.
 //!
 //! Flow control: inputs are received reliably; while a callback works, Zenoh does not read its
 //! link, which backpressures the transport and, through it, the gateways: nothing valid is
@@ -30,16 +31,19 @@ use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
 use zenoh::query::Query;
-use zenoh::sample::Sample;
+use zenoh::sample::{Locality, Sample};
 use zenoh::session::Session;
 
 use crate::calibrate::EstimateMessage;
 use crate::codec::ik::{IkAnswerJson, IkRequest};
-use crate::codec::{PoseFields, wire, zser};
+use crate::codec::{PoseFields, cdr, wire, zser};
 use crate::config::{
-    Congestion, EventBudget, OutputEncoding, SelfCalibrationConfig, ServiceConfig, ZenohSection,
+    Congestion, EventBudget, OutputEncoding, Ros2Source, SelfCalibrationConfig, ServiceConfig,
+    SourceConfig, SourceRobot, SourceStream, ZenohSection,
 };
-use crate::ingest::{self, Codec, JointMessage, MeasuredMessage};
+use crate::ingest::{
+    self, Codec, JointMessage, MeasuredMessage, Ros2JointMessage, Ros2PoseMessage, SourceCodec,
+};
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
 use crate::model::RobotModel;
@@ -47,6 +51,7 @@ use crate::pipeline::{
     Event, EventDetail, EventKind, MeasuredStream, MetricsSnapshot, Pipeline, Robot,
     RobotDirectory, RobotIndex, Sink,
 };
+use crate::ros2::{self, Attachment, KeyScheme, PoseOutputs, PublisherSeq};
 use crate::self_calibration::{self, CalibrationBatch, Estimate};
 
 /// How long each teardown step may take.
@@ -185,6 +190,7 @@ pub async fn serve(
         prefix.clone(),
         config.encoding,
         config.pose_congestion,
+        Arc::new(config.ros2_pose.clone()),
     );
     let twin = Arc::new(SharedTwin {
         prefix: prefix.clone(),
@@ -323,6 +329,7 @@ async fn declare_intake(
             );
         }
     }
+    declare_sources(session, config, twin, &mut subscribers).await?;
     let queries: [(&str, QueryHandler); 5] = [
         ("state", TwinState::state),
         ("fk", TwinState::fk),
@@ -360,6 +367,76 @@ fn check_sensor_key(prefix: &str, robot: &str, key_expr: &str) -> Result<(), Ser
         }
     }
     Ok(())
+}
+
+/// One subscriber per `[[sources]]` entry (their keys were checked when the configuration
+/// loaded: outside armtwin's own keys and twin pose outputs, disjoint from each other).
+async fn declare_sources(
+    session: &Session,
+    config: &ServiceConfig,
+    twin: &Arc<SharedTwin>,
+    subscribers: &mut Vec<zenoh::pubsub::Subscriber<()>>,
+) -> Result<(), ServiceError> {
+    for source in &config.sources {
+        let intake = Arc::new(SourceIntake {
+            config: source.clone(),
+            publisher_seq: Mutex::new(Vec::new()),
+        });
+        let source_twin = twin.clone();
+        subscribers.push(
+            session
+                .declare_subscriber(source.key_expr.clone())
+                .callback(move |sample| source_twin.source(&intake, &sample))
+                .await?,
+        );
+        info!(
+            key = %source.key_expr,
+            codec = source.codec.as_str(),
+            stream = source.stream.as_str(),
+            "source subscribed"
+        );
+    }
+    Ok(())
+}
+
+/// A `[[sources]]` entry as the service runs it.
+struct SourceIntake {
+    config: SourceConfig,
+    /// By robot index: how the source's `rmw_zenoh` sequence numbers become gateway `seq`s.
+    /// Locked only under the twin's lock.
+    publisher_seq: Mutex<Vec<Option<PublisherSeq>>>,
+}
+
+impl SourceIntake {
+    /// The gateway `seq` of a joint sample of `robot` with `attachment`.
+    fn gateway_seq(&self, robot: &Robot, attachment: &Attachment) -> u64 {
+        let mut by_robot = self
+            .publisher_seq
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        let index = robot.index().get();
+        if by_robot.len() <= index {
+            by_robot.resize_with(index + 1, || None);
+        }
+        let (seq, changed) = by_robot[index]
+            .get_or_insert_with(PublisherSeq::default)
+            .gateway_seq(attachment);
+        if changed {
+            info!(
+                robot = robot.id(),
+                key = %self.config.key_expr,
+                sequence_number = attachment.sequence_number,
+                "another ROS publisher (gid): its sequence numbers carry on from the previous one's"
+            );
+        }
+        seq
+    }
+}
+
+fn unix_now_ns() -> i64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX))
 }
 
 fn unix_now_s() -> f64 {
@@ -487,23 +564,152 @@ impl SharedTwin {
         let codec = Codec::from_encoding(sample.encoding());
         let fallback_s = || transport_stamp_s(sample);
         self.with_robot(id, key, codec, &payload, fallback_s, |robot| {
-            self.measured_pose(robot, MeasuredStream::Robot, sample, &payload);
+            self.measured_pose(robot, MeasuredStream::Robot, codec, sample, &payload);
         });
     }
 
     fn sensor(&self, robot: &Robot, index: usize, sample: &Sample) {
         let payload = sample.payload().to_bytes();
-        self.measured_pose(robot, MeasuredStream::Sensor(index), sample, &payload);
+        let codec = Codec::from_encoding(sample.encoding());
+        self.measured_pose(
+            robot,
+            MeasuredStream::Sensor(index),
+            codec,
+            sample,
+            &payload,
+        );
+    }
+
+    /// A sample of a `[[sources]]` entry: its robot from the source (fixed, or the key's ROS
+    /// namespace), decoded with the source's codec before the lock, stepped like the built-in
+    /// inputs.
+    fn source(&self, source: &SourceIntake, sample: &Sample) {
+        let key = sample.key_expr().as_str();
+        let id = match &source.config.robot {
+            SourceRobot::Fixed(id) => id.as_str(),
+            SourceRobot::FromKey(rule) => {
+                let Some(id) = rule.robot_of(key) else {
+                    warn!(
+                        %key,
+                        source = %source.config.key_expr,
+                        topic = rule.topic(),
+                        "sample whose key names no robot (no ROS namespace before the topic, or \
+                         another type): ignored"
+                    );
+                    return;
+                };
+                id
+            }
+        };
+        let payload = sample.payload().to_bytes();
+        let Some(ros2) = &source.config.ros2 else {
+            let fallback_s = || transport_stamp_s(sample);
+            let codec = match (source.config.codec, source.config.stream) {
+                (SourceCodec::ZenohSerialized, SourceStream::Joints) => {
+                    Codec::ZenohSerialized(Some(zser::Schema::Joints))
+                }
+                (SourceCodec::ZenohSerialized, SourceStream::Measured) => {
+                    Codec::ZenohSerialized(Some(zser::Schema::Pose))
+                }
+                _ => Codec::from_encoding(sample.encoding()),
+            };
+            self.with_robot(id, key, codec, &payload, fallback_s, |robot| {
+                match source.config.stream {
+                    SourceStream::Joints => {
+                        let message = JointMessage::decode(robot, codec, &payload, fallback_s);
+                        let mut guard = self.lock();
+                        if let Some(state) = guard.running() {
+                            message.step(&mut state.pipeline, robot, key, &mut state.sink);
+                        }
+                    }
+                    SourceStream::Measured => {
+                        let stream = MeasuredStream::Robot;
+                        self.measured_pose(robot, stream, codec, sample, &payload);
+                    }
+                }
+            });
+            return;
+        };
+        self.ros2_sample(source, ros2, id, sample, &payload);
+    }
+
+    /// A ROS 2 sample of robot `id`: `header.stamp` is its source time (else the attachment's
+    /// source timestamp, else the transport's); the `rmw_zenoh` attachment's sequence number is
+    /// the gateway `seq` of joint samples, and an attachment that does not parse is rejected on
+    /// its own while the message still goes in.
+    fn ros2_sample(
+        &self,
+        source: &SourceIntake,
+        ros2: &Ros2Source,
+        id: &str,
+        sample: &Sample,
+        payload: &[u8],
+    ) {
+        let key = sample.key_expr().as_str();
+        let attachment = match (ros2.scheme, sample.attachment()) {
+            (KeyScheme::RmwZenoh, Some(bytes)) => Some(Attachment::parse(&bytes.to_bytes())),
+            _ => None,
+        };
+        let source_stamp_s = attachment
+            .as_ref()
+            .and_then(|parsed| parsed.as_ref().ok())
+            .and_then(Attachment::source_timestamp_s);
+        let fallback_s = || source_stamp_s.unwrap_or_else(|| transport_stamp_s(sample));
+        // A robot that may not be tracked is rejected at the header's stamp (the JSON stamp
+        // hint `with_robot` reads has nothing to read in CDR).
+        let unknown_stamp_s = || cdr::stamp_hint(payload).unwrap_or_else(fallback_s);
+        self.with_robot(id, key, Codec::Json, &[], unknown_stamp_s, |robot| {
+            let reject_attachment = |state: &mut TwinState, stamp_s: f64| {
+                if let Some(Err(error)) = &attachment {
+                    ingest::reject_attachment(
+                        &mut state.pipeline,
+                        robot,
+                        key,
+                        stamp_s,
+                        error,
+                        &mut state.sink,
+                    );
+                }
+            };
+            match source.config.stream {
+                SourceStream::Joints => {
+                    let mut message =
+                        Ros2JointMessage::decode(payload, &ros2.joint_names, fallback_s);
+                    let mut guard = self.lock();
+                    if let Some(state) = guard.running() {
+                        reject_attachment(state, message.stamp_s());
+                        if let Some(Ok(attachment)) = &attachment {
+                            message.set_seq(source.gateway_seq(robot, attachment));
+                        }
+                        message.step(&mut state.pipeline, robot, key, &mut state.sink);
+                    }
+                }
+                SourceStream::Measured => {
+                    let message = Ros2PoseMessage::decode(payload, &ros2.base_frame, fallback_s);
+                    let mut guard = self.lock();
+                    if let Some(state) = guard.running() {
+                        reject_attachment(state, message.stamp_s());
+                        message.step(
+                            &mut state.pipeline,
+                            robot,
+                            key,
+                            MeasuredStream::Robot,
+                            &mut state.sink,
+                        );
+                    }
+                }
+            }
+        });
     }
 
     fn measured_pose(
         &self,
         robot: &Robot,
         stream: MeasuredStream,
+        codec: Codec,
         sample: &Sample,
         payload: &[u8],
     ) {
-        let codec = Codec::from_encoding(sample.encoding());
         let message = MeasuredMessage::decode(codec, payload, || transport_stamp_s(sample));
         let mut guard = self.lock();
         if let Some(state) = guard.running() {
@@ -1128,6 +1334,8 @@ struct RobotOutputs {
     deviation: Publisher<'static>,
     metrics: Publisher<'static>,
     events: Publisher<'static>,
+    /// The twin pose as a ROS 2 `PoseStamped`, if the robot has `ros2_pose`.
+    ros2_pose: Option<Publisher<'static>>,
     token: Option<LivelinessToken>,
     /// The robot's input keys, declared so Zenoh caches their routes.
     inputs: Vec<KeyExpr<'static>>,
@@ -1185,6 +1393,8 @@ struct Declarer {
     pose_congestion: CongestionControl,
     pose_encoding: Encoding,
     deviation_encoding: Encoding,
+    /// Which robots publish their twin pose for ROS tools, and where.
+    ros2_pose: Arc<PoseOutputs>,
 }
 
 impl Declarer {
@@ -1193,6 +1403,7 @@ impl Declarer {
         prefix: String,
         encoding: OutputEncoding,
         pose_congestion: Congestion,
+        ros2_pose: Arc<PoseOutputs>,
     ) -> Self {
         let (pose_encoding, deviation_encoding) = match encoding {
             OutputEncoding::Json => (Encoding::APPLICATION_JSON, Encoding::APPLICATION_JSON),
@@ -1211,6 +1422,7 @@ impl Declarer {
             },
             pose_encoding,
             deviation_encoding,
+            ros2_pose,
         }
     }
 
@@ -1279,6 +1491,17 @@ impl Declarer {
         let deviation = self.publisher(Stream::Deviation, robot)?;
         let metrics = self.publisher(Stream::Metrics, robot)?;
         let events = self.publisher(Stream::Events, robot)?;
+        let ros2_pose = match self.ros2_pose.of(robot) {
+            Some(output) => Some(
+                self.session
+                    .declare_publisher(output.key(robot))
+                    .congestion_control(self.pose_congestion)
+                    // Never delivered back into this session's sources, whatever their keys.
+                    .allowed_destination(Locality::Remote)
+                    .wait()?,
+            ),
+            None => None,
+        };
         // Last: a visible token means every entity of the robot is declared.
         let token = self
             .session
@@ -1290,6 +1513,7 @@ impl Declarer {
             deviation,
             metrics,
             events,
+            ros2_pose,
             token: Some(token),
             inputs,
         })
@@ -1307,10 +1531,14 @@ impl Declarer {
                 deviation,
                 metrics,
                 events,
+                ros2_pose,
                 token,
                 inputs,
             } = outputs;
-            for publisher in [pose, deviation, metrics, events] {
+            for publisher in [pose, deviation, metrics, events]
+                .into_iter()
+                .chain(ros2_pose)
+            {
                 if let Err(e) = publisher.undeclare().wait() {
                     warn!(%robot, error = %e, "undeclaring a publisher failed");
                 }
@@ -1346,6 +1574,20 @@ struct ZenohSink {
     /// Shared by the robots that may not be tracked, so a flood of made-up ids cannot grow the
     /// buckets.
     untracked_bucket: EventBucket,
+    /// By robot index, from tracking on: the twin pose for ROS tools.
+    ros2_poses: Vec<Option<Ros2PoseState>>,
+}
+
+/// A robot's twin pose output for ROS tools, as the sink publishes it.
+struct Ros2PoseState {
+    /// Its key, for the poses sent before the publisher is declared.
+    key: String,
+    /// `<tf_prefix>base` or `<tf_prefix>base_link`: the robot's output frame.
+    frame_id: String,
+    /// `Some` for `rmw_zenoh`: the publisher gid of the attachment.
+    gid: Option<[u8; 16]>,
+    /// The attachment's next sequence number (from 1, as `rmw_zenoh` counts).
+    next_seq: i64,
 }
 
 /// A token bucket of events (wall-clock time: it protects subscribers and logs, not statistics).
@@ -1394,6 +1636,7 @@ impl ZenohSink {
             event_budget,
             event_buckets: Vec::new(),
             untracked_bucket: EventBucket::full(event_budget, Instant::now()),
+            ros2_poses: Vec::new(),
         }
     }
 
@@ -1416,6 +1659,66 @@ impl ZenohSink {
         let sent = self.declarer.put(outputs, robot, stream, payload);
         self.publish_errors += u64::from(!sent);
     }
+
+    /// Prepares `robot`'s twin pose output for ROS tools, if it has one.
+    fn track_ros2_pose(&mut self, robot: &Robot) {
+        let Some(output) = self.declarer.ros2_pose.of(robot.id()) else {
+            return;
+        };
+        if output.namespace.is_none()
+            && let Err(e) = ros2::relative_ros_name(robot.id(), true)
+        {
+            warn!(robot = robot.id(), error = %e, "the robot id is its twin pose's ROS namespace, but not a ROS name: ROS nodes cannot subscribe to it (set ros2_pose.namespace)");
+        }
+        let state = Ros2PoseState {
+            key: output.key(robot.id()),
+            frame_id: cdr::frame_id(&output.tf_prefix, robot.settings().model.frame()),
+            gid: output.attaches().then(|| {
+                ros2::publisher_gid(&self.declarer.session.zid().to_le_bytes(), robot.id())
+            }),
+            next_seq: 1,
+        };
+        let index = robot.index().get();
+        if self.ros2_poses.len() <= index {
+            self.ros2_poses.resize_with(index + 1, || None);
+        }
+        self.ros2_poses[index] = Some(state);
+    }
+
+    /// Publishes the twin pose as a CDR `PoseStamped` (with `rmw_zenoh`'s attachment for that
+    /// scheme), if `robot` has the output.
+    fn put_ros2_pose(&mut self, robot: &Robot, stamp_s: f64, pose: &PoseReadout) {
+        let index = robot.index().get();
+        let Some(Some(state)) = self.ros2_poses.get_mut(index) else {
+            return;
+        };
+        let payload = cdr::encode_pose_stamped(stamp_s, &state.frame_id, pose);
+        let attachment = state.gid.map(|gid| {
+            let seq = state.next_seq;
+            state.next_seq += 1;
+            ros2::encode_attachment(seq, unix_now_ns(), &gid)
+        });
+        let publisher = self
+            .outputs
+            .get(index)
+            .and_then(Option::as_ref)
+            .and_then(|outputs| outputs.ros2_pose.as_ref());
+        let result = match publisher {
+            Some(publisher) => publisher.put(payload).attachment(attachment).wait(),
+            None => self
+                .declarer
+                .session
+                .put(&state.key, payload)
+                .attachment(attachment)
+                .congestion_control(self.declarer.pose_congestion)
+                .allowed_destination(Locality::Remote)
+                .wait(),
+        };
+        if let Err(e) = result {
+            warn!(error = %e, robot = robot.id(), key = %state.key, "publish failed");
+            self.publish_errors += 1;
+        }
+    }
 }
 
 impl Sink for ZenohSink {
@@ -1425,6 +1728,7 @@ impl Sink for ZenohSink {
             self.event_buckets.resize_with(index + 1, || None);
         }
         self.event_buckets[index] = Some(EventBucket::full(self.event_budget, Instant::now()));
+        self.track_ros2_pose(robot);
         // Fails only once the control thread has stopped, when nothing is declared any more.
         let _ = self.control.send(Control::Track(robot.clone()));
     }
@@ -1448,6 +1752,7 @@ impl Sink for ZenohSink {
         };
         self.put(robot.id(), Some(robot.index()), Stream::Pose, payload);
         self.poses += 1;
+        self.put_ros2_pose(robot, stamp_s, pose);
     }
 
     fn deviation(

@@ -48,8 +48,9 @@ impl EventKind {
     }
 }
 
-/// Why an input was rejected: the decoder's classes (one per `WireError` variant of the wire
-/// codec) and the pipeline's own checks.
+/// Why an input was rejected: the decoders' classes (one per `WireError` variant of the wire
+/// codec; the ROS 2 CDR decoder shares the classes it has in common with it and adds its own)
+/// and the pipeline's own checks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum RejectCause {
     /// The payload exceeds the size limit.
@@ -100,6 +101,21 @@ pub enum RejectCause {
     OutOfRange,
     /// The robot is neither configured nor covered by a default.
     UnknownRobot,
+    /// A CDR payload without a plain XCDR1 encapsulation header.
+    CdrHeader,
+    /// A CDR field runs past the end of the payload.
+    CdrTruncated,
+    /// A CDR message damaged otherwise: a count beyond any sane message, a string without its
+    /// NUL, nanoseconds of a second or more, fewer or more positions than names.
+    CdrMalformed,
+    /// One of the arm's joints is not named in a `JointState`.
+    MissingJoint,
+    /// One of the arm's joints is named twice in a `JointState`.
+    DuplicateJoint,
+    /// A `PoseStamped` in another frame than the robot's `<tf_prefix>base`.
+    FrameId,
+    /// An `rmw_zenoh` sample attachment that does not parse (the sample itself is still taken).
+    Attachment,
 }
 
 impl RejectCause {
@@ -132,6 +148,13 @@ impl RejectCause {
             Self::SeqNotIncreasing => "seq_not_increasing",
             Self::OutOfRange => "out_of_range",
             Self::UnknownRobot => "unknown_robot",
+            Self::CdrHeader => "cdr_header",
+            Self::CdrTruncated => "cdr_truncated",
+            Self::CdrMalformed => "cdr_malformed",
+            Self::MissingJoint => "missing_joint",
+            Self::DuplicateJoint => "duplicate_joint",
+            Self::FrameId => "frame_id",
+            Self::Attachment => "attachment",
         }
     }
 }

@@ -18,6 +18,7 @@ use thiserror::Error;
 use super::wire::{self, MAX_PAYLOAD_BYTES, WireError};
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::model::catalog::UR_JOINT_NAMES;
+use crate::pipeline::RejectCause;
 use crate::sample::{JointSample, MeasuredSample};
 
 /// Most names (and values per array) a `JointState` may carry; more is a damaged message.
@@ -132,6 +133,14 @@ pub enum CdrError {
         /// Its norm.
         norm: f64,
     },
+    /// A `PoseStamped` in another frame than the one the robot's poses are read in.
+    #[error("'PoseStamped.header.frame_id' is '{frame_id}', expected '{expected}'")]
+    FrameId {
+        /// The frame sent.
+        frame_id: String,
+        /// The frame expected (`<tf_prefix>base`).
+        expected: String,
+    },
 }
 
 impl CdrError {
@@ -153,6 +162,29 @@ impl CdrError {
             Self::DuplicateJoint { .. } => "duplicate_joint",
             Self::NonFinite { .. } => "non_finite",
             Self::QuaternionNorm { .. } => "quaternion_norm",
+            Self::FrameId { .. } => "frame_id",
+        }
+    }
+
+    /// The rejection cause of a message refused for this error: the JSON decoder's where both
+    /// decoders share the class, else a CDR one (`cdr_header`, `cdr_truncated`, `cdr_malformed`,
+    /// `missing_joint`, `duplicate_joint`, `frame_id`).
+    #[must_use]
+    pub fn cause(&self) -> RejectCause {
+        match self {
+            Self::TooLarge { .. } => RejectCause::TooLarge,
+            Self::NoHeader { .. } | Self::Representation { .. } => RejectCause::CdrHeader,
+            Self::Truncated { .. } => RejectCause::CdrTruncated,
+            Self::Count { .. }
+            | Self::Unterminated { .. }
+            | Self::Nanosec { .. }
+            | Self::LengthMismatch { .. } => RejectCause::CdrMalformed,
+            Self::NotUtf8 { .. } => RejectCause::NotUtf8,
+            Self::MissingJoint { .. } => RejectCause::MissingJoint,
+            Self::DuplicateJoint { .. } => RejectCause::DuplicateJoint,
+            Self::NonFinite { .. } => RejectCause::NonFinite,
+            Self::QuaternionNorm { .. } => RejectCause::QuaternionNorm,
+            Self::FrameId { .. } => RejectCause::FrameId,
         }
     }
 }
@@ -299,6 +331,10 @@ impl<'a> Reader<'a> {
                 count: count as u64,
                 limit,
             });
+        }
+        // An empty sequence has no element to align: the message may end at its count.
+        if count == 0 {
+            return Ok(0);
         }
         let start = self.at.next_multiple_of(element_bytes.max(1));
         let needed = count * element_bytes;
@@ -517,6 +553,37 @@ pub fn decode_pose_stamped(payload: &[u8]) -> Result<DecodedPose<'_>, CdrError> 
     })
 }
 
+/// [`decode_pose_stamped`], refusing a pose whose `header.frame_id` is not `expected_frame`.
+pub fn decode_pose_stamped_in<'a>(
+    payload: &'a [u8],
+    expected_frame: &str,
+) -> Result<DecodedPose<'a>, CdrError> {
+    let pose = decode_pose_stamped(payload)?;
+    if pose.frame_id == expected_frame {
+        Ok(pose)
+    } else {
+        Err(CdrError::FrameId {
+            frame_id: pose.frame_id.to_owned(),
+            expected: expected_frame.to_owned(),
+        })
+    }
+}
+
+/// The `header.stamp` (s) of a message that starts with a `std_msgs/Header` (`JointState`,
+/// `PoseStamped`), if the header reads and the stamp is set: the stamp a refused message is
+/// reported at.
+#[must_use]
+pub fn stamp_hint(payload: &[u8]) -> Option<f64> {
+    let mut reader = Reader::new(payload).ok()?;
+    reader
+        .stamp(
+            Field::plain("header.stamp.sec"),
+            Field::plain("header.stamp.nanosec"),
+        )
+        .ok()
+        .flatten()
+}
+
 /// The ROS frame id of a twin pose expressed in `frame`, for an arm with `tf_prefix`:
 /// `<tf_prefix>base` (the frame of the driver's `tool0_controller` and of
 /// `/tcp_pose_broadcaster/pose`) or `<tf_prefix>base_link`.
@@ -526,8 +593,8 @@ pub fn frame_id(tf_prefix: &str, frame: OutputFrame) -> String {
 }
 
 /// Appends a little-endian CDR `geometry_msgs/msg/PoseStamped` (with its header) of `pose` at
-/// `stamp_s` in `frame_id` to `out`. The stamp is split into whole seconds and nanoseconds
-/// rounded to the nearest (saturating at the range of `int32` seconds).
+/// `stamp_s` in `frame_id` to `out`. The stamp is split into whole seconds and the nanoseconds
+/// that read back as `stamp_s` (saturating at the range of `int32` seconds).
 pub fn encode_pose_stamped_into(
     out: &mut Vec<u8>,
     stamp_s: f64,
@@ -560,18 +627,35 @@ pub fn encode_pose_stamped(stamp_s: f64, frame_id: &str, pose: &PoseReadout) -> 
 }
 
 /// `builtin_interfaces/Time` of a stamp (s): whole seconds (floor) and nanoseconds.
+///
+/// A stamp in seconds resolves about 0.24 µs at today's Unix times, so several nanosecond
+/// counts read back (sec + nanosec · 1e-9, as [`decode_pose_stamped`] sums them) as the same
+/// stamp: the roundest of them is taken (whole milliseconds before whole microseconds, …), so a
+/// stamp of whole microseconds read from a ROS header goes out as it came, and the message
+/// always reads back as `stamp_s` to the last bit. With none, the nearest count.
+#[allow(clippy::float_cmp, reason = "reading back exactly is the point")]
 fn split_stamp(stamp_s: f64) -> (i32, u32) {
     let floor = stamp_s.floor();
     if !floor.is_finite() {
         return (0, 0);
     }
-    let mut nanosec = ((stamp_s - floor) * 1e9).round();
+    let mut nearest = ((stamp_s - floor) * 1e9).round();
     let mut sec = floor;
-    if nanosec >= 1e9 {
+    if nearest >= 1e9 {
         sec += 1.0;
-        nanosec = 0.0;
+        nearest = 0.0;
     }
     let sec = sec.clamp(f64::from(i32::MIN), f64::from(i32::MAX));
+    let mut nanosec = nearest;
+    let mut step = 1e9;
+    while step >= 1.0 {
+        let candidate = (nearest / step).round() * step;
+        if candidate < 1e9 && sec + candidate * 1e-9 == stamp_s {
+            nanosec = candidate;
+            break;
+        }
+        step /= 10.0;
+    }
     // Both are integral and within their types' ranges here.
     #[allow(clippy::cast_sign_loss, reason = "nanosec is in 0..1e9")]
     (sec as i32, nanosec as u32)
@@ -588,6 +672,21 @@ mod tests {
         assert_eq!(split_stamp(-0.25), (-1, 750_000_000));
         assert_eq!(split_stamp(2.999_999_999_9), (3, 0));
         assert_eq!(split_stamp(f64::NAN), (0, 0));
+    }
+
+    #[test]
+    fn stamps_read_from_ros_headers_split_back_into_them() {
+        let sec = 1_748_954_669;
+        for nanosec in [0, 2_000_000, 998_000_000, 123_000, 999_999_000, 1_000] {
+            let stamp_s = f64::from(sec) + f64::from(nanosec) * 1e-9;
+            assert_eq!(split_stamp(stamp_s), (sec, nanosec), "{nanosec} ns");
+        }
+        // Any stamp: the split reads back as it, bit for bit.
+        for nanosec in (0..1_000_000_000).step_by(7_919_777) {
+            let stamp_s = f64::from(sec) + f64::from(nanosec) * 1e-9 + 3.3e-8;
+            let (s, n) = split_stamp(stamp_s);
+            assert_eq!(f64::from(s) + f64::from(n) * 1e-9, stamp_s, "{stamp_s}");
+        }
     }
 
     #[test]

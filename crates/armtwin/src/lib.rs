@@ -6,8 +6,8 @@
 //! command line, the live service, offline validation and the FMU.
 //!
 //! This crate is the outer ring, around the core:
-//! - [`codec`]: the core's types to and from CSV, the service's JSON wire messages and ROS 2
-//!   CDR messages.
+//! - [`codec`]: the core's types to and from CSV, the service's JSON and Zenoh-serialized wire
+//!   messages and ROS 2 CDR messages.
 //! - [`rosbag`]: rosbag2 recordings (MCAP, sqlite3) read into the rows a CSV becomes.
 //! - [`ingest`]: a gateway message's bytes into the pipeline, shared by the service and
 //!   `validate`.

@@ -10,7 +10,8 @@
 //! steps ([`Ros2JointMessage`], [`Ros2PoseMessage`]) into the same pipeline calls.
 //!
 //! The decoder is chosen per message ([`Codec`]): armtwin's JSON, or Zenoh's own serialization
-//! with one of armtwin's schemas ([`zser`]), as the sample's encoding says.
+//! with one of armtwin's schemas ([`zser`]), as the sample's encoding says (a Zenoh `Encoding`
+//! is a value: reading one needs no session).
 //!
 //! A message that does not decode becomes one rejection (an event and a count) at the best stamp
 //! it offers; an invalid embedded `measured` part is rejected on its own while the joints it came

@@ -6,8 +6,8 @@
 //! command line, the live service, offline validation and the FMU.
 //!
 //! This crate is the outer ring, around the core:
-//! - [`codec`]: the core's types to and from CSV, the service's JSON wire messages and ROS 2
-//!   CDR messages.
+//! - [`codec`]: the core's types to and from CSV, the service's JSON and Zenoh-serialized wire
+//!   messages and ROS 2 CDR messages.
 //! - [`rosbag`]: rosbag2 recordings (MCAP, sqlite3) read into the rows a CSV becomes.
 //! - [`ros2`]: ROS 2 on Zenoh: `rmw_zenoh` and bridge key layouts, the robot a key names,
 //!   `rmw_zenoh`'s attachment, the twin pose output's key.

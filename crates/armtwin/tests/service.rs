@@ -1006,6 +1006,14 @@ async fn self_calibration_converges_on_a_replayed_recording_and_applies_on_reque
         assert_eq!(status["epoch"], 0);
         let current_mm = number(pending, &["current", "position_mae_mm"]);
         let identified_mm = number(pending, &["identified", "position_mae_mm"]);
+        println!(
+            "live estimate from {} pairs offered ({} fitted, {} held out): position MAE {current_mm:.4} → {identified_mm:.4} mm, angle MAE {:.4} → {:.4} mrad",
+            pending["offered"],
+            pending["train_pairs"],
+            pending["held_out_pairs"],
+            number(pending, &["current", "angle_mae_mrad"]),
+            number(pending, &["identified", "angle_mae_mrad"]),
+        );
         // The recording is rounded to 1 mm / 1 mrad: nominal DH is ~1 mm off, the rounding
         // floor ~0.5 mm (see `armtwin calibrate` on the same file).
         assert!(current_mm > 0.9 && identified_mm < 0.75, "held out: {current_mm} mm → {identified_mm} mm");

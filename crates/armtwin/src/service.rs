@@ -820,23 +820,39 @@ impl TwinState {
         }
     }
 
-    fn fk(robots: &RobotDirectory, twin: &mut Self, query: &Query) {
-        let key = query.key_expr().as_str();
-        let Some(robot) = robot_of(twin.prefix(), key, "fk") else {
+    /// The robot a per-robot query (`<prefix>/<stream>/<robot id>`) asks about, its current
+    /// model and the query's payload; `None` once an error reply says why there are none.
+    fn robot_query<'q>(
+        &self,
+        robots: &RobotDirectory,
+        query: &'q Query,
+        stream: &str,
+        request: &str,
+    ) -> Option<(&'q str, Arc<RobotModel>, Vec<u8>)> {
+        let Some(robot) = robot_of(self.prefix(), query.key_expr().as_str(), stream) else {
             Self::reply_err(
                 query,
-                "ask one robot: <prefix>/fk/<robot id> with {\"q\": [...]}",
+                &format!("ask one robot: <prefix>/{stream}/<robot id> with {request}"),
             );
-            return;
+            return None;
         };
-        let Some(model) = twin.current_model(robots, robot) else {
+        let Some(model) = self.current_model(robots, robot) else {
             Self::reply_err(query, &format!("robot '{robot}' is not configured"));
-            return;
+            return None;
         };
         let payload = query
             .payload()
             .map(|p| p.to_bytes().into_owned())
             .unwrap_or_default();
+        Some((robot, model, payload))
+    }
+
+    fn fk(robots: &RobotDirectory, twin: &mut Self, query: &Query) {
+        let key = query.key_expr().as_str();
+        let Some((robot, model, payload)) = twin.robot_query(robots, query, "fk", "{\"q\": [...]}")
+        else {
+            return;
+        };
         let joints = match wire::decode_joints(&payload, model.joint_count()) {
             Ok(decoded) => decoded.sample,
             Err(e) => {
@@ -881,21 +897,10 @@ impl TwinState {
     /// configurations that reach the pose with the robot's current model.
     fn ik(robots: &RobotDirectory, twin: &mut Self, query: &Query) {
         let key = query.key_expr().as_str();
-        let Some(robot) = robot_of(twin.prefix(), key, "ik") else {
-            Self::reply_err(
-                query,
-                "ask one robot: <prefix>/ik/<robot id> with {\"pose\": [x, y, z, qx, qy, qz, qw]}",
-            );
+        let request = "{\"pose\": [x, y, z, qx, qy, qz, qw]}";
+        let Some((_, model, payload)) = twin.robot_query(robots, query, "ik", request) else {
             return;
         };
-        let Some(model) = twin.current_model(robots, robot) else {
-            Self::reply_err(query, &format!("robot '{robot}' is not configured"));
-            return;
-        };
-        let payload = query
-            .payload()
-            .map(|p| p.to_bytes().into_owned())
-            .unwrap_or_default();
         let answer = IkRequest::decode(&payload)
             .and_then(|request| Ok(crate::ik::solve(&model, &request.target, request.seed())?));
         match answer {

@@ -9,8 +9,10 @@
 )]
 #![allow(clippy::float_cmp, reason = "decoded values are copied, not computed")]
 
+mod common;
+
+use common::{Outputs, RECEIVE_LIMIT, free_port};
 use std::collections::BTreeSet;
-use std::net::TcpListener;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
@@ -27,26 +29,17 @@ use tokio::task::JoinHandle;
 use zenoh::Session;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::Subscriber;
-use zenoh::sample::{Locality, Sample, SampleKind};
+use zenoh::sample::{Locality, Sample};
 use zenoh_ext::ZSerializer;
 
 /// Every test must end by itself within this time.
 const TEST_LIMIT: Duration = Duration::from_secs(120);
-/// How long to wait for an expected message.
-const RECEIVE_LIMIT: Duration = Duration::from_secs(30);
 
 const JOINT_TYPE: &str = ros2::JOINT_STATE_DDS_TYPE;
 const POSE_TYPE: &str = ros2::POSE_STAMPED_DDS_TYPE;
 
 fn data() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/ros2")
-}
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .and_then(|listener| listener.local_addr())
-        .map(|address| address.port())
-        .expect("a free loopback port")
 }
 
 fn parse(config_toml: &str, listen: Vec<String>) -> Result<ServiceConfig, String> {
@@ -104,8 +97,7 @@ struct Harness {
     client: Session,
     shutdown: Option<oneshot::Sender<()>>,
     server: Option<JoinHandle<Result<ServeReport, ServiceError>>>,
-    outputs: Subscriber<FifoChannelHandler<Sample>>,
-    received: Vec<(String, Value)>,
+    outputs: Outputs,
 }
 
 /// The service on `config_toml`, and a client connected to it whose publishers on
@@ -161,8 +153,7 @@ async fn start(config_toml: &str, probe_keys: &[&str]) -> Harness {
         client,
         shutdown: Some(shutdown_tx),
         server: Some(server),
-        outputs,
-        received: Vec::new(),
+        outputs: Outputs::new(outputs),
     };
     harness.round_trip().await;
     harness
@@ -194,43 +185,11 @@ impl Harness {
     }
 
     async fn receive_until(&mut self, what: &str, done: impl Fn(&[(String, Value)]) -> bool) {
-        let deadline = tokio::time::Instant::now() + RECEIVE_LIMIT;
-        while !done(&self.received) {
-            let left = deadline.saturating_duration_since(tokio::time::Instant::now());
-            let sample = tokio::time::timeout(left, self.outputs.recv_async())
-                .await
-                .unwrap_or_else(|_| {
-                    panic!(
-                        "timed out waiting for {what}; last received: {:?}",
-                        self.received.iter().rev().take(5).collect::<Vec<_>>()
-                    )
-                })
-                .expect("subscriber open");
-            self.keep(&sample);
-            while let Ok(Some(sample)) = self.outputs.try_recv() {
-                self.keep(&sample);
-            }
-        }
-    }
-
-    fn keep(&mut self, sample: &Sample) {
-        let key = sample.key_expr().as_str();
-        if sample.kind() != SampleKind::Put
-            || key.starts_with("twin/joints/")
-            || key.starts_with("twin/measured/")
-        {
-            return;
-        }
-        let value = serde_json::from_slice(&sample.payload().to_bytes()).expect("JSON output");
-        self.received.push((key.to_owned(), value));
+        self.outputs.receive_until(what, done).await;
     }
 
     fn on(&self, key: &str) -> Vec<&Value> {
-        self.received
-            .iter()
-            .filter(|(k, _)| k == key)
-            .map(|(_, v)| v)
-            .collect()
+        self.outputs.on(key)
     }
 
     fn last_metrics(&self, robot: &str) -> Option<&Value> {

@@ -9,8 +9,10 @@
     reason = "counts and exact pairings have exact answers"
 )]
 
+mod common;
+
+use common::{Outputs, RECEIVE_LIMIT, free_port};
 use std::collections::HashMap;
-use std::net::TcpListener;
 use std::path::Path;
 use std::time::Duration;
 
@@ -26,34 +28,22 @@ use serde_json::{Value, json};
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
 use zenoh::Session;
-use zenoh::handlers::FifoChannelHandler;
-use zenoh::pubsub::Subscriber;
-use zenoh::sample::{Locality, Sample, SampleKind};
+use zenoh::sample::{Locality, SampleKind};
 
 /// Every test must end by itself within this time.
 const TEST_LIMIT: Duration = Duration::from_secs(180);
-/// How long to wait for an expected message.
-const RECEIVE_LIMIT: Duration = Duration::from_secs(30);
 
 /// Held by the tests that replay a whole recording at full rate: Zenoh's runtime is shared by
 /// every session of a process, and two services each taking 29 000 samples as fast as they come,
 /// with blocking puts in their callbacks, starve each other's links until Zenoh closes one.
 static FULL_RATE_REPLAY: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
 
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .and_then(|listener| listener.local_addr())
-        .map(|address| address.port())
-        .expect("a free loopback port")
-}
-
 struct Harness {
     endpoint: String,
     client: Session,
     shutdown: Option<oneshot::Sender<()>>,
     server: Option<JoinHandle<Result<ServeReport, ServiceError>>>,
-    outputs: Subscriber<FifoChannelHandler<Sample>>,
-    received: Vec<(String, Value)>,
+    outputs: Outputs,
 }
 
 async fn start(config_toml: &str) -> Harness {
@@ -133,8 +123,7 @@ async fn start(config_toml: &str) -> Harness {
         client,
         shutdown: Some(shutdown_tx),
         server: Some(server),
-        outputs,
-        received: Vec::new(),
+        outputs: Outputs::new(outputs),
     }
 }
 
@@ -150,50 +139,12 @@ impl Harness {
         self.client.put(key, payload).await.expect("put");
     }
 
-    /// Receives until `done` holds for the messages received so far.
-    /// Receives until `done` holds for the messages received so far. `done` is evaluated once
-    /// per burst (after draining what has arrived), so long streams stay linear.
     async fn receive_until(&mut self, what: &str, done: impl Fn(&[(String, Value)]) -> bool) {
-        let deadline = tokio::time::Instant::now() + RECEIVE_LIMIT;
-        while !done(&self.received) {
-            let left = deadline.saturating_duration_since(tokio::time::Instant::now());
-            let first = tokio::time::timeout(left, self.outputs.recv_async())
-                .await
-                .unwrap_or_else(|_| {
-                    panic!(
-                        "timed out waiting for {what}; received {} messages: {:?}",
-                        self.received.len(),
-                        self.received.iter().rev().take(5).collect::<Vec<_>>()
-                    )
-                })
-                .expect("subscriber open");
-            self.keep(&first);
-            while let Ok(Some(sample)) = self.outputs.try_recv() {
-                self.keep(&sample);
-            }
-        }
-    }
-
-    fn keep(&mut self, sample: &Sample) {
-        let key = sample.key_expr().as_str();
-        // Our own inputs come back to us too; only outputs are collected.
-        if sample.kind() != SampleKind::Put
-            || key.starts_with("twin/joints/")
-            || key.starts_with("twin/measured/")
-        {
-            return;
-        }
-        let value: Value = serde_json::from_slice(&sample.payload().to_bytes())
-            .unwrap_or_else(|e| panic!("output on {key} is not JSON: {e}"));
-        self.received.push((key.to_owned(), value));
+        self.outputs.receive_until(what, done).await;
     }
 
     fn on(&self, key: &str) -> Vec<&Value> {
-        self.received
-            .iter()
-            .filter(|(k, _)| k == key)
-            .map(|(_, v)| v)
-            .collect()
+        self.outputs.on(key)
     }
 
     async fn stop(&mut self) -> ServeReport {
@@ -767,7 +718,7 @@ base_from_sensor = [1.0, -0.5, 0.2, 0.0, 0.0, 1.5707963267948966]
         assert_eq!(rejection["detail"]["cause"], "unknown_robot");
         assert!(h.on("twin/pose/stranger").is_empty());
         let mut counts: HashMap<&str, usize> = HashMap::new();
-        for (key, _) in &h.received {
+        for (key, _) in &h.outputs.received {
             *counts.entry(key.as_str()).or_default() += 1;
         }
         assert_eq!(counts.get("twin/pose/lab/r7"), Some(&1));

@@ -11,7 +11,7 @@
 
 mod common;
 
-use common::{Outputs, RECEIVE_LIMIT, free_port};
+use common::{Outputs, RECEIVE_LIMIT, connect_client, free_port, wait_for_subscriber};
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
@@ -29,7 +29,7 @@ use tokio::task::JoinHandle;
 use zenoh::Session;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::Subscriber;
-use zenoh::sample::{Locality, Sample};
+use zenoh::sample::Sample;
 use zenoh_ext::ZSerializer;
 
 /// Every test must end by itself within this time.
@@ -118,42 +118,15 @@ async fn start(config_toml: &str, probe_keys: &[&str]) -> Harness {
         assert!(tokio::time::Instant::now() < deadline, "never listened");
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
-    let mut client_config = zenoh::Config::default();
-    for (key, value) in [
-        ("mode", "\"peer\"".to_owned()),
-        ("connect/endpoints", format!("[\"{endpoint}\"]")),
-        ("listen/endpoints", "[]".to_owned()),
-        ("scouting/multicast/enabled", "false".to_owned()),
-    ] {
-        client_config.insert_json5(key, &value).expect("config");
-    }
-    let client = zenoh::open(client_config).await.expect("client session");
-    let outputs = client
-        .declare_subscriber("twin/**")
-        .with(zenoh::handlers::FifoChannel::new(100_000))
-        .await
-        .expect("output subscriber");
+    let (client, outputs) = connect_client(&endpoint).await;
     for key in probe_keys {
-        let probe = client
-            .declare_publisher(key.to_string())
-            .allowed_destination(Locality::Remote)
-            .await
-            .expect("probe");
-        let deadline = tokio::time::Instant::now() + RECEIVE_LIMIT;
-        while !probe.matching_status().await.expect("matching").matching() {
-            assert!(
-                tokio::time::Instant::now() < deadline,
-                "no subscriber for {key}"
-            );
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
-        probe.undeclare().await.expect("undeclare");
+        wait_for_subscriber(&client, key).await;
     }
     let harness = Harness {
         client,
         shutdown: Some(shutdown_tx),
         server: Some(server),
-        outputs: Outputs::new(outputs),
+        outputs,
     };
     harness.round_trip().await;
     harness

@@ -11,7 +11,7 @@
 
 mod common;
 
-use common::{Outputs, RECEIVE_LIMIT, free_port};
+use common::{Outputs, RECEIVE_LIMIT, connect_client, free_port, wait_for_subscriber};
 use std::collections::HashMap;
 use std::path::Path;
 use std::time::Duration;
@@ -28,7 +28,7 @@ use serde_json::{Value, json};
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
 use zenoh::Session;
-use zenoh::sample::{Locality, SampleKind};
+use zenoh::sample::SampleKind;
 
 /// Every test must end by itself within this time.
 const TEST_LIMIT: Duration = Duration::from_secs(180);
@@ -77,39 +77,8 @@ async fn start(config_toml: &str) -> Harness {
         );
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
-    let mut client_config = zenoh::Config::default();
-    for (key, value) in [
-        ("mode", "\"peer\"".to_owned()),
-        ("connect/endpoints", format!("[\"{endpoint}\"]")),
-        ("listen/endpoints", "[]".to_owned()),
-        ("scouting/multicast/enabled", "false".to_owned()),
-    ] {
-        client_config
-            .insert_json5(key, &value)
-            .expect("client config");
-    }
-    let client = zenoh::open(client_config).await.expect("client session");
-    let outputs = client
-        .declare_subscriber("twin/**")
-        .with(zenoh::handlers::FifoChannel::new(200_000))
-        .await
-        .expect("output subscriber");
-    // Wait until the service's subscribers are visible (remote ones only: our own `twin/**`
-    // matches too), so nothing published is lost.
-    let probe = client
-        .declare_publisher("twin/joints/probe")
-        .allowed_destination(Locality::Remote)
-        .await
-        .expect("probe publisher");
-    let deadline = tokio::time::Instant::now() + RECEIVE_LIMIT;
-    while !probe.matching_status().await.expect("matching").matching() {
-        assert!(
-            tokio::time::Instant::now() < deadline,
-            "the service never subscribed"
-        );
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-    probe.undeclare().await.expect("undeclare probe");
+    let (client, outputs) = connect_client(&endpoint).await;
+    wait_for_subscriber(&client, "twin/joints/probe").await;
     // A query travels after our subscriber's declaration on the same link: once it is answered,
     // the service knows where to send outputs.
     let replies = client.get("twin/state/**").await.expect("get");
@@ -123,7 +92,7 @@ async fn start(config_toml: &str) -> Harness {
         client,
         shutdown: Some(shutdown_tx),
         server: Some(server),
-        outputs: Outputs::new(outputs),
+        outputs,
     }
 }
 

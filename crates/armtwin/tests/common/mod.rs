@@ -84,3 +84,43 @@ pub fn free_port() -> u16 {
         .map(|address| address.port())
         .expect("a free loopback port")
 }
+
+/// A client peer of the service at `endpoint` (loopback, no scouting), with its collector of
+/// armtwin's outputs.
+pub async fn connect_client(endpoint: &str) -> (zenoh::Session, Outputs) {
+    let mut config = zenoh::Config::default();
+    for (key, value) in [
+        ("mode", "\"peer\"".to_owned()),
+        ("connect/endpoints", format!("[\"{endpoint}\"]")),
+        ("listen/endpoints", "[]".to_owned()),
+        ("scouting/multicast/enabled", "false".to_owned()),
+    ] {
+        config.insert_json5(key, &value).expect("client config");
+    }
+    let client = zenoh::open(config).await.expect("client session");
+    let subscriber = client
+        .declare_subscriber("twin/**")
+        .with(zenoh::handlers::FifoChannel::new(200_000))
+        .await
+        .expect("output subscriber");
+    (client, Outputs::new(subscriber))
+}
+
+/// Waits until a remote subscriber matches `key` (the service's: the client's own `twin/**`
+/// matches too, so only remote ones count), so nothing put on it is lost.
+pub async fn wait_for_subscriber(client: &zenoh::Session, key: &str) {
+    let probe = client
+        .declare_publisher(key.to_owned())
+        .allowed_destination(zenoh::sample::Locality::Remote)
+        .await
+        .expect("probe publisher");
+    let deadline = tokio::time::Instant::now() + RECEIVE_LIMIT;
+    while !probe.matching_status().await.expect("matching").matching() {
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "no subscriber for {key}"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    probe.undeclare().await.expect("undeclare probe");
+}

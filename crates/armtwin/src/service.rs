@@ -1128,8 +1128,8 @@ fn schedule_fits(twin: &SharedTwin, jobs: &Sender<FitJob>) {
 }
 
 /// Starts the thread that fits self-calibrating robots' pairs, one after another, off the
-/// sample path and off the control thread (a fit of a few thousand pairs takes a tenth of a
-/// second and more); it ends when `jobs` closes.
+/// sample path and off the control thread (a fit of thousands of pairs takes longer than many
+/// metrics periods); it ends when `jobs` closes.
 fn fitting_thread(
     twin: Arc<SharedTwin>,
     declarer: Declarer,

@@ -17,12 +17,10 @@
 //! that one sizes its `Vec` by the untrusted length before reading an item (a 10-byte message
 //! claiming 2^40 values asks for 8 TiB) and names no field in its error. Here every length is
 //! compared with the schema and with the bytes left before anything is read, so a damaged
-//! message is a [`WireError`] naming the field and nothing is allocated by a length. Speed is a
-//! wash: a zenoh-ext deserialisation of `(f64, Vec<f64>, u64)` was measured at ~0.1–0.16 µs
-//! against ~10–16 ns for a non-allocating reader over the slice, but a joint sample owns its
-//! angles, and with that allocation this reader takes 62–99 ns against zenoh-ext's 109–113 ns
-//! (`benches/ingest.rs`, `decode/joints_zser`, `decode/joints_zenoh_ext`). zenoh-ext is the
-//! oracle of this module's tests. Must not know the network or the filesystem.
+//! message is a [`WireError`] naming the field and nothing is allocated by a length. Speed is no
+//! reason either way: with the allocation a joint sample needs for its angles, both read in the
+//! same order of time (BENCHMARKS.md, `decode/joints_zser` against `decode/joints_zenoh_ext`).
+//! zenoh-ext is the oracle of this module's tests. Must not know the network or the filesystem.
 
 use std::fmt;
 

@@ -72,6 +72,8 @@ UR_JOINTS = [
 CONFIG = f"""\
 [service]
 metrics_period_ms = 50
+# Every pose is counted: a test client that falls behind must slow the twin, not miss poses.
+pose_congestion = "block"
 
 [robots.default]
 model = "ur10e"

@@ -39,6 +39,8 @@ from test_service import (
 CONFIG = """\
 [service]
 metrics_period_ms = 50
+# Every pose is counted: a test client that falls behind must slow the twin, not miss poses.
+pose_congestion = "block"
 encoding = "zenoh-serialized"
 
 [robots.default]

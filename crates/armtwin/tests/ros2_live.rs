@@ -185,6 +185,8 @@ impl Harness {
 const NAMESPACE_SOURCES: &str = r#"
 [service]
 metrics_period_ms = 50
+# Every pose is counted: a client that falls behind slows the twin instead of missing poses.
+pose_congestion = "block"
 [robots.default]
 model = "ur10e"
 
@@ -341,6 +343,8 @@ async fn ros2_namespaces_name_robots_under_both_key_schemes() {
 const ATTACHMENT_SOURCES: &str = r#"
 [service]
 metrics_period_ms = 50
+# Every pose is counted: a client that falls behind slows the twin instead of missing poses.
+pose_congestion = "block"
 [robots.default]
 model = "ur10e"
 [[sources]]   # a driver without namespace, on rmw_zenoh
@@ -474,6 +478,8 @@ async fn rmw_sequence_numbers_raise_gaps_refuse_repeats_and_survive_damage_and_r
 const OUTPUT_CONFIG: &str = r#"
 [service]
 metrics_period_ms = 50
+# Every pose is counted: a client that falls behind slows the twin instead of missing poses.
+pose_congestion = "block"
 [robots.default]
 model = "ur10e"
 [robots.default.ros2_pose]     # every robot: rmw_zenoh, namespace = robot id

@@ -160,6 +160,8 @@ impl Harness {
 const CONFIG: &str = r#"
 [service]
 metrics_period_ms = 50
+# Every pose is counted: a client that falls behind slows the twin instead of missing poses.
+pose_congestion = "block"
 window_s = 1.0
 [align]
 max_gap_s = 0.25
@@ -513,6 +515,8 @@ async fn window_forgets_what_cumulative_keeps_and_alarms_fire_and_recover() {
     let config = r#"
 [service]
 metrics_period_ms = 50
+# Every pose is counted: a client that falls behind slows the twin instead of missing poses.
+pose_congestion = "block"
 window_s = 0.99
 [robots.default]
 model = "ur10e"
@@ -649,6 +653,8 @@ async fn sensor_streams_are_transformed_and_unknown_robots_rejected() {
     let config = r#"
 [service]
 metrics_period_ms = 50
+# Every pose is counted: a client that falls behind slows the twin instead of missing poses.
+pose_congestion = "block"
 reject_unknown = true
 [robots."lab/r7"]
 model = "ur5e"

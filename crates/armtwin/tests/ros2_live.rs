@@ -11,7 +11,7 @@
 
 mod common;
 
-use common::{Outputs, RECEIVE_LIMIT, connect_client, free_port, wait_for_subscriber};
+use common::{Outputs, RECEIVE_LIMIT, Service, connect_client, wait_for_subscriber};
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
@@ -21,11 +21,9 @@ use armtwin::codec::wire::MetricsMessage;
 use armtwin::config::{Overrides, ServiceConfig, SourceRobot};
 use armtwin::ros2::{self, Attachment, AttachmentError, KeyScheme, NamespaceRule};
 use armtwin::rosbag::{self, BagOptions};
-use armtwin::service::{ServeReport, ServiceError, serve};
+use armtwin::service::ServeReport;
 use armtwin::validate::validate;
 use serde_json::{Value, json};
-use tokio::sync::oneshot;
-use tokio::task::JoinHandle;
 use zenoh::Session;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::Subscriber;
@@ -94,38 +92,25 @@ fn keyed_attachment(sequence_number: i64, source_timestamp_ns: i64, gid: &[u8]) 
 }
 
 struct Harness {
+    service: Service,
     client: Session,
-    shutdown: Option<oneshot::Sender<()>>,
-    server: Option<JoinHandle<Result<ServeReport, ServiceError>>>,
     outputs: Outputs,
 }
 
 /// The service on `config_toml`, and a client connected to it whose publishers on
 /// `probe_keys` are matched by the service's subscribers.
 async fn start(config_toml: &str, probe_keys: &[&str]) -> Harness {
-    let port = free_port();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
-    let config = parse(config_toml, vec![endpoint.clone()]).expect("valid test config");
-    let (shutdown_tx, shutdown_rx) = oneshot::channel::<()>();
-    let server = tokio::spawn(serve(config, async {
-        let _ = shutdown_rx.await;
-    }));
-    let deadline = tokio::time::Instant::now() + RECEIVE_LIMIT;
-    while tokio::net::TcpStream::connect(("127.0.0.1", port))
-        .await
-        .is_err()
-    {
-        assert!(tokio::time::Instant::now() < deadline, "never listened");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-    let (client, outputs) = connect_client(&endpoint).await;
+    let service = Service::start(|endpoint| {
+        parse(config_toml, vec![endpoint.to_owned()]).expect("valid test config")
+    })
+    .await;
+    let (client, outputs) = connect_client(&service.endpoint).await;
     for key in probe_keys {
         wait_for_subscriber(&client, key).await;
     }
     let harness = Harness {
+        service,
         client,
-        shutdown: Some(shutdown_tx),
-        server: Some(server),
         outputs,
     };
     harness.round_trip().await;
@@ -170,15 +155,7 @@ impl Harness {
     }
 
     async fn stop(&mut self) -> ServeReport {
-        if let Some(shutdown) = self.shutdown.take() {
-            let _ = shutdown.send(());
-        }
-        let server = self.server.take().expect("running");
-        tokio::time::timeout(RECEIVE_LIMIT, server)
-            .await
-            .expect("stops in time")
-            .expect("task")
-            .expect("served")
+        self.service.stop().await
     }
 }
 

@@ -11,7 +11,7 @@
 
 mod common;
 
-use common::{Outputs, RECEIVE_LIMIT, connect_client, free_port, wait_for_subscriber};
+use common::{Outputs, RECEIVE_LIMIT, Service, connect_client, free_port, wait_for_subscriber};
 use std::collections::HashMap;
 use std::path::Path;
 use std::time::Duration;
@@ -25,8 +25,6 @@ use armtwin::replay::{ReplaySettings, replay};
 use armtwin::service::{ServeReport, ServiceError, serve};
 use armtwin::validate::validate;
 use serde_json::{Value, json};
-use tokio::sync::oneshot;
-use tokio::task::JoinHandle;
 use zenoh::Session;
 use zenoh::sample::SampleKind;
 
@@ -39,45 +37,28 @@ const TEST_LIMIT: Duration = Duration::from_secs(180);
 static FULL_RATE_REPLAY: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
 
 struct Harness {
-    endpoint: String,
+    service: Service,
     client: Session,
-    shutdown: Option<oneshot::Sender<()>>,
-    server: Option<JoinHandle<Result<ServeReport, ServiceError>>>,
     outputs: Outputs,
 }
 
 async fn start(config_toml: &str) -> Harness {
-    let port = free_port();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
-    let config = ServiceConfig::parse(
-        config_toml,
-        "test config",
-        Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
-            .join("config")
-            .as_path(),
-        &Overrides {
-            listen: vec![endpoint.clone()],
-            ..Overrides::default()
-        },
-    )
-    .expect("valid test config");
-    let (shutdown_tx, shutdown_rx) = oneshot::channel::<()>();
-    let server = tokio::spawn(serve(config, async {
-        let _ = shutdown_rx.await;
-    }));
-    // Wait until the service listens.
-    let deadline = tokio::time::Instant::now() + RECEIVE_LIMIT;
-    while tokio::net::TcpStream::connect(("127.0.0.1", port))
-        .await
-        .is_err()
-    {
-        assert!(
-            tokio::time::Instant::now() < deadline,
-            "the service never listened"
-        );
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-    let (client, outputs) = connect_client(&endpoint).await;
+    let service = Service::start(|endpoint| {
+        ServiceConfig::parse(
+            config_toml,
+            "test config",
+            Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
+                .join("config")
+                .as_path(),
+            &Overrides {
+                listen: vec![endpoint.to_owned()],
+                ..Overrides::default()
+            },
+        )
+        .expect("valid test config")
+    })
+    .await;
+    let (client, outputs) = connect_client(&service.endpoint).await;
     wait_for_subscriber(&client, "twin/joints/probe").await;
     // A query travels after our subscriber's declaration on the same link: once it is answered,
     // the service knows where to send outputs.
@@ -88,10 +69,8 @@ async fn start(config_toml: &str) -> Harness {
         .is_ok()
     {}
     Harness {
-        endpoint,
+        service,
         client,
-        shutdown: Some(shutdown_tx),
-        server: Some(server),
         outputs,
     }
 }
@@ -117,15 +96,7 @@ impl Harness {
     }
 
     async fn stop(&mut self) -> ServeReport {
-        if let Some(shutdown) = self.shutdown.take() {
-            let _ = shutdown.send(());
-        }
-        let server = self.server.take().expect("running");
-        tokio::time::timeout(RECEIVE_LIMIT, server)
-            .await
-            .expect("the service stops in time")
-            .expect("the service task")
-            .expect("the service ran")
+        self.service.stop().await
     }
 
     async fn get(
@@ -708,7 +679,7 @@ async fn replaying_the_sample_recordings_twins_every_row() {
     let _alone = FULL_RATE_REPLAY.lock().await;
     tokio::time::timeout(TEST_LIMIT, async {
         let mut h = start(CONFIG).await;
-        let endpoint = h.endpoint.clone();
+        let endpoint = h.service.endpoint.clone();
         let data = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../..")).join("tests/data");
         let settings = |robot: &str| ReplaySettings {
             zenoh: ZenohSection {
@@ -885,7 +856,7 @@ async fn self_calibration_converges_on_a_replayed_recording_and_applies_on_reque
             zenoh: ZenohSection {
                 mode: ZenohMode::Peer,
                 listen: Vec::new(),
-                connect: vec![h.endpoint.clone()],
+                connect: vec![h.service.endpoint.clone()],
                 file: None,
                 multicast_scouting: false,
                 cfg: Vec::new(),

@@ -124,3 +124,58 @@ pub async fn wait_for_subscriber(client: &zenoh::Session, key: &str) {
     }
     probe.undeclare().await.expect("undeclare probe");
 }
+
+/// `armtwin serve` running in this process, on a loopback port of its own.
+pub struct Service {
+    /// Where it listens (`tcp/127.0.0.1:<port>`).
+    pub endpoint: String,
+    shutdown: Option<tokio::sync::oneshot::Sender<()>>,
+    server: Option<
+        tokio::task::JoinHandle<
+            Result<armtwin::service::ServeReport, armtwin::service::ServiceError>,
+        >,
+    >,
+}
+
+impl Service {
+    /// Starts the service with the configuration `config_for` makes for its endpoint; returns
+    /// once it listens.
+    pub async fn start(config_for: impl FnOnce(&str) -> armtwin::config::ServiceConfig) -> Self {
+        let port = free_port();
+        let endpoint = format!("tcp/127.0.0.1:{port}");
+        let config = config_for(&endpoint);
+        let (shutdown_tx, shutdown_rx) = tokio::sync::oneshot::channel::<()>();
+        let server = tokio::spawn(armtwin::service::serve(config, async {
+            let _ = shutdown_rx.await;
+        }));
+        let deadline = tokio::time::Instant::now() + RECEIVE_LIMIT;
+        while tokio::net::TcpStream::connect(("127.0.0.1", port))
+            .await
+            .is_err()
+        {
+            assert!(
+                tokio::time::Instant::now() < deadline,
+                "the service never listened"
+            );
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        Self {
+            endpoint,
+            shutdown: Some(shutdown_tx),
+            server: Some(server),
+        }
+    }
+
+    /// Shuts it down (as SIGINT would) and returns its report.
+    pub async fn stop(&mut self) -> armtwin::service::ServeReport {
+        if let Some(shutdown) = self.shutdown.take() {
+            let _ = shutdown.send(());
+        }
+        let server = self.server.take().expect("running");
+        tokio::time::timeout(RECEIVE_LIMIT, server)
+            .await
+            .expect("the service stops in time")
+            .expect("the service task")
+            .expect("the service ran")
+    }
+}

@@ -289,12 +289,8 @@ impl Ros2JointMessage {
         fallback_s: impl FnOnce() -> f64,
     ) -> Self {
         let decoded = cdr::decode_joint_state(payload, joint_names);
-        let stamp_s = match &decoded {
-            Ok(sample) => sample.stamp_s,
-            Err(_) => cdr::stamp_hint(payload),
-        };
         Self {
-            stamp_s: stamp_s.unwrap_or_else(fallback_s),
+            stamp_s: cdr_stamp_s(&decoded, |s| s.stamp_s, payload, fallback_s),
             decoded,
         }
     }
@@ -321,6 +317,21 @@ impl Ros2JointMessage {
     }
 }
 
+/// The stamp a CDR message goes in at: its `header.stamp`, or for a refused one what its header
+/// still offers, else `fallback_s`.
+fn cdr_stamp_s<T>(
+    decoded: &Result<T, CdrError>,
+    stamp_of: impl FnOnce(&T) -> Option<f64>,
+    payload: &[u8],
+    fallback_s: impl FnOnce() -> f64,
+) -> f64 {
+    match decoded {
+        Ok(sample) => stamp_of(sample),
+        Err(_) => cdr::stamp_hint(payload),
+    }
+    .unwrap_or_else(fallback_s)
+}
+
 /// A ROS 2 `geometry_msgs/msg/PoseStamped` decoded, its frame checked, with the stamp it goes in
 /// at: `header.stamp`, else the caller's fallback.
 #[derive(Debug, Clone, PartialEq)]
@@ -334,12 +345,8 @@ impl Ros2PoseMessage {
     #[must_use]
     pub fn decode(payload: &[u8], expected_frame: &str, fallback_s: impl FnOnce() -> f64) -> Self {
         let decoded = cdr::decode_pose_stamped_in(payload, expected_frame).map(|pose| pose.sample);
-        let stamp_s = match &decoded {
-            Ok(sample) => sample.stamp_s,
-            Err(_) => cdr::stamp_hint(payload),
-        };
         Self {
-            stamp_s: stamp_s.unwrap_or_else(fallback_s),
+            stamp_s: cdr_stamp_s(&decoded, |s| s.stamp_s, payload, fallback_s),
             decoded,
         }
     }

@@ -741,13 +741,13 @@ impl Load {
         u64::from(!(self.args.embedded && self.args.target == Target::Echo))
     }
 
-    /// armtwin declares a newly tracked robot's entities (publishers, input keys, liveliness
-    /// token) on its control thread, after the robot's first sample has been answered; at fleet
-    /// size that takes seconds to minutes (Zenoh's declarations cost O(robots) each). The echo
-    /// declares everything before it reports ready. So that both are measured in their steady
-    /// state, this waits until armtwin's token of the last of the first `robots` robots is
-    /// visible (they are declared in the order the robots were first seen, which is the order
-    /// the warm-up sent them), then counts every token once. Returns whether it waited (only
+    /// armtwin declares a newly tracked robot's liveliness token on its control thread, after
+    /// the robot's first sample has been answered, every new robot's token before the publishers
+    /// that cache the routes of its poses and deviations (Zenoh's declarations cost O(robots)
+    /// each). The echo declares everything before it reports ready. So that both are measured
+    /// tracking every robot, this waits until armtwin's token of the last of the first `robots`
+    /// robots is visible (they are declared in the order the robots were first seen, which is
+    /// the order the warm-up sent them), then counts every token once. Returns whether it waited (only
     /// armtwin has tokens); fails if the tokens stop appearing for [`TRACKING_STALL`] or fewer
     /// than `robots` are there in the end.
     fn wait_for_tracking(&self, robots: usize) -> Result<bool, LoadError> {

@@ -16,6 +16,7 @@
 //! always block: they are few and must arrive; a subscriber that stops reading them is
 //! disconnected after Zenoh's `wait_before_close`. Every output carries its encoding.
 
+use std::collections::VecDeque;
 use std::future::{Future, IntoFuture};
 use std::sync::Arc;
 use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, channel};
@@ -1206,18 +1207,13 @@ fn publish_due_metrics(twin: &SharedTwin, declarer: &Declarer) {
             let state = &mut *guard;
             for &robot in robots {
                 if let Some(snapshot) = state.pipeline.take_due_metrics(robot) {
-                    turn.push((snapshot, state.sink.outputs_of(Some(robot)).cloned()));
+                    turn.push(snapshot);
                 }
             }
         }
-        for (snapshot, outputs) in turn.drain(..) {
+        for snapshot in turn.drain(..) {
             let payload = wire::MetricsMessage::new(&snapshot).to_json_bytes();
-            let sent = declarer.put(
-                outputs.as_deref(),
-                &snapshot.robot,
-                Stream::Metrics,
-                payload,
-            );
+            let sent = declarer.put(None, &snapshot.robot, Stream::Metrics, payload);
             publish_errors += u64::from(!sent);
         }
     }
@@ -1228,7 +1224,7 @@ fn publish_due_metrics(twin: &SharedTwin, declarer: &Declarer) {
 
 /// What the control thread is asked to do.
 enum Control {
-    /// Declare a newly tracked robot's publishers, token and input keys.
+    /// Declare a newly tracked robot's liveliness token, then its publishers and input keys.
     Track(Robot),
     /// Finish the pipeline, undeclare everything and stop.
     Stop,
@@ -1275,27 +1271,46 @@ impl Control {
     ) -> ServeReport {
         let mut next_metrics = Instant::now() + metrics_period;
         let mut next_refit = Instant::now() + refit_period;
+        let mut tokens = Vec::new();
+        // Robots whose token is declared and whose publishers are not yet.
+        let mut undeclared = VecDeque::new();
         loop {
-            let wait = next_metrics
-                .min(next_refit)
-                .saturating_duration_since(Instant::now());
+            // Every robot's token before any robot's publishers: each Zenoh declaration costs
+            // in proportion to the keys beside it, and a fleet is tracked once its tokens are.
+            let wait = if undeclared.is_empty() {
+                next_metrics
+                    .min(next_refit)
+                    .saturating_duration_since(Instant::now())
+            } else {
+                Duration::ZERO
+            };
+            // Declared without the lock: samples keep flowing meanwhile (their outputs go out
+            // with an undeclared key until the publishers exist).
             match rx.recv_timeout(wait) {
                 Ok(Self::Stop) | Err(RecvTimeoutError::Disconnected) => break,
-                Ok(Self::Track(robot)) => {
-                    // Declared without the lock: samples keep flowing meanwhile (their outputs
-                    // go out with an undeclared key until the publishers exist).
-                    let id = robot.id();
-                    match declarer.declare(id) {
-                        Ok(outputs) => {
-                            info!(robot = id, "tracking robot");
-                            twin.lock().sink.set_outputs(robot.index(), outputs);
+                Ok(Self::Track(robot)) => match declarer.declare_token(robot.id()) {
+                    Ok(token) => {
+                        info!(robot = robot.id(), "tracking robot");
+                        tokens.push((Arc::clone(robot.shared_id()), token));
+                        undeclared.push_back(robot);
+                    }
+                    Err(e) => {
+                        warn!(robot = robot.id(), error = %e, "cannot declare the robot's liveliness token");
+                    }
+                },
+                Err(RecvTimeoutError::Timeout) => {
+                    if let Some(robot) = undeclared.pop_front() {
+                        match declarer.declare(robot.id()) {
+                            Ok(outputs) => twin.lock().sink.set_outputs(robot.index(), outputs),
+                            Err(e) => {
+                                warn!(robot = robot.id(), error = %e, "cannot declare the robot's publishers");
+                            }
                         }
-                        Err(e) => {
-                            warn!(robot = id, error = %e, "cannot declare the robot's outputs");
+                        if undeclared.is_empty() {
+                            debug!("every tracked robot's publishers are declared");
                         }
                     }
                 }
-                Err(RecvTimeoutError::Timeout) => {}
             }
             let now = Instant::now();
             if now >= next_metrics {
@@ -1318,7 +1333,7 @@ impl Control {
                 robots: state.pipeline.tracked().count(),
                 publish_errors: state.sink.publish_errors,
             };
-            let outputs: Vec<(Arc<str>, Arc<RobotOutputs>)> = state
+            let outputs: Vec<(Arc<str>, RobotOutputs)> = state
                 .pipeline
                 .tracked()
                 .filter_map(|robot| {
@@ -1328,21 +1343,20 @@ impl Control {
                 .collect();
             (report, outputs)
         };
-        declarer.undeclare_all(outputs);
+        declarer.undeclare_all(outputs, tokens);
         report
     }
 }
 
-/// Per-robot Zenoh entities.
+/// A tracked robot's publishers of its outputs at the sample rate, and its input keys: declared
+/// so Zenoh caches their routes. Its metrics, events and calibration, a few per second at most,
+/// go out without a publisher: every declaration costs in proportion to the keys beside it, on
+/// this side and on every subscriber's.
 struct RobotOutputs {
     pose: Publisher<'static>,
     deviation: Publisher<'static>,
-    metrics: Publisher<'static>,
-    events: Publisher<'static>,
     /// The twin pose as a ROS 2 `PoseStamped`, if the robot has `ros2_pose`.
     ros2_pose: Option<Publisher<'static>>,
-    token: Option<LivelinessToken>,
-    /// The robot's input keys, declared so Zenoh caches their routes.
     inputs: Vec<KeyExpr<'static>>,
 }
 
@@ -1353,7 +1367,7 @@ enum Stream {
     Deviation,
     Metrics,
     Events,
-    /// Self-calibration estimates: a few per minute, put without a publisher.
+    /// Self-calibration estimates: a few per minute.
     Calibration,
 }
 
@@ -1380,9 +1394,7 @@ impl Stream {
         match self {
             Self::Pose => Some(&outputs.pose),
             Self::Deviation => Some(&outputs.deviation),
-            Self::Metrics => Some(&outputs.metrics),
-            Self::Events => Some(&outputs.events),
-            Self::Calibration => None,
+            Self::Metrics | Self::Events | Self::Calibration => None,
         }
     }
 }
@@ -1494,8 +1506,6 @@ impl Declarer {
         }
         let pose = self.publisher(Stream::Pose, robot)?;
         let deviation = self.publisher(Stream::Deviation, robot)?;
-        let metrics = self.publisher(Stream::Metrics, robot)?;
-        let events = self.publisher(Stream::Events, robot)?;
         let ros2_pose = match self.ros2_pose.of(robot) {
             Some(output) => Some(
                 self.session
@@ -1507,56 +1517,47 @@ impl Declarer {
             ),
             None => None,
         };
-        // Last: a visible token means every entity of the robot is declared.
-        let token = self
-            .session
-            .liveliness()
-            .declare_token(self.key("alive", robot))
-            .wait()?;
         Ok(RobotOutputs {
             pose,
             deviation,
-            metrics,
-            events,
             ros2_pose,
-            token: Some(token),
             inputs,
         })
     }
 
-    fn undeclare_all(&self, outputs: Vec<(Arc<str>, Arc<RobotOutputs>)>) {
+    fn declare_token(&self, robot: &str) -> zenoh::Result<LivelinessToken> {
+        self.session
+            .liveliness()
+            .declare_token(self.key("alive", robot))
+            .wait()
+    }
+
+    fn undeclare_all(
+        &self,
+        outputs: Vec<(Arc<str>, RobotOutputs)>,
+        tokens: Vec<(Arc<str>, LivelinessToken)>,
+    ) {
         for (robot, outputs) in outputs {
-            // The control thread, the only other holder, has finished its last metrics turn.
-            let Some(outputs) = Arc::into_inner(outputs) else {
-                warn!(%robot, "outputs still shared at shutdown: left to be undeclared when dropped");
-                continue;
-            };
             let RobotOutputs {
                 pose,
                 deviation,
-                metrics,
-                events,
                 ros2_pose,
-                token,
                 inputs,
             } = outputs;
-            for publisher in [pose, deviation, metrics, events]
-                .into_iter()
-                .chain(ros2_pose)
-            {
+            for publisher in [pose, deviation].into_iter().chain(ros2_pose) {
                 if let Err(e) = publisher.undeclare().wait() {
                     warn!(%robot, error = %e, "undeclaring a publisher failed");
                 }
-            }
-            if let Some(token) = token
-                && let Err(e) = token.undeclare().wait()
-            {
-                warn!(%robot, error = %e, "undeclaring the liveliness token failed");
             }
             for key in inputs {
                 if let Err(e) = self.session.undeclare(key).wait() {
                     warn!(%robot, error = %e, "undeclaring a key expression failed");
                 }
+            }
+        }
+        for (robot, token) in tokens {
+            if let Err(e) = token.undeclare().wait() {
+                warn!(%robot, error = %e, "undeclaring the liveliness token failed");
             }
         }
     }
@@ -1568,9 +1569,8 @@ struct ZenohSink {
     declarer: Declarer,
     /// Asks the control thread to declare newly tracked robots.
     control: Sender<Control>,
-    /// By robot index, once declared; shared with the control thread, which publishes metrics
-    /// outside the lock.
-    outputs: Vec<Option<Arc<RobotOutputs>>>,
+    /// By robot index, once the control thread has declared them.
+    outputs: Vec<Option<RobotOutputs>>,
     poses: u64,
     publish_errors: u64,
     event_budget: EventBudget,
@@ -1646,7 +1646,7 @@ impl ZenohSink {
     }
 
     /// The declared outputs of robot `index`, if it is tracked and they are declared.
-    fn outputs_of(&self, index: Option<RobotIndex>) -> Option<&Arc<RobotOutputs>> {
+    fn outputs_of(&self, index: Option<RobotIndex>) -> Option<&RobotOutputs> {
         self.outputs.get(index?.get())?.as_ref()
     }
 
@@ -1655,13 +1655,12 @@ impl ZenohSink {
         if self.outputs.len() <= index {
             self.outputs.resize_with(index + 1, || None);
         }
-        self.outputs[index] = Some(Arc::new(outputs));
+        self.outputs[index] = Some(outputs);
     }
 
     /// Publishes `payload` on `robot`'s `stream` ([`Declarer::put`]).
     fn put(&mut self, robot: &str, index: Option<RobotIndex>, stream: Stream, payload: Vec<u8>) {
-        let outputs = self.outputs_of(index).map(Arc::as_ref);
-        let sent = self.declarer.put(outputs, robot, stream, payload);
+        let sent = self.declarer.put(self.outputs_of(index), robot, stream, payload);
         self.publish_errors += u64::from(!sent);
     }
 

@@ -118,7 +118,15 @@ def test_only_gateways_put_joints_only_armtwin_publishes_and_strangers_cannot_co
         [(_, after)] = get_json(dashboard, "twin/state/r1")
         assert after["metrics"]["paired"] == 20 and after["joints"]["t"] == state["joints"]["t"]
         assert [p["seq"] for p in poses] == list(range(20)), "only armtwin's poses arrive"
-        assert wait_until(lambda: "is unauthorized to Put on twin/joints/r1" in router.log(10**9), 10)
+        # The router's log names each denial (access control at trace level).
+        def denied(name: str, key: str) -> bool:
+            return any(
+                f"CertCommonName({name})" in line and f"is unauthorized to Put (ingress) on {key}" in line
+                for line in router.log(10**9).splitlines()
+            )
+
+        assert wait_until(lambda: denied("dashboard", "twin/joints/r1"), 10)
+        assert denied("dashboard", "twin/pose/r1") and denied("gateway", "twin/pose/r1")
 
         # Without a certificate, or with one of another CA, no session opens.
         for name in (None, "stranger"):

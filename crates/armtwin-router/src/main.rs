@@ -112,7 +112,7 @@ async fn shutdown_signal() -> Result<()> {
 
 #[tokio::main]
 async fn main() -> Result<()> {
-    zenoh::init_log_from_env_or("z=info");
+    zenoh::init_log_from_env_or("z=info,armtwin_router=info");
     let args = Args::parse();
     let config = config_from(&args)?;
     let mut plugins = PluginsManager::static_plugins_only();

@@ -473,16 +473,14 @@ fn restore_snapshot(store: &SnapshotStore, twin: &SharedTwin, config: &ServiceCo
             return;
         }
         let mut directory = twin.robots.write().unwrap_or_else(PoisonError::into_inner);
-        match directory.admit(id) {
-            Ok(robot) => robots.push((robot.clone(), record)),
-            Err(_) => {
-                drop(directory);
-                refuse(&foreign(format!(
-                    "robot '{id}' is not configured and service.reject_unknown is true"
-                )));
-                return;
-            }
-        }
+        let Ok(robot) = directory.admit(id) else {
+            drop(directory);
+            refuse(&foreign(format!(
+                "robot '{id}' is not configured and service.reject_unknown is true"
+            )));
+            return;
+        };
+        robots.push((robot.clone(), record));
     }
     // A trial run first: one foreign record refuses the whole file, before any twin exists.
     let mut trial = Pipeline::new(config.pipeline);

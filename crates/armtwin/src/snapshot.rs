@@ -239,8 +239,8 @@ impl SnapshotStore {
         }
         let mut robots: Vec<&str> = file.robots.iter().map(|r| r.robot.as_str()).collect();
         robots.sort_unstable();
-        if let Some(pair) = robots.windows(2).find(|pair| pair[0] == pair[1]) {
-            return Err(corrupt(format!("robot '{}' is recorded twice", pair[0])));
+        if let Some([robot, _]) = robots.windows(2).find(|pair| pair[0] == pair[1]) {
+            return Err(corrupt(format!("robot '{robot}' is recorded twice")));
         }
         file.robots
             .into_iter()

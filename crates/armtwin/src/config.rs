@@ -1612,4 +1612,55 @@ mod tests {
         assert!(!Arc::ptr_eq(&model("e"), &default));
         assert_eq!(model("e").arm().name, "ur5e");
     }
+
+    #[test]
+    fn shards_and_snapshots_are_checked_when_the_configuration_loads() {
+        let parse = |text: &str| {
+            ServiceConfig::parse(
+                text,
+                "test",
+                Path::new("/etc/armtwin"),
+                &Overrides::default(),
+            )
+        };
+        let config = parse(
+            "[service]\nrobots = \"site-a/**\"\nstate_dir = \"state\"\nsnapshot_period_s = 2.5\n",
+        )
+        .expect("valid");
+        assert!(config.owns("site-a/r1") && config.owns("site-a/cell/r2"));
+        // `**` also matches no chunk at all: a robot named `site-a` is the shard's too.
+        assert!(config.owns("site-a") && !config.owns("site-b/r1") && !config.owns("site-ab/r1"));
+        assert_eq!(
+            config.snapshots,
+            Some(SnapshotSettings {
+                state_dir: PathBuf::from("/etc/armtwin/state"),
+                period: Duration::from_millis(2500),
+            })
+        );
+        let default = parse("").expect("valid");
+        assert!(default.owns("any/robot") && default.snapshots.is_none());
+
+        for (text, expected) in [
+            (
+                "[service]\nrobots = \"site-*/**\"\n",
+                "service.robots: 'site-*/**' is not a key expression of robot ids",
+            ),
+            (
+                "[service]\nrobots = \"site-a/**\"\n[robots.\"site-b/r1\"]\n",
+                "robot 'site-b/r1' is configured but outside 'site-a/**'",
+            ),
+            (
+                "[service]\nrobots = \"site-a/**\"\n[[sources]]\nkey = \"plc/r9\"\ncodec = \"json\"\nstream = \"joints\"\nrobot = \"site-b/r9\"\n",
+                "robot 'site-b/r9' is outside service.robots 'site-a/**'",
+            ),
+            (
+                "[service]\nsnapshot_period_s = 0.0\n",
+                "service.snapshot_period_s: 0 must be at least 0.1",
+            ),
+        ] {
+            let error = parse(text).expect_err(text).to_string();
+            assert!(error.contains(expected), "{error}");
+            assert!(!error.contains(".rs:"), "no source location: {error}");
+        }
+    }
 }

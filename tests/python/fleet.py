@@ -173,12 +173,17 @@ def open_client(endpoint: str, tls: dict | None = None) -> zenoh.Session:
 
 
 def wait_queryable(session: zenoh.Session, key: str, timeout: float = 20.0) -> bool:
-    """Whether a queryable (armtwin's, through the router) answers ``key`` within ``timeout``."""
+    """Whether a queryable (armtwin's, through the router) answers ``key`` within ``timeout``;
+    then one query round trip, so that armtwin has also seen every subscriber ``session``
+    declared before (declarations and queries keep their order on each link)."""
     querier = session.declare_querier(key, timeout=5.0)
     try:
-        return wait_until(lambda: querier.matching_status.matching, timeout)
+        if not wait_until(lambda: querier.matching_status.matching, timeout):
+            return False
     finally:
         querier.undeclare()
+    list(session.get(key, timeout=10.0))
+    return True
 
 
 def get_json(session: zenoh.Session, selector: str, timeout: float = 10.0) -> list[tuple[str, dict]]:

@@ -12,7 +12,6 @@ import tomllib
 import urllib.request
 from pathlib import Path
 
-import pytest
 import zenoh
 from ruamel.yaml import YAML
 

@@ -250,7 +250,7 @@ def test_sigkill_restores_metrics_seq_and_alarms_from_the_snapshot(
     poses = Poses(client, "r1")
     events = []
     client.declare_subscriber("twin/events/r1", lambda s: events.append(json.loads(s.payload.to_bytes())))
-    time.sleep(0.5)
+    assert wait_queryable(client, "twin/state/**")
     gateway.send_one()
     assert wait_until(lambda: poses.items, 10)
     assert poses.seqs()[0] == 300, "the pose seq goes on from the snapshot"

@@ -14,7 +14,7 @@ import pytest
 import zenoh
 
 from armtwin_service import wait_until
-from fleet import Armtwin, Gateway, Router, get_json, open_client, router_path, wait_queryable
+from fleet import Armtwin, Gateway, Router, get_json, router_path, wait_queryable
 
 REPO = Path(__file__).resolve().parents[2]
 ROUTER_CONFIG = REPO / "config" / "router-tls-acl.json5"
@@ -97,6 +97,7 @@ def test_only_gateways_put_joints_only_armtwin_publishes_and_strangers_cannot_co
         poses = []
         watcher.declare_subscriber("twin/pose/**", lambda s: poses.append(json.loads(s.payload.to_bytes())))
         assert wait_queryable(dashboard, "twin/state/**"), router.log()
+        assert wait_queryable(watcher, "twin/state/**"), router.log()
 
         gateway = Gateway(gateway_session, "r1")
         assert wait_until(lambda: gateway.pub.matching_status.matching, 20), router.log()

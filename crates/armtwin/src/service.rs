@@ -6,7 +6,13 @@
 //! and the ordered teardown. Samples and queries are handled in Zenoh's callbacks: each sample
 //! resolves its robot and decodes against the robot's immutable settings first, then steps the
 //! pipeline under one lock (see [`SharedTwin`]); a control thread declares newly tracked robots'
-//! entities, publishes the periodic metrics and finishes the pipeline at shutdown.
+//! entities, publishes the periodic metrics (and the snapshot, with `[service] state_dir`) and
+//! finishes the pipeline at shutdown.
+//!
+//! An instance owns the robots of `[service] robots`: its wildcard subscriptions and queryables
+//! cover those ids alone, and it claims them on the mesh (`<prefix>/shards/<zid>`) before taking
+//! input, refusing to start over another instance's claim. A snapshot is restored before the
+//! first input, whole or not at all.
 //!
 //! Flow control: inputs are received reliably; while a callback works, Zenoh does not read its
 //! link, which backpressures the transport and, through it, the gateways: nothing valid is

@@ -1,4 +1,4 @@
-"""Helpers for the deployment tests: a real Zenoh router (``armtwin-router``, zenohd's engine with
+"""The processes and clients of the deployment tests: a real Zenoh router (``armtwin-router``, zenohd's engine with
 the REST plugin linked in), armtwin instances in client mode behind it, and Python Zenoh clients
 (gateways, dashboards) that reach armtwin only through the router.
 

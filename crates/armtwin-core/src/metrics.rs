@@ -247,6 +247,65 @@ impl CumulativeStats {
     pub fn reset(&mut self) {
         *self = Self::new();
     }
+
+    /// The running sums as plain data, for a caller that keeps them across restarts
+    /// ([`from_parts`](Self::from_parts) gives the same statistics back, bit for bit).
+    #[must_use]
+    pub fn to_parts(&self) -> CumulativeParts {
+        let pairs = |sums: &[CompensatedSum; METRIC_COUNT]| sums.map(|s| [s.sum, s.compensation]);
+        CumulativeParts {
+            n: self.n,
+            sums: pairs(&self.sums),
+            sums_of_squares: pairs(&self.sums_of_squares),
+            maxima: self.maxima,
+        }
+    }
+
+    /// Statistics that continue from `parts`; `None` when they cannot be the sums of any
+    /// samples (a value not finite, a negative sum of squares, maxima of an empty set), so
+    /// that a damaged record is refused rather than continued.
+    #[must_use]
+    pub fn from_parts(parts: &CumulativeParts) -> Option<Self> {
+        if parts.n == 0 {
+            return Some(Self::new());
+        }
+        let finite =
+            |pairs: &[[f64; 2]; METRIC_COUNT]| pairs.iter().flatten().all(|x| x.is_finite());
+        let squares_ok = parts
+            .sums_of_squares
+            .iter()
+            .all(|[sum, compensation]| sum + compensation >= 0.0);
+        let maxima_ok = parts
+            .maxima
+            .iter()
+            .all(|x| x.is_finite() && x.abs() <= MAGNITUDE_LIMIT);
+        if !(finite(&parts.sums) && finite(&parts.sums_of_squares) && squares_ok && maxima_ok) {
+            return None;
+        }
+        let sums = |pairs: &[[f64; 2]; METRIC_COUNT]| {
+            pairs.map(|[sum, compensation]| CompensatedSum { sum, compensation })
+        };
+        Some(Self {
+            n: parts.n,
+            sums: sums(&parts.sums),
+            sums_of_squares: sums(&parts.sums_of_squares),
+            maxima: parts.maxima,
+        })
+    }
+}
+
+/// [`CumulativeStats`] as plain data: sample count, per metric (in [`METRIC_NAMES`] order) the
+/// compensated sums of magnitudes and of their squares as `[sum, compensation]`, and maxima.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CumulativeParts {
+    /// Samples added.
+    pub n: u64,
+    /// Sums of the magnitudes, `[sum, compensation]`.
+    pub sums: [[f64; 2]; METRIC_COUNT],
+    /// Sums of the squared magnitudes, `[sum, compensation]`.
+    pub sums_of_squares: [[f64; 2]; METRIC_COUNT],
+    /// Largest magnitudes (`-inf` while `n` is 0).
+    pub maxima: [f64; METRIC_COUNT],
 }
 
 /// Bit weight of chunk 0 of an [`ExactSum`]: 2⁻¹⁰⁸⁸, the multiple of 32 just below the smallest

@@ -33,7 +33,7 @@ pub use self::directory::{Robot, RobotDirectory, RobotIndex, UnknownRobot};
 pub use self::event::{Event, EventDetail, EventKind, Reason, RejectCause};
 use crate::align::{self, AlignConfig, Aligner, Bracket, Pending, UnpairedReason};
 use crate::kinematics::{KinematicsError, OutputFrame, PoseReadout};
-use crate::metrics::{CumulativeStats, Deviation, StatsSet, WindowStats};
+use crate::metrics::{CumulativeParts, CumulativeStats, Deviation, StatsSet, WindowStats};
 use crate::model::RobotModel;
 use crate::orientation;
 use crate::sample::JointSample;
@@ -217,6 +217,63 @@ pub struct RobotState<'a> {
     pub metrics: MetricsSnapshot,
     /// Whether the position / angle alarms are active.
     pub alarms_active: [bool; 2],
+}
+
+/// What of a robot's twin outlives the process: the cumulative metrics and counters of its
+/// epoch, the pose `seq` to go on from, the last gateway `seq` (so that samples lost while the
+/// service was down show as a `gap`) and its alarms. Plain data: the caller chooses the file
+/// format. The window, alignment and last values start afresh on restore.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TwinRecord {
+    /// Robot id.
+    pub robot: String,
+    /// The name of the arm its model describes (a record of another arm is foreign).
+    pub arm: String,
+    /// The metrics epoch.
+    pub epoch: u64,
+    /// Measured poses paired with the twin.
+    pub paired: u64,
+    /// Measured poses that could not be paired.
+    pub unpaired: u64,
+    /// Inputs rejected.
+    pub rejected: u64,
+    /// The `seq` of the next twin pose.
+    pub next_pose_seq: u64,
+    /// The last gateway `seq` accepted.
+    pub last_gateway_seq: Option<u64>,
+    /// Cumulative statistics.
+    pub cumulative: CumulativeParts,
+    /// Whether the position / angle alarms are active.
+    pub alarms_active: [bool; 2],
+}
+
+/// Why a [`TwinRecord`] was not restored.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum RestoreError {
+    /// The robot already has a twin (restoring is for a pipeline that has had no input).
+    #[error("robot '{robot}' is already tracked")]
+    AlreadyTracked {
+        /// The robot.
+        robot: String,
+    },
+    /// The record is of another arm than the robot's model.
+    #[error(
+        "robot '{robot}': the record is of arm '{recorded}', the robot's model is '{configured}'"
+    )]
+    Arm {
+        /// The robot.
+        robot: String,
+        /// The record's arm.
+        recorded: String,
+        /// The robot's model's arm.
+        configured: String,
+    },
+    /// The statistics cannot be the sums of any samples.
+    #[error("robot '{robot}': the cumulative statistics are not valid sums")]
+    Statistics {
+        /// The robot.
+        robot: String,
+    },
 }
 
 /// Why a joint sample was refused.
@@ -518,6 +575,79 @@ impl Pipeline {
             metrics: twin.snapshot(),
             alarms_active: [twin.alarms[0].active, twin.alarms[1].active],
         })
+    }
+
+    /// What of every tracked robot's twin outlives the process, in index order.
+    #[must_use]
+    pub fn records(&self) -> Vec<TwinRecord> {
+        self.twins
+            .iter()
+            .flatten()
+            .map(|twin| TwinRecord {
+                robot: twin.robot.id().to_owned(),
+                arm: twin.model.arm().name.clone(),
+                epoch: twin.epoch,
+                paired: twin.paired,
+                unpaired: twin.unpaired,
+                rejected: twin.rejected,
+                next_pose_seq: twin.next_pose_seq,
+                last_gateway_seq: twin.last_gateway_seq,
+                cumulative: twin.stats.as_ref().map_or_else(
+                    || CumulativeStats::new().to_parts(),
+                    |stats| stats.cumulative.to_parts(),
+                ),
+                alarms_active: [twin.alarms[0].active, twin.alarms[1].active],
+            })
+            .collect()
+    }
+
+    /// Tracks `robot` (telling the sink) with its twin continued from `record`: counters,
+    /// cumulative statistics, pose `seq`, gateway `seq` and alarms as recorded. Nothing is
+    /// changed when the record is refused.
+    pub fn restore(
+        &mut self,
+        robot: &Robot,
+        record: &TwinRecord,
+        sink: &mut impl Sink,
+    ) -> Result<(), RestoreError> {
+        if self.twin(robot.index()).is_some() {
+            return Err(RestoreError::AlreadyTracked {
+                robot: robot.id().to_owned(),
+            });
+        }
+        let configured = &robot.settings().model.arm().name;
+        if *configured != record.arm {
+            return Err(RestoreError::Arm {
+                robot: robot.id().to_owned(),
+                recorded: record.arm.clone(),
+                configured: configured.clone(),
+            });
+        }
+        let cumulative = CumulativeStats::from_parts(&record.cumulative).ok_or_else(|| {
+            RestoreError::Statistics {
+                robot: robot.id().to_owned(),
+            }
+        })?;
+        let twin = self.track(robot, sink);
+        twin.epoch = record.epoch;
+        twin.paired = record.paired;
+        twin.unpaired = record.unpaired;
+        twin.rejected = record.rejected;
+        twin.next_pose_seq = record.next_pose_seq;
+        twin.last_gateway_seq = record.last_gateway_seq;
+        if record.cumulative.n > 0 {
+            twin.stats = Some(Box::new(DeviationStats {
+                cumulative,
+                window: WindowStats::new(twin.window_s, twin.window_max_samples),
+            }));
+        }
+        for (alarm, active) in twin.alarms.iter_mut().zip(record.alarms_active) {
+            *alarm = AlarmState {
+                active,
+                since_s: None,
+            };
+        }
+        Ok(())
     }
 
     /// End of input: waiting measured poses become unpaired, and every robot's final metrics go
@@ -1049,5 +1179,77 @@ mod tests {
         pipeline.joints(&r1, "j", 14.0, &joints, &mut Discard);
         let snapshot = metrics(&pipeline);
         assert_eq!((snapshot.cumulative.n, snapshot.window.n), (1, 0));
+    }
+
+    #[test]
+    fn a_restored_twin_continues_its_metrics_seq_and_alarms() {
+        let model = Arc::new(RobotModel::nominal("ur10e").expect("catalog"));
+        let settings = RobotSettings {
+            model: Arc::clone(&model),
+            alarm: AlarmConfig {
+                position_m: Some(0.001),
+                angle_rad: None,
+                hold_s: 0.0,
+            },
+            sensors: Vec::new(),
+            self_calibration: None,
+        };
+        let mut robots = RobotDirectory::new(Some(settings), HashMap::new());
+        let r1 = robots.admit("r1").expect("default settings").clone();
+        let q_rad = vec![0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
+        let mut off = model.pose(&q_rad).expect("valid").readout();
+        off.position_m[0] += 0.01;
+        let mut first = Pipeline::new(PipelineConfig::default());
+        for i in 0..20_u32 {
+            let joints = JointSample {
+                stamp_s: None,
+                seq: Some(u64::from(i)),
+                q_rad: q_rad.clone(),
+                measured: Some(off),
+            };
+            first.joints(&r1, "j", f64::from(i) * 0.01, &joints, &mut Discard);
+        }
+        let before = first.state(r1.index()).expect("tracked");
+        assert!(before.alarms_active[0], "1 cm off arms the 1 mm alarm");
+        let records = first.records();
+        assert_eq!(records.len(), 1);
+        assert_eq!(
+            (records[0].next_pose_seq, records[0].last_gateway_seq),
+            (20, Some(19))
+        );
+
+        let mut second = Pipeline::new(PipelineConfig::default());
+        second
+            .restore(&r1, &records[0], &mut Discard)
+            .expect("same arm");
+        let after = second.state(r1.index()).expect("restored");
+        assert_eq!(after.metrics.cumulative, before.metrics.cumulative);
+        assert_eq!(after.metrics.paired, 20);
+        assert_eq!(after.alarms_active, before.alarms_active);
+        assert_eq!(after.metrics.window.n, 0, "the window starts afresh");
+        assert_eq!(second.records(), records, "bit for bit");
+        assert!(matches!(
+            second.restore(&r1, &records[0], &mut Discard),
+            Err(RestoreError::AlreadyTracked { .. })
+        ));
+
+        let mut foreign = records[0].clone();
+        foreign.arm = "ur5e".to_owned();
+        let mut third = Pipeline::new(PipelineConfig::default());
+        assert!(matches!(
+            third.restore(&r1, &foreign, &mut Discard),
+            Err(RestoreError::Arm { .. })
+        ));
+        let mut damaged = records[0].clone();
+        damaged.cumulative.sums_of_squares[0] = [-1.0, 0.0];
+        assert!(matches!(
+            third.restore(&r1, &damaged, &mut Discard),
+            Err(RestoreError::Statistics { .. })
+        ));
+        assert_eq!(
+            third.tracked().count(),
+            0,
+            "a refused record tracks nothing"
+        );
     }
 }

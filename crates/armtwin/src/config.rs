@@ -310,6 +310,9 @@ struct ServiceSection {
     pose_congestion: Congestion,
     events_per_s: f64,
     events_burst: u32,
+    robots: String,
+    state_dir: Option<PathBuf>,
+    snapshot_period_s: f64,
 }
 
 impl Default for ServiceSection {
@@ -325,8 +328,22 @@ impl Default for ServiceSection {
             pose_congestion: Congestion::Drop,
             events_per_s: EventBudget::default().per_s,
             events_burst: EventBudget::default().burst,
+            robots: "**".to_owned(),
+            state_dir: None,
+            snapshot_period_s: 10.0,
         }
     }
+}
+
+/// Where and how often the service writes its snapshot (`[service] state_dir`,
+/// `snapshot_period_s`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SnapshotSettings {
+    /// The folder of the snapshot file (relative paths are taken from the configuration's
+    /// folder).
+    pub state_dir: PathBuf,
+    /// Time between two snapshots while the service runs (one more is written at shutdown).
+    pub period: Duration,
 }
 
 /// How many events per robot the service publishes: a token bucket of `burst` events refilled at
@@ -430,6 +447,11 @@ pub struct ServiceConfig {
     pub sources: Vec<SourceConfig>,
     /// `ros2_pose` of `[robots.default]` and of each robot: the twin pose for ROS tools.
     pub ros2_pose: PoseOutputs,
+    /// `[service] robots`: the robot ids this instance owns (`**`, every robot, by default);
+    /// its subscriptions, queryables and tokens cover these alone.
+    pub shard: zenoh::key_expr::KeyExpr<'static>,
+    /// `[service] state_dir`: the snapshot of the twins' cumulative state, if kept.
+    pub snapshots: Option<SnapshotSettings>,
 }
 
 /// Command-line overrides, Zenoh style (`-m`, `-l`, `-e`, `--cfg`).
@@ -488,6 +510,7 @@ impl ServiceConfig {
             self_calibration.reservoir,
         )?;
         let ros2_pose = load_pose_outputs(&file.robots, source_name)?;
+        let (shard, snapshots) = check_deployment(&service, &robots, (source_name, base_dir))?;
         let sources = load_sources(
             &file.sources,
             &SourceContext {
@@ -496,6 +519,7 @@ impl ServiceConfig {
                 robots: &robots,
                 default_robot: (!service.reject_unknown).then_some(&default_robot),
                 ros2_pose: &ros2_pose,
+                shard: &shard,
             },
         )?;
         Ok(Self {
@@ -524,8 +548,82 @@ impl ServiceConfig {
             self_calibration,
             sources,
             ros2_pose,
+            shard,
+            snapshots,
         })
     }
+
+    /// Whether robot `id` belongs to this instance (`[service] robots`).
+    #[must_use]
+    pub fn owns(&self, id: &str) -> bool {
+        owns(&self.shard, id)
+    }
+}
+
+/// Whether robot `id` is one of `shard`'s: a robot id is a plain key, so it belongs to a shard
+/// when the shard's key expression includes it.
+#[must_use]
+pub fn owns(shard: &zenoh::key_expr::KeyExpr<'_>, id: &str) -> bool {
+    zenoh::key_expr::KeyExpr::try_from(id).is_ok_and(|key| shard.includes(&key))
+}
+
+/// Zenoh's error message without the source location it ends with (` at …/file.rs:line.`).
+fn without_source_location(message: &str) -> &str {
+    message
+        .find(" at ")
+        .filter(|&at| message[at..].contains(".rs:"))
+        .map_or(message, |at| &message[..at])
+}
+
+/// Checks `[service] robots` (a key expression every configured robot is in), `state_dir` and
+/// `snapshot_period_s`.
+fn check_deployment(
+    service: &ServiceSection,
+    robots: &HashMap<String, RobotSettings>,
+    (source_name, base_dir): (&str, &Path),
+) -> Result<(zenoh::key_expr::KeyExpr<'static>, Option<SnapshotSettings>), ConfigError> {
+    let invalid = |field: &str, problem: String| ConfigError::Invalid {
+        source_name: source_name.to_owned(),
+        field: format!("service.{field}"),
+        problem,
+    };
+    let shard = zenoh::key_expr::KeyExpr::try_from(service.robots.clone()).map_err(|e| {
+        invalid(
+            "robots",
+            format!(
+                "'{}' is not a key expression of robot ids (e.g. \"site-a/**\"; a wildcard \
+                 is a whole chunk, * or **, or $* inside one): {}",
+                service.robots,
+                without_source_location(&e.to_string())
+            ),
+        )
+    })?;
+    let mut outside: Vec<&str> = robots
+        .keys()
+        .map(String::as_str)
+        .filter(|id| !owns(&shard, id))
+        .collect();
+    outside.sort_unstable();
+    if let Some(id) = outside.first() {
+        return Err(invalid(
+            "robots",
+            format!(
+                "robot '{id}' is configured but outside '{shard}': its samples would never reach \
+                 this instance"
+            ),
+        ));
+    }
+    if !(service.snapshot_period_s.is_finite() && service.snapshot_period_s >= 0.1) {
+        return Err(invalid(
+            "snapshot_period_s",
+            format!("{} must be at least 0.1 (s)", service.snapshot_period_s),
+        ));
+    }
+    let snapshots = service.state_dir.as_ref().map(|dir| SnapshotSettings {
+        state_dir: base_dir.join(dir),
+        period: Duration::from_secs_f64(service.snapshot_period_s),
+    });
+    Ok((shard, snapshots))
 }
 
 /// Checks `[self_calibration]`.
@@ -1092,6 +1190,8 @@ struct SourceContext<'a> {
     /// `None` when unknown robots are rejected.
     default_robot: Option<&'a RobotSettings>,
     ros2_pose: &'a PoseOutputs,
+    /// `[service] robots`.
+    shard: &'a zenoh::key_expr::KeyExpr<'static>,
 }
 
 impl SourceContext<'_> {
@@ -1304,6 +1404,16 @@ fn fixed_robot<'a>(
             format!("'{id}' is not a robot id (one or more key chunks without wildcards)"),
         ));
     }
+    if !owns(context.shard, id) {
+        return Err(context.invalid(
+            index,
+            "robot",
+            format!(
+                "robot '{id}' is outside service.robots '{}': this instance does not own it",
+                context.shard
+            ),
+        ));
+    }
     context
         .robots
         .get(id)
@@ -1501,5 +1611,56 @@ mod tests {
         assert!(!Arc::ptr_eq(&model("c"), &default));
         assert!(!Arc::ptr_eq(&model("e"), &default));
         assert_eq!(model("e").arm().name, "ur5e");
+    }
+
+    #[test]
+    fn shards_and_snapshots_are_checked_when_the_configuration_loads() {
+        let parse = |text: &str| {
+            ServiceConfig::parse(
+                text,
+                "test",
+                Path::new("/etc/armtwin"),
+                &Overrides::default(),
+            )
+        };
+        let config = parse(
+            "[service]\nrobots = \"site-a/**\"\nstate_dir = \"state\"\nsnapshot_period_s = 2.5\n",
+        )
+        .expect("valid");
+        assert!(config.owns("site-a/r1") && config.owns("site-a/cell/r2"));
+        // `**` also matches no chunk at all: a robot named `site-a` is the shard's too.
+        assert!(config.owns("site-a") && !config.owns("site-b/r1") && !config.owns("site-ab/r1"));
+        assert_eq!(
+            config.snapshots,
+            Some(SnapshotSettings {
+                state_dir: PathBuf::from("/etc/armtwin/state"),
+                period: Duration::from_millis(2500),
+            })
+        );
+        let default = parse("").expect("valid");
+        assert!(default.owns("any/robot") && default.snapshots.is_none());
+
+        for (text, expected) in [
+            (
+                "[service]\nrobots = \"site-*/**\"\n",
+                "service.robots: 'site-*/**' is not a key expression of robot ids",
+            ),
+            (
+                "[service]\nrobots = \"site-a/**\"\n[robots.\"site-b/r1\"]\n",
+                "robot 'site-b/r1' is configured but outside 'site-a/**'",
+            ),
+            (
+                "[service]\nrobots = \"site-a/**\"\n[[sources]]\nkey = \"plc/r9\"\ncodec = \"json\"\nstream = \"joints\"\nrobot = \"site-b/r9\"\n",
+                "robot 'site-b/r9' is outside service.robots 'site-a/**'",
+            ),
+            (
+                "[service]\nsnapshot_period_s = 0.0\n",
+                "service.snapshot_period_s: 0 must be at least 0.1",
+            ),
+        ] {
+            let error = parse(text).expect_err(text).to_string();
+            assert!(error.contains(expected), "{error}");
+            assert!(!error.contains(".rs:"), "no source location: {error}");
+        }
     }
 }

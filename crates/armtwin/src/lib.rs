@@ -15,6 +15,7 @@
 //!   `validate`.
 //! - [`config`]: the service's TOML configuration and command-line overrides.
 //! - [`service`]: `armtwin serve`, the pipeline on a Zenoh mesh.
+//! - [`snapshot`]: the service's snapshot file, each twin's cumulative state across restarts.
 //! - [`replay`]: `armtwin replay`, a recording published as a gateway would.
 //! - [`validate`]: `armtwin validate`, a recording through the pipeline offline, with its report
 //!   and plots.
@@ -37,4 +38,5 @@ pub mod replay;
 pub mod ros2;
 pub mod rosbag;
 pub mod service;
+pub mod snapshot;
 pub mod validate;

@@ -6,7 +6,13 @@
 //! and the ordered teardown. Samples and queries are handled in Zenoh's callbacks: each sample
 //! resolves its robot and decodes against the robot's immutable settings first, then steps the
 //! pipeline under one lock (see [`SharedTwin`]); a control thread declares newly tracked robots'
-//! entities, publishes the periodic metrics and finishes the pipeline at shutdown.
+//! entities, publishes the periodic metrics (and the snapshot, with `[service] state_dir`) and
+//! finishes the pipeline at shutdown.
+//!
+//! An instance owns the robots of `[service] robots`: its wildcard subscriptions and queryables
+//! cover those ids alone, and it claims them on the mesh (`<prefix>/shards/<zid>`) before taking
+//! input, refusing to start over another instance's claim. A snapshot is restored before the
+//! first input, whole or not at all.
 //!
 //! Flow control: inputs are received reliably; while a callback works, Zenoh does not read its
 //! link, which backpressures the transport and, through it, the gateways: nothing valid is
@@ -49,11 +55,12 @@ use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
 use crate::model::RobotModel;
 use crate::pipeline::{
-    Event, EventDetail, EventKind, MeasuredStream, MetricsSnapshot, Pipeline, Robot,
-    RobotDirectory, RobotIndex, Sink,
+    Discard, Event, EventDetail, EventKind, MeasuredStream, MetricsSnapshot, Pipeline, Robot,
+    RobotDirectory, RobotIndex, Sink, TwinRecord,
 };
 use crate::ros2::{self, Attachment, KeyScheme, PoseOutputs, PublisherSeq};
 use crate::self_calibration::{self, CalibrationBatch, Estimate};
+use crate::snapshot::{SnapshotError, SnapshotStore};
 
 /// How long each teardown step may take.
 pub(crate) const TEARDOWN_STEP: Duration = Duration::from_secs(5);
@@ -83,6 +90,19 @@ pub enum ServiceError {
     /// The control thread failed.
     #[error("control thread: {0}")]
     Worker(String),
+    /// Another instance on the mesh already owns some of this instance's robots.
+    #[error(
+        "service.robots '{own}' overlaps '{other}', owned by the armtwin instance {zid}: a robot \
+         must belong to one instance (give each a disjoint key expression)"
+    )]
+    ShardOverlap {
+        /// This instance's `[service] robots`.
+        own: String,
+        /// The other instance's.
+        other: String,
+        /// The other instance's Zenoh id.
+        zid: String,
+    },
 }
 
 /// Totals reported when the service stops.
@@ -195,6 +215,7 @@ pub async fn serve(
     );
     let twin = Arc::new(SharedTwin {
         prefix: prefix.clone(),
+        shard: config.shard.clone(),
         robots: RwLock::new(RobotDirectory::new(
             config.default_robot.clone(),
             config.robots.clone(),
@@ -207,13 +228,22 @@ pub async fn serve(
             stopped: false,
         }),
     });
+    let snapshots = config.snapshots.as_ref().map(|settings| {
+        (
+            SnapshotStore::new(&settings.state_dir, &prefix),
+            settings.period,
+        )
+    });
     let control = Control::thread(
         twin.clone(),
         declarer,
         control_rx,
-        config.metrics_period,
-        config.self_calibration,
+        (config.metrics_period, config.self_calibration),
+        snapshots.clone(),
     )?;
+    if let Some((store, _)) = &snapshots {
+        restore_snapshot(store, &twin, &config);
+    }
 
     let intake = match declare_intake(&session, &prefix, &config, &twin).await {
         Ok(intake) => intake,
@@ -297,18 +327,19 @@ async fn declare_intake(
     twin: &Arc<SharedTwin>,
 ) -> Result<Intake, ServiceError> {
     let mut subscribers = Vec::new();
-    let mut queryables = Vec::new();
+    let mut queryables = vec![claim_shard(session, prefix, &config.shard).await?];
+    let shard = &config.shard;
     let joints = twin.clone();
     subscribers.push(
         session
-            .declare_subscriber(format!("{prefix}/joints/**"))
+            .declare_subscriber(format!("{prefix}/joints/{shard}"))
             .callback(move |sample| joints.joints(&sample))
             .await?,
     );
     let measured = twin.clone();
     subscribers.push(
         session
-            .declare_subscriber(format!("{prefix}/measured/**"))
+            .declare_subscriber(format!("{prefix}/measured/{shard}"))
             .callback(move |sample| measured.measured(&sample))
             .await?,
     );
@@ -342,7 +373,7 @@ async fn declare_intake(
         let query_twin = twin.clone();
         queryables.push(
             session
-                .declare_queryable(format!("{prefix}/{stream}/**"))
+                .declare_queryable(format!("{prefix}/{stream}/{shard}"))
                 .callback(move |query| query_twin.query(&query, handler))
                 .await?,
         );
@@ -351,6 +382,138 @@ async fn declare_intake(
         subscribers,
         queryables,
     })
+}
+
+/// How long an instance waits for the others' shard claims at start.
+const SHARD_CLAIM_WAIT: Duration = Duration::from_secs(2);
+
+/// Claims `[service] robots` on the mesh: a queryable `<prefix>/shards/<zid>` answers this
+/// instance's key expression, declared before asking the others' so that of two instances
+/// starting together at least the later one sees the earlier. Fails when another instance's
+/// key expression intersects this one's.
+async fn claim_shard(
+    session: &Session,
+    prefix: &str,
+    shard: &KeyExpr<'static>,
+) -> Result<zenoh::query::Queryable<()>, ServiceError> {
+    let zid = session.zid().to_string();
+    let claim = serde_json::json!({ "robots": shard.as_str(), "zid": zid }).to_string();
+    let claim_key = KeyExpr::try_from(format!("{prefix}/shards/{zid}"))?;
+    let reply_key = claim_key.clone();
+    let queryable = session
+        .declare_queryable(claim_key)
+        .callback(move |query| {
+            if let Err(e) = query
+                .reply(reply_key.clone(), claim.clone())
+                .encoding(Encoding::APPLICATION_JSON)
+                .wait()
+            {
+                warn!(error = %e, "shard claim reply failed");
+            }
+        })
+        .await?;
+    let replies = session
+        .get(format!("{prefix}/shards/**"))
+        .allowed_destination(Locality::Remote)
+        .timeout(SHARD_CLAIM_WAIT)
+        .await?;
+    while let Ok(reply) = replies.recv_async().await {
+        let Ok(sample) = reply.result() else { continue };
+        let text = sample.payload().try_to_string().unwrap_or_default();
+        let claim: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
+        let other = claim.get("robots").and_then(serde_json::Value::as_str);
+        let Some(other_key) = other.and_then(|other| KeyExpr::try_from(other).ok()) else {
+            warn!(key = %sample.key_expr(), "a shard claim that names no key expression: ignored");
+            continue;
+        };
+        if other_key.intersects(shard) {
+            let zid = claim.get("zid").and_then(serde_json::Value::as_str);
+            return Err(ServiceError::ShardOverlap {
+                own: shard.to_string(),
+                other: other_key.to_string(),
+                zid: zid.unwrap_or("?").to_owned(),
+            });
+        }
+        debug!(other = %other_key, "another instance's robots, disjoint from this one's");
+    }
+    info!(robots = %shard, "robots claimed");
+    Ok(queryable)
+}
+
+/// Restores the twins of the snapshot in `store`, if there is one, before any input arrives.
+/// The file is taken whole or not at all: when it is damaged, of another format or service, or
+/// names a robot this instance may not track (or of another arm), it is set aside with a
+/// warning naming why, and the service starts fresh.
+fn restore_snapshot(store: &SnapshotStore, twin: &SharedTwin, config: &ServiceConfig) {
+    let path = store.path().display().to_string();
+    let refuse = |error: &SnapshotError| match store.set_aside() {
+        Ok(aside) => warn!(
+            %error,
+            kept_as = %aside.display(),
+            "snapshot refused: starting fresh"
+        ),
+        Err(e) => warn!(%error, set_aside_error = %e, "snapshot refused: starting fresh"),
+    };
+    let records = match store.load() {
+        Ok(Some(records)) => records,
+        Ok(None) => {
+            info!(%path, "no snapshot yet: starting fresh");
+            return;
+        }
+        Err(e) => {
+            refuse(&e);
+            return;
+        }
+    };
+    let foreign = |problem: String| SnapshotError::Foreign {
+        path: path.clone(),
+        problem,
+    };
+    let mut robots: Vec<(Robot, &TwinRecord)> = Vec::with_capacity(records.len());
+    for record in &records {
+        let id = record.robot.as_str();
+        if !config.owns(id) {
+            refuse(&foreign(format!(
+                "robot '{id}' is outside service.robots '{}'",
+                config.shard
+            )));
+            return;
+        }
+        let mut directory = twin.robots.write().unwrap_or_else(PoisonError::into_inner);
+        let Ok(robot) = directory.admit(id) else {
+            drop(directory);
+            refuse(&foreign(format!(
+                "robot '{id}' is not configured and service.reject_unknown is true"
+            )));
+            return;
+        };
+        robots.push((robot.clone(), record));
+    }
+    // A trial run first: one foreign record refuses the whole file, before any twin exists.
+    let mut trial = Pipeline::new(config.pipeline);
+    for (robot, record) in &robots {
+        if let Err(e) = trial.restore(robot, record, &mut Discard) {
+            refuse(&foreign(e.to_string()));
+            return;
+        }
+    }
+    let mut guard = twin.lock();
+    let state = &mut *guard;
+    for (robot, record) in &robots {
+        if let Err(e) = state.pipeline.restore(robot, record, &mut state.sink) {
+            warn!(robot = robot.id(), error = %e, "twin not restored");
+        }
+    }
+    info!(%path, robots = robots.len(), "twins restored from the snapshot");
+}
+
+/// Writes the snapshot of every tracked twin, taken under the lock and written after it.
+fn save_snapshot(twin: &SharedTwin, store: &SnapshotStore) {
+    let records = twin.lock().pipeline.records();
+    match store.save(&records) {
+        Ok(()) => debug!(robots = records.len(), "snapshot written"),
+        Err(e) => warn!(error = %e, "snapshot not written"),
+    }
 }
 
 /// Refuses a sensor key expression that would receive armtwin's own outputs: a local put is
@@ -482,6 +645,8 @@ type QueryHandler = fn(&RobotDirectory, &mut TwinState, &Query);
 /// control, as the echo): declarations are made on the control thread.
 struct SharedTwin {
     prefix: String,
+    /// `[service] robots`.
+    shard: KeyExpr<'static>,
     robots: RwLock<RobotDirectory>,
     state: Mutex<TwinState>,
 }
@@ -517,6 +682,12 @@ impl SharedTwin {
             }
             robots.admits_unlisted()
         };
+        // Inputs of another instance's robots reach this one only through a `[[sources]]` key
+        // that covers several shards: they are that instance's to take.
+        if !crate::config::owns(&self.shard, id) {
+            debug!(robot = id, %key, "robot of another instance: ignored");
+            return;
+        }
         // Made-up ids of a service that rejects unknown robots never take the write lock.
         let admitted = admits_unlisted
             && self
@@ -1237,8 +1408,8 @@ impl Control {
         twin: Arc<SharedTwin>,
         declarer: Declarer,
         rx: Receiver<Self>,
-        metrics_period: Duration,
-        self_calibration: SelfCalibrationConfig,
+        (metrics_period, self_calibration): (Duration, SelfCalibrationConfig),
+        snapshots: Option<(SnapshotStore, Duration)>,
     ) -> Result<std::thread::JoinHandle<ServeReport>, ServiceError> {
         let (jobs_tx, jobs_rx) = channel::<FitJob>();
         let fitting = fitting_thread(
@@ -1251,7 +1422,8 @@ impl Control {
             .name("armtwin-control".to_owned())
             .spawn(move || {
                 let periods = (metrics_period, self_calibration.refit_period);
-                let report = Self::run(&twin, &declarer, &rx, periods, &jobs_tx);
+                let report =
+                    Self::run(&twin, &declarer, &rx, periods, &jobs_tx, snapshots.as_ref());
                 // Closing the queue ends the fitting thread after its current fit.
                 drop(jobs_tx);
                 if fitting.join().is_err() {
@@ -1268,9 +1440,11 @@ impl Control {
         rx: &Receiver<Self>,
         (metrics_period, refit_period): (Duration, Duration),
         jobs: &Sender<FitJob>,
+        snapshots: Option<&(SnapshotStore, Duration)>,
     ) -> ServeReport {
         let mut next_metrics = Instant::now() + metrics_period;
         let mut next_refit = Instant::now() + refit_period;
+        let mut next_snapshot = snapshots.map(|(_, period)| Instant::now() + *period);
         let mut tokens = Vec::new();
         // Robots whose token is declared and whose publishers are not yet.
         let mut undeclared = VecDeque::new();
@@ -1280,6 +1454,7 @@ impl Control {
             let wait = if undeclared.is_empty() {
                 next_metrics
                     .min(next_refit)
+                    .min(next_snapshot.unwrap_or(next_refit))
                     .saturating_duration_since(Instant::now())
             } else {
                 Duration::ZERO
@@ -1321,6 +1496,12 @@ impl Control {
                 schedule_fits(twin, jobs);
                 next_refit = now + refit_period;
             }
+            if let (Some(due), Some((store, period))) = (next_snapshot, snapshots)
+                && now >= due
+            {
+                save_snapshot(twin, store);
+                next_snapshot = Some(now + *period);
+            }
         }
         let (report, outputs) = {
             let mut guard = twin.lock();
@@ -1343,6 +1524,10 @@ impl Control {
                 .collect();
             (report, outputs)
         };
+        if let Some((store, _)) = snapshots {
+            save_snapshot(twin, store);
+            info!(path = %store.path().display(), "final snapshot written");
+        }
         declarer.undeclare_all(outputs, tokens);
         report
     }

@@ -1,0 +1,131 @@
+"""docker/compose.yaml without a Docker engine: its structure (services, images, commands, mounts,
+volumes; shards whose robot key expressions are disjoint and cover the gateway's robot), then the
+same topology run natively from the file's own commands: the router with REST, both shards, the
+replay gateway, and the fleet's state read over REST."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import tomllib
+import urllib.request
+from pathlib import Path
+
+import zenoh
+from ruamel.yaml import YAML
+
+from armtwin_service import free_port, port_accepts, wait_until
+from fleet import Process, router_path
+
+REPO = Path(__file__).resolve().parents[2]
+DOCKER = REPO / "docker"
+COMPOSE = DOCKER / "compose.yaml"
+ROUTER_ENDPOINT = "tcp/router:7447"
+
+
+def compose() -> dict:
+    return YAML(typ="safe").load(COMPOSE.read_text())
+
+
+def bind_mounts(service: dict) -> list[tuple[Path, str]]:
+    mounts = []
+    for volume in service.get("volumes", []):
+        source, target = volume.split(":")[:2]
+        if source.startswith("."):
+            mounts.append(((DOCKER / source).resolve(), target))
+    return mounts
+
+
+def shard_config(service: dict) -> tuple[Path, dict]:
+    command = service["command"]
+    target = command[command.index("-c") + 1]
+    [source] = [source for source, mounted in bind_mounts(service) if mounted == target]
+    return source, tomllib.loads(source.read_text())
+
+
+def test_the_compose_file_describes_a_router_two_disjoint_shards_and_a_gateway():
+    spec = compose()
+    services = spec["services"]
+    assert set(services) == {"router", "shard-a", "shard-b", "gateway"}
+    assert services["router"]["build"]["dockerfile"] == "docker/Dockerfile"
+    assert (DOCKER / services["router"]["build"]["context"] / "docker" / "Dockerfile").is_file()
+    assert all(service["image"] == "armtwin" for service in services.values())
+
+    router = services["router"]
+    assert router["entrypoint"] == ["armtwin-router"]
+    assert "--rest-http-port" in router["command"] and "tcp/0.0.0.0:7447" in router["command"]
+    rest_port = router["command"][router["command"].index("--rest-http-port") + 1]
+    assert any(port.endswith(f":{rest_port}") for port in router["ports"])
+
+    shards = {name: service for name, service in services.items() if name.startswith("shard-")}
+    robots = {}
+    for name, service in shards.items():
+        command = service["command"]
+        assert command[:1] == ["serve"] and command[command.index("-m") + 1] == "client"
+        assert command[command.index("-e") + 1] == ROUTER_ENDPOINT
+        assert "router" in service["depends_on"]
+        path, config = shard_config(service)
+        robots[name] = zenoh.KeyExpr(config["service"]["robots"])
+        state_dir = config["service"]["state_dir"]
+        named = [v.split(":")[0] for v in service["volumes"] if v.split(":")[1] == state_dir]
+        assert named and named[0] in spec["volumes"], f"{name}: state_dir {state_dir} is not a volume"
+    a, b = robots.values()
+    assert not a.intersects(b), f"the shards overlap: {a} and {b}"
+
+    gateway = services["gateway"]["command"]
+    assert gateway[0] == "replay" and gateway[gateway.index("-e") + 1] == ROUTER_ENDPOINT
+    robot = zenoh.KeyExpr(gateway[gateway.index("--robot") + 1])
+    assert [name for name, key in robots.items() if key.includes(robot)] == ["shard-a"]
+    for service in services.values():
+        for source, _ in bind_mounts(service):
+            assert source.exists(), f"{source} is mounted but missing"
+    recording = gateway[1]
+    [(data, mounted)] = bind_mounts(services["gateway"])
+    assert (data / Path(recording).relative_to(mounted)).is_file()
+
+
+def test_the_compose_topology_runs_natively(tmp_path, armtwin_bin):
+    services = compose()["services"]
+    router_port, rest_port = free_port(), free_port()
+    endpoint = f"tcp/127.0.0.1:{router_port}"
+
+    def native(argv: list[str]) -> list[str]:
+        text = [
+            arg.replace("tcp/0.0.0.0:7447", endpoint).replace(ROUTER_ENDPOINT, endpoint)
+            for arg in argv
+        ]
+        if "--rest-http-port" in text:
+            text[text.index("--rest-http-port") + 1] = f"127.0.0.1:{rest_port}"
+        return text
+
+    started = []
+    try:
+        router = Process("router", [router_path(armtwin_bin), *native(services["router"]["command"])], tmp_path)
+        started.append(router.start())
+        assert wait_until(lambda: port_accepts(router_port) and port_accepts(rest_port), 30), router.log()
+        for name in ("shard-a", "shard-b"):
+            source, _ = shard_config(services[name])
+            state = tmp_path / f"{name}-state"
+            config = tmp_path / f"{name}.toml"
+            config.write_text(re.sub(r'state_dir = ".*"', f'state_dir = "{state}"', source.read_text()))
+            argv = native(services[name]["command"])
+            argv[argv.index("-c") + 1] = str(config)
+            shard = Process(name, [armtwin_bin, *argv], tmp_path, {"RUST_LOG": "armtwin=info"})
+            started.append(shard.start())
+            assert shard.wait_log("robots claimed"), shard.log()
+        argv = native(services["gateway"]["command"])
+        argv[1] = str(REPO / "tests" / "data" / Path(argv[1]).name)
+        replay = subprocess.run(
+            [str(armtwin_bin), *argv, "--max-rate"], capture_output=True, text=True, timeout=180
+        )
+        assert replay.returncode == 0, replay.stderr
+        with urllib.request.urlopen(f"http://127.0.0.1:{rest_port}/twin/state/**", timeout=10) as response:
+            fleet = json.loads(response.read())
+        assert [item["key"] for item in fleet] == ["twin/state/site-a/ur10e"]
+        state = fleet[0]["value"]
+        assert state["joints"] is not None and state["metrics"]["paired"] > 0
+        assert "site-a/ur10e" in started[1].log(10**9) and "site-a/ur10e" not in started[2].log(10**9)
+    finally:
+        for process in reversed(started):
+            process.stop()

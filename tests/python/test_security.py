@@ -1,0 +1,158 @@
+"""TLS, mutual TLS and access control on a fleet's router, with the shipped example configurations
+(config/router-tls-acl.json5, config/zenoh-client-tls.json5) and certificates this test makes
+with the openssl CLI: only gateways put joints, only armtwin publishes outputs, dashboards only
+subscribe and query, and a client without a certificate of the fleet's CA cannot connect."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from armtwin_service import wait_until
+from fleet import Armtwin, Gateway, Router, get_json, router_path, wait_queryable
+
+REPO = Path(__file__).resolve().parents[2]
+ROUTER_CONFIG = REPO / "config" / "router-tls-acl.json5"
+CLIENT_CONFIG = REPO / "config" / "zenoh-client-tls.json5"
+ACL_LOG = "z=info,zenoh::net::routing::interceptor::access_control=trace"
+
+
+def openssl(*args: str, cwd: Path) -> None:
+    subprocess.run(["openssl", *args], cwd=cwd, check=True, capture_output=True, timeout=60)
+
+
+def make_ca(folder: Path, name: str) -> None:
+    openssl(
+        "req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes",
+        "-keyout", f"{name}.key", "-out", f"{name}.pem", "-days", "2", "-subj", f"/CN={name}",
+        "-addext", "basicConstraints=critical,CA:TRUE", "-addext", "keyUsage=keyCertSign,cRLSign",
+        cwd=folder,
+    )
+
+
+def make_cert(folder: Path, name: str, ca: str = "ca") -> None:
+    extensions = folder / f"{name}.ext"
+    extensions.write_text(
+        "subjectAltName=DNS:localhost,IP:127.0.0.1\nbasicConstraints=CA:FALSE\n"
+        "keyUsage=digitalSignature\nextendedKeyUsage=serverAuth,clientAuth\n"
+    )
+    openssl(
+        "req", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes",
+        "-keyout", f"{name}.key", "-out", f"{name}.csr", "-subj", f"/CN={name}", cwd=folder,
+    )
+    openssl(
+        "x509", "-req", "-in", f"{name}.csr", "-CA", f"{ca}.pem", "-CAkey", f"{ca}.key",
+        "-CAcreateserial", "-out", f"{name}.pem", "-days", "2", "-extfile", extensions.name,
+        cwd=folder,
+    )
+
+
+@pytest.fixture(scope="module")
+def certs(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("pki") / "certs"
+    folder.mkdir()
+    make_ca(folder, "ca")
+    for name in ("router", "armtwin", "gateway", "dashboard"):
+        make_cert(folder, name)
+    # A certificate named like a gateway, signed by a CA the router does not trust.
+    make_ca(folder, "stranger-ca")
+    make_cert(folder, "stranger", ca="stranger-ca")
+    return folder
+
+
+def tls_of(certs: Path, name: str | None) -> dict:
+    tls = {"root_ca_certificate": str(certs / "ca.pem"), "enable_mtls": True,
+           "verify_name_on_connect": True}
+    if name is not None:
+        tls["connect_private_key"] = str(certs / f"{name}.key")
+        tls["connect_certificate"] = str(certs / f"{name}.pem")
+    return tls
+
+
+def test_only_gateways_put_joints_only_armtwin_publishes_and_strangers_cannot_connect(
+    tmp_path, certs, armtwin_bin
+):
+    router_bin = router_path(armtwin_bin)
+    (tmp_path / "certs").symlink_to(certs)
+    router = Router(router_bin, tmp_path, config=ROUTER_CONFIG, scheme="tls", env={"RUST_LOG": ACL_LOG})
+    twin = Armtwin(
+        armtwin_bin, tmp_path, "twin",
+        f'[zenoh]\nfile = "{CLIENT_CONFIG}"\n[service]\npose_congestion = "block"\n',
+        router.endpoint,
+    )
+    (tmp_path / "twin" / "certs").symlink_to(certs)
+    sessions = []
+    try:
+        router.start()
+        twin.start()
+        gateway_session = zenoh.open(_client(router.endpoint, tls_of(certs, "gateway")))
+        dashboard = zenoh.open(_client(router.endpoint, tls_of(certs, "dashboard")))
+        watcher = zenoh.open(_client(router.endpoint, tls_of(certs, "dashboard")))
+        sessions += [gateway_session, dashboard, watcher]
+        poses = []
+        watcher.declare_subscriber("twin/pose/**", lambda s: poses.append(json.loads(s.payload.to_bytes())))
+        assert wait_queryable(dashboard, "twin/state/**"), router.log()
+        assert wait_queryable(watcher, "twin/state/**"), router.log()
+
+        gateway = Gateway(gateway_session, "r1")
+        assert wait_until(lambda: gateway.pub.matching_status.matching, 20), router.log()
+        for _ in range(20):
+            gateway.send_one()
+            time.sleep(0.005)
+        assert wait_until(lambda: len(poses) == 20, 15), (len(poses), router.log())
+        [(_, state)] = get_json(dashboard, "twin/state/r1")
+        assert state["metrics"]["paired"] == 20
+
+        # A dashboard's joints are dropped at the router: the twin does not change.
+        forged = Gateway(dashboard, "r1", start_seq=1000, start_t=100.0)
+        for _ in range(20):
+            forged.send_one()
+        # A forged pose, from a dashboard and from a gateway, reaches no subscriber.
+        dashboard.put("twin/pose/r1", json.dumps({"robot": "r1", "seq": -1}))
+        gateway_session.put("twin/pose/r1", json.dumps({"robot": "r1", "seq": -2}))
+        time.sleep(1.5)
+        [(_, after)] = get_json(dashboard, "twin/state/r1")
+        assert after["metrics"]["paired"] == 20 and after["joints"]["t"] == state["joints"]["t"]
+        assert [p["seq"] for p in poses] == list(range(20)), "only armtwin's poses arrive"
+        # The router's log names each denial (access control at trace level).
+        def denied(name: str, key: str) -> bool:
+            return any(
+                f"CertCommonName({name})" in line and f"is unauthorized to Put (ingress) on {key}" in line
+                for line in router.log(10**9).splitlines()
+            )
+
+        assert wait_until(lambda: denied("dashboard", "twin/joints/r1"), 10)
+        assert denied("dashboard", "twin/pose/r1") and denied("gateway", "twin/pose/r1")
+
+        # Without a certificate, or with one of another CA, no session opens.
+        for name in (None, "stranger"):
+            tls = tls_of(certs, None)
+            if name is not None:
+                tls["connect_private_key"] = str(certs / f"{name}.key")
+                tls["connect_certificate"] = str(certs / f"{name}.pem")
+            with pytest.raises(zenoh.ZError):
+                zenoh.open(_client(router.endpoint, tls)).close()
+        # Plain TCP to the TLS port does not open a session either.
+        with pytest.raises(zenoh.ZError):
+            zenoh.open(_client(f"tcp/127.0.0.1:{router.port}", None)).close()
+    finally:
+        for session in sessions:
+            session.close()
+        twin.stop()
+        router.stop()
+
+
+def _client(endpoint: str, tls: dict | None) -> zenoh.Config:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/timeout_ms", "3000")
+    for key, value in (tls or {}).items():
+        conf.insert_json5(f"transport/link/tls/{key}", json.dumps(value))
+    return conf

@@ -214,17 +214,26 @@ def test_router_restart_mid_stream_is_survived_and_measured(
     )
 
 
-def test_sigkill_restores_metrics_seq_and_alarms_from_the_snapshot(
-    tmp_path, armtwin_bin, router_bin, processes, sessions
-):
+def twin_with_snapshots(tmp_path, armtwin_bin, router_bin, processes, sessions, period_s: float):
+    """A router, armtwin behind it with snapshots every ``period_s`` in ``tmp_path/state``, and a
+    client of the router: (state dir, armtwin's configuration, router, armtwin, client)."""
     state_dir = tmp_path / "state"
-    config = twin_config(extra=f'state_dir = "{state_dir}"\nsnapshot_period_s = 0.5')
+    config = twin_config(extra=f'state_dir = "{state_dir}"\nsnapshot_period_s = {period_s}')
     router = Router(router_bin, tmp_path).start()
     processes.append(router)
     twin = Armtwin(armtwin_bin, tmp_path, "twin", config, router.endpoint).start()
     processes.append(twin)
     client = open_client(router.endpoint)
     sessions.append(client)
+    return state_dir, config, router, twin, client
+
+
+def test_sigkill_restores_metrics_seq_and_alarms_from_the_snapshot(
+    tmp_path, armtwin_bin, router_bin, processes, sessions
+):
+    state_dir, config, router, twin, client = twin_with_snapshots(
+        tmp_path, armtwin_bin, router_bin, processes, sessions, 0.5
+    )
     assert wait_queryable(client, "twin/state/**")
     gateway = Gateway(client, "r1")
     wait_matched(gateway.pub)
@@ -285,14 +294,9 @@ def test_sigkill_mid_stream_loses_at_most_one_snapshot_period(
     tmp_path, armtwin_bin, router_bin, processes, sessions
 ):
     period_s, rate_hz = 0.5, 200.0
-    state_dir = tmp_path / "state"
-    config = twin_config(extra=f'state_dir = "{state_dir}"\nsnapshot_period_s = {period_s}')
-    router = Router(router_bin, tmp_path).start()
-    processes.append(router)
-    twin = Armtwin(armtwin_bin, tmp_path, "twin", config, router.endpoint).start()
-    processes.append(twin)
-    client = open_client(router.endpoint)
-    sessions.append(client)
+    state_dir, config, router, twin, client = twin_with_snapshots(
+        tmp_path, armtwin_bin, router_bin, processes, sessions, period_s
+    )
     metrics = []
     client.declare_subscriber(
         "twin/metrics/r1", lambda s: metrics.append(json.loads(s.payload.to_bytes())["paired"])

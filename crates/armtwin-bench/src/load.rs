@@ -396,7 +396,7 @@ pub struct LoadReport {
     /// Seconds until every robot's first sample was answered.
     pub warmup_s: f64,
     /// armtwin: seconds from the end of the warm-up until every robot's liveliness token was
-    /// visible, i.e. armtwin had declared all its robots' entities (its steady state).
+    /// visible, i.e. armtwin tracked every robot.
     pub tracking_s: Option<f64>,
     /// The latency run.
     pub latency: Option<Latency>,

@@ -32,9 +32,9 @@ use nalgebra::{IsometryMatrix3, Matrix3, Rotation3, Vector3};
 pub use self::directory::{Robot, RobotDirectory, RobotIndex, UnknownRobot};
 pub use self::event::{Event, EventDetail, EventKind, Reason, RejectCause};
 use crate::align::{self, AlignConfig, Aligner, Bracket, Pending, UnpairedReason};
-use crate::kinematics::{KinematicsError, OutputFrame, PoseReadout};
+use crate::kinematics::{KinematicsError, OutputFrame, PoseReadout, TcpOffset};
 use crate::metrics::{CumulativeParts, CumulativeStats, Deviation, StatsSet, WindowStats};
-use crate::model::RobotModel;
+use crate::model::{Calibration, CalibrationForm, MountingDeltas, RobotModel};
 use crate::orientation;
 use crate::sample::JointSample;
 use crate::self_calibration::{PairReservoir, ReservoirConfig};
@@ -245,7 +245,22 @@ pub struct TwinRecord {
     pub cumulative: CumulativeParts,
     /// Whether the position / angle alarms are active.
     pub alarms_active: [bool; 2],
+    /// The model in use, when an applied calibration replaced the configured one: the epoch's
+    /// deviations are of that model, so the restored twin goes on with it.
+    pub applied: Option<AppliedModel>,
 }
+
+/// What an applied calibration changed in a robot's configured model.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AppliedModel {
+    /// The `calibration.conf` deltas to the arm's nominal table.
+    pub deltas: MountingDeltas,
+    /// The tool.
+    pub tool: TcpOffset,
+}
+
+/// The calibration source name of a model rebuilt from a [`TwinRecord`].
+const APPLIED_SOURCE_NAME: &str = "applied calibration (restored)";
 
 /// Why a [`TwinRecord`] was not restored.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -273,6 +288,14 @@ pub enum RestoreError {
     Statistics {
         /// The robot.
         robot: String,
+    },
+    /// The applied calibration does not make a model of the robot's arm.
+    #[error("robot '{robot}': the applied calibration does not fit its arm: {problem}")]
+    Applied {
+        /// The robot.
+        robot: String,
+        /// Why.
+        problem: String,
     },
 }
 
@@ -597,8 +620,26 @@ impl Pipeline {
                     |stats| stats.cumulative.to_parts(),
                 ),
                 alarms_active: [twin.alarms[0].active, twin.alarms[1].active],
+                applied: Self::applied_model(twin),
             })
             .collect()
+    }
+
+    /// What an applied calibration changed in `twin`'s configured model, if one was applied.
+    fn applied_model(twin: &RobotTwin) -> Option<AppliedModel> {
+        if Arc::ptr_eq(&twin.model, &twin.robot.settings().model) {
+            return None;
+        }
+        let deltas = match twin.model.calibration().map(|calibration| &calibration.form) {
+            Some(CalibrationForm::MountingDeltas(deltas)) => *deltas,
+            // Applied models are identified as deltas: any other form is the configured one.
+            Some(_) => return None,
+            None => MountingDeltas::ZERO,
+        };
+        Some(AppliedModel {
+            deltas,
+            tool: *twin.model.tool(),
+        })
     }
 
     /// Tracks `robot` (telling the sink) with its twin continued from `record`: counters,
@@ -628,7 +669,30 @@ impl Pipeline {
                 robot: robot.id().to_owned(),
             }
         })?;
+        let applied = match &record.applied {
+            None => None,
+            Some(applied) => {
+                let configured = &robot.settings().model;
+                let model = RobotModel::new(
+                    configured.arm().clone(),
+                    Some(Calibration {
+                        source_name: APPLIED_SOURCE_NAME.to_owned(),
+                        form: CalibrationForm::MountingDeltas(applied.deltas),
+                    }),
+                    applied.tool,
+                    configured.frame(),
+                )
+                .map_err(|e| RestoreError::Applied {
+                    robot: robot.id().to_owned(),
+                    problem: e.to_string(),
+                })?;
+                Some(Arc::new(model))
+            }
+        };
         let twin = self.track(robot, sink);
+        if let Some(model) = applied {
+            twin.model = model;
+        }
         twin.epoch = record.epoch;
         twin.paired = record.paired;
         twin.unpaired = record.unpaired;
@@ -1251,5 +1315,70 @@ mod tests {
             0,
             "a refused record tracks nothing"
         );
+    }
+
+    #[test]
+    fn a_restored_twin_goes_on_with_its_applied_calibration() {
+        let nominal = Arc::new(RobotModel::nominal("ur10e").expect("catalog"));
+        let mut robots = RobotDirectory::new(
+            Some(RobotSettings {
+                model: Arc::clone(&nominal),
+                alarm: AlarmConfig::default(),
+                sensors: Vec::new(),
+                self_calibration: None,
+            }),
+            HashMap::new(),
+        );
+        let r1 = robots.admit("r1").expect("default settings").clone();
+        let mut deltas = MountingDeltas::ZERO;
+        deltas.delta_theta_rad[1] = 2e-3;
+        deltas.delta_a_m[2] = 4e-4;
+        let tool = TcpOffset {
+            position_m: [0.0, 0.0, 0.1],
+            rotation_vector_rad: [0.0, 0.0, 0.3],
+        };
+        let calibrated = Arc::new(
+            RobotModel::new(
+                nominal.arm().clone(),
+                Some(Calibration {
+                    source_name: "estimate".to_owned(),
+                    form: CalibrationForm::MountingDeltas(deltas),
+                }),
+                tool,
+                nominal.frame(),
+            )
+            .expect("fits"),
+        );
+        let q_rad = [0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
+        let mut first = Pipeline::new(PipelineConfig::default());
+        let joints = || JointSample {
+            stamp_s: None,
+            seq: None,
+            q_rad: q_rad.to_vec(),
+            measured: None,
+        };
+        first.joints(&r1, "j", 0.0, &joints(), &mut Discard);
+        assert_eq!(first.records()[0].applied, None, "the configured model");
+        first
+            .replace_model(r1.index(), Arc::clone(&calibrated), &mut Discard)
+            .expect("same joints");
+        let records = first.records();
+        assert_eq!(
+            records[0].applied,
+            Some(AppliedModel { deltas, tool }),
+            "the applied model's deltas and tool"
+        );
+
+        let mut second = Pipeline::new(PipelineConfig::default());
+        second
+            .restore(&r1, &records[0], &mut Discard)
+            .expect("fits the arm");
+        let restored = second.model(r1.index()).expect("restored");
+        let pose = |model: &RobotModel| model.pose(&q_rad).expect("valid").readout();
+        assert_eq!(pose(restored), pose(&calibrated), "the same FK, bit for bit");
+        assert_ne!(pose(restored), pose(&nominal));
+        assert_eq!(second.records(), records);
+        second.joints(&r1, "j", 0.01, &joints(), &mut Discard);
+        assert_eq!(second.state(r1.index()).expect("tracked").metrics.epoch, 1);
     }
 }

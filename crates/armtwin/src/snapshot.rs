@@ -16,7 +16,9 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::metrics::{CumulativeParts, METRIC_COUNT};
-use crate::pipeline::TwinRecord;
+use crate::kinematics::TcpOffset;
+use crate::model::MountingDeltas;
+use crate::pipeline::{AppliedModel, TwinRecord};
 
 /// The format the file declares; a file of another format is refused.
 pub const SNAPSHOT_FORMAT: &str = "armtwin-twin-state/v1";
@@ -78,6 +80,52 @@ struct RecordJson {
     last_gateway_seq: Option<u64>,
     cumulative: CumulativeJson,
     alarms_active: [bool; 2],
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    applied: Option<AppliedJson>,
+}
+
+/// [`AppliedModel`]: the `calibration.conf` deltas and the tool as the pendant writes it.
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct AppliedJson {
+    delta_theta_rad: [f64; 6],
+    delta_a_m: [f64; 6],
+    delta_d_m: [f64; 6],
+    delta_alpha_rad: [f64; 6],
+    /// `[x, y, z, rx, ry, rz]` (m, rad): the TCP in the flange frame.
+    tcp: [f64; 6],
+}
+
+impl AppliedJson {
+    fn new(applied: &AppliedModel) -> Self {
+        let deltas = &applied.deltas;
+        let tool = &applied.tool;
+        let [x, y, z] = tool.position_m;
+        let [rx, ry, rz] = tool.rotation_vector_rad;
+        Self {
+            delta_theta_rad: deltas.delta_theta_rad,
+            delta_a_m: deltas.delta_a_m,
+            delta_d_m: deltas.delta_d_m,
+            delta_alpha_rad: deltas.delta_alpha_rad,
+            tcp: [x, y, z, rx, ry, rz],
+        }
+    }
+
+    fn into_applied(self) -> AppliedModel {
+        let [x, y, z, rx, ry, rz] = self.tcp;
+        AppliedModel {
+            deltas: MountingDeltas {
+                delta_theta_rad: self.delta_theta_rad,
+                delta_a_m: self.delta_a_m,
+                delta_d_m: self.delta_d_m,
+                delta_alpha_rad: self.delta_alpha_rad,
+            },
+            tool: TcpOffset {
+                position_m: [x, y, z],
+                rotation_vector_rad: [rx, ry, rz],
+            },
+        }
+    }
 }
 
 /// [`CumulativeParts`]; maxima are absent for an empty set (JSON has no `-inf`).
@@ -109,6 +157,7 @@ impl RecordJson {
                 maxima: (parts.n > 0).then_some(parts.maxima),
             },
             alarms_active: record.alarms_active,
+            applied: record.applied.as_ref().map(AppliedJson::new),
         }
     }
 
@@ -140,6 +189,7 @@ impl RecordJson {
                 maxima,
             },
             alarms_active: self.alarms_active,
+            applied: self.applied.map(AppliedJson::into_applied),
         })
     }
 }
@@ -303,6 +353,7 @@ mod tests {
                 },
             },
             alarms_active: [true, false],
+            applied: None,
         }
     }
 
@@ -311,7 +362,20 @@ mod tests {
         let dir = tempfile::tempdir().expect("temporary folder");
         let store = SnapshotStore::new(&dir.path().join("state"), "twin");
         assert!(store.load().expect("no file is no snapshot").is_none());
-        let records = vec![record("a/r1", 7), record("b/r2", 0)];
+        let mut calibrated = record("c/r3", 5);
+        calibrated.applied = Some(AppliedModel {
+            deltas: MountingDeltas {
+                delta_theta_rad: [1e-3, -2e-4, 0.1 + 0.2, 0.0, -0.0, 5e-324],
+                delta_a_m: [0.0, 4e-4, -1e-5, 0.0, 0.0, 0.0],
+                delta_d_m: [0.0, 123.456_789, -98.7, 1e-6, 0.0, 0.0],
+                delta_alpha_rad: [0.0, 1e-3, 0.0, -1e-3, 0.0, 0.0],
+            },
+            tool: TcpOffset {
+                position_m: [0.01, -0.02, 0.15],
+                rotation_vector_rad: [0.0, 3.0, 0.1],
+            },
+        });
+        let records = vec![record("a/r1", 7), record("b/r2", 0), calibrated];
         store.save(&records).expect("written");
         assert_eq!(store.load().expect("readable"), Some(records.clone()));
         store.save(&records[..1]).expect("replaced");

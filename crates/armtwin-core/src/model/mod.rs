@@ -13,7 +13,7 @@ use thiserror::Error;
 use crate::kinematics::{
     Chain, DhConvention, DhParameters, KinematicsError, OutputFrame, Pose, TcpOffset,
 };
-pub use calibration::{Calibration, CalibrationError, CalibrationForm};
+pub use calibration::{Calibration, CalibrationError, CalibrationForm, MountingDeltas};
 
 /// Position limits of one revolute joint (rad); `None` on a side means unlimited.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -5,6 +5,7 @@
 //! field and the problem named, never later. The embedded default is `config/armtwin.toml`.
 
 use std::collections::HashMap;
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
@@ -83,6 +84,15 @@ struct File {
     robots: HashMap<String, RobotSection>,
     #[serde(default)]
     sources: Vec<SourceSection>,
+    #[serde(default)]
+    http: HttpSection,
+}
+
+/// `[http]`: the dashboard and `/metrics` (off unless `listen` is set).
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct HttpSection {
+    listen: Option<String>,
 }
 
 /// `[self_calibration]`: how robots with `self_calibrate = true` keep their pairs and re-fit.
@@ -430,6 +440,8 @@ pub struct ServiceConfig {
     pub sources: Vec<SourceConfig>,
     /// `ros2_pose` of `[robots.default]` and of each robot: the twin pose for ROS tools.
     pub ros2_pose: PoseOutputs,
+    /// `[http] listen` (or `--http`): where the dashboard and `/metrics` listen; `None`, no HTTP.
+    pub http_listen: Option<SocketAddr>,
 }
 
 /// Command-line overrides, Zenoh style (`-m`, `-l`, `-e`, `--cfg`).
@@ -443,6 +455,8 @@ pub struct Overrides {
     pub connect: Vec<String>,
     /// `--cfg KEY:VALUE` (applied after the file's `cfg`, so they win).
     pub cfg: Vec<ZenohInsert>,
+    /// `--http ADDRESS` (replaces `[http] listen`).
+    pub http_listen: Option<SocketAddr>,
 }
 
 impl ServiceConfig {
@@ -488,6 +502,15 @@ impl ServiceConfig {
             self_calibration.reservoir,
         )?;
         let ros2_pose = load_pose_outputs(&file.robots, source_name)?;
+        let http_listen = match (overrides.http_listen, &file.http.listen) {
+            (Some(address), _) => Some(address),
+            (None, None) => None,
+            (None, Some(text)) => Some(text.parse().map_err(|e| ConfigError::Invalid {
+                source_name: source_name.to_owned(),
+                field: "http.listen".to_owned(),
+                problem: format!("'{text}' is not an IP address and port: {e}"),
+            })?),
+        };
         let sources = load_sources(
             &file.sources,
             &SourceContext {
@@ -524,6 +547,7 @@ impl ServiceConfig {
             self_calibration,
             sources,
             ros2_pose,
+            http_listen,
         })
     }
 }
@@ -1421,6 +1445,7 @@ mod tests {
                     .parse()
                     .expect("KEY:VALUE"),
             ],
+            http_listen: None,
         };
         let config = ServiceConfig::parse(text, "test", Path::new(""), &overrides).expect("valid");
         let zenoh = &config.zenoh;

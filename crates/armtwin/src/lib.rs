@@ -15,6 +15,7 @@
 //!   `validate`.
 //! - [`config`]: the service's TOML configuration and command-line overrides.
 //! - [`service`]: `armtwin serve`, the pipeline on a Zenoh mesh.
+//! - [`dashboard`]: the service's HTTP side: fleet and robot pages, live streams, `/metrics`.
 //! - [`replay`]: `armtwin replay`, a recording published as a gateway would.
 //! - [`validate`]: `armtwin validate`, a recording through the pipeline offline, with its report
 //!   and plots.
@@ -31,6 +32,7 @@ pub mod calibrate;
 pub mod cli;
 pub mod codec;
 pub mod config;
+pub mod dashboard;
 pub mod fmu_package;
 pub mod ingest;
 pub mod replay;

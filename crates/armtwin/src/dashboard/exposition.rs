@@ -1,0 +1,192 @@
+//! `/metrics`: the twin's state in Prometheus' text format, written with the official
+//! `prometheus-client` from one read of the fleet per scrape (nothing is kept between scrapes,
+//! so a robot's series always say what the twin holds now).
+
+use prometheus_client::encoding::text::encode;
+use prometheus_client::metrics::counter::Counter;
+use prometheus_client::metrics::family::Family;
+use prometheus_client::metrics::gauge::Gauge;
+use prometheus_client::registry::{Registry, Unit};
+use std::sync::atomic::AtomicU64;
+
+use crate::metrics::{METRIC_NAMES, Stats, StatsSet};
+use crate::service::{FleetRow, ServiceTotals};
+
+/// A series' labels: a few pairs, the robot's first.
+type Labels = Vec<(&'static str, String)>;
+type Gauges = Family<Labels, Gauge<f64, AtomicU64>>;
+type Counters = Family<Labels, Counter<u64, AtomicU64>>;
+
+/// The index of a metric among [`METRIC_NAMES`].
+fn metric_index(name: &str) -> usize {
+    METRIC_NAMES
+        .iter()
+        .position(|&known| known == name)
+        .unwrap_or(0)
+}
+
+/// One statistic's gauges of one metric (`position` in metres, `angle` in radians).
+struct ErrorGauges {
+    mae: Gauges,
+    rmse: Gauges,
+    max: Gauges,
+}
+
+impl ErrorGauges {
+    fn register(registry: &mut Registry, quantity: &str, unit: &Unit, what: &str) -> Self {
+        let gauges = Self {
+            mae: Gauges::default(),
+            rmse: Gauges::default(),
+            max: Gauges::default(),
+        };
+        for (statistic, family, help) in [
+            ("mae", &gauges.mae, "mean absolute"),
+            ("rmse", &gauges.rmse, "root mean square"),
+            ("max", &gauges.max, "largest"),
+        ] {
+            registry.register_with_unit(
+                format!("{quantity}_error_{statistic}"),
+                format!("Twin-vs-measured {what}, {help} (scope: cumulative since start or reset, or the sliding window)"),
+                unit.clone(),
+                family.clone(),
+            );
+        }
+        gauges
+    }
+
+    fn set(&self, robot: &str, scope: &'static str, stats: &Stats) {
+        let labels = vec![("robot", robot.to_owned()), ("scope", scope.to_owned())];
+        self.mae.get_or_create(&labels).set(stats.mae);
+        self.rmse.get_or_create(&labels).set(stats.rmse);
+        self.max.get_or_create(&labels).set(stats.max);
+    }
+}
+
+/// The exposition of the fleet's rows and the service's totals (OpenMetrics text, which
+/// Prometheus reads; it ends with `# EOF`).
+pub(crate) fn render(totals: &ServiceTotals, rows: &[FleetRow]) -> String {
+    let mut registry = Registry::with_prefix("armtwin");
+    let position = ErrorGauges::register(
+        &mut registry,
+        "position",
+        &Unit::Meters,
+        "TCP position distance",
+    );
+    let rotation = ErrorGauges::register(
+        &mut registry,
+        "rotation",
+        &Unit::Other("radians".to_owned()),
+        "TCP rotation angle",
+    );
+    let pairs = Gauges::default();
+    registry.register(
+        "window_pairs",
+        "Paired measurements in the robot's sliding window",
+        pairs.clone(),
+    );
+    let poses = Counters::default();
+    registry.register(
+        "poses",
+        "Twin poses the robot's joint samples produced",
+        poses.clone(),
+    );
+    let paired = Counters::default();
+    registry.register(
+        "paired",
+        "Measured poses paired with the twin (current metrics epoch)",
+        paired.clone(),
+    );
+    let unpaired = Counters::default();
+    registry.register(
+        "unpaired",
+        "Measured poses that could not be paired (current metrics epoch)",
+        unpaired.clone(),
+    );
+    let rejected = Counters::default();
+    registry.register(
+        "rejected",
+        "Inputs of the robot rejected, by cause",
+        rejected.clone(),
+    );
+    let alarm = Gauges::default();
+    registry.register(
+        "alarm_active",
+        "1 while the robot's position or angle alarm is active",
+        alarm.clone(),
+    );
+    let epoch = Gauges::default();
+    registry.register(
+        "metrics_epoch",
+        "Times the robot's model was replaced (an applied self-calibration)",
+        epoch.clone(),
+    );
+
+    let position_index = metric_index("position");
+    let angle_index = metric_index("angle");
+    for row in rows {
+        let robot = &*row.id;
+        let robot_labels = || vec![("robot", robot.to_owned())];
+        let scopes: [(&'static str, &StatsSet); 2] = [
+            ("cumulative", &row.metrics.cumulative),
+            ("window", &row.metrics.window),
+        ];
+        for (scope, set) in scopes {
+            position.set(robot, scope, &set.stats[position_index]);
+            rotation.set(robot, scope, &set.stats[angle_index]);
+        }
+        pairs
+            .get_or_create(&robot_labels())
+            .set(row.metrics.window.n as f64);
+        poses
+            .get_or_create(&robot_labels())
+            .inc_by(row.counts.poses);
+        paired
+            .get_or_create(&robot_labels())
+            .inc_by(row.metrics.paired);
+        unpaired
+            .get_or_create(&robot_labels())
+            .inc_by(row.metrics.unpaired);
+        for &(cause, count) in &row.counts.rejected_by_cause {
+            let labels = vec![
+                ("robot", robot.to_owned()),
+                ("cause", cause.as_str().to_owned()),
+            ];
+            rejected.get_or_create(&labels).inc_by(count);
+        }
+        for (metric, active) in ["position", "angle"].into_iter().zip(row.alarms_active) {
+            let labels = vec![("robot", robot.to_owned()), ("metric", metric.to_owned())];
+            alarm
+                .get_or_create(&labels)
+                .set(f64::from(u8::from(active)));
+        }
+        epoch
+            .get_or_create(&robot_labels())
+            .set(row.metrics.epoch as f64);
+    }
+
+    let inputs: Counter<u64, AtomicU64> = Counter::default();
+    inputs.inc_by(totals.inputs);
+    registry.register("inputs", "Inputs (samples and queries) processed", inputs);
+    let published: Counter<u64, AtomicU64> = Counter::default();
+    published.inc_by(totals.poses);
+    registry.register(
+        "published_poses",
+        "Twin poses published, all robots",
+        published,
+    );
+    let publish_errors: Counter<u64, AtomicU64> = Counter::default();
+    publish_errors.inc_by(totals.publish_errors);
+    registry.register(
+        "publish_errors",
+        "Outputs Zenoh refused to send",
+        publish_errors,
+    );
+    let tracked: Gauge<f64, AtomicU64> = Gauge::default();
+    tracked.set(totals.robots as f64);
+    registry.register("robots_tracked", "Robots the twin tracks", tracked);
+
+    let mut text = String::with_capacity(256 + rows.len() * 2048);
+    // Writing into a String cannot fail.
+    let _ = encode(&mut text, &registry);
+    text
+}

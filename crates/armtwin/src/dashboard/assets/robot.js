@@ -70,7 +70,7 @@ function drawArm(frames) {
 }
 
 // A turntable camera: drag turns, the wheel zooms.
-const orbit = { azimuth: -0.9, elevation: 0.45, distance: 3.2, target: new THREE.Vector3(0, 0, 0.4) };
+const orbit = { azimuth: -0.9, elevation: 0.45, distance: 2.6, target: new THREE.Vector3(0, 0, 0.4) };
 function placeCamera() {
   const { azimuth, elevation, distance, target } = orbit;
   camera.position.set(
@@ -121,7 +121,8 @@ requestRender();
 // ---- error chart (a small canvas chart: two series over the last two minutes)
 const chart = document.getElementById("chart");
 const series = [];
-const CHART_SPAN_S = 120;
+// The span grows with the page's age up to two minutes, so the first seconds already fill it.
+const CHART_MAX_SPAN_S = 120;
 function drawChart() {
   const ctx = chart.getContext("2d");
   const ratio = window.devicePixelRatio || 1;
@@ -131,7 +132,8 @@ function drawChart() {
   ctx.clearRect(0, 0, width, height);
   const left = 44, bottom = height - 20, top = 8, right = width - 8;
   const now = performance.now() / 1000;
-  const visible = series.filter((p) => now - p.t <= CHART_SPAN_S);
+  const span = series.length ? Math.min(CHART_MAX_SPAN_S, Math.max(10, now - series[0].t)) : 10;
+  const visible = series.filter((p) => now - p.t <= span);
   let max = 0;
   for (const p of visible) max = Math.max(max, p.position_mm, p.angle_mrad);
   max = max > 0 ? max * 1.15 : 1;
@@ -141,8 +143,8 @@ function drawChart() {
     ctx.beginPath(); ctx.moveTo(left, y); ctx.lineTo(right, y); ctx.stroke();
     ctx.fillText((max * i / 4).toPrecision(3), 2, y + 4);
   }
-  ctx.fillText(`last ${CHART_SPAN_S} s`, right - 70, height - 4);
-  const x = (t) => right - (now - t) / CHART_SPAN_S * (right - left);
+  ctx.fillText(`last ${span.toFixed(0)} s`, right - 70, height - 4);
+  const x = (t) => right - (now - t) / span * (right - left);
   const y = (v) => bottom - v / max * (bottom - top);
   for (const [key, color] of [["position_mm", "#2563eb"], ["angle_mrad", "#dc2626"]]) {
     ctx.strokeStyle = color; ctx.lineWidth = 2; ctx.beginPath();

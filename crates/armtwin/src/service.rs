@@ -185,14 +185,7 @@ pub async fn serve(
     shutdown: impl Future<Output = ()>,
 ) -> Result<ServeReport, ServiceError> {
     // Bound first: an address in use fails the start before anything joins the mesh.
-    let http_listener = match config.http_listen {
-        Some(address) => Some(
-            tokio::net::TcpListener::bind(address)
-                .await
-                .map_err(|source| ServiceError::HttpListen { address, source })?,
-        ),
-        None => None,
-    };
+    let http_listener = bind_http(config.http_listen).await?;
     let session = zenoh::open(zenoh_config_of(&config.zenoh)?).await?;
     info!(
         zid = %session.zid(),
@@ -248,18 +241,13 @@ pub async fn serve(
         }
     };
 
-    let dashboard = http_listener.map(|listener| {
-        dashboard::Dashboard::start(
-            listener,
-            TwinView {
-                twin: Arc::clone(&twin),
-            },
-        )
-    });
+    let view = TwinView {
+        twin: Arc::clone(&twin),
+    };
+    let dashboard = http_listener.map(|listener| dashboard::Dashboard::start(listener, view));
 
     shutdown.await;
     if let Some(dashboard) = dashboard {
-        info!("shutting down: stopping the dashboard");
         dashboard.stop().await;
     }
     info!("shutting down: stopping intake");
@@ -295,6 +283,19 @@ pub async fn serve(
         "armtwin stopped"
     );
     Ok(report)
+}
+
+/// The dashboard's listener, if `[http] listen` asks for one.
+async fn bind_http(
+    address: Option<std::net::SocketAddr>,
+) -> Result<Option<tokio::net::TcpListener>, ServiceError> {
+    let Some(address) = address else {
+        return Ok(None);
+    };
+    tokio::net::TcpListener::bind(address)
+        .await
+        .map(Some)
+        .map_err(|source| ServiceError::HttpListen { address, source })
 }
 
 /// The subscribers and queryables that feed the twin.

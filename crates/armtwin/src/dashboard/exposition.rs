@@ -62,68 +62,89 @@ impl ErrorGauges {
     }
 }
 
-/// The exposition of the fleet's rows and the service's totals (OpenMetrics text, which
-/// Prometheus reads; it ends with `# EOF`).
-pub(crate) fn render(totals: &ServiceTotals, rows: &[FleetRow]) -> String {
-    let mut registry = Registry::with_prefix("armtwin");
-    let position = ErrorGauges::register(
-        &mut registry,
-        "position",
-        &Unit::Meters,
-        "TCP position distance",
-    );
-    let rotation = ErrorGauges::register(
-        &mut registry,
-        "rotation",
-        &Unit::Other("radians".to_owned()),
-        "TCP rotation angle",
-    );
-    let pairs = Gauges::default();
-    registry.register(
-        "window_pairs",
-        "Paired measurements in the robot's sliding window",
-        pairs.clone(),
-    );
-    let poses = Counters::default();
-    registry.register(
-        "poses",
-        "Twin poses the robot's joint samples produced",
-        poses.clone(),
-    );
-    let paired = Counters::default();
-    registry.register(
-        "paired",
-        "Measured poses paired with the twin (current metrics epoch)",
-        paired.clone(),
-    );
-    let unpaired = Counters::default();
-    registry.register(
-        "unpaired",
-        "Measured poses that could not be paired (current metrics epoch)",
-        unpaired.clone(),
-    );
-    let rejected = Counters::default();
-    registry.register(
-        "rejected",
-        "Inputs of the robot rejected, by cause",
-        rejected.clone(),
-    );
-    let alarm = Gauges::default();
-    registry.register(
-        "alarm_active",
-        "1 while the robot's position or angle alarm is active",
-        alarm.clone(),
-    );
-    let epoch = Gauges::default();
-    registry.register(
-        "metrics_epoch",
-        "Times the robot's model was replaced (an applied self-calibration)",
-        epoch.clone(),
-    );
+/// The per-robot families of one exposition.
+struct RobotFamilies {
+    position: ErrorGauges,
+    rotation: ErrorGauges,
+    pairs: Gauges,
+    poses: Counters,
+    paired: Counters,
+    unpaired: Counters,
+    rejected: Counters,
+    alarm: Gauges,
+    epoch: Gauges,
+}
 
-    let position_index = metric_index("position");
-    let angle_index = metric_index("angle");
-    for row in rows {
+impl RobotFamilies {
+    fn register(registry: &mut Registry) -> Self {
+        let position =
+            ErrorGauges::register(registry, "position", &Unit::Meters, "TCP position distance");
+        let rotation = ErrorGauges::register(
+            registry,
+            "rotation",
+            &Unit::Other("radians".to_owned()),
+            "TCP rotation angle",
+        );
+        let families = Self {
+            position,
+            rotation,
+            pairs: Gauges::default(),
+            poses: Counters::default(),
+            paired: Counters::default(),
+            unpaired: Counters::default(),
+            rejected: Counters::default(),
+            alarm: Gauges::default(),
+            epoch: Gauges::default(),
+        };
+        let gauges = [
+            (
+                "window_pairs",
+                "Paired measurements in the robot's sliding window",
+                &families.pairs,
+            ),
+            (
+                "alarm_active",
+                "1 while the robot's position or angle alarm is active",
+                &families.alarm,
+            ),
+            (
+                "metrics_epoch",
+                "Times the robot's model was replaced (an applied self-calibration)",
+                &families.epoch,
+            ),
+        ];
+        for (name, help, family) in gauges {
+            registry.register(name, help, family.clone());
+        }
+        let counters = [
+            (
+                "poses",
+                "Twin poses the robot's joint samples produced",
+                &families.poses,
+            ),
+            (
+                "paired",
+                "Measured poses paired with the twin (current metrics epoch)",
+                &families.paired,
+            ),
+            (
+                "unpaired",
+                "Measured poses that could not be paired (current metrics epoch)",
+                &families.unpaired,
+            ),
+            (
+                "rejected",
+                "Inputs of the robot rejected, by cause",
+                &families.rejected,
+            ),
+        ];
+        for (name, help, family) in counters {
+            registry.register(name, help, family.clone());
+        }
+        families
+    }
+
+    fn add(&self, row: &FleetRow, position_index: usize, angle_index: usize) {
         let robot = &*row.id;
         let robot_labels = || vec![("robot", robot.to_owned())];
         let scopes: [(&'static str, &StatsSet); 2] = [
@@ -131,19 +152,19 @@ pub(crate) fn render(totals: &ServiceTotals, rows: &[FleetRow]) -> String {
             ("window", &row.metrics.window),
         ];
         for (scope, set) in scopes {
-            position.set(robot, scope, &set.stats[position_index]);
-            rotation.set(robot, scope, &set.stats[angle_index]);
+            self.position.set(robot, scope, &set.stats[position_index]);
+            self.rotation.set(robot, scope, &set.stats[angle_index]);
         }
-        pairs
+        self.pairs
             .get_or_create(&robot_labels())
             .set(row.metrics.window.n as f64);
-        poses
+        self.poses
             .get_or_create(&robot_labels())
             .inc_by(row.counts.poses);
-        paired
+        self.paired
             .get_or_create(&robot_labels())
             .inc_by(row.metrics.paired);
-        unpaired
+        self.unpaired
             .get_or_create(&robot_labels())
             .inc_by(row.metrics.unpaired);
         for &(cause, count) in &row.counts.rejected_by_cause {
@@ -151,40 +172,59 @@ pub(crate) fn render(totals: &ServiceTotals, rows: &[FleetRow]) -> String {
                 ("robot", robot.to_owned()),
                 ("cause", cause.as_str().to_owned()),
             ];
-            rejected.get_or_create(&labels).inc_by(count);
+            self.rejected.get_or_create(&labels).inc_by(count);
         }
         for (metric, active) in ["position", "angle"].into_iter().zip(row.alarms_active) {
             let labels = vec![("robot", robot.to_owned()), ("metric", metric.to_owned())];
-            alarm
+            self.alarm
                 .get_or_create(&labels)
                 .set(f64::from(u8::from(active)));
         }
-        epoch
+        self.epoch
             .get_or_create(&robot_labels())
             .set(row.metrics.epoch as f64);
     }
+}
 
-    let inputs: Counter<u64, AtomicU64> = Counter::default();
-    inputs.inc_by(totals.inputs);
-    registry.register("inputs", "Inputs (samples and queries) processed", inputs);
-    let published: Counter<u64, AtomicU64> = Counter::default();
-    published.inc_by(totals.poses);
-    registry.register(
-        "published_poses",
-        "Twin poses published, all robots",
-        published,
-    );
-    let publish_errors: Counter<u64, AtomicU64> = Counter::default();
-    publish_errors.inc_by(totals.publish_errors);
-    registry.register(
-        "publish_errors",
-        "Outputs Zenoh refused to send",
-        publish_errors,
-    );
+/// Registers the service's totals in `registry`.
+fn register_totals(registry: &mut Registry, totals: &ServiceTotals) {
+    let counters = [
+        (
+            "inputs",
+            "Inputs (samples and queries) processed",
+            totals.inputs,
+        ),
+        (
+            "published_poses",
+            "Twin poses published, all robots",
+            totals.poses,
+        ),
+        (
+            "publish_errors",
+            "Outputs Zenoh refused to send",
+            totals.publish_errors,
+        ),
+    ];
+    for (name, help, value) in counters {
+        let counter: Counter<u64, AtomicU64> = Counter::default();
+        counter.inc_by(value);
+        registry.register(name, help, counter);
+    }
     let tracked: Gauge<f64, AtomicU64> = Gauge::default();
     tracked.set(totals.robots as f64);
     registry.register("robots_tracked", "Robots the twin tracks", tracked);
+}
 
+/// The exposition of the fleet's rows and the service's totals (`OpenMetrics` text, which
+/// Prometheus reads; it ends with `# EOF`).
+pub(crate) fn render(totals: &ServiceTotals, rows: &[FleetRow]) -> String {
+    let mut registry = Registry::with_prefix("armtwin");
+    let families = RobotFamilies::register(&mut registry);
+    let (position_index, angle_index) = (metric_index("position"), metric_index("angle"));
+    for row in rows {
+        families.add(row, position_index, angle_index);
+    }
+    register_totals(&mut registry, totals);
     let mut text = String::with_capacity(256 + rows.len() * 2048);
     // Writing into a String cannot fail.
     let _ = encode(&mut text, &registry);

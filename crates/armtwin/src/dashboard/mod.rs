@@ -80,6 +80,7 @@ impl Dashboard {
 
     /// Ends every stream, stops accepting connections and waits (bounded) for the server.
     pub(crate) async fn stop(self) {
+        info!("shutting down: stopping the dashboard");
         let _ = self.stopping.send(true);
         bounded("stopping the dashboard", TEARDOWN_STEP, self.task).await;
     }
@@ -130,15 +131,13 @@ impl AppState {
             }
         })
         .await
-        .map_or_else(
-            |_| FleetRead {
-                taken: Instant::now(),
-                totals: ServiceTotals::default(),
-                rows: Vec::new(),
-                keys: Vec::new(),
-            },
-            |read| read,
-        );
+        // Only a panic of the read ends here: an empty fleet until the next read.
+        .unwrap_or_else(|_| FleetRead {
+            taken: Instant::now(),
+            totals: ServiceTotals::default(),
+            rows: Vec::new(),
+            keys: Vec::new(),
+        });
         let read = Arc::new(read);
         *self.fleet.lock().unwrap_or_else(PoisonError::into_inner) = Some(Arc::clone(&read));
         read
@@ -315,13 +314,13 @@ struct FleetSelection {
 }
 
 impl FleetQuery {
-    fn check(self) -> Result<FleetSelection, Response> {
+    /// The selection, or why the query is refused.
+    fn check(self) -> Result<FleetSelection, String> {
         let filter = match self.filter.as_deref().map(str::trim) {
             None | Some("") => None,
             Some(text) if text.len() > MAX_FILTER_BYTES => {
-                return Err(bad_request(
-                    StatusCode::BAD_REQUEST,
-                    &format!("the filter is longer than {MAX_FILTER_BYTES} bytes"),
+                return Err(format!(
+                    "the filter is longer than {MAX_FILTER_BYTES} bytes"
                 ));
             }
             Some(text) => Some(OwnedKeyExpr::autocanonize(text.to_owned()).map_err(|e| {
@@ -330,10 +329,7 @@ impl FleetQuery {
                 let reason = message
                     .find(" at /")
                     .map_or(message.as_str(), |at| &message[..at]);
-                bad_request(
-                    StatusCode::BAD_REQUEST,
-                    &format!("the filter is not a key expression: {reason}"),
-                )
+                format!("the filter is not a key expression: {reason}")
             })?),
         };
         Ok(FleetSelection {
@@ -444,7 +440,7 @@ fn fleet_page_json(read: &FleetRead, selection: &FleetSelection) -> String {
         SortKey::Unpaired => matched.sort_by_key(|row| row.metrics.unpaired),
         SortKey::Rejected => matched.sort_by_key(|row| row.metrics.rejected),
         SortKey::Alarm => {
-            matched.sort_by_key(|row| row.alarms_active.iter().filter(|&&a| a).count())
+            matched.sort_by_key(|row| row.alarms_active.iter().filter(|&&a| a).count());
         }
         SortKey::Age => matched.sort_by(|a, b| {
             let age = |row: &FleetRow| age_s(read, row).unwrap_or(f64::INFINITY);
@@ -498,7 +494,7 @@ fn json_response(body: String) -> Response {
 async fn fleet_json(State(state): State<AppState>, Query(query): Query<FleetQuery>) -> Response {
     let selection = match query.check() {
         Ok(selection) => selection,
-        Err(response) => return response,
+        Err(reason) => return bad_request(StatusCode::BAD_REQUEST, &reason),
     };
     let read = state.fleet(FLEET_READ_MAX_AGE).await;
     json_response(fleet_page_json(&read, &selection))
@@ -544,7 +540,7 @@ where
 async fn fleet_stream(State(state): State<AppState>, Query(query): Query<FleetQuery>) -> Response {
     let selection = match query.check() {
         Ok(selection) => Arc::new(selection),
-        Err(response) => return response,
+        Err(reason) => return bad_request(StatusCode::BAD_REQUEST, &reason),
     };
     let app = state.clone();
     paced(&state, FLEET_PERIOD, (), move |()| {
@@ -688,4 +684,127 @@ async fn robot_stream(State(state): State<AppState>, Query(query): Query<RobotQu
         };
         std::future::ready(data)
     })
+}
+
+#[cfg(test)]
+#[allow(clippy::float_cmp, reason = "values are copied, not computed")]
+mod tests {
+    use super::*;
+    use crate::metrics::StatsSet;
+    use crate::pipeline::MetricsSnapshot;
+    use crate::service::RobotCounts;
+
+    fn row(id: &str, position_m: f64, paired: u64, alarm: bool) -> FleetRow {
+        let mut window = StatsSet::default();
+        window.n = paired;
+        window.stats[metric_index("position")].mae = position_m;
+        FleetRow {
+            id: Arc::from(id),
+            metrics: MetricsSnapshot {
+                robot: id.to_owned(),
+                stamp_s: 1.0,
+                paired,
+                unpaired: 0,
+                rejected: 0,
+                cumulative: StatsSet::default(),
+                window,
+                window_s: 10.0,
+                epoch: 0,
+            },
+            alarms_active: [alarm, false],
+            counts: RobotCounts::default(),
+        }
+    }
+
+    fn read(rows: Vec<FleetRow>) -> FleetRead {
+        let keys = rows
+            .iter()
+            .map(|row| OwnedKeyExpr::try_from(&*row.id).ok())
+            .collect();
+        FleetRead {
+            taken: Instant::now(),
+            totals: ServiceTotals::default(),
+            rows,
+            keys,
+        }
+    }
+
+    fn select(query: &str) -> Result<FleetSelection, String> {
+        let query: FleetQuery = serde_json::from_str(query).expect("query");
+        query.check()
+    }
+
+    fn robots(page: &str) -> Vec<String> {
+        let page: serde_json::Value = serde_json::from_str(page).expect("JSON");
+        page["rows"]
+            .as_array()
+            .expect("rows")
+            .iter()
+            .map(|row| row["robot"].as_str().expect("robot").to_owned())
+            .collect()
+    }
+
+    fn fleet() -> FleetRead {
+        read(vec![
+            row("a/1", 0.003, 10, false),
+            row("a/2", 0.001, 30, true),
+            row("b/1", 0.002, 20, false),
+        ])
+    }
+
+    #[test]
+    fn filters_by_key_expression_sorts_and_pages() {
+        let fleet = fleet();
+        let all = select("{}").expect("valid");
+        assert_eq!(
+            robots(&fleet_page_json(&fleet, &all)),
+            ["a/1", "a/2", "b/1"]
+        );
+        let only_a = select(r#"{"filter": "a/*"}"#).expect("valid");
+        assert_eq!(robots(&fleet_page_json(&fleet, &only_a)), ["a/1", "a/2"]);
+        let by_error = select(r#"{"sort": "position", "order": "desc"}"#).expect("valid");
+        assert_eq!(
+            robots(&fleet_page_json(&fleet, &by_error)),
+            ["a/1", "b/1", "a/2"]
+        );
+        let paged = select(r#"{"sort": "paired", "offset": 1, "limit": 1}"#).expect("valid");
+        let page: serde_json::Value =
+            serde_json::from_str(&fleet_page_json(&fleet, &paged)).expect("JSON");
+        assert_eq!(page["matched"], 3);
+        assert_eq!(page["alarms"], 1);
+        assert_eq!(robots(&page.to_string()), ["b/1"]);
+        assert_eq!(page["rows"][0]["position_m"], 0.002);
+        assert!(page["rows"][0]["age_s"].is_null(), "never active");
+    }
+
+    #[test]
+    fn refuses_bad_filters_and_bounds_the_page() {
+        assert!(select(r#"{"filter": "a**b"}"#).is_err());
+        let long = format!(r#"{{"filter": "{}"}}"#, "a/".repeat(600));
+        assert!(select(&long).is_err());
+        assert_eq!(
+            select(r#"{"limit": 1000000}"#).expect("valid").limit,
+            MAX_PAGE_ROWS
+        );
+        assert_eq!(select(r#"{"limit": 0}"#).expect("valid").limit, 1);
+    }
+
+    #[test]
+    fn the_exposition_escapes_ids_and_names_base_units() {
+        let mut quoted = row("cell/\"odd\"\\id", 0.004, 5, true);
+        quoted.counts.poses = 7;
+        quoted.counts.rejected_by_cause = vec![(crate::pipeline::RejectCause::NotJson, 2)];
+        let text = exposition::render(&ServiceTotals::default(), &[quoted]);
+        let robot = r#"robot="cell/\"odd\"\\id""#;
+        for line in [
+            format!("armtwin_position_error_mae_meters{{{robot},scope=\"window\"}} 0.004"),
+            format!("armtwin_poses_total{{{robot}}} 7"),
+            format!("armtwin_rejected_total{{{robot},cause=\"not_json\"}} 2"),
+            format!("armtwin_alarm_active{{{robot},metric=\"position\"}} 1"),
+            "armtwin_robots_tracked 0".to_owned(),
+        ] {
+            assert!(text.contains(&line), "{line} not in\n{text}");
+        }
+        assert!(text.ends_with("# EOF\n"), "{text}");
+    }
 }

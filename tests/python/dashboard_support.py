@@ -59,7 +59,9 @@ def http_json(url: str):
 class DashboardService:
     """``armtwin serve`` with ``[http] listen`` on a free loopback port, and one client peer."""
 
-    def __init__(self, binary: Path, workdir: Path, config_text: str, watchdog_s: float = 300.0):
+    def __init__(self, binary: Path, workdir: Path, config_text: str, watchdog_s: float = 300.0,
+                 stop_timeout_s: float = 15.0):
+        self.stop_timeout_s = stop_timeout_s
         self.http_port = free_port()
         config = f'[http]\nlisten = "127.0.0.1:{self.http_port}"\n\n{config_text}'
         self.proc = ArmtwinProcess(binary, workdir, config, watchdog_s)
@@ -74,7 +76,7 @@ class DashboardService:
         return self
 
     def __exit__(self, *exc) -> None:
-        code, _ = self.proc.stop()
+        code, _ = self.proc.stop(self.stop_timeout_s)
         if self.client is not None:
             self.client.close()
         if exc[0] is None:

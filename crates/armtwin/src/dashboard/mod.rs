@@ -62,6 +62,7 @@ impl Dashboard {
         let app = router(AppState {
             view,
             fleet: Arc::new(Mutex::new(None)),
+            fleet_reading: Arc::new(tokio::sync::Mutex::new(())),
             stopping: stop_rx.clone(),
         });
         let task = tokio::spawn(async move {
@@ -88,6 +89,7 @@ impl Dashboard {
 
 /// One read of the fleet, shared by the fleet pages and `/metrics` for a moment.
 struct FleetRead {
+    /// When the read began.
     taken: Instant,
     totals: ServiceTotals,
     rows: Vec<FleetRow>,
@@ -99,6 +101,8 @@ struct FleetRead {
 struct AppState {
     view: TwinView,
     fleet: Arc<Mutex<Option<Arc<FleetRead>>>>,
+    /// Held while the fleet is read: pages whose ticks meet wait for that one read.
+    fleet_reading: Arc<tokio::sync::Mutex<()>>,
     stopping: watch::Receiver<bool>,
 }
 
@@ -106,25 +110,30 @@ impl AppState {
     /// The shared fleet read, read again if older than `max_age`. The read runs on a blocking
     /// thread: it takes the twin's lock in turns.
     async fn fleet(&self, max_age: Duration) -> Arc<FleetRead> {
-        let cached = self
-            .fleet
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .clone();
-        if let Some(read) = cached
-            && read.taken.elapsed() < max_age
-        {
+        let asked = Instant::now();
+        let fresh = |cache: &Mutex<Option<Arc<FleetRead>>>| {
+            let cached = cache.lock().unwrap_or_else(PoisonError::into_inner).clone();
+            // A read taken after the ask is fresh whatever `max_age` (zero for `/metrics`).
+            cached.filter(|read| read.taken >= asked || read.taken.elapsed() < max_age)
+        };
+        if let Some(read) = fresh(&self.fleet) {
+            return read;
+        }
+        let _reading = self.fleet_reading.lock().await;
+        if let Some(read) = fresh(&self.fleet) {
             return read;
         }
         let view = self.view.clone();
         let read = tokio::task::spawn_blocking(move || {
+            // When the read began: what it shows is no older than this.
+            let taken = Instant::now();
             let (totals, rows) = view.fleet();
             let keys = rows
                 .iter()
                 .map(|row| OwnedKeyExpr::try_from(&*row.id).ok())
                 .collect();
             FleetRead {
-                taken: Instant::now(),
+                taken,
                 totals,
                 rows,
                 keys,

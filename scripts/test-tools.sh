@@ -32,5 +32,5 @@ if [ ! -x "$dir/usr/bin/prometheus" ]; then
   mv "$dir.partial" "$dir"
 fi
 
-echo "ARMTWIN_CHROMIUM=$(command -v chromium)"
-echo "ARMTWIN_PROMETHEUS=$PWD/$dir/usr/bin/prometheus"
+printf 'ARMTWIN_CHROMIUM=%q\n' "$(command -v chromium)"
+printf 'ARMTWIN_PROMETHEUS=%q\n' "$PWD/$dir/usr/bin/prometheus"

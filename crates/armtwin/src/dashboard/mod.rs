@@ -704,8 +704,10 @@ mod tests {
     use crate::service::RobotCounts;
 
     fn row(id: &str, position_m: f64, paired: u64, alarm: bool) -> FleetRow {
-        let mut window = StatsSet::default();
-        window.n = paired;
+        let mut window = StatsSet {
+            n: paired,
+            ..StatsSet::default()
+        };
         window.stats[metric_index("position")].mae = position_m;
         FleetRow {
             id: Arc::from(id),

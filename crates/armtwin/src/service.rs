@@ -777,7 +777,7 @@ pub(crate) struct TwinView {
 pub(crate) struct FleetRow {
     /// The robot id.
     pub(crate) id: Arc<str>,
-    /// Its metrics now (counters and statistics of the current epoch).
+    /// Its metrics at the read (counters and statistics of the current epoch).
     pub(crate) metrics: MetricsSnapshot,
     /// Position and angle alarms.
     pub(crate) alarms_active: [bool; 2],
@@ -1758,7 +1758,8 @@ pub(crate) struct RobotCounts {
     pub(crate) rejected_by_cause: Vec<(RejectCause, u64)>,
     /// The last [`RECENT_EVENTS`] published events, oldest first, as published (JSON).
     pub(crate) recent_events: VecDeque<Arc<[u8]>>,
-    /// When the control thread last found new results of the robot (to its metrics period).
+    /// When the control thread last found results of the robot it had not published (to its
+    /// metrics period).
     pub(crate) last_active: Option<Instant>,
 }
 

@@ -3,7 +3,7 @@
 #![allow(
     clippy::expect_used,
     clippy::unwrap_used,
-    reason = "a test, or a helper of one, that fails an expectation fails the test"
+    reason = "a test that fails an expectation fails"
 )]
 
 mod common;

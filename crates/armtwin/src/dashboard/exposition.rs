@@ -1,6 +1,6 @@
 //! `/metrics`: the twin's state in Prometheus' text format, written with the official
 //! `prometheus-client` from one read of the fleet per scrape (nothing is kept between scrapes,
-//! so a robot's series always say what the twin holds now).
+//! so a robot's series always say what the twin holds at the scrape).
 
 use prometheus_client::encoding::text::encode;
 use prometheus_client::metrics::counter::Counter;

@@ -247,7 +247,7 @@ async fn healthz() -> &'static str {
 }
 
 async fn metrics(State(state): State<AppState>) -> Response {
-    // A scrape sees the twin as it is now: no shared read older than a scrape could be.
+    // A scrape sees the twin as it is at the scrape: no shared read older than it.
     let read = state.fleet(Duration::ZERO).await;
     let text = exposition::render(&read.totals, &read.rows);
     (

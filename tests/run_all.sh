@@ -25,6 +25,10 @@ if [ "$(cat "$venv/.requirements.sha256" 2>/dev/null)" != "$want" ]; then
   echo "$want" > "$venv/.requirements.sha256"
 fi
 
+step "test tools (Debian's chromium; Prometheus unpacked into .cache/)"
+eval "$(bash scripts/test-tools.sh)"
+export ARMTWIN_CHROMIUM ARMTWIN_PROMETHEUS
+
 step "pytest tests/python"
 # The armtwin binary and the FMU library beside it, from the build `cargo test` just made: the
 # same targets with the same feature set (dev-dependencies included), so nothing is compiled

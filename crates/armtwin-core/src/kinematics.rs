@@ -658,6 +658,43 @@ impl Chain {
         Ok(self.pose_unchecked(q_rad))
     }
 
+    /// The chain's link frames for joint angles `q_rad` (rad): `frame_from_link k` for
+    /// `k = 0 ..= n`, the chain's first frame (the output frame's view of joint 1's frame) to
+    /// the TCP, each after the joints before it. The last is [`Chain::pose`]'s pose; a viewer
+    /// draws the arm as the segments between consecutive positions.
+    ///
+    /// ```
+    /// use approx::assert_abs_diff_eq;
+    /// use armtwin_core::kinematics::Chain;
+    /// use armtwin_core::model::catalog;
+    ///
+    /// let ur10e = catalog::arm("ur10e")?;
+    /// let chain = Chain::from_dh(ur10e.convention, &ur10e.dh);
+    /// let q_rad = [0.3, -1.2, 1.1, -0.4, 1.5, 0.2];
+    /// let frames = chain.link_frames(&q_rad)?;
+    /// assert_eq!(frames.len(), 7);
+    /// assert_abs_diff_eq!(frames[0].position_m.norm(), 0.0, epsilon = 1e-15);
+    /// let tcp = chain.pose(&q_rad)?;
+    /// assert_abs_diff_eq!(frames[6].position_m, tcp.position_m, epsilon = 1e-12);
+    /// assert_abs_diff_eq!(frames[6].rotation, tcp.rotation, epsilon = 1e-12);
+    /// // Joint 2 sits d₁ = 0.1807 m above the base, whatever q₁ is.
+    /// assert_abs_diff_eq!(frames[1].position_m.z, 0.1807, epsilon = 1e-12);
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    pub fn link_frames(&self, q_rad: &[f64]) -> Result<Vec<Pose>, KinematicsError> {
+        // Checks the count and finiteness once, for every prefix below.
+        let tcp = self.pose(q_rad)?;
+        let link_by_link = Self {
+            closed_form: None,
+            ..self.clone()
+        };
+        let mut frames: Vec<Pose> = (0..q_rad.len())
+            .map(|k| link_by_link.pose_unchecked(&q_rad[..k]))
+            .collect();
+        frames.push(tcp);
+        Ok(frames)
+    }
+
     /// `frame_from_tcp` for joint angles the caller has already validated (count and
     /// finiteness). Angles beyond the joint count are ignored; a short slice ends the chain early.
     #[must_use]

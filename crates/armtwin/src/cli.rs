@@ -229,6 +229,10 @@ pub struct ServeArgs {
     /// How to join the mesh; the flags override the configuration's `[zenoh]`.
     #[command(flatten)]
     pub zenoh: ZenohArgs,
+    /// Serve the dashboard and `/metrics` on this address, e.g. 127.0.0.1:8080 (replaces the
+    /// configuration's `[http] listen`).
+    #[arg(long = "http", value_name = "ADDRESS")]
+    pub http_listen: Option<std::net::SocketAddr>,
 }
 
 /// How a command joins the Zenoh mesh, in Zenoh's own style (as `zenohd`): the same flags, with
@@ -263,6 +267,7 @@ impl ZenohArgs {
             listen: self.listen.clone(),
             connect: self.connect.clone(),
             cfg: self.cfg.clone(),
+            http_listen: None,
         }
     }
 }
@@ -632,7 +637,11 @@ fn run_validate(args: &ValidateArgs) -> Result<()> {
 }
 
 fn run_serve(args: &ServeArgs) -> Result<()> {
-    let config = ServiceConfig::load(args.config.as_deref(), &args.zenoh.overrides())?;
+    let overrides = Overrides {
+        http_listen: args.http_listen,
+        ..args.zenoh.overrides()
+    };
+    let config = ServiceConfig::load(args.config.as_deref(), &overrides)?;
     tracing::info!(config = %config.source_name, "configuration loaded");
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()

@@ -5,6 +5,7 @@
 //! field and the problem named, never later. The embedded default is `config/armtwin.toml`.
 
 use std::collections::HashMap;
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
@@ -83,6 +84,15 @@ struct File {
     robots: HashMap<String, RobotSection>,
     #[serde(default)]
     sources: Vec<SourceSection>,
+    #[serde(default)]
+    http: HttpSection,
+}
+
+/// `[http]`: the dashboard and `/metrics` (off unless `listen` is set).
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct HttpSection {
+    listen: Option<String>,
 }
 
 /// `[self_calibration]`: how robots with `self_calibrate = true` keep their pairs and re-fit.
@@ -452,6 +462,8 @@ pub struct ServiceConfig {
     pub shard: zenoh::key_expr::KeyExpr<'static>,
     /// `[service] state_dir`: the snapshot of the twins' cumulative state, if kept.
     pub snapshots: Option<SnapshotSettings>,
+    /// `[http] listen` (or `--http`): where the dashboard and `/metrics` listen; `None`, no HTTP.
+    pub http_listen: Option<SocketAddr>,
 }
 
 /// Command-line overrides, Zenoh style (`-m`, `-l`, `-e`, `--cfg`).
@@ -465,6 +477,8 @@ pub struct Overrides {
     pub connect: Vec<String>,
     /// `--cfg KEY:VALUE` (applied after the file's `cfg`, so they win).
     pub cfg: Vec<ZenohInsert>,
+    /// `--http ADDRESS` (replaces `[http] listen`).
+    pub http_listen: Option<SocketAddr>,
 }
 
 impl ServiceConfig {
@@ -511,6 +525,15 @@ impl ServiceConfig {
         )?;
         let ros2_pose = load_pose_outputs(&file.robots, source_name)?;
         let (shard, snapshots) = check_deployment(&service, &robots, (source_name, base_dir))?;
+        let http_listen = match (overrides.http_listen, &file.http.listen) {
+            (Some(address), _) => Some(address),
+            (None, None) => None,
+            (None, Some(text)) => Some(text.parse().map_err(|e| ConfigError::Invalid {
+                source_name: source_name.to_owned(),
+                field: "http.listen".to_owned(),
+                problem: format!("'{text}' is not an IP address and port: {e}"),
+            })?),
+        };
         let sources = load_sources(
             &file.sources,
             &SourceContext {
@@ -550,6 +573,7 @@ impl ServiceConfig {
             ros2_pose,
             shard,
             snapshots,
+            http_listen,
         })
     }
 
@@ -1531,6 +1555,7 @@ mod tests {
                     .parse()
                     .expect("KEY:VALUE"),
             ],
+            http_listen: None,
         };
         let config = ServiceConfig::parse(text, "test", Path::new(""), &overrides).expect("valid");
         let zenoh = &config.zenoh;

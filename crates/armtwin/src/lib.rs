@@ -16,6 +16,7 @@
 //! - [`config`]: the service's TOML configuration and command-line overrides.
 //! - [`service`]: `armtwin serve`, the pipeline on a Zenoh mesh.
 //! - [`snapshot`]: the service's snapshot file, each twin's cumulative state across restarts.
+//! - [`dashboard`]: the service's HTTP side: fleet and robot pages, live streams, `/metrics`.
 //! - [`replay`]: `armtwin replay`, a recording published as a gateway would.
 //! - [`validate`]: `armtwin validate`, a recording through the pipeline offline, with its report
 //!   and plots.
@@ -32,6 +33,7 @@ pub mod calibrate;
 pub mod cli;
 pub mod codec;
 pub mod config;
+pub mod dashboard;
 pub mod fmu_package;
 pub mod ingest;
 pub mod replay;

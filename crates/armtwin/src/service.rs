@@ -48,6 +48,7 @@ use crate::config::{
     Congestion, EventBudget, OutputEncoding, Ros2Source, SelfCalibrationConfig, ServiceConfig,
     SourceConfig, SourceRobot, SourceStream, ZenohSection,
 };
+use crate::dashboard;
 use crate::ingest::{
     self, Codec, JointMessage, MeasuredMessage, Ros2JointMessage, Ros2PoseMessage, SourceCodec,
 };
@@ -55,8 +56,8 @@ use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
 use crate::model::RobotModel;
 use crate::pipeline::{
-    Discard, Event, EventDetail, EventKind, MeasuredStream, MetricsSnapshot, Pipeline, Robot,
-    RobotDirectory, RobotIndex, Sink, TwinRecord,
+    Discard, Event, EventDetail, EventKind, MeasuredStream, MetricsSnapshot, Pipeline,
+    RejectCause, Robot, RobotDirectory, RobotIndex, Sink, TwinRecord,
 };
 use crate::ros2::{self, Attachment, KeyScheme, PoseOutputs, PublisherSeq};
 use crate::self_calibration::{self, CalibrationBatch, Estimate};
@@ -102,6 +103,14 @@ pub enum ServiceError {
         other: String,
         /// The other instance's Zenoh id.
         zid: String,
+    },
+    /// The dashboard's address cannot be listened on.
+    #[error("http: cannot listen on {address}")]
+    HttpListen {
+        /// The `[http] listen` address.
+        address: std::net::SocketAddr,
+        /// Why.
+        source: std::io::Error,
     },
 }
 
@@ -195,6 +204,8 @@ pub async fn serve(
     config: ServiceConfig,
     shutdown: impl Future<Output = ()>,
 ) -> Result<ServeReport, ServiceError> {
+    // Bound first: an address in use fails the start before anything joins the mesh.
+    let http_listener = bind_http(config.http_listen).await?;
     let session = zenoh::open(zenoh_config_of(&config.zenoh)?).await?;
     info!(
         zid = %session.zid(),
@@ -225,6 +236,7 @@ pub async fn serve(
             sink: ZenohSink::new(declarer.clone(), control_tx.clone(), config.event_budget),
             calibrations: Vec::new(),
             inputs: 0,
+            snapshot_written: None,
             stopped: false,
         }),
     });
@@ -260,7 +272,15 @@ pub async fn serve(
         }
     };
 
+    let view = TwinView {
+        twin: Arc::clone(&twin),
+    };
+    let dashboard = http_listener.map(|listener| dashboard::Dashboard::start(listener, view));
+
     shutdown.await;
+    if let Some(dashboard) = dashboard {
+        dashboard.stop().await;
+    }
     info!("shutting down: stopping intake");
     intake.undeclare().await;
     // Samples that arrive after this are ignored: the control thread finishes the pipeline.
@@ -294,6 +314,19 @@ pub async fn serve(
         "armtwin stopped"
     );
     Ok(report)
+}
+
+/// The dashboard's listener, if `[http] listen` asks for one.
+async fn bind_http(
+    address: Option<std::net::SocketAddr>,
+) -> Result<Option<tokio::net::TcpListener>, ServiceError> {
+    let Some(address) = address else {
+        return Ok(None);
+    };
+    tokio::net::TcpListener::bind(address)
+        .await
+        .map(Some)
+        .map_err(|source| ServiceError::HttpListen { address, source })
 }
 
 /// The subscribers and queryables that feed the twin.
@@ -511,7 +544,10 @@ fn restore_snapshot(store: &SnapshotStore, twin: &SharedTwin, config: &ServiceCo
 fn save_snapshot(twin: &SharedTwin, store: &SnapshotStore) {
     let records = twin.lock().pipeline.records();
     match store.save(&records) {
-        Ok(()) => debug!(robots = records.len(), "snapshot written"),
+        Ok(()) => {
+            twin.lock().snapshot_written = Some(Instant::now());
+            debug!(robots = records.len(), "snapshot written");
+        }
         Err(e) => warn!(error = %e, "snapshot not written"),
     }
 }
@@ -899,6 +935,135 @@ impl SharedTwin {
     }
 }
 
+/// Robots whose rows one turn of the lock reads for the dashboard: a state view is a few
+/// hundred nanoseconds, so a fleet of thousands is read in many short turns.
+const VIEW_ROBOTS_PER_TURN: usize = 256;
+
+/// Read access to the running twin for the dashboard and `/metrics`: each call copies what it
+/// needs out under the twin's lock, in short turns, and holds nothing afterwards (no second copy
+/// of the state that could drift from it).
+#[derive(Clone)]
+pub(crate) struct TwinView {
+    twin: Arc<SharedTwin>,
+}
+
+/// One tracked robot as the fleet page and `/metrics` read it.
+#[derive(Debug, Clone)]
+pub(crate) struct FleetRow {
+    /// The robot id.
+    pub(crate) id: Arc<str>,
+    /// Its metrics at the read (counters and statistics of the current epoch).
+    pub(crate) metrics: MetricsSnapshot,
+    /// Position and angle alarms.
+    pub(crate) alarms_active: [bool; 2],
+    /// Its totals over the service's life (no recent events: the fleet does not show them).
+    pub(crate) counts: RobotCounts,
+}
+
+/// The service's own totals.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct ServiceTotals {
+    /// Inputs (samples and queries) processed.
+    pub(crate) inputs: u64,
+    /// Twin poses published.
+    pub(crate) poses: u64,
+    /// Outputs Zenoh refused to send.
+    pub(crate) publish_errors: u64,
+    /// Robots tracked.
+    pub(crate) robots: usize,
+    /// Seconds since the snapshot was last written, once it has been (with `state_dir`).
+    pub(crate) snapshot_age_s: Option<f64>,
+}
+
+/// One robot as its page reads it.
+pub(crate) struct RobotDetail {
+    /// What `get <prefix>/state/<robot>` answers.
+    pub(crate) state: wire::StateMessage,
+    /// The model the twin runs and the last valid joints, for the link frames.
+    pub(crate) model: Arc<RobotModel>,
+    /// Its totals and recent events.
+    pub(crate) counts: RobotCounts,
+}
+
+impl TwinView {
+    /// Every tracked robot's row, in id order, and the service's totals.
+    pub(crate) fn fleet(&self) -> (ServiceTotals, Vec<FleetRow>) {
+        let (totals, robots): (ServiceTotals, Vec<Robot>) = {
+            let guard = self.twin.lock();
+            let robots: Vec<Robot> = guard.pipeline.tracked().cloned().collect();
+            let totals = ServiceTotals {
+                inputs: guard.inputs,
+                poses: guard.sink.poses,
+                publish_errors: guard.sink.publish_errors,
+                robots: robots.len(),
+                snapshot_age_s: guard
+                    .snapshot_written
+                    .map(|written| written.elapsed().as_secs_f64()),
+            };
+            (totals, robots)
+        };
+        let mut rows = Vec::with_capacity(robots.len());
+        for turn in robots.chunks(VIEW_ROBOTS_PER_TURN) {
+            let guard = self.twin.lock();
+            for robot in turn {
+                let Some(state) = guard.pipeline.state(robot.index()) else {
+                    continue;
+                };
+                let counts = guard
+                    .sink
+                    .counts
+                    .get(robot.index().get())
+                    .map(|counts| RobotCounts {
+                        recent_events: VecDeque::new(),
+                        ..counts.clone()
+                    })
+                    .unwrap_or_default();
+                rows.push(FleetRow {
+                    id: Arc::clone(robot.shared_id()),
+                    metrics: state.metrics,
+                    alarms_active: state.alarms_active,
+                    counts,
+                });
+            }
+        }
+        rows.sort_by(|a, b| a.id.cmp(&b.id));
+        (totals, rows)
+    }
+
+    /// Robot `id`'s state, model and recent events, if it is tracked.
+    pub(crate) fn robot(&self, id: &str) -> Option<RobotDetail> {
+        let index = self.twin.read_robots().find(id)?.index();
+        let guard = self.twin.lock();
+        let state = guard.pipeline.state(index)?;
+        let model = Arc::clone(guard.pipeline.model(index)?);
+        let counts = guard
+            .sink
+            .counts
+            .get(index.get())
+            .cloned()
+            .unwrap_or_default();
+        Some(RobotDetail {
+            state: wire::StateMessage::new(&state),
+            model,
+            counts,
+        })
+    }
+
+    /// Robot `id`'s twin pose count (`None` if it is not tracked): changes whenever it moves.
+    pub(crate) fn poses_of(&self, id: &str) -> Option<u64> {
+        let index = self.twin.read_robots().find(id)?.index();
+        let guard = self.twin.lock();
+        guard.pipeline.model(index)?;
+        Some(
+            guard
+                .sink
+                .counts
+                .get(index.get())
+                .map_or(0, |counts| counts.poses),
+        )
+    }
+}
+
 /// The pipeline, its outputs and the totals; behind [`SharedTwin`]'s lock.
 struct TwinState {
     pipeline: Pipeline,
@@ -906,6 +1071,8 @@ struct TwinState {
     /// Self-calibration of the robots that opt in, by robot index.
     calibrations: Vec<CalibrationSlot>,
     inputs: u64,
+    /// When the snapshot was last written (with `state_dir`).
+    snapshot_written: Option<Instant>,
     /// Set once the pipeline is finished: late callbacks are ignored.
     stopped: bool,
 }
@@ -1376,9 +1543,11 @@ fn publish_due_metrics(twin: &SharedTwin, declarer: &Declarer) {
         {
             let mut guard = twin.lock();
             let state = &mut *guard;
+            let now = Instant::now();
             for &robot in robots {
                 if let Some(snapshot) = state.pipeline.take_due_metrics(robot) {
                     turn.push(snapshot);
+                    state.sink.counts_mut(robot).last_active = Some(now);
                 }
             }
         }
@@ -1766,6 +1935,27 @@ struct ZenohSink {
     untracked_bucket: EventBucket,
     /// By robot index, from tracking on: the twin pose for ROS tools.
     ros2_poses: Vec<Option<Ros2PoseState>>,
+    /// By robot index, from tracking on: what the dashboard and `/metrics` read beyond the
+    /// pipeline's own state.
+    counts: Vec<RobotCounts>,
+}
+
+/// Events kept per robot for the dashboard's robot page.
+const RECENT_EVENTS: usize = 10;
+
+/// A robot's totals over the service's life (reset and model replacement do not touch them) and
+/// its last published events.
+#[derive(Debug, Default, Clone)]
+pub(crate) struct RobotCounts {
+    /// Twin poses published.
+    pub(crate) poses: u64,
+    /// Rejected inputs by cause (a handful of causes at most: a short list beats a map).
+    pub(crate) rejected_by_cause: Vec<(RejectCause, u64)>,
+    /// The last [`RECENT_EVENTS`] published events, oldest first, as published (JSON).
+    pub(crate) recent_events: VecDeque<Arc<[u8]>>,
+    /// When the control thread last found results of the robot it had not published (to its
+    /// metrics period).
+    pub(crate) last_active: Option<Instant>,
 }
 
 /// A robot's twin pose output for ROS tools, as the sink publishes it.
@@ -1827,7 +2017,17 @@ impl ZenohSink {
             event_buckets: Vec::new(),
             untracked_bucket: EventBucket::full(event_budget, Instant::now()),
             ros2_poses: Vec::new(),
+            counts: Vec::new(),
         }
+    }
+
+    /// Robot `index`'s totals, created on first use.
+    fn counts_mut(&mut self, index: RobotIndex) -> &mut RobotCounts {
+        let index = index.get();
+        if self.counts.len() <= index {
+            self.counts.resize_with(index + 1, RobotCounts::default);
+        }
+        &mut self.counts[index]
     }
 
     /// The declared outputs of robot `index`, if it is tracked and they are declared.
@@ -1941,6 +2141,7 @@ impl Sink for ZenohSink {
         };
         self.put(robot.id(), Some(robot.index()), Stream::Pose, payload);
         self.poses += 1;
+        self.counts_mut(robot.index()).poses += 1;
         self.put_ros2_pose(robot, stamp_s, pose);
     }
 
@@ -1967,6 +2168,13 @@ impl Sink for ZenohSink {
             event.kind,
             EventKind::Alarm | EventKind::Recovered | EventKind::Restart | EventKind::Epoch
         );
+        if let (Some(index), EventDetail::Rejected { cause }) = (event.index, &event.detail) {
+            let by_cause = &mut self.counts_mut(index).rejected_by_cause;
+            match by_cause.iter_mut().find(|(counted, _)| counted == cause) {
+                Some((_, count)) => *count += 1,
+                None => by_cause.push((*cause, 1)),
+            }
+        }
         let now = Instant::now();
         let budget = self.event_budget;
         let tracked = event
@@ -1990,12 +2198,15 @@ impl Sink for ZenohSink {
             EventDetail::Unpaired { cause, .. } => Some(cause),
             _ => None,
         };
-        self.put(
-            event.robot,
-            event.index,
-            Stream::Events,
-            wire::to_json_bytes(&message),
-        );
+        let payload = wire::to_json_bytes(&message);
+        if let Some(index) = event.index {
+            let recent = &mut self.counts_mut(index).recent_events;
+            if recent.len() == RECENT_EVENTS {
+                recent.pop_front();
+            }
+            recent.push_back(Arc::from(payload.as_slice()));
+        }
+        self.put(event.robot, event.index, Stream::Events, payload);
         let (robot, kind, key) = (event.robot, event.kind.as_str(), event.key);
         let reason = message.reason.as_str();
         match event.kind {

@@ -1,0 +1,232 @@
+// The robot page: the arm drawn from armtwin's own FK link frames of the model in use, the twin
+// and measured TCP, the window error chart, the metrics table, the model and recent events, all
+// from one live stream of the robot's state (at most 30 updates a second).
+import * as THREE from "three";
+
+const id = decodeURIComponent(location.pathname.replace(/^\/robot\//, ""));
+document.getElementById("robot-id").textContent = id;
+document.title = `armtwin: ${id}`;
+
+// ---- 3D view (z up, metres, the robot's output frame)
+const canvas = document.getElementById("view");
+const renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
+renderer.setPixelRatio(window.devicePixelRatio || 1);
+const scene = new THREE.Scene();
+scene.background = new THREE.Color(0xf4f6fa);
+const camera = new THREE.PerspectiveCamera(45, 1, 0.01, 100);
+camera.up.set(0, 0, 1);
+scene.add(new THREE.HemisphereLight(0xffffff, 0x8890a0, 2.0));
+const sun = new THREE.DirectionalLight(0xffffff, 1.5);
+sun.position.set(2, -3, 4);
+scene.add(sun);
+const grid = new THREE.GridHelper(2, 20, 0xb8bfcc, 0xdde1ea);
+grid.rotation.x = Math.PI / 2;
+scene.add(grid);
+scene.add(new THREE.AxesHelper(0.25));
+
+const linkMaterial = new THREE.MeshStandardMaterial({ color: 0x4b6584, metalness: 0.2, roughness: 0.6 });
+const jointMaterial = new THREE.MeshStandardMaterial({ color: 0x2d3a4f });
+const links = [];
+const joints = [];
+const unitCylinder = new THREE.CylinderGeometry(0.035, 0.035, 1, 20);
+const jointSphere = new THREE.SphereGeometry(0.05, 20, 14);
+const twinTcp = new THREE.Group();
+twinTcp.add(new THREE.Mesh(new THREE.SphereGeometry(0.025, 16, 12), new THREE.MeshStandardMaterial({ color: 0x2563eb })));
+twinTcp.add(new THREE.AxesHelper(0.12));
+scene.add(twinTcp);
+const measuredTcp = new THREE.Group();
+measuredTcp.add(new THREE.Mesh(new THREE.SphereGeometry(0.025, 16, 12), new THREE.MeshStandardMaterial({ color: 0xf97316, transparent: true, opacity: 0.8 })));
+measuredTcp.add(new THREE.AxesHelper(0.09));
+measuredTcp.visible = false;
+scene.add(measuredTcp);
+
+const yAxis = new THREE.Vector3(0, 1, 0);
+function drawArm(frames) {
+  while (joints.length < frames.length) {
+    const sphere = new THREE.Mesh(jointSphere, jointMaterial);
+    joints.push(sphere);
+    scene.add(sphere);
+  }
+  while (links.length < frames.length - 1) {
+    const cylinder = new THREE.Mesh(unitCylinder, linkMaterial);
+    links.push(cylinder);
+    scene.add(cylinder);
+  }
+  const points = frames.map((f) => new THREE.Vector3(...f.position_m));
+  points.forEach((p, i) => joints[i].position.copy(p));
+  for (let i = 0; i + 1 < points.length; i++) {
+    const from = points[i], to = points[i + 1];
+    const along = new THREE.Vector3().subVectors(to, from);
+    const length = along.length();
+    links[i].visible = length > 1e-6;
+    if (!links[i].visible) continue;
+    links[i].position.copy(from).addScaledVector(along, 0.5);
+    links[i].quaternion.setFromUnitVectors(yAxis, along.divideScalar(length));
+    links[i].scale.set(1, length, 1);
+  }
+  const tcp = frames[frames.length - 1];
+  twinTcp.position.set(...tcp.position_m);
+  twinTcp.quaternion.set(...tcp.quaternion_xyzw);
+}
+
+// A turntable camera: drag turns, the wheel zooms.
+const orbit = { azimuth: -0.9, elevation: 0.45, distance: 2.6, target: new THREE.Vector3(0, 0, 0.4) };
+function placeCamera() {
+  const { azimuth, elevation, distance, target } = orbit;
+  camera.position.set(
+    target.x + distance * Math.cos(elevation) * Math.cos(azimuth),
+    target.y + distance * Math.cos(elevation) * Math.sin(azimuth),
+    target.z + distance * Math.sin(elevation));
+  camera.lookAt(target);
+}
+let drag = null;
+canvas.addEventListener("pointerdown", (e) => { drag = { x: e.clientX, y: e.clientY }; canvas.setPointerCapture(e.pointerId); });
+canvas.addEventListener("pointerup", () => { drag = null; });
+canvas.addEventListener("pointermove", (e) => {
+  if (!drag) return;
+  orbit.azimuth -= (e.clientX - drag.x) * 0.01;
+  orbit.elevation = Math.max(-1.4, Math.min(1.4, orbit.elevation + (e.clientY - drag.y) * 0.01));
+  drag = { x: e.clientX, y: e.clientY };
+  requestRender();
+});
+canvas.addEventListener("wheel", (e) => {
+  e.preventDefault();
+  orbit.distance = Math.max(0.5, Math.min(20, orbit.distance * Math.exp(e.deltaY * 0.001)));
+  requestRender();
+}, { passive: false });
+
+function resize() {
+  const width = canvas.clientWidth, height = canvas.clientHeight;
+  if (canvas.width !== Math.floor(width * renderer.getPixelRatio()) || canvas.height !== Math.floor(height * renderer.getPixelRatio())) {
+    renderer.setSize(width, height, false);
+    camera.aspect = width / Math.max(1, height);
+    camera.updateProjectionMatrix();
+  }
+}
+let renderPending = false;
+function requestRender() {
+  if (renderPending) return;
+  renderPending = true;
+  requestAnimationFrame(() => {
+    renderPending = false;
+    resize();
+    placeCamera();
+    renderer.render(scene, camera);
+    canvas.dataset.frames = String(Number(canvas.dataset.frames || 0) + 1);
+  });
+}
+window.addEventListener("resize", requestRender);
+requestRender();
+
+// ---- error chart (a small canvas chart: two series over the last two minutes)
+const chart = document.getElementById("chart");
+const series = [];
+// The span grows with the page's age up to two minutes, so the first seconds already fill it.
+const CHART_MAX_SPAN_S = 120;
+function drawChart() {
+  const ctx = chart.getContext("2d");
+  const ratio = window.devicePixelRatio || 1;
+  const width = chart.clientWidth, height = chart.clientHeight;
+  chart.width = width * ratio; chart.height = height * ratio;
+  ctx.setTransform(ratio, 0, 0, ratio, 0, 0);
+  ctx.clearRect(0, 0, width, height);
+  const left = 44, bottom = height - 20, top = 8, right = width - 8;
+  const now = performance.now() / 1000;
+  const span = series.length ? Math.min(CHART_MAX_SPAN_S, Math.max(10, now - series[0].t)) : 10;
+  const visible = series.filter((p) => now - p.t <= span);
+  let max = 0;
+  for (const p of visible) max = Math.max(max, p.position_mm, p.angle_mrad);
+  max = max > 0 ? max * 1.15 : 1;
+  ctx.strokeStyle = "#dde1ea"; ctx.fillStyle = "#6b7385"; ctx.font = "11px system-ui"; ctx.lineWidth = 1;
+  for (let i = 0; i <= 4; i++) {
+    const y = bottom - (bottom - top) * i / 4;
+    ctx.beginPath(); ctx.moveTo(left, y); ctx.lineTo(right, y); ctx.stroke();
+    ctx.fillText((max * i / 4).toPrecision(3), 2, y + 4);
+  }
+  ctx.fillText(`last ${span.toFixed(0)} s`, right - 70, height - 4);
+  const x = (t) => right - (now - t) / span * (right - left);
+  const y = (v) => bottom - v / max * (bottom - top);
+  for (const [key, color] of [["position_mm", "#2563eb"], ["angle_mrad", "#dc2626"]]) {
+    ctx.strokeStyle = color; ctx.lineWidth = 2; ctx.beginPath();
+    visible.forEach((p, i) => (i ? ctx.lineTo(x(p.t), y(p[key])) : ctx.moveTo(x(p.t), y(p[key]))));
+    ctx.stroke();
+  }
+  chart.dataset.points = String(series.length);
+}
+
+// ---- tables
+const ROWS = [["position", "mm", 1000], ["x", "mm", 1000], ["y", "mm", 1000], ["z", "mm", 1000],
+  ["angle", "mrad", 1000], ["roll", "mrad", 1000], ["pitch", "mrad", 1000], ["yaw", "mrad", 1000], ["quat_distance", "", 1]];
+function metricsTable(metrics) {
+  const body = document.getElementById("metrics-rows");
+  const fragment = document.createDocumentFragment();
+  for (const [name, unit, scale] of ROWS) {
+    const tr = document.createElement("tr");
+    const label = document.createElement("td");
+    label.textContent = unit ? `${name} (${unit})` : name;
+    tr.appendChild(label);
+    for (const set of [metrics.cumulative, metrics.window.stats ?? metrics.window]) {
+      for (const stat of ["mae", "rmse", "max"]) {
+        const td = document.createElement("td");
+        td.className = "num";
+        td.textContent = (set[name][stat] * scale).toFixed(4);
+        tr.appendChild(td);
+      }
+    }
+    fragment.appendChild(tr);
+  }
+  body.replaceChildren(fragment);
+}
+function poseRow(rowId, label, stamped) {
+  const tr = document.getElementById(rowId);
+  const values = stamped ? [stamped.x, stamped.y, stamped.z, stamped.roll, stamped.pitch, stamped.yaw].map((v) => v.toFixed(4)).concat(stamped.t.toFixed(3)) : Array(7).fill("–");
+  tr.replaceChildren(...[label, ...values].map((text, i) => {
+    const td = document.createElement("td");
+    td.textContent = text;
+    if (i) td.className = "num";
+    return td;
+  }));
+}
+
+function update(message) {
+  const state = message.state;
+  if (message.frames) drawArm(message.frames);
+  if (state.measured) {
+    const m = state.measured;
+    measuredTcp.visible = true;
+    measuredTcp.position.set(m.x, m.y, m.z);
+    measuredTcp.quaternion.set(m.qx, m.qy, m.qz, m.qw);
+  }
+  requestRender();
+  poseRow("tcp-twin", "twin", state.twin);
+  poseRow("tcp-measured", "measured", state.measured);
+  const metrics = state.metrics;
+  const window = metrics.window;
+  series.push({ t: performance.now() / 1000, position_mm: window.position.mae * 1000, angle_mrad: window.angle.mae * 1000 });
+  while (series.length > 4000) series.shift();
+  drawChart();
+  document.getElementById("chart-now").textContent =
+    `now ${(window.position.mae * 1000).toFixed(3)} mm · ${(window.angle.mae * 1000).toFixed(3)} mrad over ${window.n} pairs (${window.seconds} s)`;
+  metricsTable(metrics);
+  const causes = Object.entries(message.rejected_by_cause).map(([c, n]) => `${c} ${n}`).join(", ");
+  document.getElementById("counts").textContent =
+    `${message.poses} poses · ${metrics.paired} paired · ${metrics.unpaired} unpaired · ${metrics.rejected} rejected${causes ? " (" + causes + ")" : ""} · epoch ${metrics.epoch}`;
+  const alarm = document.getElementById("alarm-state");
+  const active = [state.alarms.position ? "position" : "", state.alarms.angle ? "angle" : ""].filter(Boolean);
+  alarm.textContent = active.length ? `ALARM: ${active.join(", ")}` : "no alarm";
+  alarm.className = active.length ? "alarm" : "";
+  const tool = state.tool.map((v) => v.toFixed(4)).join(", ");
+  document.getElementById("model").textContent =
+    `model        ${state.model}\ncalibration  ${state.calibration ?? "none (nominal)"}\ntool         [${tool}] (m, rotation vector rad)\nframe        ${state.frame}\njoints (rad) ${state.joints ? state.joints.q.map((q) => q.toFixed(4)).join(", ") : "–"}`;
+  const list = document.getElementById("events");
+  list.replaceChildren(...message.events.slice().reverse().map((event) => {
+    const li = document.createElement("li");
+    li.textContent = `t=${Number(event.t).toFixed(3)} ${event.kind}: ${event.reason}`;
+    return li;
+  }));
+  document.getElementById("status").textContent = "live";
+}
+
+const source = new EventSource("/api/robot/stream?id=" + encodeURIComponent(id));
+source.onmessage = (message) => update(JSON.parse(message.data));
+source.onerror = () => { document.getElementById("status").textContent = "reconnecting…"; };

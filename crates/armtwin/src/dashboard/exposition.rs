@@ -1,0 +1,242 @@
+//! `/metrics`: the twin's state in Prometheus' text format, written with the official
+//! `prometheus-client` from one read of the fleet per scrape (nothing is kept between scrapes,
+//! so a robot's series always say what the twin holds at the scrape).
+
+use prometheus_client::encoding::text::encode;
+use prometheus_client::metrics::counter::Counter;
+use prometheus_client::metrics::family::Family;
+use prometheus_client::metrics::gauge::Gauge;
+use prometheus_client::registry::{Registry, Unit};
+use std::sync::atomic::AtomicU64;
+
+use crate::metrics::{METRIC_NAMES, Stats, StatsSet};
+use crate::service::{FleetRow, ServiceTotals};
+
+/// A series' labels: a few pairs, the robot's first.
+type Labels = Vec<(&'static str, String)>;
+type Gauges = Family<Labels, Gauge<f64, AtomicU64>>;
+type Counters = Family<Labels, Counter<u64, AtomicU64>>;
+
+/// The index of a metric among [`METRIC_NAMES`].
+fn metric_index(name: &str) -> usize {
+    METRIC_NAMES
+        .iter()
+        .position(|&known| known == name)
+        .unwrap_or(0)
+}
+
+/// One statistic's gauges of one metric (`position` in metres, `angle` in radians).
+struct ErrorGauges {
+    mae: Gauges,
+    rmse: Gauges,
+    max: Gauges,
+}
+
+impl ErrorGauges {
+    fn register(registry: &mut Registry, quantity: &str, unit: &Unit, what: &str) -> Self {
+        let gauges = Self {
+            mae: Gauges::default(),
+            rmse: Gauges::default(),
+            max: Gauges::default(),
+        };
+        for (statistic, family, help) in [
+            ("mae", &gauges.mae, "mean absolute"),
+            ("rmse", &gauges.rmse, "root mean square"),
+            ("max", &gauges.max, "largest"),
+        ] {
+            registry.register_with_unit(
+                format!("{quantity}_error_{statistic}"),
+                format!("Twin-vs-measured {what}, {help} (scope: cumulative since start or reset, or the sliding window)"),
+                unit.clone(),
+                family.clone(),
+            );
+        }
+        gauges
+    }
+
+    fn set(&self, robot: &str, scope: &'static str, stats: &Stats) {
+        let labels = vec![("robot", robot.to_owned()), ("scope", scope.to_owned())];
+        self.mae.get_or_create(&labels).set(stats.mae);
+        self.rmse.get_or_create(&labels).set(stats.rmse);
+        self.max.get_or_create(&labels).set(stats.max);
+    }
+}
+
+/// The per-robot families of one exposition.
+struct RobotFamilies {
+    position: ErrorGauges,
+    rotation: ErrorGauges,
+    pairs: Gauges,
+    poses: Counters,
+    paired: Counters,
+    unpaired: Counters,
+    rejected: Counters,
+    alarm: Gauges,
+    epoch: Gauges,
+}
+
+impl RobotFamilies {
+    fn register(registry: &mut Registry) -> Self {
+        let position =
+            ErrorGauges::register(registry, "position", &Unit::Meters, "TCP position distance");
+        let rotation = ErrorGauges::register(
+            registry,
+            "rotation",
+            &Unit::Other("radians".to_owned()),
+            "TCP rotation angle",
+        );
+        let families = Self {
+            position,
+            rotation,
+            pairs: Gauges::default(),
+            poses: Counters::default(),
+            paired: Counters::default(),
+            unpaired: Counters::default(),
+            rejected: Counters::default(),
+            alarm: Gauges::default(),
+            epoch: Gauges::default(),
+        };
+        let gauges = [
+            (
+                "window_pairs",
+                "Paired measurements in the robot's sliding window",
+                &families.pairs,
+            ),
+            (
+                "alarm_active",
+                "1 while the robot's position or angle alarm is active",
+                &families.alarm,
+            ),
+            (
+                "metrics_epoch",
+                "Times the robot's model was replaced (an applied self-calibration)",
+                &families.epoch,
+            ),
+        ];
+        for (name, help, family) in gauges {
+            registry.register(name, help, family.clone());
+        }
+        let counters = [
+            (
+                "poses",
+                "Twin poses the robot's joint samples produced",
+                &families.poses,
+            ),
+            (
+                "paired",
+                "Measured poses paired with the twin (current metrics epoch)",
+                &families.paired,
+            ),
+            (
+                "unpaired",
+                "Measured poses that could not be paired (current metrics epoch)",
+                &families.unpaired,
+            ),
+            (
+                "rejected",
+                "Inputs of the robot rejected, by cause",
+                &families.rejected,
+            ),
+        ];
+        for (name, help, family) in counters {
+            registry.register(name, help, family.clone());
+        }
+        families
+    }
+
+    fn add(&self, row: &FleetRow, position_index: usize, angle_index: usize) {
+        let robot = &*row.id;
+        let robot_labels = || vec![("robot", robot.to_owned())];
+        let scopes: [(&'static str, &StatsSet); 2] = [
+            ("cumulative", &row.metrics.cumulative),
+            ("window", &row.metrics.window),
+        ];
+        for (scope, set) in scopes {
+            self.position.set(robot, scope, &set.stats[position_index]);
+            self.rotation.set(robot, scope, &set.stats[angle_index]);
+        }
+        self.pairs
+            .get_or_create(&robot_labels())
+            .set(row.metrics.window.n as f64);
+        self.poses
+            .get_or_create(&robot_labels())
+            .inc_by(row.counts.poses);
+        self.paired
+            .get_or_create(&robot_labels())
+            .inc_by(row.metrics.paired);
+        self.unpaired
+            .get_or_create(&robot_labels())
+            .inc_by(row.metrics.unpaired);
+        for &(cause, count) in &row.counts.rejected_by_cause {
+            let labels = vec![
+                ("robot", robot.to_owned()),
+                ("cause", cause.as_str().to_owned()),
+            ];
+            self.rejected.get_or_create(&labels).inc_by(count);
+        }
+        for (metric, active) in ["position", "angle"].into_iter().zip(row.alarms_active) {
+            let labels = vec![("robot", robot.to_owned()), ("metric", metric.to_owned())];
+            self.alarm
+                .get_or_create(&labels)
+                .set(f64::from(u8::from(active)));
+        }
+        self.epoch
+            .get_or_create(&robot_labels())
+            .set(row.metrics.epoch as f64);
+    }
+}
+
+/// Registers the service's totals in `registry`.
+fn register_totals(registry: &mut Registry, totals: &ServiceTotals) {
+    let counters = [
+        (
+            "inputs",
+            "Inputs (samples and queries) processed",
+            totals.inputs,
+        ),
+        (
+            "published_poses",
+            "Twin poses published, all robots",
+            totals.poses,
+        ),
+        (
+            "publish_errors",
+            "Outputs Zenoh refused to send",
+            totals.publish_errors,
+        ),
+    ];
+    for (name, help, value) in counters {
+        let counter: Counter<u64, AtomicU64> = Counter::default();
+        counter.inc_by(value);
+        registry.register(name, help, counter);
+    }
+    let tracked: Gauge<f64, AtomicU64> = Gauge::default();
+    tracked.set(totals.robots as f64);
+    registry.register("robots_tracked", "Robots the twin tracks", tracked);
+    if let Some(age_s) = totals.snapshot_age_s {
+        let age: Gauge<f64, AtomicU64> = Gauge::default();
+        age.set(age_s);
+        registry.register_with_unit(
+            "snapshot_age",
+            "Time since the twins' snapshot was last written",
+            Unit::Seconds,
+            age,
+        );
+    }
+}
+
+/// The exposition of the fleet's rows and the service's totals (`OpenMetrics` text, which
+/// Prometheus reads; it ends with `# EOF`).
+pub(crate) fn render(totals: &ServiceTotals, rows: &[FleetRow]) -> String {
+    let mut registry = Registry::with_prefix("armtwin");
+    let families = RobotFamilies::register(&mut registry);
+    let (position_index, angle_index) = (metric_index("position"), metric_index("angle"));
+    for row in rows {
+        families.add(row, position_index, angle_index);
+    }
+    register_totals(&mut registry, totals);
+    let mut text = String::with_capacity(256 + rows.len() * 2048);
+    // Writing into a String cannot fail.
+    let _ = encode(&mut text, &registry);
+    text
+}

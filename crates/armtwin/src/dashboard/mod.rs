@@ -1,0 +1,828 @@
+//! The service's HTTP side (`[http] listen`, `armtwin serve --http`): the fleet page, the robot
+//! pages, their live streams (server-sent events), `/metrics` for Prometheus and `/healthz`.
+//!
+//! It runs on the service's tokio runtime and reads the twin only through
+//! [`TwinView`](crate::service::TwinView), in short turns of its lock: it keeps no copy of the
+//! twin's state beyond one fleet read shared by every fleet page for half a second. Each stream is
+//! paced by its own timer that skips missed ticks and reads the twin only when the client's
+//! socket takes more, so a slow or stalled browser costs the twin nothing. The pages and three.js
+//! are embedded in the binary: nothing is fetched from elsewhere at run time.
+
+mod exposition;
+
+use std::collections::HashMap;
+use std::convert::Infallible;
+use std::fmt::Write as _;
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::{Duration, Instant};
+
+use axum::Router;
+use axum::extract::{Path, Query, State};
+use axum::http::{HeaderValue, StatusCode, header};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{Html, IntoResponse, Response};
+use axum::routing::get;
+use serde::{Deserialize, Serialize};
+use tokio::sync::watch;
+use tokio::time::MissedTickBehavior;
+use tracing::{info, warn};
+use zenoh::key_expr::OwnedKeyExpr;
+
+use crate::metrics::METRIC_NAMES;
+use crate::service::{FleetRow, RobotDetail, ServiceTotals, TEARDOWN_STEP, TwinView, bounded};
+
+/// Fleet page updates: at most 2 per second per page.
+const FLEET_PERIOD: Duration = Duration::from_millis(500);
+/// How old the shared fleet read may be when a page's tick comes (a little under the period, so
+/// every tick of a page sees a fresh read while ten pages still share one).
+const FLEET_READ_MAX_AGE: Duration = Duration::from_millis(450);
+/// Robot page updates: at most 30 per second per page (1000 / 30 = 33.3 ms).
+const ROBOT_PERIOD: Duration = Duration::from_millis(34);
+/// A robot page hears from an idle robot at least this often.
+const ROBOT_IDLE_PERIOD: Duration = Duration::from_secs(1);
+/// Rows one fleet request may ask for.
+const MAX_PAGE_ROWS: usize = 1000;
+/// The longest key expression a fleet filter may be.
+const MAX_FILTER_BYTES: usize = 1024;
+
+/// The running HTTP server.
+pub(crate) struct Dashboard {
+    stopping: watch::Sender<bool>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+impl Dashboard {
+    /// Serves the dashboard on `listener` (already bound) until [`Dashboard::stop`].
+    pub(crate) fn start(listener: tokio::net::TcpListener, view: TwinView) -> Self {
+        let (stopping, stop_rx) = watch::channel(false);
+        let address = listener
+            .local_addr()
+            .map_or_else(|_| "?".to_owned(), |address| address.to_string());
+        info!(%address, "dashboard listening");
+        let app = router(AppState {
+            view,
+            fleet: Arc::new(Mutex::new(None)),
+            fleet_reading: Arc::new(tokio::sync::Mutex::new(())),
+            stopping: stop_rx.clone(),
+        });
+        let task = tokio::spawn(async move {
+            let mut stop = stop_rx;
+            let served = axum::serve(listener, app)
+                .with_graceful_shutdown(async move {
+                    let _ = stop.wait_for(|stopping| *stopping).await;
+                })
+                .await;
+            if let Err(e) = served {
+                warn!(error = %e, "the dashboard stopped");
+            }
+        });
+        Self { stopping, task }
+    }
+
+    /// Ends every stream, stops accepting connections and waits (bounded) for the server.
+    pub(crate) async fn stop(self) {
+        info!("shutting down: stopping the dashboard");
+        let _ = self.stopping.send(true);
+        bounded("stopping the dashboard", TEARDOWN_STEP, self.task).await;
+    }
+}
+
+/// One read of the fleet, shared by the fleet pages and `/metrics` for a moment.
+struct FleetRead {
+    /// When the read began.
+    taken: Instant,
+    totals: ServiceTotals,
+    rows: Vec<FleetRow>,
+    /// Each row's id as a key expression, for filters (`None` for an id that is not one).
+    keys: Vec<Option<OwnedKeyExpr>>,
+}
+
+#[derive(Clone)]
+struct AppState {
+    view: TwinView,
+    fleet: Arc<Mutex<Option<Arc<FleetRead>>>>,
+    /// Held while the fleet is read: pages whose ticks meet wait for that one read.
+    fleet_reading: Arc<tokio::sync::Mutex<()>>,
+    stopping: watch::Receiver<bool>,
+}
+
+impl AppState {
+    /// The shared fleet read, read again if older than `max_age`. The read runs on a blocking
+    /// thread: it takes the twin's lock in turns.
+    async fn fleet(&self, max_age: Duration) -> Arc<FleetRead> {
+        let asked = Instant::now();
+        let fresh = |cache: &Mutex<Option<Arc<FleetRead>>>| {
+            let cached = cache.lock().unwrap_or_else(PoisonError::into_inner).clone();
+            // A read taken after the ask is fresh whatever `max_age` (zero for `/metrics`).
+            cached.filter(|read| read.taken >= asked || read.taken.elapsed() < max_age)
+        };
+        if let Some(read) = fresh(&self.fleet) {
+            return read;
+        }
+        let _reading = self.fleet_reading.lock().await;
+        if let Some(read) = fresh(&self.fleet) {
+            return read;
+        }
+        let view = self.view.clone();
+        let read = tokio::task::spawn_blocking(move || {
+            // When the read began: what it shows is no older than this.
+            let taken = Instant::now();
+            let (totals, rows) = view.fleet();
+            let keys = rows
+                .iter()
+                .map(|row| OwnedKeyExpr::try_from(&*row.id).ok())
+                .collect();
+            FleetRead {
+                taken,
+                totals,
+                rows,
+                keys,
+            }
+        })
+        .await
+        // Only a panic of the read ends here: an empty fleet until the next read.
+        .unwrap_or_else(|_| FleetRead {
+            taken: Instant::now(),
+            totals: ServiceTotals::default(),
+            rows: Vec::new(),
+            keys: Vec::new(),
+        });
+        let read = Arc::new(read);
+        *self.fleet.lock().unwrap_or_else(PoisonError::into_inner) = Some(Arc::clone(&read));
+        read
+    }
+}
+
+fn router(state: AppState) -> Router {
+    Router::new()
+        .route("/", get(fleet_page))
+        .route("/robot/{*id}", get(robot_page))
+        .route("/assets/{*path}", get(asset))
+        .route("/healthz", get(healthz))
+        .route("/metrics", get(metrics))
+        .route("/api/fleet", get(fleet_json))
+        .route("/api/fleet/stream", get(fleet_stream))
+        .route("/api/robot", get(robot_json))
+        .route("/api/robot/frames", get(robot_frames))
+        .route("/api/robot/stream", get(robot_stream))
+        .fallback(not_found)
+        .with_state(state)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Pages and assets
+
+const FLEET_HTML: &str = include_str!("assets/fleet.html");
+const ROBOT_HTML: &str = include_str!("assets/robot.html");
+const NOT_FOUND_HTML: &str = include_str!("assets/not_found.html");
+
+/// The embedded files under `/assets/`: name, content type, bytes.
+const ASSETS: [(&str, &str, &[u8]); 6] = [
+    (
+        "dashboard.css",
+        "text/css; charset=utf-8",
+        include_bytes!("assets/dashboard.css"),
+    ),
+    (
+        "fleet.js",
+        "text/javascript; charset=utf-8",
+        include_bytes!("assets/fleet.js"),
+    ),
+    (
+        "robot.js",
+        "text/javascript; charset=utf-8",
+        include_bytes!("assets/robot.js"),
+    ),
+    (
+        "vendor/three/three.module.js",
+        "text/javascript; charset=utf-8",
+        include_bytes!("assets/vendor/three/three.module.js"),
+    ),
+    (
+        "vendor/three/three.core.js",
+        "text/javascript; charset=utf-8",
+        include_bytes!("assets/vendor/three/three.core.js"),
+    ),
+    (
+        "vendor/three/LICENSE",
+        "text/plain; charset=utf-8",
+        include_bytes!("assets/vendor/three/LICENSE"),
+    ),
+];
+
+async fn fleet_page() -> Html<&'static str> {
+    Html(FLEET_HTML)
+}
+
+async fn robot_page(State(state): State<AppState>, Path(id): Path<String>) -> Response {
+    if state.view.poses_of(&id).is_none() {
+        return not_found().await;
+    }
+    Html(ROBOT_HTML).into_response()
+}
+
+async fn asset(Path(path): Path<String>) -> Response {
+    match ASSETS.iter().find(|(name, _, _)| *name == path) {
+        Some(&(_, content_type, bytes)) => (
+            [
+                (header::CONTENT_TYPE, HeaderValue::from_static(content_type)),
+                (
+                    header::CACHE_CONTROL,
+                    HeaderValue::from_static("public, max-age=3600"),
+                ),
+            ],
+            bytes,
+        )
+            .into_response(),
+        None => not_found().await,
+    }
+}
+
+async fn not_found() -> Response {
+    (StatusCode::NOT_FOUND, Html(NOT_FOUND_HTML)).into_response()
+}
+
+async fn healthz() -> &'static str {
+    "ok\n"
+}
+
+async fn metrics(State(state): State<AppState>) -> Response {
+    // A scrape sees the twin as it is at the scrape: no shared read older than it.
+    let read = state.fleet(Duration::ZERO).await;
+    let text = exposition::render(&read.totals, &read.rows);
+    (
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/openmetrics-text; version=1.0.0; charset=utf-8"),
+        )],
+        text,
+    )
+        .into_response()
+}
+
+/// A 4xx answer with a one-line reason.
+fn bad_request(status: StatusCode, reason: &str) -> Response {
+    let body = serde_json::json!({ "error": reason }).to_string();
+    (
+        status,
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/json"),
+        )],
+        body,
+    )
+        .into_response()
+}
+
+// ---------------------------------------------------------------------------------------------
+// The fleet
+
+/// What a fleet page sorts by.
+#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+enum SortKey {
+    #[default]
+    Robot,
+    Position,
+    Angle,
+    Paired,
+    Unpaired,
+    Rejected,
+    Alarm,
+    Age,
+}
+
+#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+enum Order {
+    #[default]
+    Asc,
+    Desc,
+}
+
+/// `?filter=<key expression>&sort=<column>&order=asc|desc&offset=<n>&limit=<n>`.
+#[derive(Debug, Deserialize)]
+struct FleetQuery {
+    filter: Option<String>,
+    #[serde(default)]
+    sort: SortKey,
+    #[serde(default)]
+    order: Order,
+    #[serde(default)]
+    offset: usize,
+    limit: Option<usize>,
+}
+
+/// A checked fleet query.
+struct FleetSelection {
+    filter: Option<OwnedKeyExpr>,
+    sort: SortKey,
+    order: Order,
+    offset: usize,
+    limit: usize,
+}
+
+impl FleetQuery {
+    /// The selection, or why the query is refused.
+    fn check(self) -> Result<FleetSelection, String> {
+        let filter = match self.filter.as_deref().map(str::trim) {
+            None | Some("") => None,
+            Some(text) if text.len() > MAX_FILTER_BYTES => {
+                return Err(format!(
+                    "the filter is longer than {MAX_FILTER_BYTES} bytes"
+                ));
+            }
+            Some(text) => Some(OwnedKeyExpr::autocanonize(text.to_owned()).map_err(|e| {
+                // Zenoh's message ends with its source location: not the reader's business.
+                let message = e.to_string();
+                let reason = message
+                    .find(" at /")
+                    .map_or(message.as_str(), |at| &message[..at]);
+                format!("the filter is not a key expression: {reason}")
+            })?),
+        };
+        Ok(FleetSelection {
+            filter,
+            sort: self.sort,
+            order: self.order,
+            offset: self.offset,
+            limit: self.limit.unwrap_or(100).clamp(1, MAX_PAGE_ROWS),
+        })
+    }
+}
+
+#[derive(Serialize)]
+struct FleetPage<'a> {
+    service: TotalsJson,
+    /// Robots the filter matches.
+    matched: usize,
+    /// Of those, with an alarm active.
+    alarms: usize,
+    offset: usize,
+    rows: Vec<FleetRowJson<'a>>,
+}
+
+#[derive(Serialize)]
+struct TotalsJson {
+    inputs: u64,
+    poses: u64,
+    publish_errors: u64,
+    robots: usize,
+}
+
+impl From<&ServiceTotals> for TotalsJson {
+    fn from(totals: &ServiceTotals) -> Self {
+        Self {
+            inputs: totals.inputs,
+            poses: totals.poses,
+            publish_errors: totals.publish_errors,
+            robots: totals.robots,
+        }
+    }
+}
+
+#[derive(Serialize)]
+struct FleetRowJson<'a> {
+    robot: &'a str,
+    /// Window MAE of the position distance (m).
+    position_m: f64,
+    /// Window MAE of the rotation angle (rad).
+    angle_rad: f64,
+    /// Pairs in the window.
+    window_n: u64,
+    paired: u64,
+    unpaired: u64,
+    rejected: u64,
+    poses: u64,
+    alarm: AlarmJson,
+    /// Seconds since the twin last had a result of the robot; `null` before its first.
+    age_s: Option<f64>,
+}
+
+#[derive(Serialize)]
+struct AlarmJson {
+    position: bool,
+    angle: bool,
+}
+
+fn metric_index(name: &str) -> usize {
+    METRIC_NAMES
+        .iter()
+        .position(|&known| known == name)
+        .unwrap_or(0)
+}
+
+fn age_s(read: &FleetRead, row: &FleetRow) -> Option<f64> {
+    row.counts
+        .last_active
+        .map(|active| read.taken.saturating_duration_since(active).as_secs_f64())
+}
+
+/// The page of the fleet `selection` asks for.
+fn fleet_page_json(read: &FleetRead, selection: &FleetSelection) -> String {
+    let position = metric_index("position");
+    let angle = metric_index("angle");
+    let mut matched: Vec<&FleetRow> = read
+        .rows
+        .iter()
+        .zip(&read.keys)
+        .filter(|(_, key)| match (&selection.filter, key) {
+            (None, _) => true,
+            (Some(filter), Some(key)) => filter.intersects(key),
+            (Some(_), None) => false,
+        })
+        .map(|(row, _)| row)
+        .collect();
+    let alarms = matched
+        .iter()
+        .filter(|row| row.alarms_active.iter().any(|&active| active))
+        .count();
+    let window = |row: &FleetRow, metric: usize| row.metrics.window.stats[metric].mae;
+    // Rows come in id order: a stable sort keeps it among equals.
+    match selection.sort {
+        SortKey::Robot => {}
+        SortKey::Position => {
+            matched.sort_by(|a, b| window(a, position).total_cmp(&window(b, position)));
+        }
+        SortKey::Angle => matched.sort_by(|a, b| window(a, angle).total_cmp(&window(b, angle))),
+        SortKey::Paired => matched.sort_by_key(|row| row.metrics.paired),
+        SortKey::Unpaired => matched.sort_by_key(|row| row.metrics.unpaired),
+        SortKey::Rejected => matched.sort_by_key(|row| row.metrics.rejected),
+        SortKey::Alarm => {
+            matched.sort_by_key(|row| row.alarms_active.iter().filter(|&&a| a).count());
+        }
+        SortKey::Age => matched.sort_by(|a, b| {
+            let age = |row: &FleetRow| age_s(read, row).unwrap_or(f64::INFINITY);
+            age(a).total_cmp(&age(b))
+        }),
+    }
+    if selection.order == Order::Desc {
+        matched.reverse();
+    }
+    let rows = matched
+        .iter()
+        .skip(selection.offset)
+        .take(selection.limit)
+        .map(|row| FleetRowJson {
+            robot: &row.id,
+            position_m: window(row, position),
+            angle_rad: window(row, angle),
+            window_n: row.metrics.window.n,
+            paired: row.metrics.paired,
+            unpaired: row.metrics.unpaired,
+            rejected: row.metrics.rejected,
+            poses: row.counts.poses,
+            alarm: AlarmJson {
+                position: row.alarms_active[0],
+                angle: row.alarms_active[1],
+            },
+            age_s: age_s(read, row),
+        })
+        .collect();
+    let page = FleetPage {
+        service: TotalsJson::from(&read.totals),
+        matched: matched.len(),
+        alarms,
+        offset: selection.offset,
+        rows,
+    };
+    serde_json::to_string(&page).unwrap_or_default()
+}
+
+fn json_response(body: String) -> Response {
+    (
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/json"),
+        )],
+        body,
+    )
+        .into_response()
+}
+
+async fn fleet_json(State(state): State<AppState>, Query(query): Query<FleetQuery>) -> Response {
+    let selection = match query.check() {
+        Ok(selection) => selection,
+        Err(reason) => return bad_request(StatusCode::BAD_REQUEST, &reason),
+    };
+    let read = state.fleet(FLEET_READ_MAX_AGE).await;
+    json_response(fleet_page_json(&read, &selection))
+}
+
+/// Events from `next` every `period` (missed ticks skipped), until the service stops; `next`
+/// returning `None` sends nothing on that tick.
+fn paced<S, F, Fut>(state: &AppState, period: Duration, context: S, next: F) -> Response
+where
+    S: Send + 'static,
+    F: FnMut(&mut S) -> Fut + Send + 'static,
+    Fut: Future<Output = Option<String>> + Send,
+{
+    let mut interval = tokio::time::interval(period);
+    interval.set_missed_tick_behavior(MissedTickBehavior::Skip);
+    let stopping = state.stopping.clone();
+    let stream = futures_util::stream::unfold(
+        (interval, stopping, context, next),
+        |(mut interval, mut stopping, mut context, mut next)| async move {
+            loop {
+                if *stopping.borrow() {
+                    return None;
+                }
+                tokio::select! {
+                    _ = interval.tick() => {}
+                    _ = stopping.changed() => return None,
+                }
+                if let Some(data) = next(&mut context).await {
+                    let event = Event::default().data(data);
+                    return Some((
+                        Ok::<_, Infallible>(event),
+                        (interval, stopping, context, next),
+                    ));
+                }
+            }
+        },
+    );
+    Sse::new(stream)
+        .keep_alive(KeepAlive::default())
+        .into_response()
+}
+
+async fn fleet_stream(State(state): State<AppState>, Query(query): Query<FleetQuery>) -> Response {
+    let selection = match query.check() {
+        Ok(selection) => Arc::new(selection),
+        Err(reason) => return bad_request(StatusCode::BAD_REQUEST, &reason),
+    };
+    let app = state.clone();
+    paced(&state, FLEET_PERIOD, (), move |()| {
+        let (app, selection) = (app.clone(), Arc::clone(&selection));
+        async move {
+            let read = app.fleet(FLEET_READ_MAX_AGE).await;
+            Some(fleet_page_json(&read, &selection))
+        }
+    })
+}
+
+// ---------------------------------------------------------------------------------------------
+// One robot
+
+/// `?id=<robot id>`.
+#[derive(Debug, Deserialize)]
+struct RobotQuery {
+    id: String,
+}
+
+#[derive(Serialize)]
+struct FrameJson {
+    position_m: [f64; 3],
+    quaternion_xyzw: [f64; 4],
+}
+
+#[derive(Serialize)]
+struct RobotJson<'a> {
+    state: &'a crate::codec::wire::StateMessage,
+    /// The chain's link frames for the last valid joints, base to TCP (`null` before any).
+    frames: Option<Vec<FrameJson>>,
+    poses: u64,
+    rejected_by_cause: HashMap<&'static str, u64>,
+    /// The robot's last published events, oldest first.
+    events: Vec<serde_json::Value>,
+}
+
+/// The link frames of `detail`'s last joints with its model, if it has had joints.
+fn frames_of(detail: &RobotDetail) -> Option<Vec<FrameJson>> {
+    let joints = detail.state.joints.as_ref()?;
+    let frames = detail.model.chain().link_frames(&joints.q).ok()?;
+    Some(
+        frames
+            .iter()
+            .map(|pose| {
+                let readout = pose.readout();
+                FrameJson {
+                    position_m: readout.position_m,
+                    quaternion_xyzw: readout.quaternion_xyzw,
+                }
+            })
+            .collect(),
+    )
+}
+
+fn robot_json_of(detail: &RobotDetail) -> String {
+    let message = RobotJson {
+        state: &detail.state,
+        frames: frames_of(detail),
+        poses: detail.counts.poses,
+        rejected_by_cause: detail
+            .counts
+            .rejected_by_cause
+            .iter()
+            .map(|&(cause, count)| (cause.as_str(), count))
+            .collect(),
+        events: detail
+            .counts
+            .recent_events
+            .iter()
+            .filter_map(|event| serde_json::from_slice(event).ok())
+            .collect(),
+    };
+    serde_json::to_string(&message).unwrap_or_default()
+}
+
+fn unknown_robot(id: &str) -> Response {
+    bad_request(
+        StatusCode::NOT_FOUND,
+        &format!("robot '{id}' is not tracked"),
+    )
+}
+
+async fn robot_json(State(state): State<AppState>, Query(query): Query<RobotQuery>) -> Response {
+    match state.view.robot(&query.id) {
+        Some(detail) => json_response(robot_json_of(&detail)),
+        None => unknown_robot(&query.id),
+    }
+}
+
+async fn robot_frames(State(state): State<AppState>, Query(query): Query<RobotQuery>) -> Response {
+    let Some(detail) = state.view.robot(&query.id) else {
+        return unknown_robot(&query.id);
+    };
+    let mut body = String::new();
+    let frame = detail.state.frame;
+    let model = detail.state.model.clone();
+    let frames = frames_of(&detail);
+    let message = serde_json::json!({
+        "robot": query.id,
+        "model": model,
+        "frame": frame,
+        "t": detail.state.joints.as_ref().map(|joints| joints.t),
+        "q": detail.state.joints.as_ref().map(|joints| joints.q.clone()),
+        "frames": frames,
+    });
+    let _ = write!(body, "{message}");
+    json_response(body)
+}
+
+/// Where a robot page's stream is: the pose count it last sent at, and when.
+struct RobotCursor {
+    id: String,
+    sent_poses: Option<u64>,
+    sent_at: Instant,
+}
+
+async fn robot_stream(State(state): State<AppState>, Query(query): Query<RobotQuery>) -> Response {
+    if state.view.poses_of(&query.id).is_none() {
+        return unknown_robot(&query.id);
+    }
+    let view = state.view.clone();
+    let cursor = RobotCursor {
+        id: query.id,
+        sent_poses: None,
+        sent_at: Instant::now(),
+    };
+    paced(&state, ROBOT_PERIOD, cursor, move |cursor| {
+        // The pose count alone is read each tick; the full state only when it moved (or once a
+        // second for an idle robot, whose counters and events may still change).
+        let poses = view.poses_of(&cursor.id);
+        let due = poses != cursor.sent_poses || cursor.sent_at.elapsed() >= ROBOT_IDLE_PERIOD;
+        let data = if due {
+            view.robot(&cursor.id).map(|detail| {
+                cursor.sent_poses = Some(detail.counts.poses);
+                cursor.sent_at = Instant::now();
+                robot_json_of(&detail)
+            })
+        } else {
+            None
+        };
+        std::future::ready(data)
+    })
+}
+
+#[cfg(test)]
+#[allow(clippy::float_cmp, reason = "values are copied, not computed")]
+mod tests {
+    use super::*;
+    use crate::metrics::StatsSet;
+    use crate::pipeline::MetricsSnapshot;
+    use crate::service::RobotCounts;
+
+    fn row(id: &str, position_m: f64, paired: u64, alarm: bool) -> FleetRow {
+        let mut window = StatsSet {
+            n: paired,
+            ..StatsSet::default()
+        };
+        window.stats[metric_index("position")].mae = position_m;
+        FleetRow {
+            id: Arc::from(id),
+            metrics: MetricsSnapshot {
+                robot: id.to_owned(),
+                stamp_s: 1.0,
+                paired,
+                unpaired: 0,
+                rejected: 0,
+                cumulative: StatsSet::default(),
+                window,
+                window_s: 10.0,
+                epoch: 0,
+            },
+            alarms_active: [alarm, false],
+            counts: RobotCounts::default(),
+        }
+    }
+
+    fn read(rows: Vec<FleetRow>) -> FleetRead {
+        let keys = rows
+            .iter()
+            .map(|row| OwnedKeyExpr::try_from(&*row.id).ok())
+            .collect();
+        FleetRead {
+            taken: Instant::now(),
+            totals: ServiceTotals::default(),
+            rows,
+            keys,
+        }
+    }
+
+    fn select(query: &str) -> Result<FleetSelection, String> {
+        let query: FleetQuery = serde_json::from_str(query).expect("query");
+        query.check()
+    }
+
+    fn robots(page: &str) -> Vec<String> {
+        let page: serde_json::Value = serde_json::from_str(page).expect("JSON");
+        page["rows"]
+            .as_array()
+            .expect("rows")
+            .iter()
+            .map(|row| row["robot"].as_str().expect("robot").to_owned())
+            .collect()
+    }
+
+    fn fleet() -> FleetRead {
+        read(vec![
+            row("a/1", 0.003, 10, false),
+            row("a/2", 0.001, 30, true),
+            row("b/1", 0.002, 20, false),
+        ])
+    }
+
+    #[test]
+    fn filters_by_key_expression_sorts_and_pages() {
+        let fleet = fleet();
+        let all = select("{}").expect("valid");
+        assert_eq!(
+            robots(&fleet_page_json(&fleet, &all)),
+            ["a/1", "a/2", "b/1"]
+        );
+        let only_a = select(r#"{"filter": "a/*"}"#).expect("valid");
+        assert_eq!(robots(&fleet_page_json(&fleet, &only_a)), ["a/1", "a/2"]);
+        let by_error = select(r#"{"sort": "position", "order": "desc"}"#).expect("valid");
+        assert_eq!(
+            robots(&fleet_page_json(&fleet, &by_error)),
+            ["a/1", "b/1", "a/2"]
+        );
+        let paged = select(r#"{"sort": "paired", "offset": 1, "limit": 1}"#).expect("valid");
+        let page: serde_json::Value =
+            serde_json::from_str(&fleet_page_json(&fleet, &paged)).expect("JSON");
+        assert_eq!(page["matched"], 3);
+        assert_eq!(page["alarms"], 1);
+        assert_eq!(robots(&page.to_string()), ["b/1"]);
+        assert_eq!(page["rows"][0]["position_m"], 0.002);
+        assert!(page["rows"][0]["age_s"].is_null(), "never active");
+    }
+
+    #[test]
+    fn refuses_bad_filters_and_bounds_the_page() {
+        assert!(select(r#"{"filter": "a**b"}"#).is_err());
+        let long = format!(r#"{{"filter": "{}"}}"#, "a/".repeat(600));
+        assert!(select(&long).is_err());
+        assert_eq!(
+            select(r#"{"limit": 1000000}"#).expect("valid").limit,
+            MAX_PAGE_ROWS
+        );
+        assert_eq!(select(r#"{"limit": 0}"#).expect("valid").limit, 1);
+    }
+
+    #[test]
+    fn the_exposition_escapes_ids_and_names_base_units() {
+        let mut quoted = row("cell/\"odd\"\\id", 0.004, 5, true);
+        quoted.counts.poses = 7;
+        quoted.counts.rejected_by_cause = vec![(crate::pipeline::RejectCause::NotJson, 2)];
+        let text = exposition::render(&ServiceTotals::default(), &[quoted]);
+        let robot = r#"robot="cell/\"odd\"\\id""#;
+        for line in [
+            format!("armtwin_position_error_mae_meters{{{robot},scope=\"window\"}} 0.004"),
+            format!("armtwin_poses_total{{{robot}}} 7"),
+            format!("armtwin_rejected_total{{{robot},cause=\"not_json\"}} 2"),
+            format!("armtwin_alarm_active{{{robot},metric=\"position\"}} 1"),
+            "armtwin_robots_tracked 0".to_owned(),
+        ] {
+            assert!(text.contains(&line), "{line} not in\n{text}");
+        }
+        assert!(text.ends_with("# EOF\n"), "{text}");
+        assert!(!text.contains("snapshot_age"), "no snapshot written, no age");
+        let totals = ServiceTotals {
+            snapshot_age_s: Some(2.5),
+            ..ServiceTotals::default()
+        };
+        let text = exposition::render(&totals, &[]);
+        assert!(text.contains("armtwin_snapshot_age_seconds 2.5"), "{text}");
+    }
+}

@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# Installs the tools the dashboard tests drive, idempotently: Debian's `chromium` (a headless
+# browser for the page tests) and Debian's `prometheus` unpacked into .cache/prometheus-<version>/
+# (no system install, no service started). Prints the paths it settled on as shell assignments.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+apt_updated=0
+apt_update_once() {
+  if [ "$apt_updated" = 0 ]; then
+    apt-get update -qq >&2
+    apt_updated=1
+  fi
+}
+
+if ! command -v chromium >/dev/null 2>&1; then
+  apt_update_once
+  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium >&2
+fi
+
+version=$(apt-cache policy prometheus 2>/dev/null | awk '/Candidate:/ {print $2}')
+if [ -z "$version" ] || [ "$version" = "(none)" ]; then
+  apt_update_once
+  version=$(apt-cache policy prometheus | awk '/Candidate:/ {print $2}')
+fi
+dir=".cache/prometheus-${version//[:~]/_}"
+if [ ! -x "$dir/usr/bin/prometheus" ]; then
+  rm -rf "$dir.partial"
+  mkdir -p "$dir.partial"
+  (cd "$dir.partial" && apt-get download -qq "prometheus=$version" >&2 && dpkg -x prometheus_*.deb . && rm prometheus_*.deb)
+  rm -rf "$dir"
+  mv "$dir.partial" "$dir"
+fi
+
+printf 'ARMTWIN_CHROMIUM=%q\n' "$(command -v chromium)"
+printf 'ARMTWIN_PROMETHEUS=%q\n' "$PWD/$dir/usr/bin/prometheus"

@@ -1,0 +1,144 @@
+"""What the dashboard tests share: the service with its HTTP side on, a streaming gateway, the
+tools (a real headless Chromium, a real Prometheus) and bounded HTTP reads.
+
+The tools come from ``scripts/test-tools.sh`` (``tests/run_all.sh`` runs it before pytest): the
+tests fail, never skip, when one is missing.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import threading
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from armtwin_service import ArmtwinProcess, TwinClient, free_port, port_accepts, wait_until
+from conftest import DATA_DIR, REPO_ROOT
+
+HTTP_TIMEOUT_S = 10.0
+MEASURED_KEYS = ("x", "y", "z", "qx", "qy", "qz", "qw")
+
+
+def chromium_path() -> str:
+    path = os.environ.get("ARMTWIN_CHROMIUM") or shutil.which("chromium")
+    if not path or not os.access(path, os.X_OK):
+        pytest.fail("Chromium not found: run scripts/test-tools.sh (tests/run_all.sh does)", pytrace=False)
+    return path
+
+
+def prometheus_path() -> Path:
+    env = os.environ.get("ARMTWIN_PROMETHEUS")
+    found = [Path(env)] if env else sorted((REPO_ROOT / ".cache").glob("prometheus-*/usr/bin/prometheus"))
+    if not found or not os.access(found[-1], os.X_OK):
+        pytest.fail("Prometheus not found: run scripts/test-tools.sh (tests/run_all.sh does)", pytrace=False)
+    return found[-1]
+
+
+def http_get(url: str, timeout: float = HTTP_TIMEOUT_S) -> tuple[int, bytes]:
+    """(status, body) of a GET, 4xx/5xx included."""
+    try:
+        with urllib.request.urlopen(url, timeout=timeout) as response:
+            return response.status, response.read()
+    except urllib.error.HTTPError as error:
+        return error.code, error.read()
+
+
+def http_json(url: str):
+    status, body = http_get(url)
+    assert status == 200, f"GET {url}: {status} {body[:200]!r}"
+    return json.loads(body)
+
+
+class DashboardService:
+    """``armtwin serve`` with ``[http] listen`` on a free loopback port, and one client peer."""
+
+    def __init__(self, binary: Path, workdir: Path, config_text: str, watchdog_s: float = 300.0,
+                 stop_timeout_s: float = 15.0, clean_exit: bool = True):
+        self.stop_timeout_s = stop_timeout_s
+        self.clean_exit = clean_exit
+        self.http_port = free_port()
+        config = f'[http]\nlisten = "127.0.0.1:{self.http_port}"\n\n{config_text}'
+        self.proc = ArmtwinProcess(binary, workdir, config, watchdog_s)
+        self.client: TwinClient | None = None
+        self.base = f"http://127.0.0.1:{self.http_port}"
+
+    def __enter__(self) -> DashboardService:
+        self.proc.start()
+        if not wait_until(lambda: port_accepts(self.http_port), 30.0, 0.02):
+            raise AssertionError(f"the dashboard never listened on {self.http_port}\n{self.proc.logs()}")
+        self.client = TwinClient(self.proc.endpoint)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        code, _ = self.proc.stop(self.stop_timeout_s)
+        if self.client is not None:
+            self.client.close()
+        if exc[0] is None and self.clean_exit:
+            assert code == 0, f"armtwin exited with {code}\n{self.proc.logs()}"
+
+    def url(self, path: str) -> str:
+        return self.base + path
+
+    def state(self, robot: str) -> dict:
+        replies = self.client.get(f"twin/state/{robot}")
+        values = [json.loads(r.ok.payload.to_string()) for r in replies if r.ok is not None]
+        assert len(values) == 1, f"state of {robot}: {len(values)} replies"
+        return values[0]
+
+
+def lasttest_rows() -> list[tuple[list[float], list[float]]]:
+    """The sample UR10e recording's (q, measured x y z qx qy qz qw) rows."""
+    with open(DATA_DIR / "ur10e_lasttest.csv", newline="") as f:
+        reader = csv.reader(f)
+        next(reader)
+        rows = []
+        for fields in reader:
+            values = [float(v) for v in fields[1:14]]
+            rows.append((values[:6], values[6:13]))
+    return rows
+
+
+class Gateway(threading.Thread):
+    """Streams the sample recording for ``robots`` (joints with their measured pose) at
+    ``rate_hz`` per robot, row after row, until ``stop()`` or ``rows`` rows per robot."""
+
+    def __init__(self, client: TwinClient, robots, rate_hz: float = 200.0, rows: int | None = None,
+                 measured_offset_m: dict[str, float] | None = None):
+        super().__init__(daemon=True)
+        self.client = client
+        self.robots = list(robots)
+        self.rate_hz = rate_hz
+        self.data = lasttest_rows()
+        self.rows = len(self.data) if rows is None else min(rows, len(self.data))
+        self.offsets = measured_offset_m or {}
+        self.sent = 0
+        self._stopping = threading.Event()
+        self.client.ready(self.robots)
+
+    def stop(self) -> None:
+        self._stopping.set()
+        self.join(timeout=10)
+
+    def run(self) -> None:
+        pubs = {robot: self.client.joints(robot) for robot in self.robots}
+        start = time.monotonic()
+        for i in range(self.rows):
+            if self._stopping.is_set():
+                return
+            q, measured = self.data[i]
+            for robot, pub in pubs.items():
+                pose = list(measured)
+                pose[0] += self.offsets.get(robot, 0.0)
+                message = {"t": 1000.0 + i * 0.002, "q": q, "measured": dict(zip(MEASURED_KEYS, pose))}
+                pub.put(json.dumps(message))
+            self.sent = i + 1
+            pause = start + (i + 1) / self.rate_hz - time.monotonic()
+            if pause > 0:
+                time.sleep(pause)

@@ -1,0 +1,158 @@
+"""``/metrics`` scraped by a real Prometheus (Debian's package, unpacked by scripts/test-tools.sh)
+while a Python gateway streams the sample UR10e recording: Prometheus' query API returns the
+MAE ``get twin/state/<robot>`` answers, bit for bit, and parsed every scrape; ``promtool``
+accepts config/prometheus.yml; every query of the Grafana dashboard in config/grafana/ runs in that
+Prometheus and names only metrics ``/metrics`` exposes.
+
+Run: ``ARMTWIN_BIN=$PWD/target/debug/armtwin .venv/bin/python -m pytest tests/python/test_metrics.py -q``
+(after ``bash scripts/test-tools.sh``).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import urllib.parse
+
+from armtwin_service import free_port, port_accepts, wait_until
+from conftest import REPO_ROOT
+from dashboard_support import DashboardService, Gateway, http_get, http_json, prometheus_path
+
+CONFIG = """\
+[service]
+metrics_period_ms = 50
+
+[robots.default]
+model = "ur10e"
+"""
+ROBOTS = ("cell-1/ur10e-a", "cell-2/ur10e-b")
+ROWS = 4000
+DASHBOARD = REPO_ROOT / "config" / "grafana" / "dashboards" / "armtwin.json"
+
+
+class Prometheus:
+    """A Prometheus scraping ``target`` every second, its data in ``workdir``."""
+
+    def __init__(self, workdir, target: str):
+        self.binary = prometheus_path()
+        self.port = free_port()
+        self.config = workdir / "prometheus.yml"
+        self.config.write_text(
+            "global:\n  scrape_interval: 1s\n  evaluation_interval: 1s\n"
+            "scrape_configs:\n  - job_name: armtwin\n    static_configs:\n"
+            f"      - targets: ['{target}']\n"
+        )
+        self.log = workdir / "prometheus.log"
+        self.data = workdir / "prometheus-data"
+        self.proc = None
+
+    def __enter__(self) -> Prometheus:
+        self.proc = subprocess.Popen(
+            [str(self.binary), f"--config.file={self.config}", f"--storage.tsdb.path={self.data}",
+             f"--web.listen-address=127.0.0.1:{self.port}"],
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=open(self.log, "wb"),
+        )
+        assert wait_until(lambda: port_accepts(self.port), 30.0, 0.05), self.log.read_text()[-2000:]
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.proc.terminate()
+        try:
+            self.proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait(timeout=5)
+
+    def query(self, expr: str) -> dict:
+        url = f"http://127.0.0.1:{self.port}/api/v1/query?" + urllib.parse.urlencode({"query": expr})
+        answer = http_json(url)
+        assert answer["status"] == "success", answer
+        return answer["data"]
+
+    def value(self, expr: str) -> float | None:
+        result = self.query(expr)["result"]
+        return float(result[0]["value"][1]) if len(result) == 1 else None
+
+
+def dashboard_queries() -> list[str]:
+    dashboard = json.loads(DASHBOARD.read_text())
+    exprs = [target["expr"] for panel in dashboard["panels"] for target in panel["targets"]]
+    assert exprs, "the dashboard has no queries"
+    return exprs
+
+
+def exposed_names(text: str) -> set[str]:
+    return {line.split("{")[0].split(" ")[0] for line in text.splitlines() if line and not line.startswith("#")}
+
+
+def test_prometheus_scrapes_the_twin_and_agrees_with_the_state_query(armtwin_bin, tmp_path):
+    with DashboardService(armtwin_bin, tmp_path, CONFIG) as service, \
+            Prometheus(tmp_path, f"127.0.0.1:{service.http_port}") as prometheus:
+        gateway = Gateway(service.client, ROBOTS, rate_hz=250.0, rows=ROWS)
+        gateway.start()
+        # Scraped while the recording streams.
+        assert wait_until(
+            lambda: (prometheus.value(f'armtwin_paired_total{{robot="{ROBOTS[0]}"}}') or 0) > 0, 30.0, 0.2
+        ), prometheus.log.read_text()[-2000:]
+        assert gateway.is_alive(), "the recording ended before the first scrape"
+        targets = http_json(f"http://127.0.0.1:{prometheus.port}/api/v1/targets")["data"]["activeTargets"]
+        assert [t["health"] for t in targets] == ["up"], targets
+        gateway.join(timeout=60)
+        # Two bad inputs after the recording: counted by cause.
+        service.client.joints(ROBOTS[0]).put("{not json")
+        service.client.joints(ROBOTS[0]).put(json.dumps({"t": 5000.0, "q": [0.1, 0.2]}))
+        assert wait_until(lambda: service.state(ROBOTS[1])["metrics"]["paired"] == ROWS, 30.0, 0.1)
+        assert wait_until(lambda: service.state(ROBOTS[0])["metrics"]["rejected"] == 2, 30.0, 0.1)
+        for cause in ("not_json", "joint_count"):
+            expr = f'armtwin_rejected_total{{robot="{ROBOTS[0]}",cause="{cause}"}}'
+            assert wait_until(lambda: prometheus.value(expr) == 1.0, 20.0, 0.25), (expr, prometheus.value(expr))
+
+        for robot in ROBOTS:
+            state = service.state(robot)["metrics"]
+            checks = {
+                f'armtwin_position_error_mae_meters{{robot="{robot}",scope="cumulative"}}': state["cumulative"]["position"]["mae"],
+                f'armtwin_rotation_error_mae_radians{{robot="{robot}",scope="cumulative"}}': state["cumulative"]["angle"]["mae"],
+                f'armtwin_position_error_max_meters{{robot="{robot}",scope="window"}}': state["window"]["position"]["max"],
+                f'armtwin_paired_total{{robot="{robot}"}}': float(state["paired"]),
+            }
+            for expr, expected in checks.items():
+                # The next scrapes after the stream ended carry the final values.
+                assert wait_until(lambda: prometheus.value(expr) == expected, 20.0, 0.25), (
+                    expr, prometheus.value(expr), expected)
+        assert state["cumulative"]["position"]["mae"] > 1e-4  # a real error, not an empty one
+
+        status, body = http_get(service.url("/metrics"))
+        assert status == 200
+        exposition = body.decode()
+        # Prometheus parsed every scrape (OpenMetrics text): no error on the target.
+        targets = http_json(f"http://127.0.0.1:{prometheus.port}/api/v1/targets")["data"]["activeTargets"]
+        assert [(t["health"], t["lastError"]) for t in targets] == [("up", "")], targets
+        promtool = prometheus.binary.with_name("promtool")
+        config = subprocess.run([str(promtool), "check", "config", str(REPO_ROOT / "config" / "prometheus.yml")],
+                                capture_output=True, text=True, timeout=30)
+        assert config.returncode == 0, config.stdout + config.stderr
+
+        # Every Grafana query names exposed metrics and runs in this Prometheus, with results.
+        names = exposed_names(exposition)
+        for expr in dashboard_queries():
+            used = set(re.findall(r"\barmtwin_[a-z_]+", expr))
+            assert used and used <= names, (expr, used - names)
+            query = expr.replace("$robot", ".*")
+            prometheus.query(query)  # a query Prometheus refuses fails here
+            if "alarm_active" not in expr:
+                # rate() needs two scrapes of a series.
+                assert wait_until(lambda: prometheus.query(query)["result"], 10.0, 0.5), f"no series for {expr}"
+
+
+def test_grafana_dashboard_structure():
+    dashboard = json.loads(DASHBOARD.read_text())
+    ids = [panel["id"] for panel in dashboard["panels"]]
+    assert len(ids) == len(set(ids))
+    provisioned = (REPO_ROOT / "config" / "grafana" / "provisioning" / "datasources" / "armtwin.yaml").read_text()
+    for panel in dashboard["panels"]:
+        assert {"x", "y", "w", "h"} <= set(panel["gridPos"]), panel["title"]
+        for target in panel["targets"]:
+            assert f"uid: {target['datasource']['uid']}" in provisioned, panel["title"]
+    kinds = {panel["type"] for panel in dashboard["panels"]}
+    assert {"heatmap", "table", "timeseries"} <= kinds

@@ -630,7 +630,11 @@ impl Pipeline {
         if Arc::ptr_eq(&twin.model, &twin.robot.settings().model) {
             return None;
         }
-        let deltas = match twin.model.calibration().map(|calibration| &calibration.form) {
+        let deltas = match twin
+            .model
+            .calibration()
+            .map(|calibration| &calibration.form)
+        {
             Some(CalibrationForm::MountingDeltas(deltas)) => *deltas,
             // Applied models are identified as deltas: any other form is the configured one.
             Some(_) => return None,
@@ -1375,7 +1379,11 @@ mod tests {
             .expect("fits the arm");
         let restored = second.model(r1.index()).expect("restored");
         let pose = |model: &RobotModel| model.pose(&q_rad).expect("valid").readout();
-        assert_eq!(pose(restored), pose(&calibrated), "the same FK, bit for bit");
+        assert_eq!(
+            pose(restored),
+            pose(&calibrated),
+            "the same FK, bit for bit"
+        );
         assert_ne!(pose(restored), pose(&nominal));
         assert_eq!(second.records(), records);
         second.joints(&r1, "j", 0.01, &joints(), &mut Discard);

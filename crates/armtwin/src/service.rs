@@ -56,8 +56,8 @@ use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
 use crate::model::RobotModel;
 use crate::pipeline::{
-    Discard, Event, EventDetail, EventKind, MeasuredStream, MetricsSnapshot, Pipeline,
-    RejectCause, Robot, RobotDirectory, RobotIndex, Sink, TwinRecord,
+    Discard, Event, EventDetail, EventKind, MeasuredStream, MetricsSnapshot, Pipeline, RejectCause,
+    Robot, RobotDirectory, RobotIndex, Sink, TwinRecord,
 };
 use crate::ros2::{self, Attachment, KeyScheme, PoseOutputs, PublisherSeq};
 use crate::self_calibration::{self, CalibrationBatch, Estimate};
@@ -2045,7 +2045,9 @@ impl ZenohSink {
 
     /// Publishes `payload` on `robot`'s `stream` ([`Declarer::put`]).
     fn put(&mut self, robot: &str, index: Option<RobotIndex>, stream: Stream, payload: Vec<u8>) {
-        let sent = self.declarer.put(self.outputs_of(index), robot, stream, payload);
+        let sent = self
+            .declarer
+            .put(self.outputs_of(index), robot, stream, payload);
         self.publish_errors += u64::from(!sent);
     }
 

@@ -15,8 +15,8 @@ use std::time::{SystemTime, UNIX_EPOCH};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use crate::metrics::{CumulativeParts, METRIC_COUNT};
 use crate::kinematics::TcpOffset;
+use crate::metrics::{CumulativeParts, METRIC_COUNT};
 use crate::model::MountingDeltas;
 use crate::pipeline::{AppliedModel, TwinRecord};
 

@@ -817,7 +817,10 @@ mod tests {
             assert!(text.contains(&line), "{line} not in\n{text}");
         }
         assert!(text.ends_with("# EOF\n"), "{text}");
-        assert!(!text.contains("snapshot_age"), "no snapshot written, no age");
+        assert!(
+            !text.contains("snapshot_age"),
+            "no snapshot written, no age"
+        );
         let totals = ServiceTotals {
             snapshot_age_s: Some(2.5),
             ..ServiceTotals::default()

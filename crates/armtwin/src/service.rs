@@ -224,22 +224,7 @@ pub async fn serve(
         config.pose_congestion,
         Arc::new(config.ros2_pose.clone()),
     );
-    let twin = Arc::new(SharedTwin {
-        prefix: prefix.clone(),
-        shard: config.shard.clone(),
-        robots: RwLock::new(RobotDirectory::new(
-            config.default_robot.clone(),
-            config.robots.clone(),
-        )),
-        state: Mutex::new(TwinState {
-            pipeline: Pipeline::new(config.pipeline),
-            sink: ZenohSink::new(declarer.clone(), control_tx.clone(), config.event_budget),
-            calibrations: Vec::new(),
-            inputs: 0,
-            snapshot_written: None,
-            stopped: false,
-        }),
-    });
+    let twin = Arc::new(SharedTwin::new(&config, &declarer, control_tx.clone()));
     let snapshots = config.snapshots.as_ref().map(|settings| {
         (
             SnapshotStore::new(&settings.state_dir, &prefix),
@@ -688,6 +673,27 @@ struct SharedTwin {
 }
 
 impl SharedTwin {
+    /// No robot tracked yet; the sink publishes through `declarer` and asks the control thread
+    /// (`control`) to declare new robots.
+    fn new(config: &ServiceConfig, declarer: &Declarer, control: Sender<Control>) -> Self {
+        Self {
+            prefix: config.key_prefix.clone(),
+            shard: config.shard.clone(),
+            robots: RwLock::new(RobotDirectory::new(
+                config.default_robot.clone(),
+                config.robots.clone(),
+            )),
+            state: Mutex::new(TwinState {
+                pipeline: Pipeline::new(config.pipeline),
+                sink: ZenohSink::new(declarer.clone(), control, config.event_budget),
+                calibrations: Vec::new(),
+                inputs: 0,
+                snapshot_written: None,
+                stopped: false,
+            }),
+        }
+    }
+
     fn lock(&self) -> MutexGuard<'_, TwinState> {
         // A panic in a callback leaves the pipeline as consistent as each step left it; keep going.
         self.state.lock().unwrap_or_else(PoisonError::into_inner)

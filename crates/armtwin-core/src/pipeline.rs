@@ -34,7 +34,7 @@ pub use self::event::{Event, EventDetail, EventKind, Reason, RejectCause};
 use crate::align::{self, AlignConfig, Aligner, Bracket, Pending, UnpairedReason};
 use crate::kinematics::{KinematicsError, OutputFrame, PoseReadout, TcpOffset};
 use crate::metrics::{CumulativeParts, CumulativeStats, Deviation, StatsSet, WindowStats};
-use crate::model::{Calibration, CalibrationForm, MountingDeltas, RobotModel};
+use crate::model::{CalibrationForm, MountingDeltas, RobotModel};
 use crate::orientation;
 use crate::sample::JointSample;
 use crate::self_calibration::{PairReservoir, ReservoirConfig};
@@ -676,20 +676,14 @@ impl Pipeline {
         let applied = match &record.applied {
             None => None,
             Some(applied) => {
-                let configured = &robot.settings().model;
-                let model = RobotModel::new(
-                    configured.arm().clone(),
-                    Some(Calibration {
-                        source_name: APPLIED_SOURCE_NAME.to_owned(),
-                        form: CalibrationForm::MountingDeltas(applied.deltas),
-                    }),
-                    applied.tool,
-                    configured.frame(),
-                )
-                .map_err(|e| RestoreError::Applied {
-                    robot: robot.id().to_owned(),
-                    problem: e.to_string(),
-                })?;
+                let model = robot
+                    .settings()
+                    .model
+                    .with_deltas(applied.deltas, applied.tool, APPLIED_SOURCE_NAME)
+                    .map_err(|e| RestoreError::Applied {
+                        robot: robot.id().to_owned(),
+                        problem: e.to_string(),
+                    })?;
                 Some(Arc::new(model))
             }
         };
@@ -1341,18 +1335,7 @@ mod tests {
             position_m: [0.0, 0.0, 0.1],
             rotation_vector_rad: [0.0, 0.0, 0.3],
         };
-        let calibrated = Arc::new(
-            RobotModel::new(
-                nominal.arm().clone(),
-                Some(Calibration {
-                    source_name: "estimate".to_owned(),
-                    form: CalibrationForm::MountingDeltas(deltas),
-                }),
-                tool,
-                nominal.frame(),
-            )
-            .expect("fits"),
-        );
+        let calibrated = Arc::new(nominal.with_deltas(deltas, tool, "estimate").expect("fits"));
         let q_rad = [0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
         let mut first = Pipeline::new(PipelineConfig::default());
         let joints = || JointSample {

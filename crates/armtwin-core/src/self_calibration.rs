@@ -21,7 +21,7 @@ use thiserror::Error;
 use crate::identify::{self, IdentifyError, IdentifyOptions, PairedSample, PoseErrors};
 use crate::kinematics::{Pose, PoseReadout};
 use crate::model::calibration::MountingDeltas;
-use crate::model::{Calibration, CalibrationForm, ModelError, RobotModel};
+use crate::model::{ModelError, RobotModel};
 use crate::orientation;
 
 /// The name an identified calibration carries in its model (`RobotModel::calibration`).
@@ -298,15 +298,7 @@ pub fn fit(
         &batch.train,
         options,
     )?;
-    let model = RobotModel::new(
-        current.arm().clone(),
-        Some(Calibration {
-            source_name: SOURCE_NAME.to_owned(),
-            form: CalibrationForm::MountingDeltas(identification.deltas),
-        }),
-        identification.tool,
-        current.frame(),
-    )?;
+    let model = current.with_deltas(identification.deltas, identification.tool, SOURCE_NAME)?;
     Ok(Estimate {
         held_out_current: identify::pose_errors(current, &batch.held_out),
         held_out_identified: identify::pose_errors(&model, &batch.held_out),

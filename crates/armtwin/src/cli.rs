@@ -982,15 +982,7 @@ fn run_calibrate(args: &CalibrateArgs) -> Result<()> {
         &samples[..split],
         &options,
     )?;
-    let identified = RobotModel::new(
-        model.arm().clone(),
-        Some(Calibration {
-            source_name: "identified".to_owned(),
-            form: crate::model::CalibrationForm::MountingDeltas(fit.deltas),
-        }),
-        fit.tool,
-        model.frame(),
-    )?;
+    let identified = model.with_deltas(fit.deltas, fit.tool, "identified")?;
     let held_out = &samples[split..];
     let per_row = |m: &RobotModel| -> Vec<f64> {
         held_out

@@ -146,6 +146,26 @@ impl RobotModel {
         )
     }
 
+    /// The same arm in the same output frame with `deltas` to its nominal table (a
+    /// `calibration.conf` `[mounting]` section, named `source_name`) and `tool`: an identified,
+    /// applied or restored calibration of this robot. Its own calibration, if any, is replaced.
+    pub fn with_deltas(
+        &self,
+        deltas: MountingDeltas,
+        tool: TcpOffset,
+        source_name: &str,
+    ) -> Result<Self, ModelError> {
+        Self::new(
+            self.arm.clone(),
+            Some(Calibration {
+                source_name: source_name.to_owned(),
+                form: CalibrationForm::MountingDeltas(deltas),
+            }),
+            tool,
+            self.frame,
+        )
+    }
+
     /// The nominal arm.
     #[must_use]
     pub fn arm(&self) -> &ArmDescription {

@@ -328,10 +328,17 @@ struct DeviationStats {
     window: WindowStats,
 }
 
-struct RobotTwin {
+/// One robot's twin: everything the pipeline keeps for it, stepped by that robot's inputs alone.
+///
+/// A [`Pipeline`] keeps one per tracked robot; a caller that keeps each robot's twin under a
+/// lock of its own (the service, so that robots on different links never wait on each other)
+/// steps a `Twin` directly. Both run the same code: a pipeline's per-robot methods only find
+/// the twin and delegate. Unlike the pipeline, a twin does not announce itself: whoever
+/// creates one calls [`Sink::tracking`].
+pub struct Twin {
     /// Its index, id and settings (shared with the directory).
     robot: Robot,
-    /// The model its FK runs: the configured one until [`Pipeline::replace_model`].
+    /// The model its FK runs: the configured one until [`Twin::replace_model`].
     model: Arc<RobotModel>,
     /// Pairs kept for self-calibration, when the robot's settings ask for it.
     reservoir: Option<Box<PairReservoir>>,
@@ -350,7 +357,7 @@ struct RobotTwin {
     last_gateway_seq: Option<u64>,
     last_joint_s: Option<f64>,
     last_joints: Vec<f64>,
-    last_twin: Option<(f64, PoseReadout)>,
+    last_pose: Option<(f64, PoseReadout)>,
     /// Last accepted measured stamp per stream: index 0 the robot's own (controller) stream,
     /// `i + 1` sensor `i`.
     last_measured_s: Vec<Option<f64>>,
@@ -367,7 +374,7 @@ pub struct Pipeline {
     config: PipelineConfig,
     /// `None` until the robot's first input. Boxed: a configured robot that never sends costs a
     /// pointer, not a twin.
-    twins: Vec<Option<Box<RobotTwin>>>,
+    twins: Vec<Option<Box<Twin>>>,
 }
 
 /// Rejects an input of a robot that is neither configured nor covered by a default: one event
@@ -401,30 +408,27 @@ impl Pipeline {
         self.twins.iter().flatten().map(|twin| &twin.robot)
     }
 
-    fn twin(&self, robot: RobotIndex) -> Option<&RobotTwin> {
+    fn twin(&self, robot: RobotIndex) -> Option<&Twin> {
         self.twins.get(robot.get())?.as_deref()
     }
 
-    fn twin_mut(&mut self, robot: RobotIndex) -> Option<&mut RobotTwin> {
+    fn twin_mut(&mut self, robot: RobotIndex) -> Option<&mut Twin> {
         self.twins.get_mut(robot.get())?.as_deref_mut()
     }
 
-    /// `robot`'s twin, tracking it first (and telling the sink) if this is its first input;
-    /// marked as having new results.
-    fn track(&mut self, robot: &Robot, sink: &mut impl Sink) -> &mut RobotTwin {
+    /// `robot`'s twin, tracking it first (and telling the sink) if this is its first input.
+    fn track(&mut self, robot: &Robot, sink: &mut impl Sink) -> &mut Twin {
         let index = robot.index().get();
         if self.twins.len() <= index {
             self.twins.resize_with(index + 1, || None);
         }
         let slot = &mut self.twins[index];
-        let twin = if let Some(twin) = slot {
+        if let Some(twin) = slot {
             twin
         } else {
             sink.tracking(robot);
-            slot.insert(Box::new(RobotTwin::new(robot.clone(), &self.config)))
-        };
-        twin.dirty = true;
-        twin
+            slot.insert(Box::new(Twin::new(robot.clone(), &self.config)))
+        }
     }
 
     /// Rejects an input of `robot` that could not be decoded (or was refused before reaching
@@ -439,7 +443,7 @@ impl Pipeline {
         sink: &mut impl Sink,
     ) {
         self.track(robot, sink)
-            .reject(key, stamp_s, cause, Reason::Error(error), sink);
+            .reject(key, stamp_s, cause, error, sink);
     }
 
     /// A decoded joint sample of `robot`, stamped `stamp_s` (the message's own stamp, else the
@@ -453,34 +457,7 @@ impl Pipeline {
         sample: &JointSample,
         sink: &mut impl Sink,
     ) {
-        let twin = self.track(robot, sink);
-        match twin.accept_joints(key, stamp_s, sample, sink) {
-            Ok(pose) => {
-                // Older waiting poses first, so statistics and alarms see stamps in order.
-                twin.pair_ready(sink);
-                if let Some(measured) = &sample.measured {
-                    let measured = twin.to_output_frame(measured, MeasuredStream::Robot);
-                    if twin.accept_measured_stamp(key, MeasuredStream::Robot, stamp_s, sink)
-                        && twin.pair(key, stamp_s, &pose, measured, sink)
-                        && let Some(reservoir) = &mut twin.reservoir
-                    {
-                        reservoir.offer(stamp_s, &sample.q_rad, &measured);
-                    }
-                }
-            }
-            Err(Refusal::Order) => {
-                // Resent or out of order: its measured part shares the stamp and is not counted
-                // a second time.
-            }
-            Err(Refusal::Joints) => {
-                // The joints were refused; a measured pose that came with them is still valid
-                // input and goes through the aligner like any other.
-                if let Some(measured) = &sample.measured {
-                    let measured = twin.to_output_frame(measured, MeasuredStream::Robot);
-                    twin.measured(key, MeasuredStream::Robot, stamp_s, measured, sink);
-                }
-            }
-        }
+        self.track(robot, sink).joints(key, stamp_s, sample, sink);
     }
 
     /// A decoded measured pose of `robot` from `stream`, stamped `stamp_s`.
@@ -493,9 +470,8 @@ impl Pipeline {
         pose: &PoseReadout,
         sink: &mut impl Sink,
     ) {
-        let twin = self.track(robot, sink);
-        let pose = twin.to_output_frame(pose, stream);
-        twin.measured(key, stream, stamp_s, pose, sink);
+        self.track(robot, sink)
+            .measured(key, stream, stamp_s, pose, sink);
     }
 
     /// Robots with new results since their last metrics (the periodic publication while data
@@ -505,7 +481,7 @@ impl Pipeline {
         self.twins
             .iter()
             .flatten()
-            .filter(|twin| twin.dirty)
+            .filter(|twin| twin.is_due())
             .map(|twin| twin.robot.index())
             .collect()
     }
@@ -513,34 +489,25 @@ impl Pipeline {
     /// `robot`'s metrics if it has new results since its last ones, which they then count as
     /// sent: for a caller that sends them itself (the service, outside its lock).
     pub fn take_due_metrics(&mut self, robot: RobotIndex) -> Option<MetricsSnapshot> {
-        let twin = self.twin_mut(robot)?;
-        if !twin.dirty {
-            return None;
-        }
-        twin.dirty = false;
-        Some(twin.snapshot())
+        self.twin_mut(robot)?.take_due_metrics()
     }
 
     /// Resets `robot`'s statistics and counters; returns (and sends) the final snapshot before
     /// the reset.
     pub fn reset(&mut self, robot: RobotIndex, sink: &mut impl Sink) -> Option<MetricsSnapshot> {
-        let twin = self.twin_mut(robot)?;
-        let last = twin.snapshot();
-        twin.restart_statistics();
-        sink.metrics(&twin.robot, &last);
-        Some(last)
+        Some(self.twin_mut(robot)?.reset(sink))
     }
 
     /// The model `robot`'s FK runs, if it is tracked.
     #[must_use]
     pub fn model(&self, robot: RobotIndex) -> Option<&Arc<RobotModel>> {
-        self.twin(robot).map(|twin| &twin.model)
+        self.twin(robot).map(Twin::model)
     }
 
     /// `robot`'s self-calibration reservoir, if it is tracked and keeps one.
     #[must_use]
     pub fn reservoir(&self, robot: RobotIndex) -> Option<&PairReservoir> {
-        self.twin(robot)?.reservoir.as_deref()
+        self.twin(robot)?.reservoir()
     }
 
     /// Replaces `robot`'s model (an applied calibration) and starts a new metrics epoch: the
@@ -553,51 +520,15 @@ impl Pipeline {
         model: Arc<RobotModel>,
         sink: &mut impl Sink,
     ) -> Result<MetricsSnapshot, ReplaceModelError> {
-        let twin = self.twin_mut(robot).ok_or(ReplaceModelError::NotTracked)?;
-        let expected = twin.model.joint_count();
-        if model.joint_count() != expected {
-            return Err(ReplaceModelError::JointCount {
-                expected,
-                got: model.joint_count(),
-            });
-        }
-        let last = twin.snapshot();
-        sink.metrics(&twin.robot, &last);
-        twin.restart_statistics();
-        twin.model = model;
-        twin.epoch += 1;
-        twin.dirty = true;
-        let detail = EventDetail::Epoch { epoch: twin.epoch };
-        let source = twin
-            .model
-            .calibration()
-            .map_or("the nominal model", |c| c.source_name.as_str());
-        let event = twin.event(
-            last.stamp_s,
-            EventKind::Epoch,
-            None,
-            detail,
-            Reason::ModelReplaced { source },
-        );
-        sink.event(&event);
-        Ok(last)
+        self.twin_mut(robot)
+            .ok_or(ReplaceModelError::NotTracked)?
+            .replace_model(model, sink)
     }
 
     /// The state view of `robot`, if it is tracked.
     #[must_use]
     pub fn state(&self, robot: RobotIndex) -> Option<RobotState<'_>> {
-        let twin = self.twin(robot)?;
-        Some(RobotState {
-            robot: twin.robot.id(),
-            model: &twin.model,
-            last_joints: twin
-                .last_joint_s
-                .map(|stamp_s| (stamp_s, twin.last_joints.as_slice())),
-            last_twin: twin.last_twin.as_ref().map(|(s, p)| (*s, p)),
-            last_measured: twin.last_measured.as_ref().map(|(s, p)| (*s, p)),
-            metrics: twin.snapshot(),
-            alarms_active: [twin.alarms[0].active, twin.alarms[1].active],
-        })
+        self.twin(robot).map(Twin::state)
     }
 
     /// What of every tracked robot's twin outlives the process, in index order.
@@ -606,44 +537,8 @@ impl Pipeline {
         self.twins
             .iter()
             .flatten()
-            .map(|twin| TwinRecord {
-                robot: twin.robot.id().to_owned(),
-                arm: twin.model.arm().name.clone(),
-                epoch: twin.epoch,
-                paired: twin.paired,
-                unpaired: twin.unpaired,
-                rejected: twin.rejected,
-                next_pose_seq: twin.next_pose_seq,
-                last_gateway_seq: twin.last_gateway_seq,
-                cumulative: twin.stats.as_ref().map_or_else(
-                    || CumulativeStats::new().to_parts(),
-                    |stats| stats.cumulative.to_parts(),
-                ),
-                alarms_active: [twin.alarms[0].active, twin.alarms[1].active],
-                applied: Self::applied_model(twin),
-            })
+            .map(|twin| twin.record())
             .collect()
-    }
-
-    /// What an applied calibration changed in `twin`'s configured model, if one was applied.
-    fn applied_model(twin: &RobotTwin) -> Option<AppliedModel> {
-        if Arc::ptr_eq(&twin.model, &twin.robot.settings().model) {
-            return None;
-        }
-        let deltas = match twin
-            .model
-            .calibration()
-            .map(|calibration| &calibration.form)
-        {
-            Some(CalibrationForm::MountingDeltas(deltas)) => *deltas,
-            // Applied models are identified as deltas: any other form is the configured one.
-            Some(_) => return None,
-            None => MountingDeltas::ZERO,
-        };
-        Some(AppliedModel {
-            deltas,
-            tool: *twin.model.tool(),
-        })
     }
 
     /// Tracks `robot` (telling the sink) with its twin continued from `record`: counters,
@@ -660,6 +555,68 @@ impl Pipeline {
                 robot: robot.id().to_owned(),
             });
         }
+        let twin = Twin::restored(robot.clone(), &self.config, record)?;
+        let index = robot.index().get();
+        if self.twins.len() <= index {
+            self.twins.resize_with(index + 1, || None);
+        }
+        sink.tracking(robot);
+        self.twins[index] = Some(Box::new(twin));
+        Ok(())
+    }
+
+    /// End of input: waiting measured poses become unpaired, and every robot's final metrics go
+    /// out.
+    pub fn finish(&mut self, sink: &mut impl Sink) {
+        for twin in self.twins.iter_mut().flatten() {
+            twin.finish(sink);
+        }
+    }
+}
+
+impl Twin {
+    /// The twin of `robot` before any input, with its configured model. Tells no sink: the
+    /// caller announces the robot ([`Sink::tracking`]).
+    #[must_use]
+    pub fn new(robot: Robot, config: &PipelineConfig) -> Self {
+        let joint_count = robot.settings().model.joint_count();
+        Self {
+            model: Arc::clone(&robot.settings().model),
+            reservoir: robot
+                .settings()
+                .self_calibration
+                .map(|config| Box::new(PairReservoir::new(config))),
+            epoch: 0,
+            aligner: Aligner::new(config.align),
+            stats: None,
+            window_s: config.window_s,
+            window_max_samples: config.window_max_samples,
+            paired: 0,
+            unpaired: 0,
+            rejected: 0,
+            next_pose_seq: 0,
+            last_gateway_seq: None,
+            last_joint_s: None,
+            last_joints: Vec::with_capacity(joint_count),
+            last_pose: None,
+            last_measured_s: Vec::new(),
+            last_measured: None,
+            newest_s: f64::NEG_INFINITY,
+            alarms: [AlarmState::default(); 2],
+            dirty: false,
+            scratch_q: Vec::with_capacity(joint_count),
+            robot,
+        }
+    }
+
+    /// The twin of `robot` continued from `record`: counters, cumulative statistics, pose
+    /// `seq`, gateway `seq` and alarms as recorded, with new results due (its metrics go out
+    /// at the next periodic publication). Tells no sink ([`Twin::new`]).
+    pub fn restored(
+        robot: Robot,
+        config: &PipelineConfig,
+        record: &TwinRecord,
+    ) -> Result<Self, RestoreError> {
         let configured = &robot.settings().model.arm().name;
         if *configured != record.arm {
             return Err(RestoreError::Arm {
@@ -687,7 +644,7 @@ impl Pipeline {
                 Some(Arc::new(model))
             }
         };
-        let twin = self.track(robot, sink);
+        let mut twin = Self::new(robot, config);
         if let Some(model) = applied {
             twin.model = model;
         }
@@ -709,54 +666,214 @@ impl Pipeline {
                 since_s: None,
             };
         }
-        Ok(())
+        twin.dirty = true;
+        Ok(twin)
     }
 
-    /// End of input: waiting measured poses become unpaired, and every robot's final metrics go
-    /// out.
-    pub fn finish(&mut self, sink: &mut impl Sink) {
-        for twin in self.twins.iter_mut().flatten() {
-            for (pending, reason) in twin.aligner.finish() {
-                twin.unpaired_event(&pending, reason, sink);
+    /// Its robot.
+    #[must_use]
+    pub fn robot(&self) -> &Robot {
+        &self.robot
+    }
+
+    /// Rejects an input that could not be decoded (or was refused before reaching the twin):
+    /// one event, one count; `error` says why.
+    pub fn reject(
+        &mut self,
+        key: &str,
+        stamp_s: f64,
+        cause: RejectCause,
+        error: &dyn Error,
+        sink: &mut impl Sink,
+    ) {
+        self.dirty = true;
+        self.count_rejection(key, stamp_s, cause, Reason::Error(error), sink);
+    }
+
+    /// A decoded joint sample, stamped `stamp_s` ([`Pipeline::joints`]).
+    pub fn joints(&mut self, key: &str, stamp_s: f64, sample: &JointSample, sink: &mut impl Sink) {
+        self.dirty = true;
+        match self.accept_joints(key, stamp_s, sample, sink) {
+            Ok(pose) => {
+                // Older waiting poses first, so statistics and alarms see stamps in order.
+                self.pair_ready(sink);
+                if let Some(measured) = &sample.measured {
+                    let measured = self.to_output_frame(measured, MeasuredStream::Robot);
+                    if self.accept_measured_stamp(key, MeasuredStream::Robot, stamp_s, sink)
+                        && self.pair(key, stamp_s, &pose, measured, sink)
+                        && let Some(reservoir) = &mut self.reservoir
+                    {
+                        reservoir.offer(stamp_s, &sample.q_rad, &measured);
+                    }
+                }
             }
-            twin.dirty = false;
-            sink.metrics(&twin.robot, &twin.snapshot());
-        }
-    }
-}
-
-impl RobotTwin {
-    fn new(robot: Robot, config: &PipelineConfig) -> Self {
-        let joint_count = robot.settings().model.joint_count();
-        Self {
-            model: Arc::clone(&robot.settings().model),
-            reservoir: robot
-                .settings()
-                .self_calibration
-                .map(|config| Box::new(PairReservoir::new(config))),
-            epoch: 0,
-            aligner: Aligner::new(config.align),
-            stats: None,
-            window_s: config.window_s,
-            window_max_samples: config.window_max_samples,
-            paired: 0,
-            unpaired: 0,
-            rejected: 0,
-            next_pose_seq: 0,
-            last_gateway_seq: None,
-            last_joint_s: None,
-            last_joints: Vec::with_capacity(joint_count),
-            last_twin: None,
-            last_measured_s: Vec::new(),
-            last_measured: None,
-            newest_s: f64::NEG_INFINITY,
-            alarms: [AlarmState::default(); 2],
-            dirty: false,
-            scratch_q: Vec::with_capacity(joint_count),
-            robot,
+            Err(Refusal::Order) => {
+                // Resent or out of order: its measured part shares the stamp and is not counted
+                // a second time.
+            }
+            Err(Refusal::Joints) => {
+                // The joints were refused; a measured pose that came with them is still valid
+                // input and goes through the aligner like any other.
+                if let Some(measured) = &sample.measured {
+                    let measured = self.to_output_frame(measured, MeasuredStream::Robot);
+                    self.measured_in_frame(key, MeasuredStream::Robot, stamp_s, measured, sink);
+                }
+            }
         }
     }
 
+    /// A decoded measured pose from `stream`, stamped `stamp_s`.
+    pub fn measured(
+        &mut self,
+        key: &str,
+        stream: MeasuredStream,
+        stamp_s: f64,
+        pose: &PoseReadout,
+        sink: &mut impl Sink,
+    ) {
+        self.dirty = true;
+        let pose = self.to_output_frame(pose, stream);
+        self.measured_in_frame(key, stream, stamp_s, pose, sink);
+    }
+
+    /// Whether it has new results since its last metrics.
+    #[must_use]
+    pub fn is_due(&self) -> bool {
+        self.dirty
+    }
+
+    /// Its metrics if it has new results since its last ones, which they then count as sent
+    /// ([`Pipeline::take_due_metrics`]).
+    pub fn take_due_metrics(&mut self) -> Option<MetricsSnapshot> {
+        if !self.dirty {
+            return None;
+        }
+        self.dirty = false;
+        Some(self.snapshot())
+    }
+
+    /// Resets its statistics and counters; returns (and sends) the final snapshot before the
+    /// reset.
+    pub fn reset(&mut self, sink: &mut impl Sink) -> MetricsSnapshot {
+        let last = self.snapshot();
+        self.restart_statistics();
+        sink.metrics(&self.robot, &last);
+        last
+    }
+
+    /// The model its FK runs.
+    #[must_use]
+    pub fn model(&self) -> &Arc<RobotModel> {
+        &self.model
+    }
+
+    /// Its self-calibration reservoir, if it keeps one.
+    #[must_use]
+    pub fn reservoir(&self) -> Option<&PairReservoir> {
+        self.reservoir.as_deref()
+    }
+
+    /// Replaces its model and starts a new metrics epoch ([`Pipeline::replace_model`]).
+    pub fn replace_model(
+        &mut self,
+        model: Arc<RobotModel>,
+        sink: &mut impl Sink,
+    ) -> Result<MetricsSnapshot, ReplaceModelError> {
+        let expected = self.model.joint_count();
+        if model.joint_count() != expected {
+            return Err(ReplaceModelError::JointCount {
+                expected,
+                got: model.joint_count(),
+            });
+        }
+        let last = self.snapshot();
+        sink.metrics(&self.robot, &last);
+        self.restart_statistics();
+        self.model = model;
+        self.epoch += 1;
+        self.dirty = true;
+        let detail = EventDetail::Epoch { epoch: self.epoch };
+        let source = self
+            .model
+            .calibration()
+            .map_or("the nominal model", |c| c.source_name.as_str());
+        let event = self.event(
+            last.stamp_s,
+            EventKind::Epoch,
+            None,
+            detail,
+            Reason::ModelReplaced { source },
+        );
+        sink.event(&event);
+        Ok(last)
+    }
+
+    /// Its state view.
+    #[must_use]
+    pub fn state(&self) -> RobotState<'_> {
+        RobotState {
+            robot: self.robot.id(),
+            model: &self.model,
+            last_joints: self
+                .last_joint_s
+                .map(|stamp_s| (stamp_s, self.last_joints.as_slice())),
+            last_twin: self.last_pose.as_ref().map(|(s, p)| (*s, p)),
+            last_measured: self.last_measured.as_ref().map(|(s, p)| (*s, p)),
+            metrics: self.snapshot(),
+            alarms_active: [self.alarms[0].active, self.alarms[1].active],
+        }
+    }
+
+    /// What of it outlives the process.
+    #[must_use]
+    pub fn record(&self) -> TwinRecord {
+        TwinRecord {
+            robot: self.robot.id().to_owned(),
+            arm: self.model.arm().name.clone(),
+            epoch: self.epoch,
+            paired: self.paired,
+            unpaired: self.unpaired,
+            rejected: self.rejected,
+            next_pose_seq: self.next_pose_seq,
+            last_gateway_seq: self.last_gateway_seq,
+            cumulative: self.stats.as_ref().map_or_else(
+                || CumulativeStats::new().to_parts(),
+                |stats| stats.cumulative.to_parts(),
+            ),
+            alarms_active: [self.alarms[0].active, self.alarms[1].active],
+            applied: self.applied_model(),
+        }
+    }
+
+    /// End of input: waiting measured poses become unpaired, and its final metrics go out.
+    pub fn finish(&mut self, sink: &mut impl Sink) {
+        for (pending, reason) in self.aligner.finish() {
+            self.unpaired_event(&pending, reason, sink);
+        }
+        self.dirty = false;
+        sink.metrics(&self.robot, &self.snapshot());
+    }
+
+    /// What an applied calibration changed in its configured model, if one was applied.
+    fn applied_model(&self) -> Option<AppliedModel> {
+        if Arc::ptr_eq(&self.model, &self.robot.settings().model) {
+            return None;
+        }
+        let deltas = match self
+            .model
+            .calibration()
+            .map(|calibration| &calibration.form)
+        {
+            Some(CalibrationForm::MountingDeltas(deltas)) => *deltas,
+            // Applied models are identified as deltas: any other form is the configured one.
+            Some(_) => return None,
+            None => MountingDeltas::ZERO,
+        };
+        Some(AppliedModel {
+            deltas,
+            tool: *self.model.tool(),
+        })
+    }
     /// An event of this robot.
     fn event<'a>(
         &'a self,
@@ -790,7 +907,7 @@ impl RobotTwin {
     }
 
     /// One rejection: an event and a count.
-    fn reject(
+    fn count_rejection(
         &mut self,
         key: &str,
         stamp_s: f64,
@@ -818,19 +935,19 @@ impl RobotTwin {
                 KinematicsError::NonFinite { .. } => RejectCause::NonFinite,
                 KinematicsError::OutOfLimits { .. } => RejectCause::JointLimits,
             };
-            self.reject(key, stamp_s, cause, Reason::Error(&error), sink);
+            self.count_rejection(key, stamp_s, cause, Reason::Error(&error), sink);
             return Err(Refusal::Joints);
         }
         self.restart_if_clock_went_back(key, "joint", stamp_s, self.last_joint_s, sink);
         if let Some((cause, reason)) = stamp_problem("joint", stamp_s, self.last_joint_s) {
-            self.reject(key, stamp_s, cause, reason, sink);
+            self.count_rejection(key, stamp_s, cause, reason, sink);
             return Err(Refusal::Order);
         }
         if let Some(seq) = sample.seq {
             if let Some(last) = self.last_gateway_seq {
                 if seq <= last {
                     let reason = Reason::Seq { seq, last };
-                    self.reject(key, stamp_s, RejectCause::SeqNotIncreasing, reason, sink);
+                    self.count_rejection(key, stamp_s, RejectCause::SeqNotIncreasing, reason, sink);
                     return Err(Refusal::Order);
                 }
                 if seq != last + 1 {
@@ -863,7 +980,7 @@ impl RobotTwin {
         self.last_joint_s = Some(stamp_s);
         self.last_joints.clear();
         self.last_joints.extend_from_slice(&sample.q_rad);
-        self.last_twin = Some((stamp_s, pose));
+        self.last_pose = Some((stamp_s, pose));
         Ok(pose)
     }
 
@@ -926,7 +1043,7 @@ impl RobotTwin {
         self.restart_if_clock_went_back(key, "measured", stamp_s, last_s, sink);
         let last_s = self.last_measured_s.get(slot).copied().flatten();
         if let Some((cause, reason)) = stamp_problem("measured", stamp_s, last_s) {
-            self.reject(key, stamp_s, cause, reason, sink);
+            self.count_rejection(key, stamp_s, cause, reason, sink);
             return false;
         }
         if self.last_measured_s.len() <= slot {
@@ -951,7 +1068,8 @@ impl RobotTwin {
         }
     }
 
-    fn measured(
+    /// A measured pose already in the output frame.
+    fn measured_in_frame(
         &mut self,
         key: &str,
         stream: MeasuredStream,
@@ -1057,7 +1175,7 @@ impl RobotTwin {
                 position_m: measured.position_m,
                 distance_m: deviation.position_m,
             };
-            self.reject(key, stamp_s, RejectCause::OutOfRange, reason, sink);
+            self.count_rejection(key, stamp_s, RejectCause::OutOfRange, reason, sink);
             return false;
         }
         sink.deviation(&self.robot, stamp_s, &measured, &deviation);
@@ -1195,6 +1313,184 @@ mod tests {
     use std::collections::HashMap;
 
     use super::*;
+
+    /// Every result a sink gets, written down so two runs can be compared.
+    #[derive(Default)]
+    struct Transcript(Vec<String>);
+
+    impl Sink for Transcript {
+        fn tracking(&mut self, robot: &Robot) {
+            self.0.push(format!("tracking {}", robot.id()));
+        }
+        fn pose(
+            &mut self,
+            robot: &Robot,
+            stamp_s: f64,
+            seq: u64,
+            _: OutputFrame,
+            pose: &PoseReadout,
+        ) {
+            self.0
+                .push(format!("pose {} {stamp_s} {seq} {pose:?}", robot.id()));
+        }
+        fn deviation(
+            &mut self,
+            robot: &Robot,
+            stamp_s: f64,
+            _: &PoseReadout,
+            deviation: &Deviation,
+        ) {
+            self.0
+                .push(format!("deviation {} {stamp_s} {deviation:?}", robot.id()));
+        }
+        fn event(&mut self, event: &Event<'_>) {
+            self.0.push(format!("event {} {event}", event.robot));
+        }
+        fn metrics(&mut self, robot: &Robot, snapshot: &MetricsSnapshot) {
+            self.0.push(format!("metrics {} {snapshot:?}", robot.id()));
+        }
+    }
+
+    /// One input of a test run, given to a pipeline or to a twin alone.
+    enum Input {
+        Joints(f64, JointSample),
+        Measured(f64, PoseReadout),
+        Undecodable(f64),
+        DueMetrics,
+    }
+
+    /// Joints, some with a measured pose 2 mm off (paired, alarming), repeated stamps, measured
+    /// poses that wait for the next joints, decoding failures and periodic metrics: every path
+    /// a twin takes.
+    fn mixed_inputs(model: &RobotModel) -> Vec<Input> {
+        let q_rad = vec![0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
+        let mut off = model.pose(&q_rad).expect("valid").readout();
+        off.position_m[1] += 0.002;
+        let mut inputs = Vec::new();
+        for i in 0..40_u32 {
+            let stamp_s = f64::from(i) * 0.01;
+            let joints = JointSample {
+                stamp_s: None,
+                seq: Some(u64::from(i)),
+                q_rad: q_rad.clone(),
+                measured: (i % 3 == 0).then_some(off),
+            };
+            if i % 7 == 0 {
+                inputs.push(Input::Joints(stamp_s, joints.clone()));
+            }
+            inputs.push(Input::Joints(stamp_s, joints));
+            if i % 5 == 0 {
+                inputs.push(Input::Measured(stamp_s + 0.005, off));
+            }
+            if i % 11 == 0 {
+                inputs.push(Input::Undecodable(stamp_s));
+            }
+            if i % 10 == 9 {
+                inputs.push(Input::DueMetrics);
+            }
+        }
+        inputs
+    }
+
+    #[test]
+    fn a_twin_stepped_alone_gives_what_the_pipeline_gives() {
+        let model = Arc::new(RobotModel::nominal("ur10e").expect("catalog"));
+        let settings = RobotSettings {
+            model: Arc::clone(&model),
+            alarm: AlarmConfig {
+                position_m: Some(0.001),
+                angle_rad: None,
+                hold_s: 0.0,
+            },
+            sensors: Vec::new(),
+            self_calibration: None,
+        };
+        let mut robots = RobotDirectory::new(Some(settings), HashMap::new());
+        let r1 = robots.admit("r1").expect("default settings").clone();
+        let config = PipelineConfig::default();
+        let error = std::fmt::Error;
+        let stream = MeasuredStream::Robot;
+
+        let mut pipeline = Pipeline::new(config);
+        let mut through_pipeline = Transcript::default();
+        let sink = &mut through_pipeline;
+        for input in mixed_inputs(&model) {
+            match input {
+                Input::Joints(stamp_s, joints) => pipeline.joints(&r1, "j", stamp_s, &joints, sink),
+                Input::Measured(stamp_s, pose) => {
+                    pipeline.measured(&r1, "m", stream, stamp_s, &pose, sink);
+                }
+                Input::Undecodable(stamp_s) => {
+                    pipeline.reject(&r1, "j", stamp_s, RejectCause::NonFinite, &error, sink);
+                }
+                Input::DueMetrics => {
+                    for index in pipeline.robots_with_due_metrics() {
+                        let snapshot = pipeline.take_due_metrics(index).expect("due");
+                        sink.metrics(&r1, &snapshot);
+                    }
+                }
+            }
+        }
+        let records = pipeline.records();
+        pipeline.finish(sink);
+
+        let mut alone = Transcript::default();
+        let sink = &mut alone;
+        sink.tracking(&r1);
+        let mut twin = Twin::new(r1.clone(), &config);
+        for input in mixed_inputs(&model) {
+            match input {
+                Input::Joints(stamp_s, joints) => twin.joints("j", stamp_s, &joints, sink),
+                Input::Measured(stamp_s, pose) => twin.measured("m", stream, stamp_s, &pose, sink),
+                Input::Undecodable(stamp_s) => {
+                    twin.reject("j", stamp_s, RejectCause::NonFinite, &error, sink);
+                }
+                Input::DueMetrics => {
+                    if let Some(snapshot) = twin.take_due_metrics() {
+                        sink.metrics(&r1, &snapshot);
+                    }
+                }
+            }
+        }
+        let record = twin.record();
+        twin.finish(sink);
+
+        let count = |kind: &str| alone.0.iter().filter(|line| line.starts_with(kind)).count();
+        assert_eq!(count("pose"), 40, "the repeated stamps are rejected");
+        assert!(count("deviation") > 0 && count("metrics") >= 5 && count("event") > 0);
+        assert_eq!(alone.0, through_pipeline.0);
+        assert_eq!(records, vec![record]);
+    }
+
+    #[test]
+    fn a_restored_twin_is_due_and_refuses_another_arm() {
+        let model = Arc::new(RobotModel::nominal("ur10e").expect("catalog"));
+        let settings = RobotSettings {
+            model: Arc::clone(&model),
+            alarm: AlarmConfig::default(),
+            sensors: Vec::new(),
+            self_calibration: None,
+        };
+        let mut robots = RobotDirectory::new(Some(settings), HashMap::new());
+        let r1 = robots.admit("r1").expect("default settings").clone();
+        let config = PipelineConfig::default();
+        let mut pipeline = Pipeline::new(config);
+        for input in mixed_inputs(&model) {
+            if let Input::Joints(stamp_s, joints) = input {
+                pipeline.joints(&r1, "j", stamp_s, &joints, &mut Discard);
+            }
+        }
+        let record = pipeline.records().remove(0);
+        let restored = Twin::restored(r1.clone(), &config, &record).expect("same arm");
+        assert!(restored.is_due(), "as a pipeline's restored twin");
+        assert_eq!(restored.record(), record);
+        let mut foreign = record;
+        foreign.arm = "ur5e".to_owned();
+        assert!(matches!(
+            Twin::restored(r1, &config, &foreign),
+            Err(RestoreError::Arm { .. })
+        ));
+    }
 
     #[test]
     fn statistics_start_with_the_first_pair_and_follow_source_time() {

@@ -1483,7 +1483,7 @@ fn check_joint_count(
 }
 
 /// Checks a source's key expression: valid, clear of armtwin's own inputs and outputs and of
-/// its twin pose outputs (a local put is delivered in the publishing thread, which holds the twin's lock),
+/// its twin pose outputs (a local put is delivered in the publishing thread, which holds the robot's lock),
 /// disjoint from the sources before it, and able to name a robot under its rule.
 fn check_source_key(
     index: usize,

@@ -4,8 +4,10 @@
 //!
 //! Two steps, so a caller that shares the pipeline can decode without holding it: decoding
 //! ([`JointMessage::decode`], [`MeasuredMessage::decode`]) needs only the robot's immutable
-//! settings; stepping the pipeline with the result ([`JointMessage::step`],
-//! [`MeasuredMessage::step`]) is the only part that touches the twin. [`joint_message`] and
+//! settings; stepping a [`Target`] with the result ([`JointMessage::step`],
+//! [`MeasuredMessage::step`]) is the only part that touches the twin. The target is the whole
+//! [`Pipeline`] offline, or the robot's own [`Twin`] in the service, which locks each robot on
+//! its own. [`joint_message`] and
 //! [`measured_message`] do both. ROS 2 messages of a `codec = "ros2"` source take the same two
 //! steps ([`Ros2JointMessage`], [`Ros2PoseMessage`]) into the same pipeline calls.
 //!
@@ -29,9 +31,118 @@ use zenoh::bytes::Encoding;
 use crate::codec::cdr::{self, CdrError, JointNames};
 use crate::codec::wire::{self, DecodedJoints, Undecodable, WireError};
 use crate::codec::zser;
-use crate::pipeline::{self, MeasuredStream, Pipeline, RejectCause, Robot, Sink};
+use crate::kinematics::PoseReadout;
+use crate::pipeline::{self, MeasuredStream, Pipeline, RejectCause, Robot, Sink, Twin};
 use crate::ros2::AttachmentError;
 use crate::sample::{JointSample, MeasuredSample};
+
+/// What a decoded message steps: a [`Pipeline`], which finds (or starts) the robot's twin, or
+/// that robot's [`Twin`] itself, which ignores the handle it already holds.
+pub trait Target {
+    /// [`Pipeline::joints`].
+    fn joints(
+        &mut self,
+        robot: &Robot,
+        key: &str,
+        stamp_s: f64,
+        sample: &JointSample,
+        sink: &mut impl Sink,
+    );
+    /// [`Pipeline::measured`].
+    fn measured(
+        &mut self,
+        robot: &Robot,
+        key: &str,
+        stream: MeasuredStream,
+        stamp_s: f64,
+        pose: &PoseReadout,
+        sink: &mut impl Sink,
+    );
+    /// [`Pipeline::reject`].
+    fn reject(
+        &mut self,
+        robot: &Robot,
+        key: &str,
+        stamp_s: f64,
+        cause: RejectCause,
+        error: &dyn std::error::Error,
+        sink: &mut impl Sink,
+    );
+}
+
+impl Target for Pipeline {
+    fn joints(
+        &mut self,
+        robot: &Robot,
+        key: &str,
+        stamp_s: f64,
+        sample: &JointSample,
+        sink: &mut impl Sink,
+    ) {
+        Pipeline::joints(self, robot, key, stamp_s, sample, sink);
+    }
+
+    fn measured(
+        &mut self,
+        robot: &Robot,
+        key: &str,
+        stream: MeasuredStream,
+        stamp_s: f64,
+        pose: &PoseReadout,
+        sink: &mut impl Sink,
+    ) {
+        Pipeline::measured(self, robot, key, stream, stamp_s, pose, sink);
+    }
+
+    fn reject(
+        &mut self,
+        robot: &Robot,
+        key: &str,
+        stamp_s: f64,
+        cause: RejectCause,
+        error: &dyn std::error::Error,
+        sink: &mut impl Sink,
+    ) {
+        Pipeline::reject(self, robot, key, stamp_s, cause, error, sink);
+    }
+}
+
+impl Target for Twin {
+    fn joints(
+        &mut self,
+        _robot: &Robot,
+        key: &str,
+        stamp_s: f64,
+        sample: &JointSample,
+        sink: &mut impl Sink,
+    ) {
+        Twin::joints(self, key, stamp_s, sample, sink);
+    }
+
+    fn measured(
+        &mut self,
+        _robot: &Robot,
+        key: &str,
+        stream: MeasuredStream,
+        stamp_s: f64,
+        pose: &PoseReadout,
+        sink: &mut impl Sink,
+    ) {
+        Twin::measured(self, key, stream, stamp_s, pose, sink);
+    }
+
+    fn reject(
+        &mut self,
+        _robot: &Robot,
+        key: &str,
+        stamp_s: f64,
+        cause: RejectCause,
+        error: &dyn std::error::Error,
+        sink: &mut impl Sink,
+    ) {
+        Twin::reject(self, key, stamp_s, cause, error, sink);
+    }
+}
 
 /// How a source's payloads are encoded (`[[sources]] codec`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -155,8 +266,8 @@ impl JointMessage {
         }
     }
 
-    /// Steps `pipeline` with the message, which arrived on `key`.
-    pub fn step(&self, pipeline: &mut Pipeline, robot: &Robot, key: &str, sink: &mut impl Sink) {
+    /// Steps `pipeline` (or a twin) with the message, which arrived on `key`.
+    pub fn step(&self, pipeline: &mut impl Target, robot: &Robot, key: &str, sink: &mut impl Sink) {
         match &self.decoded {
             Ok(decoded) => {
                 if let Some(error) = &decoded.measured_error {
@@ -197,10 +308,10 @@ impl MeasuredMessage {
         }
     }
 
-    /// Steps `pipeline` with the message of `robot`'s `stream`, which arrived on `key`.
+    /// Steps `pipeline` (or a twin) with the message of `robot`'s `stream`, which arrived on `key`.
     pub fn step(
         &self,
-        pipeline: &mut Pipeline,
+        pipeline: &mut impl Target,
         robot: &Robot,
         key: &str,
         stream: MeasuredStream,
@@ -262,7 +373,7 @@ pub fn unknown_robot(
 
 /// One rejection (event and count) for a message, or part of one, that did not decode.
 fn reject(
-    pipeline: &mut Pipeline,
+    pipeline: &mut impl Target,
     robot: &Robot,
     key: &str,
     stamp_s: f64,
@@ -308,8 +419,8 @@ impl Ros2JointMessage {
         }
     }
 
-    /// Steps `pipeline` with the message, which arrived on `key`.
-    pub fn step(&self, pipeline: &mut Pipeline, robot: &Robot, key: &str, sink: &mut impl Sink) {
+    /// Steps `pipeline` (or a twin) with the message, which arrived on `key`.
+    pub fn step(&self, pipeline: &mut impl Target, robot: &Robot, key: &str, sink: &mut impl Sink) {
         match &self.decoded {
             Ok(sample) => pipeline.joints(robot, key, self.stamp_s, sample, sink),
             Err(error) => pipeline.reject(robot, key, self.stamp_s, error.cause(), error, sink),
@@ -357,10 +468,10 @@ impl Ros2PoseMessage {
         self.stamp_s
     }
 
-    /// Steps `pipeline` with the pose of `robot`'s `stream`, which arrived on `key`.
+    /// Steps `pipeline` (or a twin) with the pose of `robot`'s `stream`, which arrived on `key`.
     pub fn step(
         &self,
-        pipeline: &mut Pipeline,
+        pipeline: &mut impl Target,
         robot: &Robot,
         key: &str,
         stream: MeasuredStream,
@@ -378,7 +489,7 @@ impl Ros2PoseMessage {
 /// One rejection (event and count) for an `rmw_zenoh` attachment that does not parse; the
 /// sample it came with is stepped on its own, without a sequence number.
 pub fn reject_attachment(
-    pipeline: &mut Pipeline,
+    pipeline: &mut impl Target,
     robot: &Robot,
     key: &str,
     stamp_s: f64,

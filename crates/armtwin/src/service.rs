@@ -4,10 +4,11 @@
 //! `[[sources]]` entry: JSON or ROS 2 on keys of their own), the per-robot publishers (the twin
 //! pose as a ROS 2 `PoseStamped` among them, for robots with `ros2_pose`) and liveliness tokens,
 //! and the ordered teardown. Samples and queries are handled in Zenoh's callbacks: each sample
-//! resolves its robot and decodes against the robot's immutable settings first, then steps the
-//! pipeline under one lock (see [`SharedTwin`]); a control thread declares newly tracked robots'
-//! entities, publishes the periodic metrics (and the snapshot, with `[service] state_dir`) and
-//! finishes the pipeline at shutdown.
+//! resolves its robot and decodes against the robot's immutable settings first, then steps that
+//! robot's twin under the robot's own lock, so robots arriving on different links never wait on
+//! each other (see [`SharedTwin`]); a control thread declares newly tracked robots' entities,
+//! publishes the periodic metrics (and the snapshot, with `[service] state_dir`) and finishes
+//! every twin at shutdown, each robot locked in turn.
 //!
 //! An instance owns the robots of `[service] robots`: its wildcard subscriptions and queryables
 //! cover those ids alone, and it claims them on the mesh (`<prefix>/shards/<zid>`) before taking
@@ -25,6 +26,7 @@
 use std::collections::VecDeque;
 use std::future::{Future, IntoFuture};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, channel};
 use std::sync::{Mutex, MutexGuard, PoisonError, RwLock, RwLockReadGuard};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
@@ -56,8 +58,8 @@ use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
 use crate::model::RobotModel;
 use crate::pipeline::{
-    Discard, Event, EventDetail, EventKind, MeasuredStream, MetricsSnapshot, Pipeline, RejectCause,
-    Robot, RobotDirectory, RobotIndex, Sink, TwinRecord,
+    Event, EventDetail, EventKind, MeasuredStream, MetricsSnapshot, PipelineConfig, RejectCause,
+    ReplaceModelError, RestoreError, Robot, RobotDirectory, RobotIndex, Sink, Twin, TwinRecord,
 };
 use crate::ros2::{self, Attachment, KeyScheme, PoseOutputs, PublisherSeq};
 use crate::self_calibration::{self, CalibrationBatch, Estimate};
@@ -199,7 +201,7 @@ pub(crate) async fn bounded<T>(
 }
 
 /// Runs the service until `shutdown` completes, then tears down in order: stop intake, finish
-/// the pipeline (final metrics for every robot), undeclare, close the session.
+/// every twin (final metrics for every robot), undeclare, close the session.
 pub async fn serve(
     config: ServiceConfig,
     shutdown: impl Future<Output = ()>,
@@ -381,11 +383,11 @@ async fn declare_intake(
     }
     declare_sources(session, config, twin, &mut subscribers).await?;
     let queries: [(&str, QueryHandler); 5] = [
-        ("state", TwinState::state),
-        ("fk", TwinState::fk),
-        ("reset", TwinState::reset),
-        ("ik", TwinState::ik),
-        ("calibrate", TwinState::calibrate),
+        ("state", SharedTwin::state),
+        ("fk", SharedTwin::fk),
+        ("reset", SharedTwin::reset),
+        ("ik", SharedTwin::ik),
+        ("calibrate", SharedTwin::calibrate),
     ];
     for (stream, handler) in queries {
         let query_twin = twin.clone();
@@ -507,30 +509,60 @@ fn restore_snapshot(store: &SnapshotStore, twin: &SharedTwin, config: &ServiceCo
         };
         robots.push((robot.clone(), record));
     }
-    // A trial run first: one foreign record refuses the whole file, before any twin exists.
-    let mut trial = Pipeline::new(config.pipeline);
-    for (robot, record) in &robots {
-        if let Err(e) = trial.restore(robot, record, &mut Discard) {
-            refuse(&foreign(e.to_string()));
+    // Every twin is built before any is installed: one foreign record (or a robot recorded
+    // twice) refuses the whole file, before any twin exists.
+    let mut restored: Vec<Twin> = Vec::with_capacity(robots.len());
+    for (robot, record) in robots {
+        if restored
+            .iter()
+            .any(|twin| twin.robot().index() == robot.index())
+        {
+            let twice = RestoreError::AlreadyTracked {
+                robot: robot.id().to_owned(),
+            };
+            refuse(&foreign(twice.to_string()));
             return;
         }
-    }
-    let mut guard = twin.lock();
-    let state = &mut *guard;
-    for (robot, record) in &robots {
-        if let Err(e) = state.pipeline.restore(robot, record, &mut state.sink) {
-            warn!(robot = robot.id(), error = %e, "twin not restored");
+        match Twin::restored(robot, &config.pipeline, record) {
+            Ok(twin) => restored.push(twin),
+            Err(e) => {
+                refuse(&foreign(e.to_string()));
+                return;
+            }
         }
     }
-    info!(%path, robots = robots.len(), "twins restored from the snapshot");
+    let count = restored.len();
+    for restored in restored {
+        let entry = twin.entry(restored.robot());
+        let mut guard = entry.lock();
+        let state = &mut *guard;
+        if state.twin.is_some() {
+            let error = RestoreError::AlreadyTracked {
+                robot: entry.robot.id().to_owned(),
+            };
+            warn!(robot = entry.robot.id(), %error, "twin not restored");
+            continue;
+        }
+        RobotSink::of(&twin.output, &mut state.outputs).tracking(&entry.robot);
+        state.twin = Some(restored);
+    }
+    info!(%path, robots = count, "twins restored from the snapshot");
 }
 
-/// Writes the snapshot of every tracked twin, taken under the lock and written after it.
+/// Writes the snapshot of every tracked twin: each robot's record taken under its own lock,
+/// one robot at a time, and the file written after.
 fn save_snapshot(twin: &SharedTwin, store: &SnapshotStore) {
-    let records = twin.lock().pipeline.records();
+    let records: Vec<TwinRecord> = twin
+        .entries()
+        .iter()
+        .filter_map(|entry| entry.lock().twin.as_ref().map(Twin::record))
+        .collect();
     match store.save(&records) {
         Ok(()) => {
-            twin.lock().snapshot_written = Some(Instant::now());
+            *twin
+                .snapshot_written
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner) = Some(Instant::now());
             debug!(robots = records.len(), "snapshot written");
         }
         Err(e) => warn!(error = %e, "snapshot not written"),
@@ -538,7 +570,7 @@ fn save_snapshot(twin: &SharedTwin, store: &SnapshotStore) {
 }
 
 /// Refuses a sensor key expression that would receive armtwin's own outputs: a local put is
-/// delivered in the publishing thread, which already holds the twin's lock.
+/// delivered in the publishing thread, which already holds the publishing robot's lock.
 fn check_sensor_key(prefix: &str, robot: &str, key_expr: &str) -> Result<(), ServiceError> {
     let sensor = KeyExpr::try_from(key_expr)?;
     for stream in Stream::ALL {
@@ -562,10 +594,10 @@ async fn declare_sources(
     twin: &Arc<SharedTwin>,
     subscribers: &mut Vec<zenoh::pubsub::Subscriber<()>>,
 ) -> Result<(), ServiceError> {
-    for source in &config.sources {
+    for (index, source) in config.sources.iter().enumerate() {
         let intake = Arc::new(SourceIntake {
+            index,
             config: source.clone(),
-            publisher_seq: Mutex::new(Vec::new()),
         });
         let source_twin = twin.clone();
         subscribers.push(
@@ -586,26 +618,28 @@ async fn declare_sources(
 
 /// A `[[sources]]` entry as the service runs it.
 struct SourceIntake {
+    /// Its place in `[[sources]]`: what a robot's entry keys the source's sequence numbers by.
+    index: usize,
     config: SourceConfig,
-    /// By robot index: how the source's `rmw_zenoh` sequence numbers become gateway `seq`s.
-    /// Locked only under the twin's lock.
-    publisher_seq: Mutex<Vec<Option<PublisherSeq>>>,
 }
 
 impl SourceIntake {
-    /// The gateway `seq` of a joint sample of `robot` with `attachment`.
-    fn gateway_seq(&self, robot: &Robot, attachment: &Attachment) -> u64 {
-        let mut by_robot = self
-            .publisher_seq
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner);
-        let index = robot.index().get();
-        if by_robot.len() <= index {
-            by_robot.resize_with(index + 1, || None);
-        }
-        let (seq, changed) = by_robot[index]
-            .get_or_insert_with(PublisherSeq::default)
-            .gateway_seq(attachment);
+    /// The gateway `seq` of a joint sample of `robot` with `attachment`; `by_source` is the
+    /// robot's [`EntryState::publisher_seqs`], so only the robot's own lock is held.
+    fn gateway_seq(
+        &self,
+        robot: &Robot,
+        attachment: &Attachment,
+        by_source: &mut Vec<(usize, PublisherSeq)>,
+    ) -> u64 {
+        let known = by_source
+            .iter()
+            .position(|(source, _)| *source == self.index);
+        let position = known.unwrap_or_else(|| {
+            by_source.push((self.index, PublisherSeq::default()));
+            by_source.len() - 1
+        });
+        let (seq, changed) = by_source[position].1.gateway_seq(attachment);
         if changed {
             info!(
                 robot = robot.id(),
@@ -648,10 +682,11 @@ fn robot_of<'k>(prefix: &str, key: &'k str, stream: &str) -> Option<&'k str> {
         .filter(|robot| !robot.is_empty() && !robot.contains(['*', '$']))
 }
 
-/// Answers one kind of query with the twin locked.
-type QueryHandler = fn(&RobotDirectory, &mut TwinState, &Query);
+/// Answers one kind of query; each handler locks the robots it reads one at a time.
+type QueryHandler = fn(&SharedTwin, &Query);
 
-/// The twin shared by Zenoh's callbacks and the control thread.
+/// The twin shared by Zenoh's callbacks and the control thread: every robot's twin and outputs
+/// behind a lock of its own ([`RobotEntry`]).
 ///
 /// Samples are processed in Zenoh's receive callback itself, as the plain echo does: decode, FK,
 /// statistics and the outputs' `put` take a few microseconds, and doing them there saves a queue,
@@ -659,44 +694,122 @@ type QueryHandler = fn(&RobotDirectory, &mut TwinState, &Query);
 /// its link is not read.
 ///
 /// A sample finds its robot in `robots` under a read lock (one hash of the id; a robot under the
-/// default settings is admitted, under the write lock, on its first input), decodes against the
-/// robot's settings, and only then takes `state`, the lock that callbacks of different links take
-/// turns on. Lock order: `robots`, then `state`; nothing that holds `state` takes `robots`.
-/// Nothing that can wait on the network runs under `state` except `put` (with `block` congestion
-/// control, as the echo): declarations are made on the control thread.
+/// default settings is admitted, under the write lock, on its first input), then the robot's
+/// entry in `entries` under that vector's read lock (added, under its write lock, on the robot's
+/// first input), and clones the entry's `Arc` out: no shared lock is held while it decodes
+/// against the entry's robot and steps the twin under the entry's own lock. Samples of different
+/// robots never wait on each other's processing; samples of one robot take turns on its lock.
+///
+/// Lock order: `robots` (read), then `entries` (read), then one robot entry. Nothing that holds
+/// a robot entry takes `robots`, `entries`' write lock or another robot's entry; under an entry
+/// only leaf locks are taken, briefly and never across a `put` (the untracked robots' event
+/// bucket). Nothing that can wait on the network runs under a robot's lock except its own
+/// outputs' `put` (events and metrics with `block` congestion control, as the echo): a
+/// subscriber that stops reading them stalls that robot and the Zenoh link's receive thread its
+/// input arrived on, not the other robots. Declarations are made on the control thread.
 struct SharedTwin {
     prefix: String,
     /// `[service] robots`.
     shard: KeyExpr<'static>,
+    pipeline: PipelineConfig,
     robots: RwLock<RobotDirectory>,
-    state: Mutex<TwinState>,
+    /// By robot index, from the robot's first input (or its restored twin) on.
+    entries: RwLock<Vec<Option<Arc<RobotEntry>>>>,
+    /// What every robot's outputs share.
+    output: Output,
+    /// Inputs (samples and queries) processed.
+    inputs: AtomicU64,
+    /// Set by the control thread before it finishes the twins, each under its robot's lock:
+    /// an input that takes a robot's lock after its twin was finished sees it and is ignored.
+    stopped: AtomicBool,
+    /// When the snapshot was last written (with `state_dir`).
+    snapshot_written: Mutex<Option<Instant>>,
+}
+
+/// One robot's place in the service: its handle, readable without a lock, beside the lock of
+/// everything of it that changes.
+struct RobotEntry {
+    robot: Robot,
+    state: Mutex<EntryState>,
+}
+
+impl RobotEntry {
+    fn lock(&self) -> MutexGuard<'_, EntryState> {
+        // A panic in a callback leaves the twin as consistent as each step left it; keep going.
+        self.state.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+}
+
+/// A robot's twin, its outputs' state and its self-calibration; behind its [`RobotEntry`]'s lock.
+#[derive(Default)]
+struct EntryState {
+    /// `None` until the robot's first input; its creation announces the robot
+    /// ([`Sink::tracking`]).
+    twin: Option<Twin>,
+    outputs: RobotOutputState,
+    calibration: CalibrationSlot,
+    /// By `[[sources]]` index: how a ROS source's `rmw_zenoh` sequence numbers become gateway
+    /// `seq`s (a robot has one or two sources at most: a short list beats a map).
+    publisher_seqs: Vec<(usize, PublisherSeq)>,
+}
+
+/// One robot's twin locked for an input, with what the input's step needs beside it.
+struct Stepping<'a> {
+    twin: &'a mut Twin,
+    sink: RobotSink<'a>,
+    publisher_seqs: &'a mut Vec<(usize, PublisherSeq)>,
+}
+
+impl EntryState {
+    /// The robot's twin (created, and the robot announced, on its first input) and a sink of its
+    /// outputs: the twin and the sink borrow separate parts of the entry.
+    fn stepping<'a>(
+        &'a mut self,
+        robot: &Robot,
+        config: &PipelineConfig,
+        output: &'a Output,
+    ) -> Stepping<'a> {
+        let mut sink = RobotSink::of(output, &mut self.outputs);
+        let twin = self.twin.get_or_insert_with(|| {
+            sink.tracking(robot);
+            Twin::new(robot.clone(), config)
+        });
+        Stepping {
+            twin,
+            sink,
+            publisher_seqs: &mut self.publisher_seqs,
+        }
+    }
 }
 
 impl SharedTwin {
-    /// No robot tracked yet; the sink publishes through `declarer` and asks the control thread
-    /// (`control`) to declare new robots.
+    /// No robot tracked yet; outputs go out through `declarer`, and new robots are handed to the
+    /// control thread (`control`) to declare.
     fn new(config: &ServiceConfig, declarer: &Declarer, control: Sender<Control>) -> Self {
         Self {
             prefix: config.key_prefix.clone(),
             shard: config.shard.clone(),
+            pipeline: config.pipeline,
             robots: RwLock::new(RobotDirectory::new(
                 config.default_robot.clone(),
                 config.robots.clone(),
             )),
-            state: Mutex::new(TwinState {
-                pipeline: Pipeline::new(config.pipeline),
-                sink: ZenohSink::new(declarer.clone(), control, config.event_budget),
-                calibrations: Vec::new(),
-                inputs: 0,
-                snapshot_written: None,
-                stopped: false,
-            }),
+            entries: RwLock::new(Vec::new()),
+            output: Output {
+                declarer: declarer.clone(),
+                control,
+                event_budget: config.event_budget,
+                untracked_bucket: Mutex::new(EventBucket::full(
+                    config.event_budget,
+                    Instant::now(),
+                )),
+                poses: AtomicU64::new(0),
+                publish_errors: AtomicU64::new(0),
+            },
+            inputs: AtomicU64::new(0),
+            stopped: AtomicBool::new(false),
+            snapshot_written: Mutex::new(None),
         }
-    }
-
-    fn lock(&self) -> MutexGuard<'_, TwinState> {
-        // A panic in a callback leaves the pipeline as consistent as each step left it; keep going.
-        self.state.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
     fn read_robots(&self) -> RwLockReadGuard<'_, RobotDirectory> {
@@ -704,9 +817,62 @@ impl SharedTwin {
         self.robots.read().unwrap_or_else(PoisonError::into_inner)
     }
 
-    /// Runs `step` with the handle of robot `id`, whose input arrived on `key`: found under the
-    /// read lock or, on a robot's first input, admitted under the default settings. The input of
-    /// a robot that may not be tracked is rejected as such instead.
+    /// Robot `index`'s entry, if it has one.
+    fn existing_entry(&self, index: RobotIndex) -> Option<Arc<RobotEntry>> {
+        // Grows only, one whole entry at a time, like the directory.
+        let entries = self.entries.read().unwrap_or_else(PoisonError::into_inner);
+        entries.get(index.get())?.clone()
+    }
+
+    /// `robot`'s entry, added on first use.
+    fn entry(&self, robot: &Robot) -> Arc<RobotEntry> {
+        if let Some(entry) = self.existing_entry(robot.index()) {
+            return entry;
+        }
+        let mut entries = self.entries.write().unwrap_or_else(PoisonError::into_inner);
+        let index = robot.index().get();
+        if entries.len() <= index {
+            entries.resize_with(index + 1, || None);
+        }
+        Arc::clone(entries[index].get_or_insert_with(|| {
+            Arc::new(RobotEntry {
+                robot: robot.clone(),
+                state: Mutex::new(EntryState::default()),
+            })
+        }))
+    }
+
+    /// Every robot's entry, in index order: taken out so the robots can be locked one by one.
+    fn entries(&self) -> Vec<Arc<RobotEntry>> {
+        let entries = self.entries.read().unwrap_or_else(PoisonError::into_inner);
+        entries.iter().flatten().cloned().collect()
+    }
+
+    /// `entry`'s state, locked, unless the service stopped (checked under the lock: the control
+    /// thread finishes each twin under its lock once `stopped` is set).
+    fn unless_stopped<'e>(&self, entry: &'e RobotEntry) -> Option<MutexGuard<'e, EntryState>> {
+        let guard = entry.lock();
+        (!self.stopped.load(Ordering::Acquire)).then_some(guard)
+    }
+
+    /// `entry`'s state for one more input, unless the service stopped.
+    fn running<'e>(&self, entry: &'e RobotEntry) -> Option<MutexGuard<'e, EntryState>> {
+        let guard = self.unless_stopped(entry)?;
+        self.inputs.fetch_add(1, Ordering::Relaxed);
+        Some(guard)
+    }
+
+    /// Steps `entry`'s twin with one input under the robot's lock alone, unless the service
+    /// stopped.
+    fn step(&self, entry: &RobotEntry, input: impl FnOnce(Stepping<'_>)) {
+        if let Some(mut guard) = self.running(entry) {
+            input(guard.stepping(&entry.robot, &self.pipeline, &self.output));
+        }
+    }
+
+    /// Runs `step` with the entry of robot `id`, whose input arrived on `key`: found under the
+    /// read locks or, on a robot's first input, admitted under the default settings. The input
+    /// of a robot that may not be tracked is rejected as such instead.
     fn with_robot(
         &self,
         id: &str,
@@ -714,15 +880,21 @@ impl SharedTwin {
         codec: Codec,
         payload: &[u8],
         fallback_s: impl FnOnce() -> f64,
-        step: impl FnOnce(&Robot),
+        step: impl FnOnce(&RobotEntry),
     ) {
-        let admits_unlisted = {
+        let found = {
             let robots = self.read_robots();
-            if let Some(robot) = robots.find(id) {
-                step(robot);
+            match robots.find(id) {
+                Some(robot) => Ok(self.entry(robot)),
+                None => Err(robots.admits_unlisted()),
+            }
+        };
+        let admits_unlisted = match found {
+            Ok(entry) => {
+                step(&entry);
                 return;
             }
-            robots.admits_unlisted()
+            Err(admits_unlisted) => admits_unlisted,
         };
         // Inputs of another instance's robots reach this one only through a `[[sources]]` key
         // that covers several shards: they are that instance's to take.
@@ -739,14 +911,16 @@ impl SharedTwin {
                 .admit(id)
                 .is_ok();
         if !admitted {
-            let mut guard = self.lock();
-            if let Some(state) = guard.running() {
-                ingest::unknown_robot(id, key, codec, payload, fallback_s, &mut state.sink);
+            if !self.stopped.load(Ordering::Acquire) {
+                self.inputs.fetch_add(1, Ordering::Relaxed);
+                let mut sink = RobotSink::untracked(&self.output);
+                ingest::unknown_robot(id, key, codec, payload, fallback_s, &mut sink);
             }
             return;
         }
-        if let Some(robot) = self.read_robots().find(id) {
-            step(robot);
+        let entry = self.read_robots().find(id).map(|robot| self.entry(robot));
+        if let Some(entry) = entry {
+            step(&entry);
         }
     }
 
@@ -759,12 +933,12 @@ impl SharedTwin {
         let payload = sample.payload().to_bytes();
         let codec = Codec::from_encoding(sample.encoding());
         let fallback_s = || transport_stamp_s(sample);
-        self.with_robot(id, key, codec, &payload, fallback_s, |robot| {
+        self.with_robot(id, key, codec, &payload, fallback_s, |entry| {
+            let robot = &entry.robot;
             let message = JointMessage::decode(robot, codec, &payload, fallback_s);
-            let mut guard = self.lock();
-            if let Some(state) = guard.running() {
-                message.step(&mut state.pipeline, robot, key, &mut state.sink);
-            }
+            self.step(entry, |mut locked| {
+                message.step(locked.twin, robot, key, &mut locked.sink);
+            });
         });
     }
 
@@ -777,16 +951,17 @@ impl SharedTwin {
         let payload = sample.payload().to_bytes();
         let codec = Codec::from_encoding(sample.encoding());
         let fallback_s = || transport_stamp_s(sample);
-        self.with_robot(id, key, codec, &payload, fallback_s, |robot| {
-            self.measured_pose(robot, MeasuredStream::Robot, codec, sample, &payload);
+        self.with_robot(id, key, codec, &payload, fallback_s, |entry| {
+            self.measured_pose(entry, MeasuredStream::Robot, codec, sample, &payload);
         });
     }
 
     fn sensor(&self, robot: &Robot, index: usize, sample: &Sample) {
         let payload = sample.payload().to_bytes();
         let codec = Codec::from_encoding(sample.encoding());
+        let entry = self.entry(robot);
         self.measured_pose(
-            robot,
+            &entry,
             MeasuredStream::Sensor(index),
             codec,
             sample,
@@ -827,18 +1002,18 @@ impl SharedTwin {
                 }
                 _ => Codec::from_encoding(sample.encoding()),
             };
-            self.with_robot(id, key, codec, &payload, fallback_s, |robot| {
+            self.with_robot(id, key, codec, &payload, fallback_s, |entry| {
                 match source.config.stream {
                     SourceStream::Joints => {
+                        let robot = &entry.robot;
                         let message = JointMessage::decode(robot, codec, &payload, fallback_s);
-                        let mut guard = self.lock();
-                        if let Some(state) = guard.running() {
-                            message.step(&mut state.pipeline, robot, key, &mut state.sink);
-                        }
+                        self.step(entry, |mut locked| {
+                            message.step(locked.twin, robot, key, &mut locked.sink);
+                        });
                     }
                     SourceStream::Measured => {
                         let stream = MeasuredStream::Robot;
-                        self.measured_pose(robot, stream, codec, sample, &payload);
+                        self.measured_pose(entry, stream, codec, sample, &payload);
                     }
                 }
             });
@@ -872,16 +1047,17 @@ impl SharedTwin {
         // A robot that may not be tracked is rejected at the header's stamp (the JSON stamp
         // hint `with_robot` reads has nothing to read in CDR).
         let unknown_stamp_s = || cdr::stamp_hint(payload).unwrap_or_else(fallback_s);
-        self.with_robot(id, key, Codec::Json, &[], unknown_stamp_s, |robot| {
-            let reject_attachment = |state: &mut TwinState, stamp_s: f64| {
+        self.with_robot(id, key, Codec::Json, &[], unknown_stamp_s, |entry| {
+            let robot = &entry.robot;
+            let reject_attachment = |locked: &mut Stepping<'_>, stamp_s: f64| {
                 if let Some(Err(error)) = &attachment {
                     ingest::reject_attachment(
-                        &mut state.pipeline,
+                        locked.twin,
                         robot,
                         key,
                         stamp_s,
                         error,
-                        &mut state.sink,
+                        &mut locked.sink,
                     );
                 }
             };
@@ -889,28 +1065,22 @@ impl SharedTwin {
                 SourceStream::Joints => {
                     let mut message =
                         Ros2JointMessage::decode(payload, &ros2.joint_names, fallback_s);
-                    let mut guard = self.lock();
-                    if let Some(state) = guard.running() {
-                        reject_attachment(state, message.stamp_s());
+                    self.step(entry, |mut locked| {
+                        reject_attachment(&mut locked, message.stamp_s());
                         if let Some(Ok(attachment)) = &attachment {
-                            message.set_seq(source.gateway_seq(robot, attachment));
+                            let seq = source.gateway_seq(robot, attachment, locked.publisher_seqs);
+                            message.set_seq(seq);
                         }
-                        message.step(&mut state.pipeline, robot, key, &mut state.sink);
-                    }
+                        message.step(locked.twin, robot, key, &mut locked.sink);
+                    });
                 }
                 SourceStream::Measured => {
                     let message = Ros2PoseMessage::decode(payload, &ros2.base_frame, fallback_s);
-                    let mut guard = self.lock();
-                    if let Some(state) = guard.running() {
-                        reject_attachment(state, message.stamp_s());
-                        message.step(
-                            &mut state.pipeline,
-                            robot,
-                            key,
-                            MeasuredStream::Robot,
-                            &mut state.sink,
-                        );
-                    }
+                    self.step(entry, |mut locked| {
+                        reject_attachment(&mut locked, message.stamp_s());
+                        let stream = MeasuredStream::Robot;
+                        message.step(locked.twin, robot, key, stream, &mut locked.sink);
+                    });
                 }
             }
         });
@@ -918,35 +1088,30 @@ impl SharedTwin {
 
     fn measured_pose(
         &self,
-        robot: &Robot,
+        entry: &RobotEntry,
         stream: MeasuredStream,
         codec: Codec,
         sample: &Sample,
         payload: &[u8],
     ) {
         let message = MeasuredMessage::decode(codec, payload, || transport_stamp_s(sample));
-        let mut guard = self.lock();
-        if let Some(state) = guard.running() {
-            let key = sample.key_expr().as_str();
-            message.step(&mut state.pipeline, robot, key, stream, &mut state.sink);
-        }
+        let key = sample.key_expr().as_str();
+        self.step(entry, |mut locked| {
+            message.step(locked.twin, &entry.robot, key, stream, &mut locked.sink);
+        });
     }
 
     fn query(&self, query: &Query, handler: QueryHandler) {
-        let robots = self.read_robots();
-        let mut guard = self.lock();
-        if let Some(state) = guard.running() {
-            handler(&robots, state, query);
+        if self.stopped.load(Ordering::Acquire) {
+            return;
         }
+        self.inputs.fetch_add(1, Ordering::Relaxed);
+        handler(self, query);
     }
 }
 
-/// Robots whose rows one turn of the lock reads for the dashboard: a state view is a few
-/// hundred nanoseconds, so a fleet of thousands is read in many short turns.
-const VIEW_ROBOTS_PER_TURN: usize = 256;
-
 /// Read access to the running twin for the dashboard and `/metrics`: each call copies what it
-/// needs out under the twin's lock, in short turns, and holds nothing afterwards (no second copy
+/// needs out under each robot's own lock in turn, and holds nothing afterwards (no second copy
 /// of the state that could drift from it).
 #[derive(Clone)]
 pub(crate) struct TwinView {
@@ -994,125 +1159,87 @@ pub(crate) struct RobotDetail {
 impl TwinView {
     /// Every tracked robot's row, in id order, and the service's totals.
     pub(crate) fn fleet(&self) -> (ServiceTotals, Vec<FleetRow>) {
-        let (totals, robots): (ServiceTotals, Vec<Robot>) = {
-            let guard = self.twin.lock();
-            let robots: Vec<Robot> = guard.pipeline.tracked().cloned().collect();
-            let totals = ServiceTotals {
-                inputs: guard.inputs,
-                poses: guard.sink.poses,
-                publish_errors: guard.sink.publish_errors,
-                robots: robots.len(),
-                snapshot_age_s: guard
-                    .snapshot_written
-                    .map(|written| written.elapsed().as_secs_f64()),
-            };
-            (totals, robots)
-        };
-        let mut rows = Vec::with_capacity(robots.len());
-        for turn in robots.chunks(VIEW_ROBOTS_PER_TURN) {
-            let guard = self.twin.lock();
-            for robot in turn {
-                let Some(state) = guard.pipeline.state(robot.index()) else {
-                    continue;
-                };
-                let counts = guard
-                    .sink
-                    .counts
-                    .get(robot.index().get())
-                    .map(|counts| RobotCounts {
-                        recent_events: VecDeque::new(),
-                        ..counts.clone()
-                    })
-                    .unwrap_or_default();
-                rows.push(FleetRow {
-                    id: Arc::clone(robot.shared_id()),
+        let twin = &self.twin;
+        let mut rows: Vec<FleetRow> = twin
+            .entries()
+            .iter()
+            .filter_map(|entry| {
+                let guard = entry.lock();
+                let state = guard.twin.as_ref()?.state();
+                Some(FleetRow {
+                    id: Arc::clone(entry.robot.shared_id()),
                     metrics: state.metrics,
                     alarms_active: state.alarms_active,
-                    counts,
-                });
-            }
-        }
+                    counts: RobotCounts {
+                        recent_events: VecDeque::new(),
+                        ..guard.outputs.counts.clone()
+                    },
+                })
+            })
+            .collect();
         rows.sort_by(|a, b| a.id.cmp(&b.id));
+        let totals = ServiceTotals {
+            inputs: twin.inputs.load(Ordering::Relaxed),
+            poses: twin.output.poses.load(Ordering::Relaxed),
+            publish_errors: twin.output.publish_errors.load(Ordering::Relaxed),
+            robots: rows.len(),
+            snapshot_age_s: twin
+                .snapshot_written
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .map(|written| written.elapsed().as_secs_f64()),
+        };
         (totals, rows)
+    }
+
+    /// Robot `id`'s entry, if it has one.
+    fn entry_of(&self, id: &str) -> Option<Arc<RobotEntry>> {
+        let index = self.twin.read_robots().find(id)?.index();
+        self.twin.existing_entry(index)
     }
 
     /// Robot `id`'s state, model and recent events, if it is tracked.
     pub(crate) fn robot(&self, id: &str) -> Option<RobotDetail> {
-        let index = self.twin.read_robots().find(id)?.index();
-        let guard = self.twin.lock();
-        let state = guard.pipeline.state(index)?;
-        let model = Arc::clone(guard.pipeline.model(index)?);
-        let counts = guard
-            .sink
-            .counts
-            .get(index.get())
-            .cloned()
-            .unwrap_or_default();
+        let entry = self.entry_of(id)?;
+        let guard = entry.lock();
+        let twin = guard.twin.as_ref()?;
         Some(RobotDetail {
-            state: wire::StateMessage::new(&state),
-            model,
-            counts,
+            state: wire::StateMessage::new(&twin.state()),
+            model: Arc::clone(twin.model()),
+            counts: guard.outputs.counts.clone(),
         })
     }
 
     /// Robot `id`'s twin pose count (`None` if it is not tracked): changes whenever it moves.
     pub(crate) fn poses_of(&self, id: &str) -> Option<u64> {
-        let index = self.twin.read_robots().find(id)?.index();
-        let guard = self.twin.lock();
-        guard.pipeline.model(index)?;
-        Some(
-            guard
-                .sink
-                .counts
-                .get(index.get())
-                .map_or(0, |counts| counts.poses),
-        )
+        let entry = self.entry_of(id)?;
+        let guard = entry.lock();
+        guard.twin.as_ref()?;
+        Some(guard.outputs.counts.poses)
     }
 }
 
-/// The pipeline, its outputs and the totals; behind [`SharedTwin`]'s lock.
-struct TwinState {
-    pipeline: Pipeline,
-    sink: ZenohSink,
-    /// Self-calibration of the robots that opt in, by robot index.
-    calibrations: Vec<CalibrationSlot>,
-    inputs: u64,
-    /// When the snapshot was last written (with `state_dir`).
-    snapshot_written: Option<Instant>,
-    /// Set once the pipeline is finished: late callbacks are ignored.
-    stopped: bool,
-}
-
-impl TwinState {
-    /// The state for one more input, unless the service stopped.
-    fn running(&mut self) -> Option<&mut Self> {
-        if self.stopped {
-            return None;
-        }
-        self.inputs += 1;
-        Some(self)
-    }
-
-    fn prefix(&self) -> &str {
-        &self.sink.declarer.prefix
-    }
-
-    /// Tracked robots whose `<prefix>/<stream>/<robot>` key the query's key expression covers,
-    /// in id order.
-    fn matching_robots(&self, query: &Query, stream: &str) -> Vec<(Robot, KeyExpr<'static>)> {
-        let mut robots: Vec<(Robot, KeyExpr<'static>)> = self
-            .pipeline
-            .tracked()
-            .filter_map(|robot| {
+/// Queries: each handler takes the robots it answers about one at a time, each under its own
+/// lock, and replies once that lock is released.
+impl SharedTwin {
+    /// Robots with an entry whose `<prefix>/<stream>/<robot>` key the query's key expression
+    /// covers, in id order.
+    fn matching_robots(
+        &self,
+        query: &Query,
+        stream: &str,
+    ) -> Vec<(Arc<RobotEntry>, KeyExpr<'static>)> {
+        let mut robots: Vec<(Arc<RobotEntry>, KeyExpr<'static>)> = self
+            .entries()
+            .into_iter()
+            .filter_map(|entry| {
                 let key =
-                    KeyExpr::try_from(format!("{}/{stream}/{}", self.prefix(), robot.id())).ok()?;
-                query
-                    .key_expr()
-                    .intersects(&key)
-                    .then(|| (robot.clone(), key))
+                    KeyExpr::try_from(format!("{}/{stream}/{}", self.prefix, entry.robot.id()))
+                        .ok()?;
+                query.key_expr().intersects(&key).then_some((entry, key))
             })
             .collect();
-        robots.sort_by(|a, b| a.0.id().cmp(b.0.id()));
+        robots.sort_by(|a, b| a.0.robot.id().cmp(b.0.robot.id()));
         robots
     }
 
@@ -1136,32 +1263,39 @@ impl TwinState {
         }
     }
 
-    fn state(_robots: &RobotDirectory, twin: &mut Self, query: &Query) {
-        for (robot, key) in twin.matching_robots(query, "state") {
-            if let Some(state) = twin.pipeline.state(robot.index()) {
-                Self::reply(
-                    query,
-                    &key,
-                    wire::to_json_bytes(&wire::StateMessage::new(&state)),
-                );
+    fn state(&self, query: &Query) {
+        for (entry, key) in self.matching_robots(query, "state") {
+            let payload = entry
+                .lock()
+                .twin
+                .as_ref()
+                .map(|twin| wire::to_json_bytes(&wire::StateMessage::new(&twin.state())));
+            if let Some(payload) = payload {
+                Self::reply(query, &key, payload);
             }
         }
     }
 
-    fn reset(_robots: &RobotDirectory, twin: &mut Self, query: &Query) {
-        let robots = twin.matching_robots(query, "reset");
-        if robots.is_empty() {
+    fn reset(&self, query: &Query) {
+        let mut replies = Vec::new();
+        for (entry, key) in self.matching_robots(query, "reset") {
+            let Some(mut guard) = self.unless_stopped(&entry) else {
+                return;
+            };
+            let state = &mut *guard;
+            let Some(twin) = &mut state.twin else {
+                continue;
+            };
+            let snapshot = twin.reset(&mut RobotSink::of(&self.output, &mut state.outputs));
+            drop(guard);
+            info!(robot = entry.robot.id(), "metrics reset");
+            replies.push((key, wire::MetricsMessage::new(&snapshot).to_json_bytes()));
+        }
+        if replies.is_empty() {
             Self::reply_err(query, "no tracked robot matches this key expression");
         }
-        for (robot, key) in robots {
-            if let Some(snapshot) = twin.pipeline.reset(robot.index(), &mut twin.sink) {
-                info!(robot = robot.id(), "metrics reset");
-                Self::reply(
-                    query,
-                    &key,
-                    wire::MetricsMessage::new(&snapshot).to_json_bytes(),
-                );
-            }
+        for (key, payload) in replies {
+            Self::reply(query, &key, payload);
         }
     }
 
@@ -1169,19 +1303,18 @@ impl TwinState {
     /// model and the query's payload; `None` once an error reply says why there are none.
     fn robot_query<'q>(
         &self,
-        robots: &RobotDirectory,
         query: &'q Query,
         stream: &str,
         request: &str,
     ) -> Option<(&'q str, Arc<RobotModel>, Vec<u8>)> {
-        let Some(robot) = robot_of(self.prefix(), query.key_expr().as_str(), stream) else {
+        let Some(robot) = robot_of(&self.prefix, query.key_expr().as_str(), stream) else {
             Self::reply_err(
                 query,
                 &format!("ask one robot: <prefix>/{stream}/<robot id> with {request}"),
             );
             return None;
         };
-        let Some(model) = self.current_model(robots, robot) else {
+        let Some(model) = self.current_model(robot) else {
             Self::reply_err(query, &format!("robot '{robot}' is not configured"));
             return None;
         };
@@ -1192,10 +1325,9 @@ impl TwinState {
         Some((robot, model, payload))
     }
 
-    fn fk(robots: &RobotDirectory, twin: &mut Self, query: &Query) {
+    fn fk(&self, query: &Query) {
         let key = query.key_expr().as_str();
-        let Some((robot, model, payload)) = twin.robot_query(robots, query, "fk", "{\"q\": [...]}")
-        else {
+        let Some((robot, model, payload)) = self.robot_query(query, "fk", "{\"q\": [...]}") else {
             return;
         };
         let joints = match wire::decode_joints(&payload, model.joint_count()) {
@@ -1226,24 +1358,33 @@ impl TwinState {
 
     /// The model robot `id`'s FK runs: its twin's (which an applied calibration replaces), else
     /// the one its settings give it.
-    fn current_model(&self, robots: &RobotDirectory, id: &str) -> Option<Arc<RobotModel>> {
-        if let Some(model) = robots
-            .find(id)
-            .and_then(|robot| self.pipeline.model(robot.index()))
-        {
-            return Some(Arc::clone(model));
-        }
-        robots
-            .settings_for(id)
-            .map(|settings| Arc::clone(&settings.model))
+    fn current_model(&self, id: &str) -> Option<Arc<RobotModel>> {
+        let (index, configured) = {
+            let robots = self.read_robots();
+            let index = robots.find(id).map(Robot::index);
+            let configured = robots
+                .settings_for(id)
+                .map(|settings| Arc::clone(&settings.model));
+            (index, configured)
+        };
+        let twin_model = index
+            .and_then(|index| self.existing_entry(index))
+            .and_then(|entry| {
+                entry
+                    .lock()
+                    .twin
+                    .as_ref()
+                    .map(|twin| Arc::clone(twin.model()))
+            });
+        twin_model.or(configured)
     }
 
     /// `<prefix>/ik/<robot>` with `{"pose": [x, y, z, qx, qy, qz, qw], "seed": [...]}`: the joint
     /// configurations that reach the pose with the robot's current model.
-    fn ik(robots: &RobotDirectory, twin: &mut Self, query: &Query) {
+    fn ik(&self, query: &Query) {
         let key = query.key_expr().as_str();
         let request = "{\"pose\": [x, y, z, qx, qy, qz, qw]}";
-        let Some((_, model, payload)) = twin.robot_query(robots, query, "ik", request) else {
+        let Some((_, model, payload)) = self.robot_query(query, "ik", request) else {
             return;
         };
         let answer = IkRequest::decode(&payload)
@@ -1265,9 +1406,9 @@ impl TwinState {
 
     /// `<prefix>/calibrate/<robot>` with `apply`, `discard` or `status` (the default), as the
     /// payload or the selector's `action` parameter.
-    fn calibrate(robots: &RobotDirectory, twin: &mut Self, query: &Query) {
+    fn calibrate(&self, query: &Query) {
         let key = query.key_expr().as_str();
-        let Some(id) = robot_of(twin.prefix(), key, "calibrate") else {
+        let Some(id) = robot_of(&self.prefix, key, "calibrate") else {
             Self::reply_err(
                 query,
                 "ask one robot: <prefix>/calibrate/<robot id> with apply, discard or status",
@@ -1282,7 +1423,7 @@ impl TwinState {
             || String::from_utf8_lossy(&payload).trim().to_owned(),
             str::to_owned,
         );
-        let Some(robot) = robots.find(id).cloned() else {
+        let Some(robot) = self.read_robots().find(id).cloned() else {
             Self::reply_err(query, &format!("robot '{id}' is not tracked"));
             return;
         };
@@ -1298,81 +1439,86 @@ impl TwinState {
         let Ok(reply_key) = KeyExpr::try_from(key.to_owned()) else {
             return;
         };
-        let index = robot.index();
+        let entry = self.existing_entry(robot.index());
         match action.as_str() {
             "" | "status" => {
-                let status = twin.calibration_status(&robot);
+                let status = match &entry {
+                    Some(entry) => calibration_status(&robot, Some(&*entry.lock())),
+                    None => calibration_status(&robot, None),
+                };
                 Self::reply(query, &reply_key, wire::to_json_bytes(&status));
             }
             "discard" => {
-                let discarded = twin
-                    .calibrations
-                    .get_mut(index.get())
-                    .and_then(|slot| slot.pending.take())
-                    .is_some();
+                let discarded =
+                    entry.is_some_and(|entry| entry.lock().calibration.pending.take().is_some());
                 let body = serde_json::json!({ "robot": id, "discarded": discarded });
                 Self::reply(query, &reply_key, body.to_string().into_bytes());
             }
             "apply" => {
-                let Some(pending) = twin
-                    .calibrations
-                    .get_mut(index.get())
-                    .and_then(|slot| slot.pending.take())
-                else {
-                    Self::reply_err(query, &format!("robot '{id}' has no estimate to apply"));
-                    return;
-                };
-                let model = Arc::clone(&pending.estimate.model);
-                match twin.pipeline.replace_model(index, model, &mut twin.sink) {
-                    Ok(_) => {
-                        info!(
-                            robot = id,
-                            improvement = pending.estimate.improvement(),
-                            "self-calibration applied"
-                        );
-                        let status = twin.calibration_status(&robot);
+                let applied = entry.and_then(|entry| self.apply_estimate(&entry));
+                match applied {
+                    None => {
+                        Self::reply_err(query, &format!("robot '{id}' has no estimate to apply"));
+                    }
+                    Some(Ok(status)) => {
                         Self::reply(query, &reply_key, wire::to_json_bytes(&status));
                     }
-                    Err(e) => Self::reply_err(query, &e.to_string()),
+                    Some(Err(e)) => Self::reply_err(query, &e.to_string()),
                 }
             }
             other => Self::reply_err(query, &format!("'{other}' is not apply, discard or status")),
         }
     }
 
-    /// What `status` answers for a self-calibrating robot.
-    fn calibration_status(&self, robot: &Robot) -> CalibrationStatus {
-        let index = robot.index();
-        let slot = self.calibrations.get(index.get());
-        let reservoir = self.pipeline.reservoir(index);
-        let (train, held_out) = reservoir.map_or((0, 0), self_calibration::PairReservoir::kept);
-        let state = self.pipeline.state(index);
-        CalibrationStatus {
-            robot: robot.id().to_owned(),
-            epoch: state.as_ref().map_or(0, |state| state.metrics.epoch),
-            calibration: state
-                .as_ref()
-                .and_then(|state| state.model.calibration())
-                .map(|c| c.source_name.clone()),
-            offered: reservoir.map_or(0, self_calibration::PairReservoir::offered),
-            train_pairs: train,
-            held_out_pairs: held_out,
-            fits: slot.map_or(0, |slot| slot.fits),
-            fitting: slot.is_some_and(|slot| slot.in_flight),
-            pending: slot
-                .and_then(|slot| slot.pending.as_ref())
-                .map(|pending| pending.message.clone()),
-            last: slot.and_then(|slot| slot.last.clone()),
-        }
+    /// Replaces `entry`'s model by its pending estimate's under its lock; `None` if it has no
+    /// estimate (or the service stopped).
+    fn apply_estimate(
+        &self,
+        entry: &RobotEntry,
+    ) -> Option<Result<CalibrationStatus, ReplaceModelError>> {
+        let mut guard = self.unless_stopped(entry)?;
+        let state = &mut *guard;
+        let pending = state.calibration.pending.take()?;
+        let model = Arc::clone(&pending.estimate.model);
+        let Some(twin) = &mut state.twin else {
+            return Some(Err(ReplaceModelError::NotTracked));
+        };
+        let replaced =
+            twin.replace_model(model, &mut RobotSink::of(&self.output, &mut state.outputs));
+        Some(replaced.map(|_| {
+            info!(
+                robot = entry.robot.id(),
+                improvement = pending.estimate.improvement(),
+                "self-calibration applied"
+            );
+            calibration_status(&entry.robot, Some(&*state))
+        }))
     }
+}
 
-    fn calibration_slot(&mut self, index: RobotIndex) -> &mut CalibrationSlot {
-        let index = index.get();
-        if self.calibrations.len() <= index {
-            self.calibrations
-                .resize_with(index + 1, CalibrationSlot::default);
-        }
-        &mut self.calibrations[index]
+/// What `status` answers for a self-calibrating robot (`state`: its entry's, if it has one).
+fn calibration_status(robot: &Robot, state: Option<&EntryState>) -> CalibrationStatus {
+    let slot = state.map(|state| &state.calibration);
+    let twin = state.and_then(|state| state.twin.as_ref());
+    let reservoir = twin.and_then(Twin::reservoir);
+    let (train, held_out) = reservoir.map_or((0, 0), self_calibration::PairReservoir::kept);
+    let view = twin.map(Twin::state);
+    CalibrationStatus {
+        robot: robot.id().to_owned(),
+        epoch: view.as_ref().map_or(0, |view| view.metrics.epoch),
+        calibration: view
+            .as_ref()
+            .and_then(|view| view.model.calibration())
+            .map(|c| c.source_name.clone()),
+        offered: reservoir.map_or(0, self_calibration::PairReservoir::offered),
+        train_pairs: train,
+        held_out_pairs: held_out,
+        fits: slot.map_or(0, |slot| slot.fits),
+        fitting: slot.is_some_and(|slot| slot.in_flight),
+        pending: slot
+            .and_then(|slot| slot.pending.as_ref())
+            .map(|pending| pending.message.clone()),
+        last: slot.and_then(|slot| slot.last.clone()),
     }
 }
 
@@ -1415,7 +1561,7 @@ struct CalibrationStatus {
     last: Option<EstimateMessage>,
 }
 
-/// One robot's pairs to fit, taken from its reservoir under the lock and fitted without it.
+/// One robot's pairs to fit, taken from its reservoir under its lock and fitted without it.
 struct FitJob {
     robot: Robot,
     model: Arc<RobotModel>,
@@ -1424,44 +1570,31 @@ struct FitJob {
 }
 
 /// Hands the pairs of every self-calibrating robot with pairs new since its last fit to the
-/// fitting thread: one robot per turn of the lock (a batch copy is a few thousand pairs).
+/// fitting thread: each robot's batch copied under its own lock (a few thousand pairs).
 fn schedule_fits(twin: &SharedTwin, jobs: &Sender<FitJob>) {
-    let due: Vec<Robot> = {
-        let guard = twin.lock();
-        guard
-            .pipeline
-            .tracked()
-            .filter(|robot| {
-                let offered = guard
-                    .pipeline
-                    .reservoir(robot.index())
-                    .map_or(0, self_calibration::PairReservoir::offered);
-                let slot = guard.calibrations.get(robot.index().get());
-                offered > slot.map_or(0, |slot| slot.fitted_offered)
-                    && !slot.is_some_and(|slot| slot.in_flight)
-            })
-            .cloned()
-            .collect()
-    };
-    for robot in due {
+    for entry in twin.entries() {
+        if entry.robot.settings().self_calibration.is_none() {
+            continue;
+        }
         let job = {
-            let mut guard = twin.lock();
+            let mut guard = entry.lock();
             let state = &mut *guard;
-            let index = robot.index();
-            let (Some(reservoir), Some(model), Some(view)) = (
-                state.pipeline.reservoir(index),
-                state.pipeline.model(index),
-                state.pipeline.state(index),
-            ) else {
+            let Some(tracked) = &state.twin else {
                 continue;
             };
+            let Some(reservoir) = tracked.reservoir() else {
+                continue;
+            };
+            let slot = &mut state.calibration;
+            if reservoir.offered() <= slot.fitted_offered || slot.in_flight {
+                continue;
+            }
             let job = FitJob {
                 batch: reservoir.batch(),
-                model: Arc::clone(model),
-                epoch: view.metrics.epoch,
-                robot: robot.clone(),
+                model: Arc::clone(tracked.model()),
+                epoch: tracked.state().metrics.epoch,
+                robot: entry.robot.clone(),
             };
-            let slot = state.calibration_slot(index);
             slot.in_flight = true;
             slot.fitted_offered = job.batch.offered;
             job
@@ -1477,7 +1610,6 @@ fn schedule_fits(twin: &SharedTwin, jobs: &Sender<FitJob>) {
 /// metrics periods); it ends when `jobs` closes.
 fn fitting_thread(
     twin: Arc<SharedTwin>,
-    declarer: Declarer,
     jobs: Receiver<FitJob>,
     config: SelfCalibrationConfig,
 ) -> Result<std::thread::JoinHandle<()>, ServiceError> {
@@ -1499,14 +1631,15 @@ fn fitting_thread(
                 let payload = wire::to_json_bytes(&message);
                 let (message_status, message_improvement) = (message.status, message.improvement);
                 {
-                    let mut guard = twin.lock();
+                    let entry = twin.entry(&robot);
+                    let mut guard = entry.lock();
                     let state = &mut *guard;
                     // Judged against a model the twin no longer runs: fit again next period.
                     let current = state
-                        .pipeline
-                        .model(robot.index())
-                        .is_some_and(|now| Arc::ptr_eq(now, &model));
-                    let slot = state.calibration_slot(robot.index());
+                        .twin
+                        .as_ref()
+                        .is_some_and(|now| Arc::ptr_eq(now.model(), &model));
+                    let slot = &mut state.calibration;
                     slot.in_flight = false;
                     if !current {
                         slot.fitted_offered = 0;
@@ -1525,46 +1658,30 @@ fn fitting_thread(
                     offered = batch.offered,
                     "self-calibration fit"
                 );
-                let sent = declarer.put(None, robot.id(), Stream::Calibration, payload);
-                if !sent {
-                    twin.lock().sink.publish_errors += 1;
-                }
+                twin.output
+                    .publish(None, robot.id(), Stream::Calibration, payload);
             }
         })
         .map_err(|e| ServiceError::Worker(e.to_string()))
 }
 
-/// Robots whose metrics snapshots one turn of the lock takes: a fleet's metrics go out in short
-/// turns, so samples wait behind a few robots' snapshots, never behind the whole fleet's.
-const METRICS_PER_TURN: usize = 16;
-
-/// Publishes the metrics of every robot with new results: a few robots' snapshots per turn of
-/// the lock, then their encoding and `put` after it is released, so samples wait at most for a
-/// few snapshots, never for a metrics message's encoding and sending.
-fn publish_due_metrics(twin: &SharedTwin, declarer: &Declarer) {
-    let due = twin.lock().pipeline.robots_with_due_metrics();
-    let mut turn = Vec::with_capacity(METRICS_PER_TURN);
-    let mut publish_errors = 0;
-    for robots in due.chunks(METRICS_PER_TURN) {
-        {
-            let mut guard = twin.lock();
+/// Publishes the metrics of every robot with new results: each robot's snapshot taken under
+/// its own lock, then encoded and sent after it is released, so a robot's samples wait at most
+/// for its own snapshot, never for a metrics message's encoding and sending.
+fn publish_due_metrics(twin: &SharedTwin) {
+    for entry in twin.entries() {
+        let snapshot = {
+            let mut guard = entry.lock();
             let state = &mut *guard;
-            let now = Instant::now();
-            for &robot in robots {
-                if let Some(snapshot) = state.pipeline.take_due_metrics(robot) {
-                    turn.push(snapshot);
-                    state.sink.counts_mut(robot).last_active = Some(now);
-                }
-            }
-        }
-        for snapshot in turn.drain(..) {
-            let payload = wire::MetricsMessage::new(&snapshot).to_json_bytes();
-            let sent = declarer.put(None, &snapshot.robot, Stream::Metrics, payload);
-            publish_errors += u64::from(!sent);
-        }
-    }
-    if publish_errors > 0 {
-        twin.lock().sink.publish_errors += publish_errors;
+            let Some(snapshot) = state.twin.as_mut().and_then(Twin::take_due_metrics) else {
+                continue;
+            };
+            state.outputs.counts.last_active = Some(Instant::now());
+            snapshot
+        };
+        let payload = wire::MetricsMessage::new(&snapshot).to_json_bytes();
+        twin.output
+            .publish(None, &snapshot.robot, Stream::Metrics, payload);
     }
 }
 
@@ -1587,12 +1704,7 @@ impl Control {
         snapshots: Option<(SnapshotStore, Duration)>,
     ) -> Result<std::thread::JoinHandle<ServeReport>, ServiceError> {
         let (jobs_tx, jobs_rx) = channel::<FitJob>();
-        let fitting = fitting_thread(
-            Arc::clone(&twin),
-            declarer.clone(),
-            jobs_rx,
-            self_calibration,
-        )?;
+        let fitting = fitting_thread(Arc::clone(&twin), jobs_rx, self_calibration)?;
         std::thread::Builder::new()
             .name("armtwin-control".to_owned())
             .spawn(move || {
@@ -1651,7 +1763,9 @@ impl Control {
                 Err(RecvTimeoutError::Timeout) => {
                     if let Some(robot) = undeclared.pop_front() {
                         match declarer.declare(robot.id()) {
-                            Ok(outputs) => twin.lock().sink.set_outputs(robot.index(), outputs),
+                            Ok(outputs) => {
+                                twin.entry(&robot).lock().outputs.declared = Some(outputs);
+                            }
                             Err(e) => {
                                 warn!(robot = robot.id(), error = %e, "cannot declare the robot's publishers");
                             }
@@ -1664,7 +1778,7 @@ impl Control {
             }
             let now = Instant::now();
             if now >= next_metrics {
-                publish_due_metrics(twin, declarer);
+                publish_due_metrics(twin);
                 next_metrics = now + metrics_period;
             }
             if now >= next_refit {
@@ -1678,26 +1792,27 @@ impl Control {
                 next_snapshot = Some(now + *period);
             }
         }
-        let (report, outputs) = {
-            let mut guard = twin.lock();
+        // Set before any twin is finished: an input that takes a robot's lock after the control
+        // thread finished that robot's twin sees it and is ignored.
+        twin.stopped.store(true, Ordering::Release);
+        let mut robots = 0;
+        let mut outputs: Vec<(Arc<str>, RobotOutputs)> = Vec::new();
+        for entry in twin.entries() {
+            let mut guard = entry.lock();
             let state = &mut *guard;
-            state.stopped = true;
-            state.pipeline.finish(&mut state.sink);
-            let report = ServeReport {
-                inputs: state.inputs,
-                poses: state.sink.poses,
-                robots: state.pipeline.tracked().count(),
-                publish_errors: state.sink.publish_errors,
-            };
-            let outputs: Vec<(Arc<str>, RobotOutputs)> = state
-                .pipeline
-                .tracked()
-                .filter_map(|robot| {
-                    let outputs = state.sink.outputs.get_mut(robot.index().get())?.take()?;
-                    Some((Arc::clone(robot.shared_id()), outputs))
-                })
-                .collect();
-            (report, outputs)
+            if let Some(tracked) = &mut state.twin {
+                tracked.finish(&mut RobotSink::of(&twin.output, &mut state.outputs));
+                robots += 1;
+            }
+            if let Some(declared) = state.outputs.declared.take() {
+                outputs.push((Arc::clone(entry.robot.shared_id()), declared));
+            }
+        }
+        let report = ServeReport {
+            inputs: twin.inputs.load(Ordering::Relaxed),
+            poses: twin.output.poses.load(Ordering::Relaxed),
+            robots,
+            publish_errors: twin.output.publish_errors.load(Ordering::Relaxed),
         };
         if let Some((store, _)) = snapshots {
             save_snapshot(twin, store);
@@ -1923,27 +2038,50 @@ impl Declarer {
     }
 }
 
-/// Publishes the pipeline's results on Zenoh. Per-robot state is kept by [`RobotIndex`]: no
-/// output hashes the robot's id.
-struct ZenohSink {
+/// What every robot's outputs share: the session's publishing side and the service's totals.
+/// Per-robot output state lives in each robot's entry ([`RobotOutputState`]).
+struct Output {
     declarer: Declarer,
     /// Asks the control thread to declare newly tracked robots.
     control: Sender<Control>,
-    /// By robot index, once the control thread has declared them.
-    outputs: Vec<Option<RobotOutputs>>,
-    poses: u64,
-    publish_errors: u64,
     event_budget: EventBudget,
-    /// By robot index, from tracking on.
-    event_buckets: Vec<Option<EventBucket>>,
     /// Shared by the robots that may not be tracked, so a flood of made-up ids cannot grow the
-    /// buckets.
-    untracked_bucket: EventBucket,
-    /// By robot index, from tracking on: the twin pose for ROS tools.
-    ros2_poses: Vec<Option<Ros2PoseState>>,
-    /// By robot index, from tracking on: what the dashboard and `/metrics` read beyond the
-    /// pipeline's own state.
-    counts: Vec<RobotCounts>,
+    /// buckets. A leaf lock: held for a bucket's arithmetic only, never across a `put`.
+    untracked_bucket: Mutex<EventBucket>,
+    /// Twin poses published.
+    poses: AtomicU64,
+    /// Outputs Zenoh refused to send.
+    publish_errors: AtomicU64,
+}
+
+impl Output {
+    /// Publishes `payload` on `robot`'s `stream` ([`Declarer::put`], through `declared`, the
+    /// robot's publishers, when they exist), counting a refusal: every robot output but the
+    /// twin pose for ROS tools goes out here.
+    fn publish(
+        &self,
+        declared: Option<&RobotOutputs>,
+        robot: &str,
+        stream: Stream,
+        payload: Vec<u8>,
+    ) {
+        if !self.declarer.put(declared, robot, stream, payload) {
+            self.publish_errors.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
+/// A robot's output state: its publishers, event bucket, twin pose for ROS tools and totals.
+#[derive(Default)]
+struct RobotOutputState {
+    /// Once the control thread has declared them.
+    declared: Option<RobotOutputs>,
+    /// From tracking on.
+    event_bucket: Option<EventBucket>,
+    /// From tracking on: the twin pose for ROS tools.
+    ros2_pose: Option<Ros2PoseState>,
+    /// What the dashboard and `/metrics` read beyond the twin's own state.
+    counts: RobotCounts,
 }
 
 /// Events kept per robot for the dashboard's robot page.
@@ -2011,55 +2149,43 @@ impl EventBucket {
     }
 }
 
-impl ZenohSink {
-    fn new(declarer: Declarer, control: Sender<Control>, event_budget: EventBudget) -> Self {
+/// Publishes one robot's results on Zenoh: made for one call into the twin, from the shared
+/// [`Output`] and the robot's own [`RobotOutputState`] (borrowed from the robot's locked entry),
+/// or without one for inputs of robots that may not be tracked.
+struct RobotSink<'a> {
+    output: &'a Output,
+    robot: Option<&'a mut RobotOutputState>,
+}
+
+impl<'a> RobotSink<'a> {
+    fn of(output: &'a Output, robot: &'a mut RobotOutputState) -> Self {
         Self {
-            declarer,
-            control,
-            outputs: Vec::new(),
-            poses: 0,
-            publish_errors: 0,
-            event_budget,
-            event_buckets: Vec::new(),
-            untracked_bucket: EventBucket::full(event_budget, Instant::now()),
-            ros2_poses: Vec::new(),
-            counts: Vec::new(),
+            output,
+            robot: Some(robot),
         }
     }
 
-    /// Robot `index`'s totals, created on first use.
-    fn counts_mut(&mut self, index: RobotIndex) -> &mut RobotCounts {
-        let index = index.get();
-        if self.counts.len() <= index {
-            self.counts.resize_with(index + 1, RobotCounts::default);
+    /// For the rejection of a robot that may not be tracked.
+    fn untracked(output: &'a Output) -> Self {
+        Self {
+            output,
+            robot: None,
         }
-        &mut self.counts[index]
     }
 
-    /// The declared outputs of robot `index`, if it is tracked and they are declared.
-    fn outputs_of(&self, index: Option<RobotIndex>) -> Option<&RobotOutputs> {
-        self.outputs.get(index?.get())?.as_ref()
-    }
-
-    fn set_outputs(&mut self, index: RobotIndex, outputs: RobotOutputs) {
-        let index = index.get();
-        if self.outputs.len() <= index {
-            self.outputs.resize_with(index + 1, || None);
-        }
-        self.outputs[index] = Some(outputs);
-    }
-
-    /// Publishes `payload` on `robot`'s `stream` ([`Declarer::put`]).
-    fn put(&mut self, robot: &str, index: Option<RobotIndex>, stream: Stream, payload: Vec<u8>) {
-        let sent = self
-            .declarer
-            .put(self.outputs_of(index), robot, stream, payload);
-        self.publish_errors += u64::from(!sent);
+    /// Publishes `payload` on `robot`'s `stream` ([`Output::publish`]).
+    fn put(&self, robot: &str, stream: Stream, payload: Vec<u8>) {
+        let declared = self
+            .robot
+            .as_deref()
+            .and_then(|state| state.declared.as_ref());
+        self.output.publish(declared, robot, stream, payload);
     }
 
     /// Prepares `robot`'s twin pose output for ROS tools, if it has one.
     fn track_ros2_pose(&mut self, robot: &Robot) {
-        let Some(output) = self.declarer.ros2_pose.of(robot.id()) else {
+        let declarer = &self.output.declarer;
+        let Some(output) = declarer.ros2_pose.of(robot.id()) else {
             return;
         };
         if output.namespace.is_none()
@@ -2070,23 +2196,23 @@ impl ZenohSink {
         let state = Ros2PoseState {
             key: output.key(robot.id()),
             frame_id: cdr::frame_id(&output.tf_prefix, robot.settings().model.frame()),
-            gid: output.attaches().then(|| {
-                ros2::publisher_gid(&self.declarer.session.zid().to_le_bytes(), robot.id())
-            }),
+            gid: output
+                .attaches()
+                .then(|| ros2::publisher_gid(&declarer.session.zid().to_le_bytes(), robot.id())),
             next_seq: 1,
         };
-        let index = robot.index().get();
-        if self.ros2_poses.len() <= index {
-            self.ros2_poses.resize_with(index + 1, || None);
+        if let Some(robot_state) = self.robot.as_deref_mut() {
+            robot_state.ros2_pose = Some(state);
         }
-        self.ros2_poses[index] = Some(state);
     }
 
     /// Publishes the twin pose as a CDR `PoseStamped` (with `rmw_zenoh`'s attachment for that
     /// scheme), if `robot` has the output.
     fn put_ros2_pose(&mut self, robot: &Robot, stamp_s: f64, pose: &PoseReadout) {
-        let index = robot.index().get();
-        let Some(Some(state)) = self.ros2_poses.get_mut(index) else {
+        let Some(robot_state) = self.robot.as_deref_mut() else {
+            return;
+        };
+        let Some(state) = &mut robot_state.ros2_pose else {
             return;
         };
         let payload = cdr::encode_pose_stamped(stamp_s, &state.frame_id, pose);
@@ -2095,39 +2221,36 @@ impl ZenohSink {
             state.next_seq += 1;
             ros2::encode_attachment(seq, unix_now_ns(), &gid)
         });
-        let publisher = self
-            .outputs
-            .get(index)
-            .and_then(Option::as_ref)
+        let publisher = robot_state
+            .declared
+            .as_ref()
             .and_then(|outputs| outputs.ros2_pose.as_ref());
+        let declarer = &self.output.declarer;
         let result = match publisher {
             Some(publisher) => publisher.put(payload).attachment(attachment).wait(),
-            None => self
-                .declarer
+            None => declarer
                 .session
                 .put(&state.key, payload)
                 .attachment(attachment)
-                .congestion_control(self.declarer.pose_congestion)
+                .congestion_control(declarer.pose_congestion)
                 .allowed_destination(Locality::Remote)
                 .wait(),
         };
         if let Err(e) = result {
             warn!(error = %e, robot = robot.id(), key = %state.key, "publish failed");
-            self.publish_errors += 1;
+            self.output.publish_errors.fetch_add(1, Ordering::Relaxed);
         }
     }
 }
 
-impl Sink for ZenohSink {
+impl Sink for RobotSink<'_> {
     fn tracking(&mut self, robot: &Robot) {
-        let index = robot.index().get();
-        if self.event_buckets.len() <= index {
-            self.event_buckets.resize_with(index + 1, || None);
+        if let Some(state) = self.robot.as_deref_mut() {
+            state.event_bucket = Some(EventBucket::full(self.output.event_budget, Instant::now()));
         }
-        self.event_buckets[index] = Some(EventBucket::full(self.event_budget, Instant::now()));
         self.track_ros2_pose(robot);
         // Fails only once the control thread has stopped, when nothing is declared any more.
-        let _ = self.control.send(Control::Track(robot.clone()));
+        let _ = self.output.control.send(Control::Track(robot.clone()));
     }
 
     fn pose(
@@ -2138,7 +2261,7 @@ impl Sink for ZenohSink {
         frame: OutputFrame,
         pose: &PoseReadout,
     ) {
-        let payload = match self.declarer.encoding {
+        let payload = match self.output.declarer.encoding {
             OutputEncoding::Json => {
                 wire::PoseMessage::new(robot.id(), stamp_s, seq, frame.as_str(), pose)
                     .to_json_bytes()
@@ -2147,9 +2270,11 @@ impl Sink for ZenohSink {
                 zser::twin_pose_bytes(stamp_s, seq, &PoseFields::from(pose))
             }
         };
-        self.put(robot.id(), Some(robot.index()), Stream::Pose, payload);
-        self.poses += 1;
-        self.counts_mut(robot.index()).poses += 1;
+        self.put(robot.id(), Stream::Pose, payload);
+        self.output.poses.fetch_add(1, Ordering::Relaxed);
+        if let Some(state) = self.robot.as_deref_mut() {
+            state.counts.poses += 1;
+        }
         self.put_ros2_pose(robot, stamp_s, pose);
     }
 
@@ -2160,13 +2285,13 @@ impl Sink for ZenohSink {
         _measured: &PoseReadout,
         deviation: &Deviation,
     ) {
-        let payload = match self.declarer.encoding {
+        let payload = match self.output.declarer.encoding {
             OutputEncoding::Json => {
                 wire::DeviationMessage::new(robot.id(), stamp_s, deviation).to_json_bytes()
             }
             OutputEncoding::ZenohSerialized => zser::deviation_bytes(stamp_s, deviation),
         };
-        self.put(robot.id(), Some(robot.index()), Stream::Deviation, payload);
+        self.put(robot.id(), Stream::Deviation, payload);
     }
 
     /// Publishes the event unless its robot's rate limit keeps it back, and logs it once (at
@@ -2176,45 +2301,63 @@ impl Sink for ZenohSink {
             event.kind,
             EventKind::Alarm | EventKind::Recovered | EventKind::Restart | EventKind::Epoch
         );
-        if let (Some(index), EventDetail::Rejected { cause }) = (event.index, &event.detail) {
-            let by_cause = &mut self.counts_mut(index).rejected_by_cause;
+        // An event names its robot's index only when it has a twin, whose entry this sink holds.
+        let mut robot_state = self.robot.as_deref_mut().filter(|_| event.index.is_some());
+        if let (Some(state), EventDetail::Rejected { cause }) = (&mut robot_state, &event.detail) {
+            let by_cause = &mut state.counts.rejected_by_cause;
             match by_cause.iter_mut().find(|(counted, _)| counted == cause) {
                 Some((_, count)) => *count += 1,
                 None => by_cause.push((*cause, 1)),
             }
         }
         let now = Instant::now();
-        let budget = self.event_budget;
-        let tracked = event
-            .index
-            .and_then(|index| self.event_buckets.get_mut(index.get()))
-            .and_then(Option::as_mut);
-        let bucket = match tracked {
-            Some(bucket) => bucket,
-            None => &mut self.untracked_bucket,
-        };
-        if !bucket.admit(budget, now, always) {
-            if bucket.suppressed == 1 {
-                warn!(robot = %event.robot, per_s = budget.per_s, burst = budget.burst, "event rate limit reached: further events are counted, not published");
+        let budget = self.output.event_budget;
+        // The suppressed count the event carries if it goes out, else how many are suppressed.
+        let pass = |bucket: &mut EventBucket| {
+            if bucket.admit(budget, now, always) {
+                Ok(std::mem::take(&mut bucket.suppressed))
+            } else {
+                Err(bucket.suppressed)
             }
-            return;
-        }
+        };
+        let tracked = robot_state
+            .as_mut()
+            .and_then(|state| state.event_bucket.as_mut());
+        let passed = match tracked {
+            Some(bucket) => pass(bucket),
+            None => pass(
+                &mut self
+                    .output
+                    .untracked_bucket
+                    .lock()
+                    .unwrap_or_else(PoisonError::into_inner),
+            ),
+        };
+        let suppressed = match passed {
+            Ok(suppressed) => suppressed,
+            Err(suppressed) => {
+                if suppressed == 1 {
+                    warn!(robot = %event.robot, per_s = budget.per_s, burst = budget.burst, "event rate limit reached: further events are counted, not published");
+                }
+                return;
+            }
+        };
         let mut message = wire::EventMessage::new(event);
-        message.suppressed = std::mem::take(&mut bucket.suppressed);
+        message.suppressed = suppressed;
         let cause = match event.detail {
             EventDetail::Rejected { cause } => Some(cause.as_str()),
             EventDetail::Unpaired { cause, .. } => Some(cause),
             _ => None,
         };
         let payload = wire::to_json_bytes(&message);
-        if let Some(index) = event.index {
-            let recent = &mut self.counts_mut(index).recent_events;
+        if let Some(state) = robot_state {
+            let recent = &mut state.counts.recent_events;
             if recent.len() == RECENT_EVENTS {
                 recent.pop_front();
             }
             recent.push_back(Arc::from(payload.as_slice()));
         }
-        self.put(event.robot, event.index, Stream::Events, payload);
+        self.put(event.robot, Stream::Events, payload);
         let (robot, kind, key) = (event.robot, event.kind.as_str(), event.key);
         let reason = message.reason.as_str();
         match event.kind {
@@ -2232,11 +2375,6 @@ impl Sink for ZenohSink {
 
     fn metrics(&mut self, robot: &Robot, snapshot: &MetricsSnapshot) {
         let message = wire::MetricsMessage::new(snapshot);
-        self.put(
-            robot.id(),
-            Some(robot.index()),
-            Stream::Metrics,
-            message.to_json_bytes(),
-        );
+        self.put(robot.id(), Stream::Metrics, message.to_json_bytes());
     }
 }

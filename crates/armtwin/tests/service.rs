@@ -19,8 +19,10 @@ use std::time::Duration;
 use armtwin::codec::recording;
 use armtwin::codec::wire::MetricsMessage;
 use armtwin::config::{Overrides, ServiceConfig, ZenohMode, ZenohSection};
+use armtwin::ingest::{self, Codec};
 use armtwin::kinematics::PoseReadout;
 use armtwin::model::RobotModel;
+use armtwin::pipeline::{Discard, Pipeline, RobotDirectory};
 use armtwin::replay::{ReplaySettings, replay};
 use armtwin::service::{ServeReport, ServiceError, serve};
 use armtwin::validate::validate;
@@ -992,4 +994,129 @@ async fn apply_then_fk_and_ik_answer_with_the_estimate(h: &mut Harness) {
     );
     let unknown = h.get("twin/calibrate/lasttest?action=undo", None).await;
     assert!(matches!(unknown.as_slice(), [Err(_)]), "{unknown:?}");
+}
+
+/// The messages a gateway sends for `robot`: joints at 100 Hz, each with a measured pose off by
+/// a pattern of its own, and every 40th message sent twice (its repeated stamp is rejected).
+fn gateway_messages(model: &RobotModel, robot_offset_m: f64, count: usize) -> Vec<Vec<u8>> {
+    let mut messages = Vec::new();
+    for i in 0..count {
+        let q = q_at(i);
+        let pose = model.pose(&q).expect("valid").readout();
+        let offset_m = robot_offset_m * (1.0 + (i % 7) as f64);
+        let message = json!({
+            "t": i as f64 * 0.01, "q": q, "seq": i,
+            "measured": measured_json(&pose, offset_m),
+        })
+        .to_string()
+        .into_bytes();
+        if i % 40 == 39 {
+            messages.push(message.clone());
+        }
+        messages.push(message);
+    }
+    messages
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_gateways_stream_two_robots_at_once_and_each_gets_exact_metrics() {
+    tokio::time::timeout(TEST_LIMIT, async {
+        let mut h = start(CONFIG).await;
+        let model = ur10e();
+        let count = 400;
+        let robots = [("duo/a", 0.0005), ("duo/b", 0.0013)];
+        let messages: Vec<Vec<Vec<u8>>> = robots
+            .iter()
+            .map(|(_, offset_m)| gateway_messages(&model, *offset_m, count))
+            .collect();
+        // One session per gateway: each robot's samples arrive on a link of their own.
+        let mut gateways = Vec::new();
+        for _ in &robots {
+            let (gateway, outputs) = connect_client(&h.service.endpoint).await;
+            drop(outputs);
+            wait_for_subscriber(&gateway, "twin/joints/probe").await;
+            gateways.push(gateway);
+        }
+        let sends: Vec<_> = robots
+            .iter()
+            .zip(&messages)
+            .zip(&gateways)
+            .map(|(((robot, _), messages), gateway)| {
+                let (key, messages, gateway) = (
+                    format!("twin/joints/{robot}"),
+                    messages.clone(),
+                    gateway.clone(),
+                );
+                tokio::spawn(async move {
+                    for message in messages {
+                        gateway.put(&key, message).await.expect("put");
+                    }
+                })
+            })
+            .collect();
+        for send in sends {
+            send.await.expect("gateway task");
+        }
+        h.receive_until("every pose of both robots", |r| {
+            r.iter()
+                .filter(|(k, _)| k.starts_with("twin/pose/duo/"))
+                .count()
+                == 2 * count
+        })
+        .await;
+        let report = h.stop().await;
+        let sent: usize = messages.iter().map(Vec::len).sum();
+        assert_eq!(report.poses, 2 * count as u64);
+        assert_eq!(report.robots, 2);
+        // Every sample, and the state query that started the harness.
+        assert_eq!(report.inputs, sent as u64 + 1);
+        for (robot, _) in robots {
+            let poses = h.on(&format!("twin/pose/{robot}"));
+            let seqs: Vec<u64> = poses.iter().filter_map(|p| p["seq"].as_u64()).collect();
+            assert_eq!(seqs, (0..count as u64).collect::<Vec<_>>(), "{robot}");
+        }
+        h.receive_until("both robots' final metrics", |r| {
+            robots.iter().all(|(robot, _)| {
+                r.iter()
+                    .rev()
+                    .find(|(k, _)| *k == format!("twin/metrics/{robot}"))
+                    .is_some_and(|(_, m)| m["paired"].as_u64() == Some(count as u64))
+            })
+        })
+        .await;
+        // The same messages through one offline pipeline give exactly the service's metrics.
+        let config = ServiceConfig::parse(CONFIG, "test", Path::new("."), &Overrides::default())
+            .expect("config");
+        let settings = config.default_robot.clone().expect("default robot");
+        let mut directory = RobotDirectory::new(Some(settings), HashMap::new());
+        let mut pipeline = Pipeline::new(config.pipeline);
+        for ((robot, _), messages) in robots.iter().zip(&messages) {
+            let handle = directory.admit(robot).expect("default settings").clone();
+            let key = format!("twin/joints/{robot}");
+            for message in messages {
+                let no_stamp = || panic!("every message has its stamp");
+                ingest::joint_message(
+                    &mut pipeline,
+                    &handle,
+                    &key,
+                    Codec::Json,
+                    message,
+                    no_stamp,
+                    &mut Discard,
+                );
+            }
+        }
+        pipeline.finish(&mut Discard);
+        for (robot, _) in robots {
+            let index = directory.find(robot).expect("admitted").index();
+            let offline = pipeline.state(index).expect("tracked").metrics;
+            let offline: Value =
+                serde_json::from_slice(&MetricsMessage::new(&offline).to_json_bytes())
+                    .expect("json");
+            assert_eq!(offline["rejected"], (count / 40) as u64, "{robot}");
+            assert_eq!(final_metrics(&h, robot), &offline, "{robot}");
+        }
+    })
+    .await
+    .expect("test finished in time");
 }

@@ -2,11 +2,11 @@
 //! pages, their live streams (server-sent events), `/metrics` for Prometheus and `/healthz`.
 //!
 //! It runs on the service's tokio runtime and reads the twin only through
-//! [`TwinView`](crate::service::TwinView), in short turns of its lock: it keeps no copy of the
-//! twin's state beyond one fleet read shared by every fleet page for half a second. Each stream is
-//! paced by its own timer that skips missed ticks and reads the twin only when the client's
-//! socket takes more, so a slow or stalled browser costs the twin nothing. The pages and three.js
-//! are embedded in the binary: nothing is fetched from elsewhere at run time.
+//! [`TwinView`](crate::service::TwinView), each robot under its own lock in turn: it keeps no copy
+//! of the twin's state beyond one fleet read shared by every fleet page for half a second. Each
+//! stream is paced by its own timer that skips missed ticks and reads the twin only when the
+//! client's socket takes more, so a slow or stalled browser costs the twin nothing. The pages and
+//! three.js are embedded in the binary: nothing is fetched from elsewhere at run time.
 
 mod exposition;
 
@@ -108,7 +108,7 @@ struct AppState {
 
 impl AppState {
     /// The shared fleet read, read again if older than `max_age`. The read runs on a blocking
-    /// thread: it takes the twin's lock in turns.
+    /// thread: it takes every robot's lock in turn.
     async fn fleet(&self, max_age: Duration) -> Arc<FleetRead> {
         let asked = Instant::now();
         let fresh = |cache: &Mutex<Option<Arc<FleetRead>>>| {

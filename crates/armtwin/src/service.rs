@@ -181,6 +181,29 @@ pub fn zenoh_config_of(section: &ZenohSection) -> Result<zenoh::Config, ServiceE
     Ok(zenoh)
 }
 
+/// Aggregates this session's publishers under `key_exprs` (Zenoh's `aggregation/publishers`),
+/// unless the configuration already names publishers to aggregate: then the operator's choice
+/// stands. Every publisher declared without it asks the mesh for its key's subscribers, a
+/// reliable message to every peer that each answers; aggregated, the first publisher under a key
+/// expression asks for all of them and the others ask nothing, so a fleet's publishers cost only
+/// their local key declarations and no subscriber's link has to carry them.
+pub fn aggregate_publishers(
+    zenoh: &mut zenoh::Config,
+    key_exprs: &[String],
+) -> Result<(), ServiceError> {
+    let configured = zenoh
+        .get_json("aggregation/publishers")
+        .map_err(|e| ServiceError::ZenohConfig(format!("aggregation/publishers: {e}")))?;
+    let configured: Vec<String> = serde_json::from_str(&configured).unwrap_or_default();
+    if !configured.is_empty() || key_exprs.is_empty() {
+        return Ok(());
+    }
+    let value = serde_json::to_string(key_exprs).unwrap_or_else(|_| "[]".to_owned());
+    zenoh
+        .insert_json5("aggregation/publishers", &value)
+        .map_err(|e| ServiceError::ZenohConfig(format!("aggregation/publishers = {value}: {e}")))
+}
+
 /// Awaits one teardown step for at most `limit`. `None`, with a warning naming the step, when it
 /// did not finish in time: the step is abandoned and the teardown goes on, so a peer that stopped
 /// answering cannot hold a shutdown forever.
@@ -208,7 +231,17 @@ pub async fn serve(
 ) -> Result<ServeReport, ServiceError> {
     // Bound first: an address in use fails the start before anything joins the mesh.
     let http_listener = bind_http(config.http_listen).await?;
-    let session = zenoh::open(zenoh_config_of(&config.zenoh)?).await?;
+    let mut zenoh_config = zenoh_config_of(&config.zenoh)?;
+    let prefix = config.key_prefix.clone();
+    // The outputs at the sample rate, one publisher per tracked robot on each.
+    aggregate_publishers(
+        &mut zenoh_config,
+        &[
+            format!("{prefix}/pose/**"),
+            format!("{prefix}/deviation/**"),
+        ],
+    )?;
+    let session = zenoh::open(zenoh_config).await?;
     info!(
         zid = %session.zid(),
         mode = %config.zenoh.mode,
@@ -217,7 +250,6 @@ pub async fn serve(
         prefix = %config.key_prefix,
         "armtwin serving"
     );
-    let prefix = config.key_prefix.clone();
     let (control_tx, control_rx) = channel::<Control>();
     let declarer = Declarer::new(
         session.clone(),

@@ -1120,3 +1120,21 @@ async fn two_gateways_stream_two_robots_at_once_and_each_gets_exact_metrics() {
     .await
     .expect("test finished in time");
 }
+
+#[test]
+fn output_publishers_are_aggregated_unless_the_operator_chose_otherwise() {
+    let outputs = ["twin/pose/**".to_owned(), "twin/deviation/**".to_owned()];
+    let aggregated = |config: &zenoh::Config| -> Vec<String> {
+        serde_json::from_str(&config.get_json("aggregation/publishers").unwrap()).unwrap()
+    };
+    let mut config = zenoh::Config::default();
+    armtwin::service::aggregate_publishers(&mut config, &outputs).unwrap();
+    assert_eq!(aggregated(&config), outputs);
+
+    let mut chosen = zenoh::Config::default();
+    chosen
+        .insert_json5("aggregation/publishers", r#"["plant/**"]"#)
+        .unwrap();
+    armtwin::service::aggregate_publishers(&mut chosen, &outputs).unwrap();
+    assert_eq!(aggregated(&chosen), ["plant/**"]);
+}

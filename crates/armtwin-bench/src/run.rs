@@ -26,8 +26,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use serde::Serialize;
 
-use crate::fleet::service_config_encoded;
-use crate::fleet::service_config_with_state;
+use crate::fleet::{service_config_encoded, service_config_with_state};
 use crate::load::{Latency, LoadReport, Target, Trial, WireEncoding};
 use crate::net;
 
@@ -59,7 +58,7 @@ pub struct RunArgs {
     /// Load sessions (gateways) the robots are split over (default 1,4). The first count runs
     /// every robot count in every encoding; each further one the largest robot count in the
     /// last encoding, and the memory, declaration and restart measurements use the largest.
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, value_delimiter = ',', value_parser = clap::value_parser!(u16).range(1..))]
     pub gateways: Vec<u16>,
     /// Robots for the memory measurement, whose run also times declaring them and a restart
     /// (default 10000; quick 100; 0 skips it).

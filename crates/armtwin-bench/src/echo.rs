@@ -6,13 +6,16 @@
 //! from Zenoh's receive callback (no queue, no thread hop, no decoding), through a publisher
 //! declared up front per robot: `joints/<robot>` → `pose/<robot>`, `measured/<robot>` → `deviation/<robot>`.
 //! Each robot's input keys are declared (`declare_keyexpr`) so Zenoh caches their routes, as
-//! armtwin does; `--naive` leaves them undeclared to measure what that costs.
+//! armtwin does; `--naive` leaves them undeclared to measure what that costs. `--lazy` meets
+//! the robots on first contact: nothing is declared per robot up front, and a robot's publisher
+//! is declared in the receive callback on its first sample (the baseline of a system that is not
+//! told its fleet in advance).
 //!
 //! Runs until its standard input closes (or it is killed); prints `ready` once declared.
 
 use std::collections::HashMap;
 use std::io::{Read, Write};
-use std::sync::Arc;
+use std::sync::{Arc, PoisonError, RwLock};
 
 use armtwin::cli::ZenohArgs;
 use armtwin::service::ServiceError;
@@ -41,6 +44,10 @@ pub struct EchoArgs {
     /// baseline for what declaring them saves).
     #[arg(long)]
     pub naive: bool,
+    /// Declare nothing per robot up front: a robot's publisher is declared on its first sample,
+    /// in the receive callback.
+    #[arg(long)]
+    pub lazy: bool,
 }
 
 /// Why the echo stopped with an error.
@@ -85,11 +92,57 @@ fn forward(routes: &Routes, input: &str, sample: &Sample) {
     }
 }
 
+/// The publishers of one output stream, declared on each robot's first sample.
+struct LazyRoutes {
+    session: Session,
+    output: &'static str,
+    routes: RwLock<Routes>,
+}
+
+impl LazyRoutes {
+    /// Republishes `sample`'s payload on its robot's publisher, declaring it first if this is
+    /// the robot's first sample. The read lock is shared by every receiving thread; the write
+    /// lock is taken once per robot.
+    fn forward(&self, input: &str, sample: &Sample) {
+        let Some(robot) = net::robot_of(sample.key_expr().as_str(), input) else {
+            return;
+        };
+        let routes = self.routes.read().unwrap_or_else(PoisonError::into_inner);
+        if let Some(publisher) = routes.get(robot) {
+            let _ = publisher
+                .put(sample.payload().clone())
+                .encoding(sample.encoding().clone())
+                .wait();
+            return;
+        }
+        drop(routes);
+        let mut routes = self.routes.write().unwrap_or_else(PoisonError::into_inner);
+        if !routes.contains_key(robot) {
+            // Only fails when the session is closing; the sample is then dropped.
+            let Ok(publisher) = self
+                .session
+                .declare_publisher(net::key(self.output, robot))
+                .congestion_control(CongestionControl::Block)
+                .wait()
+            else {
+                return;
+            };
+            routes.insert(robot.into(), publisher);
+        }
+        if let Some(publisher) = routes.get(robot) {
+            let _ = publisher
+                .put(sample.payload().clone())
+                .encoding(sample.encoding().clone())
+                .wait();
+        }
+    }
+}
+
 /// Runs the echo until standard input closes.
 pub fn run(args: &EchoArgs) -> Result<(), EchoError> {
     let session = zenoh::open(net::config_of(&args.zenoh)?).wait()?;
     let mut declared: Vec<KeyExpr<'static>> = Vec::new();
-    if !args.naive {
+    if !args.naive && !args.lazy {
         for index in 0..args.robots {
             let robot = net::robot_id(index);
             for input in [net::JOINTS, net::MEASURED] {
@@ -99,6 +152,20 @@ pub fn run(args: &EchoArgs) -> Result<(), EchoError> {
     }
     let mut subscribers = Vec::new();
     for (input, output) in [(net::JOINTS, net::POSE), (net::MEASURED, net::DEVIATION)] {
+        if args.lazy {
+            let routes = Arc::new(LazyRoutes {
+                session: session.clone(),
+                output,
+                routes: RwLock::new(Routes::new()),
+            });
+            subscribers.push(
+                session
+                    .declare_subscriber(net::every_robot(input))
+                    .callback(move |sample| routes.forward(input, &sample))
+                    .wait()?,
+            );
+            continue;
+        }
         let routes = Arc::new(routes(&session, args.robots, output)?);
         subscribers.push(
             session

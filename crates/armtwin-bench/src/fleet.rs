@@ -44,6 +44,27 @@ pub fn service_config_encoded(robots: usize, encoding: &str) -> String {
     text
 }
 
+/// [`service_config_encoded`] with the twins' snapshot kept in `state_dir` (written every
+/// `snapshot_period_s` and at shutdown, restored at start).
+#[must_use]
+pub fn service_config_with_state(
+    robots: usize,
+    encoding: &str,
+    state_dir: &Path,
+    snapshot_period_s: f64,
+) -> String {
+    let text = service_config_encoded(robots, encoding);
+    // A TOML literal string: no escapes, so a path is written as it is.
+    text.replacen(
+        "[service]\n",
+        &format!(
+            "[service]\nstate_dir = '{}'\nsnapshot_period_s = {snapshot_period_s:?}\n",
+            state_dir.display()
+        ),
+        1,
+    )
+}
+
 /// [`service_config`] parsed as `armtwin serve` parses it: the configuration the in-process
 /// benchmarks build their pipeline from.
 #[allow(

@@ -16,11 +16,22 @@
 //! session subscribes to the first robot's poses and sleeps in its callback for each one, and
 //! only the other robots' poses are timed: what a slow dashboard costs everyone else.
 //!
+//! With `--gateways N` it opens N sessions to the system under test, each its own link, as N
+//! gateway processes would, and robot `i` publishes on session `i % N`; the first session also
+//! receives every reply. One thread sends on all of them: robots are sent round robin, so
+//! consecutive samples go out on consecutive sessions and the schedule is the one-session
+//! schedule. A sender thread per session was not chosen: on a machine whose cores the system
+//! under test needs, more sending threads compete with it, and whether one thread keeps the
+//! schedule is visible in every trial (`send_s` against `duration_s`).
+//!
 //! What it runs, in order, each optional: a latency run at a fixed moderate rate; the search for
 //! the highest sustained rate (doubling until a rate fails, then bisecting; a failed trial is run
-//! again before its rate counts as failed); a check at one fixed rate; or (alone) the memory
-//! measurement of a system under test. Results go to standard output as one JSON object;
-//! progress to standard error.
+//! again before its rate counts as failed); a check at one fixed rate (`--check-embedded`: with
+//! embedded measured poses). Or, alone: the memory measurement of a system under test (which
+//! also times how long the system takes to declare the robots new to it); a first-contact trial
+//! (`--first-contact-rate`: full rate to robots the system has never seen, no warm-up); or the
+//! wait for a restarted armtwin's liveliness tokens (`--await-tokens`). Results go to standard
+//! output as one JSON object; progress to standard error.
 #![allow(
     clippy::print_stdout,
     clippy::print_stderr,
@@ -168,6 +179,25 @@ pub struct LoadArgs {
     /// file at the start (if it exists) and written back at the end.
     #[arg(long)]
     pub seq_file: Option<PathBuf>,
+    /// Sessions the robots are split over (robot `i` on session `i % N`), each its own link to
+    /// the system under test, as N gateway processes would be; replies arrive on the first.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..))]
+    pub gateways: u16,
+    /// The check (`--check-rate`) sends each sample as one joint message with the measured pose
+    /// embedded, whatever `--embedded` says for the rest.
+    #[arg(long)]
+    pub check_embedded: bool,
+    /// Instead of everything above: a trial at this rate (samples/s) to robots the system
+    /// under test has never seen, without a warm-up, waiting for every reply.
+    #[arg(long)]
+    pub first_contact_rate: Option<f64>,
+    /// Seconds of the first-contact trial.
+    #[arg(long, default_value_t = 3.0)]
+    pub first_contact_duration: f64,
+    /// Instead of everything above: only wait until armtwin's liveliness tokens of `--robots`
+    /// robots are all visible (a restarted armtwin restoring its snapshot), sending nothing.
+    #[arg(long)]
+    pub await_tokens: bool,
     /// A second session subscribes to the first robot's poses and sleeps this long (ms) in its
     /// callback per pose; latencies are then those of the other robots only. Its link has a
     /// 64 KiB receive buffer (a dashboard on a slow network), so that it fills in seconds, not
@@ -335,6 +365,9 @@ pub struct Trial {
     pub lost: u64,
     /// `samples / complete_s`.
     pub achieved_rate: Option<f64>,
+    /// Poses received / seconds from the first send to the last reply (after the settle time
+    /// for an incomplete trial): what came through even when the trial was not sustained.
+    pub delivered_rate: Option<f64>,
     /// CPU seconds the system under test used during the trial.
     pub sut_cpu_s: Option<f64>,
     /// Every reply arrived, within the tolerance of the schedule.
@@ -384,6 +417,9 @@ pub struct Memory {
     pub rss_full_kib: u64,
     /// `(rss_full − rss_base) / (robots − base_robots)`, bytes.
     pub bytes_per_robot: f64,
+    /// armtwin: seconds from the first sample to the robots new after the baseline until every
+    /// robot's liveliness token was visible (their first samples answered, then their tokens).
+    pub declare_s: Option<f64>,
 }
 
 /// Everything a load run measured: its standard output.
@@ -406,6 +442,12 @@ pub struct LoadReport {
     pub check: Option<Trial>,
     /// The memory measurement.
     pub memory: Option<Memory>,
+    /// The first-contact trial.
+    pub first_contact: Option<Trial>,
+    /// `--await-tokens`: Unix time (s) when every robot's token was visible.
+    pub tokens_unix_s: Option<f64>,
+    /// Sessions the robots were split over.
+    pub gateways: u16,
     /// Replies over the whole run.
     pub totals: Counts,
     /// Poses the slow subscriber received (`--slow-subscriber-ms`), of `totals.poses / robots`
@@ -428,7 +470,12 @@ struct RobotKeys {
 
 struct Load {
     args: LoadArgs,
+    /// The receiving session, also the first gateway's.
     session: Session,
+    /// The other gateways' sessions (robot `i` on `i % gateways`, 0 being `session`).
+    senders: Vec<Session>,
+    /// Samples embed their measured pose (`--embedded`; the check may switch it on).
+    embedded: bool,
     workload: Workload,
     replies: Arc<Replies>,
     robots: Vec<RobotKeys>,
@@ -456,11 +503,26 @@ pub fn run(args: LoadArgs) -> Result<LoadReport, LoadError> {
         search: None,
         check: None,
         memory: None,
+        first_contact: None,
+        tokens_unix_s: None,
+        gateways: load.args.gateways,
         totals: Counts::default(),
         slow_subscriber_poses: None,
     };
     if let Some(base_robots) = load.args.memory_base_robots {
         report.memory = Some(load.memory(base_robots.clamp(1, robots))?);
+    } else if load.args.await_tokens {
+        load.await_tokens(robots)?;
+        report.tokens_unix_s = Some(
+            SystemTime::now()
+                .duration_since(UNIX_EPOCH)
+                .map_or(0.0, |d| d.as_secs_f64()),
+        );
+    } else if let Some(rate) = load.args.first_contact_rate {
+        load.declare_robots(robots)?;
+        load.wait_for_subscriber()?;
+        eprintln!("load: first contact at {rate} samples/s");
+        report.first_contact = Some(load.trial(rate, load.args.first_contact_duration, false)?);
     } else {
         load.declare_robots(robots)?;
         load.wait_for_subscriber()?;
@@ -479,6 +541,7 @@ pub fn run(args: LoadArgs) -> Result<LoadReport, LoadError> {
         }
         if load.args.check_rate > 0.0 {
             eprintln!("load: check at {} samples/s", load.args.check_rate);
+            load.embedded |= load.args.check_embedded;
             report.check =
                 Some(load.trial(load.args.check_rate, load.args.check_duration, false)?);
         }
@@ -514,6 +577,9 @@ fn percentile_us(sorted_ns: &[u64], fraction: f64) -> f64 {
 impl Load {
     fn open(args: LoadArgs) -> Result<Self, LoadError> {
         let session = zenoh::open(net::config_of(&args.zenoh)?).wait()?;
+        let senders = (1..args.gateways)
+            .map(|_| Ok(zenoh::open(net::config_of(&args.zenoh)?).wait()?))
+            .collect::<Result<Vec<_>, LoadError>>()?;
         let start = Instant::now();
         let unix_s = SystemTime::now()
             .duration_since(UNIX_EPOCH)
@@ -582,8 +648,10 @@ impl Load {
         };
         Ok(Self {
             workload: Workload::ur10e()?,
+            embedded: args.embedded,
             args,
             session,
+            senders,
             replies,
             robots: Vec::new(),
             subscribers,
@@ -621,6 +689,9 @@ impl Load {
             let _ = slow_session.close().wait();
         }
         // Failing to close a session at exit changes nothing measured.
+        for sender in self.senders {
+            let _ = sender.close().wait();
+        }
         let _ = self.session.close().wait();
     }
 
@@ -635,6 +706,11 @@ impl Load {
         };
         for index in self.robots.len()..count {
             let robot = net::robot_id(index);
+            let gateway = index % (self.senders.len() + 1);
+            let sender = match gateway {
+                0 => &self.session,
+                n => &self.senders[n - 1],
+            };
             let binary = self.args.encoding == WireEncoding::ZenohSerialized;
             let publisher = |stream: &str, schema: &str| {
                 let encoding = if binary {
@@ -642,7 +718,7 @@ impl Load {
                 } else {
                     Encoding::APPLICATION_JSON
                 };
-                self.session
+                sender
                     .declare_publisher(net::key(stream, &robot))
                     .congestion_control(CongestionControl::Block)
                     .encoding(encoding)
@@ -670,14 +746,18 @@ impl Load {
         Ok(())
     }
 
-    /// Waits until the system under test subscribes to both input streams.
+    /// Waits until the system under test subscribes to both input streams, on every gateway's
+    /// session (each one's first robot).
     fn wait_for_subscriber(&self) -> Result<(), LoadError> {
         let deadline = Instant::now() + MATCH_TIMEOUT;
-        let first = self
-            .robots
-            .first()
-            .ok_or_else(|| LoadError::NoAnswer("no robots".to_owned()))?;
-        for publisher in [&first.joints, &first.measured] {
+        if self.robots.is_empty() {
+            return Err(LoadError::NoAnswer("no robots".to_owned()));
+        }
+        let firsts = &self.robots[..self.robots.len().min(self.senders.len() + 1)];
+        for publisher in firsts
+            .iter()
+            .flat_map(|keys| [&keys.joints, &keys.measured])
+        {
             while !publisher.matching_status().wait()?.matching() {
                 if Instant::now() >= deadline {
                     return Err(LoadError::NoAnswer(format!(
@@ -710,7 +790,7 @@ impl Load {
         if self.args.encoding == WireEncoding::ZenohSerialized {
             let gateway_seq = keys.gateway_seq;
             keys.gateway_seq += 1;
-            let embedded = self.args.embedded;
+            let embedded = self.embedded;
             keys.joints
                 .put(
                     self.workload
@@ -722,7 +802,7 @@ impl Load {
                     .put(self.workload.measured_zser(seq, stamp_s))
                     .wait()?;
             }
-        } else if self.args.embedded {
+        } else if self.embedded {
             keys.joints
                 .put(self.workload.joints_with_measured(seq, stamp_s))
                 .wait()?;
@@ -738,7 +818,7 @@ impl Load {
     /// Deviations expected per sample: one, except from the echo when the measured pose is
     /// embedded in the joint message (it returns that one message on `pose`).
     fn deviations_per_sample(&self) -> u64 {
-        u64::from(!(self.args.embedded && self.args.target == Target::Echo))
+        u64::from(!(self.embedded && self.args.target == Target::Echo))
     }
 
     /// armtwin declares a newly tracked robot's liveliness token on its control thread, after
@@ -747,9 +827,9 @@ impl Load {
     /// each). The echo declares everything before it reports ready. So that both are measured
     /// tracking every robot, this waits until armtwin's token of the last of the first `robots`
     /// robots is visible (they are declared in the order the robots were first seen, which is
-    /// the order the warm-up sent them), then counts every token once. Returns whether it waited (only
-    /// armtwin has tokens); fails if the tokens stop appearing for [`TRACKING_STALL`] or fewer
-    /// than `robots` are there in the end.
+    /// the order the warm-up sent them over one session), then until every robot's token is.
+    /// Returns whether it waited (only armtwin has tokens); fails if the tokens stop appearing
+    /// for [`TRACKING_STALL`].
     fn wait_for_tracking(&self, robots: usize) -> Result<bool, LoadError> {
         if self.args.target != Target::Armtwin || robots == 0 {
             return Ok(false);
@@ -777,13 +857,9 @@ impl Load {
                 }
             }
         }
-        let tokens = self.tokens(&every)?;
-        eprintln!("load: armtwin tracks {tokens} robots (liveliness tokens)");
-        if tokens < robots {
-            return Err(LoadError::NoAnswer(format!(
-                "armtwin has {tokens} liveliness tokens for {robots} robots"
-            )));
-        }
+        // Over several gateway sessions the robots' first samples reach armtwin in another
+        // order than they were sent, so the last robot's token is not the last token.
+        self.await_tokens(robots)?;
         Ok(true)
     }
 
@@ -916,6 +992,14 @@ impl Load {
         let now = self.replies.counts();
         let replies = now.since(base);
         self.accounted = now;
+        let last_reply_s = self
+            .replies
+            .last_ns
+            .load(Ordering::Acquire)
+            .saturating_sub(start_ns) as f64
+            / 1e9;
+        let delivered_rate =
+            (replies.poses > 0 && last_reply_s > 0.0).then(|| replies.poses as f64 / last_reply_s);
         let lost =
             samples.saturating_sub(replies.poses) + deviations.saturating_sub(replies.deviations);
         let sustained = !abandoned && lost == 0 && complete_s.is_some_and(|s| s <= deadline_s);
@@ -928,6 +1012,7 @@ impl Load {
             replies,
             lost,
             achieved_rate: complete_s.map(|s| samples as f64 / s),
+            delivered_rate,
             sut_cpu_s: cpu_before.zip(cpu_after).map(|(b, a)| a - b),
             sustained,
         };
@@ -1046,8 +1131,18 @@ impl Load {
         let rss_base_kib = procfs::rss_kib(pid)?;
         eprintln!("load: memory baseline {rss_base_kib} KiB with {base_robots} robots");
         self.declare_robots(robots)?;
+        let mut declare_s = None;
         for round in 0..samples {
+            let started = Instant::now();
             self.warm_up(base_robots..robots)?;
+            if round == 0 && self.wait_for_tracking(robots)? {
+                declare_s = Some(started.elapsed().as_secs_f64());
+                eprintln!(
+                    "load: {} new robots declared {:.1} s after their first samples",
+                    robots - base_robots,
+                    started.elapsed().as_secs_f64()
+                );
+            }
             eprintln!("load: memory round {}/{samples} done", round + 1);
         }
         self.wait_for_tracking(robots)?;
@@ -1062,7 +1157,33 @@ impl Load {
             rss_base_kib,
             rss_full_kib,
             bytes_per_robot: (rss_full_kib as f64 - rss_base_kib as f64) * 1024.0 / added as f64,
+            declare_s,
         })
+    }
+
+    /// Waits until `robots` liveliness tokens are visible, in whatever order they are declared
+    /// (a restarted armtwin declares its restored robots' tokens in its own order); fails if
+    /// their count stops growing for [`TRACKING_STALL`].
+    fn await_tokens(&self, robots: usize) -> Result<(), LoadError> {
+        let every = net::every_robot(net::ALIVE);
+        let (mut seen, mut progress) = (0, Instant::now());
+        loop {
+            let now_seen = self.tokens(&every)?;
+            if now_seen >= robots {
+                eprintln!("load: armtwin tracks {now_seen} robots (liveliness tokens)");
+                return Ok(());
+            }
+            if now_seen > seen {
+                seen = now_seen;
+                progress = Instant::now();
+            } else if progress.elapsed() >= TRACKING_STALL {
+                return Err(LoadError::NoAnswer(format!(
+                    "armtwin declared {seen} of {robots} robots' liveliness tokens, then none for {} s",
+                    TRACKING_STALL.as_secs()
+                )));
+            }
+            thread::sleep(Duration::from_millis(100));
+        }
     }
 }
 

@@ -1,6 +1,7 @@
 //! Smoke test of the benchmark harness: `armtwin-bench run --quick` end to end with tiny numbers,
-//! real processes and real Zenoh sessions over loopback. It checks the report's structure and
-//! that nothing was lost at a trivially low rate; it asserts no timing.
+//! real processes and real Zenoh sessions over loopback, in both encodings and over one and two
+//! gateway sessions. It checks the report's structure and that nothing was lost at a trivially
+//! low rate; it asserts no timing.
 #![allow(
     clippy::expect_used,
     clippy::unwrap_used,
@@ -23,6 +24,40 @@ fn armtwin_binary(bench: &Path) -> PathBuf {
         armtwin.display()
     );
     armtwin
+}
+
+/// Every reply of `trial` came back: nothing lost, a pose per sample, and a deviation per sample
+/// unless the echo was sent embedded samples (it then returns one message per sample).
+fn assert_lossless(trial: &Value, system: &str, deviations: bool) {
+    assert_eq!(trial["lost"], 0, "{system}: {trial:#}");
+    assert_eq!(trial["replies"]["poses"], trial["samples"], "{system}");
+    if deviations {
+        assert_eq!(trial["replies"]["deviations"], trial["samples"], "{system}");
+    }
+}
+
+/// Both systems sustained the trivially low rate in `comparison`: every pose and deviation of
+/// every trial came back, and armtwin raised no event.
+fn assert_row_lossless(comparison: &Value, latency_rounds: usize) {
+    for system in ["echo", "armtwin"] {
+        let load = &comparison[system];
+        let latency = &comparison[format!("{system}_latency")];
+        let rounds = latency["rounds"].as_array().expect("latency rounds");
+        assert_eq!(rounds.len(), latency_rounds);
+        let trials = load["search"]["trials"].as_array().expect("trials");
+        assert!(!trials.is_empty());
+        for trial in trials
+            .iter()
+            .chain(rounds.iter().map(|round| &round["trial"]))
+        {
+            assert_lossless(trial, system, true);
+        }
+        assert_eq!(load["gateways"], comparison["gateways"]);
+        assert!(number(&rounds[0], "/count") > 0.0);
+        assert!(number(latency, "/p999_us") >= number(latency, "/p50_us"));
+    }
+    assert_eq!(comparison["armtwin"]["totals"]["events"], 0);
+    assert!(number(&comparison["armtwin"], "/totals/metrics") > 0.0);
 }
 
 fn number(value: &Value, path: &str) -> f64 {
@@ -49,6 +84,7 @@ fn a_quick_run_reports_every_figure_and_loses_nothing() {
             "--memory-base-robots",
             "2",
         ])
+        .args(["--encodings", "json,zenoh-serialized", "--gateways", "1,2"])
         .args([
             "--start-rate",
             "40",
@@ -71,45 +107,71 @@ fn a_quick_run_reports_every_figure_and_loses_nothing() {
 
     // The headline figures, at the largest robot count.
     assert_eq!(report["headline_robots"], 3);
+    assert_eq!(report["headline_encoding"], "zenoh-serialized");
     for field in ["echo_throughput", "armtwin_throughput", "throughput_ratio"] {
         assert!(number(&report, &format!("/{field}")) > 0.0, "{field}");
     }
     number(&report, "/added_latency_p99_us");
     number(&report, "/bytes_per_robot");
 
-    // Both systems sustained the trivially low rate at every robot count: every pose and
-    // deviation came back, and armtwin raised no event.
+    // Both systems sustained the trivially low rate in every row: every pose and deviation came
+    // back, and armtwin raised no event. Rows: each robot count in each encoding over one
+    // gateway, then the largest over two in the last encoding.
     let by_robots = report["by_robots"].as_array().expect("by_robots");
-    assert_eq!(by_robots.len(), 2);
+    let rows: Vec<(u64, &str, u64)> = by_robots
+        .iter()
+        .map(|c| {
+            (
+                c["robots"].as_u64().expect("robots"),
+                c["encoding"].as_str().expect("encoding"),
+                c["gateways"].as_u64().expect("gateways"),
+            )
+        })
+        .collect();
+    assert_eq!(
+        rows,
+        [
+            (1, "json", 1),
+            (3, "json", 1),
+            (1, "zenoh-serialized", 1),
+            (3, "zenoh-serialized", 1),
+            (3, "zenoh-serialized", 2),
+        ]
+    );
     for comparison in by_robots {
-        for system in ["echo", "armtwin"] {
-            let load = &comparison[system];
-            let latency = &comparison[format!("{system}_latency")];
-            let rounds = latency["rounds"].as_array().expect("latency rounds");
-            assert_eq!(rounds.len(), 1);
-            let trials = load["search"]["trials"].as_array().expect("trials");
-            assert!(!trials.is_empty());
-            for trial in trials
-                .iter()
-                .chain(rounds.iter().map(|round| &round["trial"]))
-            {
-                assert_eq!(trial["lost"], 0, "{system}: {trial:#}");
-                assert_eq!(trial["replies"]["poses"], trial["samples"], "{system}");
-                assert_eq!(trial["replies"]["deviations"], trial["samples"], "{system}");
-            }
-            assert!(number(&rounds[0], "/count") > 0.0);
-            assert!(number(latency, "/p999_us") >= number(latency, "/p50_us"));
-        }
-        assert_eq!(comparison["armtwin"]["totals"]["events"], 0);
-        assert!(number(&comparison["armtwin"], "/totals/metrics") > 0.0);
+        assert_row_lossless(comparison, 1);
     }
+
+    // The fleet check rides on the row of the most gateways, embedded samples.
     assert_eq!(report["fleet"]["robots"], 3);
+    assert_eq!(report["fleet"]["gateways"], 2);
     assert!(report["fleet"]["armtwin_sustained"].is_boolean());
+    let fleet_row = &by_robots[4];
+    assert_lossless(&fleet_row["echo"]["check"], "echo", false);
+    assert_lossless(&fleet_row["armtwin"]["check"], "armtwin", true);
+
+    // First contact: every robot new, every reply awaited.
+    let contact = &report["first_contact"][0];
+    assert_eq!(contact["robots"], 3);
+    assert_lossless(&contact["echo"], "echo --lazy", true);
+    assert_lossless(&contact["armtwin"], "armtwin", true);
+    assert!(number(contact, "/ratio") > 0.0);
+
+    // Memory, the robots' declaration and the restart on the snapshot.
     assert_eq!(report["memory"]["memory"]["robots"], 6);
+    assert_eq!(report["memory"]["gateways"], 2);
+    assert!(number(&report, "/declare_s") > 0.0);
+    assert!(number(&report, "/restart_s") > 0.0);
+    number(&report, "/echo_bytes_per_robot");
+
+    let targets = report["targets"].as_array().expect("targets");
+    assert!(targets.len() >= by_robots.len() + 5, "{targets:#?}");
+    assert!(number(&report, "/wall_s") > 0.0);
 }
 
-/// Binary in and out: every reply of every load process comes back and armtwin raises no event,
-/// so each load process took up each robot's gateway `seq` where the one before left it.
+/// Binary in and out, two gateway sessions: every reply of every load process comes back and
+/// armtwin raises no event, so each load process took up each robot's gateway `seq` where the
+/// one before left it.
 #[test]
 fn a_quick_zenoh_serialized_run_loses_nothing_and_raises_no_event() {
     let bench = PathBuf::from(env!("CARGO_BIN_EXE_armtwin-bench"));
@@ -120,6 +182,7 @@ fn a_quick_zenoh_serialized_run_loses_nothing_and_raises_no_event() {
         .arg("run")
         .arg("--quick")
         .args(["--encoding", "zenoh-serialized", "--robots", "2"])
+        .args(["--gateways", "2", "--first-contact-robots", "0"])
         .args(["--memory-robots", "0", "--fleet-duration", "0"])
         .args([
             "--start-rate",
@@ -140,8 +203,9 @@ fn a_quick_zenoh_serialized_run_loses_nothing_and_raises_no_event() {
     assert!(status.success(), "armtwin-bench run failed: {status}");
     let report: Value =
         serde_json::from_str(&std::fs::read_to_string(&out).expect("bench.json")).expect("JSON");
-    assert_eq!(report["settings"]["encoding"], "zenoh-serialized");
+    assert_eq!(report["settings"]["encodings"][0], "zenoh-serialized");
     let comparison = &report["by_robots"][0];
+    assert_eq!(comparison["gateways"], 2);
     for system in ["echo", "armtwin"] {
         let rounds = comparison[format!("{system}_latency")]["rounds"]
             .as_array()

@@ -6,8 +6,8 @@
 //! and the ordered teardown. Samples and queries are handled in Zenoh's callbacks: each sample
 //! resolves its robot and decodes against the robot's immutable settings first, then steps that
 //! robot's twin under the robot's own lock, so robots arriving on different links never wait on
-//! each other (see [`SharedTwin`]); a control thread declares newly tracked robots' entities,
-//! publishes the periodic metrics (and the snapshot, with `[service] state_dir`) and finishes
+//! each other (see [`SharedTwin`]); a control thread declares newly tracked robots' liveliness
+//! tokens (and, once a robot streams, the publishers that cache its routes), publishes the periodic metrics (and the snapshot, with `[service] state_dir`) and finishes
 //! every twin at shutdown, each robot locked in turn.
 //!
 //! An instance owns the robots of `[service] robots`: its wildcard subscriptions and queryables
@@ -1717,10 +1717,20 @@ fn publish_due_metrics(twin: &SharedTwin) {
     }
 }
 
+/// Twin poses a robot publishes on plain keys before the control thread declares the
+/// publishers (and input keys) that cache its routes. Zenoh computes the route of a put on an
+/// undeclared key anew every time; a declaration is paid once, costs in proportion to the keys
+/// beside it and holds memory for as long as the robot is tracked: a robot that streams repays
+/// it within a few dozen messages, while one that sends now and then never would, so a fleet of
+/// mostly quiet robots holds route caches only for the few that stream.
+const ROUTE_CACHE_AFTER_POSES: u64 = 64;
+
 /// What the control thread is asked to do.
 enum Control {
-    /// Declare a newly tracked robot's liveliness token, then its publishers and input keys.
+    /// Declare a newly tracked robot's liveliness token.
     Track(Robot),
+    /// Declare the publishers and input keys that cache a streaming robot's routes.
+    CacheRoutes(Robot),
     /// Finish the pipeline, undeclare everything and stop.
     Stop,
 }
@@ -1765,11 +1775,12 @@ impl Control {
         let mut next_refit = Instant::now() + refit_period;
         let mut next_snapshot = snapshots.map(|(_, period)| Instant::now() + *period);
         let mut tokens = Vec::new();
-        // Robots whose token is declared and whose publishers are not yet.
+        // Streaming robots whose route caches are asked for and not yet declared.
         let mut undeclared = VecDeque::new();
         loop {
-            // Every robot's token before any robot's publishers: each Zenoh declaration costs
-            // in proportion to the keys beside it, and a fleet is tracked once its tokens are.
+            // Every new robot's token before any robot's publishers: each Zenoh declaration
+            // costs in proportion to the keys beside it, and a fleet is tracked once its tokens
+            // are.
             let wait = if undeclared.is_empty() {
                 next_metrics
                     .min(next_refit)
@@ -1786,12 +1797,12 @@ impl Control {
                     Ok(token) => {
                         info!(robot = robot.id(), "tracking robot");
                         tokens.push((Arc::clone(robot.shared_id()), token));
-                        undeclared.push_back(robot);
                     }
                     Err(e) => {
                         warn!(robot = robot.id(), error = %e, "cannot declare the robot's liveliness token");
                     }
                 },
+                Ok(Self::CacheRoutes(robot)) => undeclared.push_back(robot),
                 Err(RecvTimeoutError::Timeout) => {
                     if let Some(robot) = undeclared.pop_front() {
                         match declarer.declare(robot.id()) {
@@ -1855,8 +1866,8 @@ impl Control {
     }
 }
 
-/// A tracked robot's publishers of its outputs at the sample rate, and its input keys: declared
-/// so Zenoh caches their routes. Its metrics, events and calibration, a few per second at most,
+/// A streaming robot's publishers of its outputs at the sample rate, and its input keys:
+/// declared so Zenoh caches their routes (after [`ROUTE_CACHE_AFTER_POSES`]). Its metrics, events and calibration, a few per second at most,
 /// go out without a publisher: every declaration costs in proportion to the keys beside it, on
 /// this side and on every subscriber's.
 struct RobotOutputs {
@@ -2306,6 +2317,10 @@ impl Sink for RobotSink<'_> {
         self.output.poses.fetch_add(1, Ordering::Relaxed);
         if let Some(state) = self.robot.as_deref_mut() {
             state.counts.poses += 1;
+            if state.counts.poses == ROUTE_CACHE_AFTER_POSES {
+                // Fails only once the control thread has stopped.
+                let _ = self.output.control.send(Control::CacheRoutes(robot.clone()));
+            }
         }
         self.put_ros2_pose(robot, stamp_s, pose);
     }

@@ -2319,7 +2319,10 @@ impl Sink for RobotSink<'_> {
             state.counts.poses += 1;
             if state.counts.poses == ROUTE_CACHE_AFTER_POSES {
                 // Fails only once the control thread has stopped.
-                let _ = self.output.control.send(Control::CacheRoutes(robot.clone()));
+                let _ = self
+                    .output
+                    .control
+                    .send(Control::CacheRoutes(robot.clone()));
             }
         }
         self.put_ros2_pose(robot, stamp_s, pose);

@@ -416,8 +416,9 @@ impl Pipeline {
         self.twins.get_mut(robot.get())?.as_deref_mut()
     }
 
-    /// `robot`'s twin, tracking it first (and telling the sink) if this is its first input.
-    fn track(&mut self, robot: &Robot, sink: &mut impl Sink) -> &mut Twin {
+    /// `robot`'s twin, tracking it first (and telling the sink) if this is its first input: for
+    /// a caller that steps the twin itself.
+    pub fn track(&mut self, robot: &Robot, sink: &mut impl Sink) -> &mut Twin {
         let index = robot.index().get();
         if self.twins.len() <= index {
             self.twins.resize_with(index + 1, || None);
@@ -1392,21 +1393,27 @@ mod tests {
         inputs
     }
 
-    #[test]
-    fn a_twin_stepped_alone_gives_what_the_pipeline_gives() {
+    /// A nominal UR10e and robot `r1` of a directory that gives it `alarm`.
+    fn ur10e_robot(alarm: AlarmConfig) -> (Arc<RobotModel>, Robot) {
         let model = Arc::new(RobotModel::nominal("ur10e").expect("catalog"));
         let settings = RobotSettings {
             model: Arc::clone(&model),
-            alarm: AlarmConfig {
-                position_m: Some(0.001),
-                angle_rad: None,
-                hold_s: 0.0,
-            },
+            alarm,
             sensors: Vec::new(),
             self_calibration: None,
         };
         let mut robots = RobotDirectory::new(Some(settings), HashMap::new());
         let r1 = robots.admit("r1").expect("default settings").clone();
+        (model, r1)
+    }
+
+    #[test]
+    fn a_twin_stepped_alone_gives_what_the_pipeline_gives() {
+        let (model, r1) = ur10e_robot(AlarmConfig {
+            position_m: Some(0.001),
+            angle_rad: None,
+            hold_s: 0.0,
+        });
         let config = PipelineConfig::default();
         let error = std::fmt::Error;
         let stream = MeasuredStream::Robot;
@@ -1464,15 +1471,7 @@ mod tests {
 
     #[test]
     fn a_restored_twin_is_due_and_refuses_another_arm() {
-        let model = Arc::new(RobotModel::nominal("ur10e").expect("catalog"));
-        let settings = RobotSettings {
-            model: Arc::clone(&model),
-            alarm: AlarmConfig::default(),
-            sensors: Vec::new(),
-            self_calibration: None,
-        };
-        let mut robots = RobotDirectory::new(Some(settings), HashMap::new());
-        let r1 = robots.admit("r1").expect("default settings").clone();
+        let (model, r1) = ur10e_robot(AlarmConfig::default());
         let config = PipelineConfig::default();
         let mut pipeline = Pipeline::new(config);
         for input in mixed_inputs(&model) {
@@ -1494,15 +1493,7 @@ mod tests {
 
     #[test]
     fn statistics_start_with_the_first_pair_and_follow_source_time() {
-        let model = Arc::new(RobotModel::nominal("ur10e").expect("catalog"));
-        let settings = RobotSettings {
-            model: Arc::clone(&model),
-            alarm: AlarmConfig::default(),
-            sensors: Vec::new(),
-            self_calibration: None,
-        };
-        let mut robots = RobotDirectory::new(Some(settings), HashMap::new());
-        let r1 = robots.admit("r1").expect("default settings").clone();
+        let (model, r1) = ur10e_robot(AlarmConfig::default());
         let mut pipeline = Pipeline::new(PipelineConfig::default());
         let q_rad = vec![0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
         let joints = JointSample {
@@ -1541,19 +1532,11 @@ mod tests {
 
     #[test]
     fn a_restored_twin_continues_its_metrics_seq_and_alarms() {
-        let model = Arc::new(RobotModel::nominal("ur10e").expect("catalog"));
-        let settings = RobotSettings {
-            model: Arc::clone(&model),
-            alarm: AlarmConfig {
-                position_m: Some(0.001),
-                angle_rad: None,
-                hold_s: 0.0,
-            },
-            sensors: Vec::new(),
-            self_calibration: None,
-        };
-        let mut robots = RobotDirectory::new(Some(settings), HashMap::new());
-        let r1 = robots.admit("r1").expect("default settings").clone();
+        let (model, r1) = ur10e_robot(AlarmConfig {
+            position_m: Some(0.001),
+            angle_rad: None,
+            hold_s: 0.0,
+        });
         let q_rad = vec![0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
         let mut off = model.pose(&q_rad).expect("valid").readout();
         off.position_m[0] += 0.01;

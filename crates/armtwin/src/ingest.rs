@@ -4,11 +4,10 @@
 //!
 //! Two steps, so a caller that shares the pipeline can decode without holding it: decoding
 //! ([`JointMessage::decode`], [`MeasuredMessage::decode`]) needs only the robot's immutable
-//! settings; stepping a [`Target`] with the result ([`JointMessage::step`],
-//! [`MeasuredMessage::step`]) is the only part that touches the twin. The target is the whole
-//! [`Pipeline`] offline, or the robot's own [`Twin`] in the service, which locks each robot on
-//! its own. [`joint_message`] and
-//! [`measured_message`] do both. ROS 2 messages of a `codec = "ros2"` source take the same two
+//! settings; stepping the robot's [`Twin`] with the result ([`JointMessage::step`],
+//! [`MeasuredMessage::step`]) is the only part that touches it: offline the twin comes from the
+//! [`Pipeline`] ([`Pipeline::track`]), in the service from the robot's own locked entry.
+//! [`joint_message`] and [`measured_message`] do both. ROS 2 messages of a `codec = "ros2"` source take the same two
 //! steps ([`Ros2JointMessage`], [`Ros2PoseMessage`]) into the same pipeline calls.
 //!
 //! The decoder is chosen per message ([`Codec`]): armtwin's JSON, or Zenoh's own serialization
@@ -31,118 +30,9 @@ use zenoh::bytes::Encoding;
 use crate::codec::cdr::{self, CdrError, JointNames};
 use crate::codec::wire::{self, DecodedJoints, Undecodable, WireError};
 use crate::codec::zser;
-use crate::kinematics::PoseReadout;
 use crate::pipeline::{self, MeasuredStream, Pipeline, RejectCause, Robot, Sink, Twin};
 use crate::ros2::AttachmentError;
 use crate::sample::{JointSample, MeasuredSample};
-
-/// What a decoded message steps: a [`Pipeline`], which finds (or starts) the robot's twin, or
-/// that robot's [`Twin`] itself, which ignores the handle it already holds.
-pub trait Target {
-    /// [`Pipeline::joints`].
-    fn joints(
-        &mut self,
-        robot: &Robot,
-        key: &str,
-        stamp_s: f64,
-        sample: &JointSample,
-        sink: &mut impl Sink,
-    );
-    /// [`Pipeline::measured`].
-    fn measured(
-        &mut self,
-        robot: &Robot,
-        key: &str,
-        stream: MeasuredStream,
-        stamp_s: f64,
-        pose: &PoseReadout,
-        sink: &mut impl Sink,
-    );
-    /// [`Pipeline::reject`].
-    fn reject(
-        &mut self,
-        robot: &Robot,
-        key: &str,
-        stamp_s: f64,
-        cause: RejectCause,
-        error: &dyn std::error::Error,
-        sink: &mut impl Sink,
-    );
-}
-
-impl Target for Pipeline {
-    fn joints(
-        &mut self,
-        robot: &Robot,
-        key: &str,
-        stamp_s: f64,
-        sample: &JointSample,
-        sink: &mut impl Sink,
-    ) {
-        Pipeline::joints(self, robot, key, stamp_s, sample, sink);
-    }
-
-    fn measured(
-        &mut self,
-        robot: &Robot,
-        key: &str,
-        stream: MeasuredStream,
-        stamp_s: f64,
-        pose: &PoseReadout,
-        sink: &mut impl Sink,
-    ) {
-        Pipeline::measured(self, robot, key, stream, stamp_s, pose, sink);
-    }
-
-    fn reject(
-        &mut self,
-        robot: &Robot,
-        key: &str,
-        stamp_s: f64,
-        cause: RejectCause,
-        error: &dyn std::error::Error,
-        sink: &mut impl Sink,
-    ) {
-        Pipeline::reject(self, robot, key, stamp_s, cause, error, sink);
-    }
-}
-
-impl Target for Twin {
-    fn joints(
-        &mut self,
-        _robot: &Robot,
-        key: &str,
-        stamp_s: f64,
-        sample: &JointSample,
-        sink: &mut impl Sink,
-    ) {
-        Twin::joints(self, key, stamp_s, sample, sink);
-    }
-
-    fn measured(
-        &mut self,
-        _robot: &Robot,
-        key: &str,
-        stream: MeasuredStream,
-        stamp_s: f64,
-        pose: &PoseReadout,
-        sink: &mut impl Sink,
-    ) {
-        Twin::measured(self, key, stream, stamp_s, pose, sink);
-    }
-
-    fn reject(
-        &mut self,
-        _robot: &Robot,
-        key: &str,
-        stamp_s: f64,
-        cause: RejectCause,
-        error: &dyn std::error::Error,
-        sink: &mut impl Sink,
-    ) {
-        Twin::reject(self, key, stamp_s, cause, error, sink);
-    }
-}
 
 /// How a source's payloads are encoded (`[[sources]] codec`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -266,16 +156,16 @@ impl JointMessage {
         }
     }
 
-    /// Steps `pipeline` (or a twin) with the message, which arrived on `key`.
-    pub fn step(&self, pipeline: &mut impl Target, robot: &Robot, key: &str, sink: &mut impl Sink) {
+    /// Steps the robot's `twin` with the message, which arrived on `key`.
+    pub fn step(&self, twin: &mut Twin, key: &str, sink: &mut impl Sink) {
         match &self.decoded {
             Ok(decoded) => {
                 if let Some(error) = &decoded.measured_error {
-                    reject(pipeline, robot, key, self.stamp_s, error, sink);
+                    reject(twin, key, self.stamp_s, error, sink);
                 }
-                pipeline.joints(robot, key, self.stamp_s, &decoded.sample, sink);
+                twin.joints(key, self.stamp_s, &decoded.sample, sink);
             }
-            Err(error) => reject(pipeline, robot, key, self.stamp_s, error, sink),
+            Err(error) => reject(twin, key, self.stamp_s, error, sink),
         }
     }
 }
@@ -308,20 +198,13 @@ impl MeasuredMessage {
         }
     }
 
-    /// Steps `pipeline` (or a twin) with the message of `robot`'s `stream`, which arrived on `key`.
-    pub fn step(
-        &self,
-        pipeline: &mut impl Target,
-        robot: &Robot,
-        key: &str,
-        stream: MeasuredStream,
-        sink: &mut impl Sink,
-    ) {
+    /// Steps the robot's `twin` with the message of its `stream`, which arrived on `key`.
+    pub fn step(&self, twin: &mut Twin, key: &str, stream: MeasuredStream, sink: &mut impl Sink) {
         match &self.decoded {
             Ok(measured) => {
-                pipeline.measured(robot, key, stream, self.stamp_s, &measured.pose, sink);
+                twin.measured(key, stream, self.stamp_s, &measured.pose, sink);
             }
-            Err(error) => reject(pipeline, robot, key, self.stamp_s, error, sink),
+            Err(error) => reject(twin, key, self.stamp_s, error, sink),
         }
     }
 }
@@ -336,7 +219,8 @@ pub fn joint_message(
     fallback_s: impl FnOnce() -> f64,
     sink: &mut impl Sink,
 ) {
-    JointMessage::decode(robot, codec, payload, fallback_s).step(pipeline, robot, key, sink);
+    let message = JointMessage::decode(robot, codec, payload, fallback_s);
+    message.step(pipeline.track(robot, sink), key, sink);
 }
 
 /// A measured-pose message of `robot` from `stream`, arrived on `key`.
@@ -354,7 +238,8 @@ pub fn measured_message(
     fallback_s: impl FnOnce() -> f64,
     sink: &mut impl Sink,
 ) {
-    MeasuredMessage::decode(codec, payload, fallback_s).step(pipeline, robot, key, stream, sink);
+    let message = MeasuredMessage::decode(codec, payload, fallback_s);
+    message.step(pipeline.track(robot, sink), key, stream, sink);
 }
 
 /// A message of a robot that may not be tracked (`robot` is the id its key names): one
@@ -372,15 +257,8 @@ pub fn unknown_robot(
 }
 
 /// One rejection (event and count) for a message, or part of one, that did not decode.
-fn reject(
-    pipeline: &mut impl Target,
-    robot: &Robot,
-    key: &str,
-    stamp_s: f64,
-    error: &WireError,
-    sink: &mut impl Sink,
-) {
-    pipeline.reject(robot, key, stamp_s, error.cause(), error, sink);
+fn reject(twin: &mut Twin, key: &str, stamp_s: f64, error: &WireError, sink: &mut impl Sink) {
+    twin.reject(key, stamp_s, error.cause(), error, sink);
 }
 
 /// A ROS 2 `sensor_msgs/msg/JointState` decoded for its robot (joints matched by name), with the
@@ -419,11 +297,11 @@ impl Ros2JointMessage {
         }
     }
 
-    /// Steps `pipeline` (or a twin) with the message, which arrived on `key`.
-    pub fn step(&self, pipeline: &mut impl Target, robot: &Robot, key: &str, sink: &mut impl Sink) {
+    /// Steps the robot's `twin` with the message, which arrived on `key`.
+    pub fn step(&self, twin: &mut Twin, key: &str, sink: &mut impl Sink) {
         match &self.decoded {
-            Ok(sample) => pipeline.joints(robot, key, self.stamp_s, sample, sink),
-            Err(error) => pipeline.reject(robot, key, self.stamp_s, error.cause(), error, sink),
+            Ok(sample) => twin.joints(key, self.stamp_s, sample, sink),
+            Err(error) => twin.reject(key, self.stamp_s, error.cause(), error, sink),
         }
     }
 }
@@ -468,20 +346,13 @@ impl Ros2PoseMessage {
         self.stamp_s
     }
 
-    /// Steps `pipeline` (or a twin) with the pose of `robot`'s `stream`, which arrived on `key`.
-    pub fn step(
-        &self,
-        pipeline: &mut impl Target,
-        robot: &Robot,
-        key: &str,
-        stream: MeasuredStream,
-        sink: &mut impl Sink,
-    ) {
+    /// Steps the robot's `twin` with the pose of its `stream`, which arrived on `key`.
+    pub fn step(&self, twin: &mut Twin, key: &str, stream: MeasuredStream, sink: &mut impl Sink) {
         match &self.decoded {
             Ok(measured) => {
-                pipeline.measured(robot, key, stream, self.stamp_s, &measured.pose, sink);
+                twin.measured(key, stream, self.stamp_s, &measured.pose, sink);
             }
-            Err(error) => pipeline.reject(robot, key, self.stamp_s, error.cause(), error, sink),
+            Err(error) => twin.reject(key, self.stamp_s, error.cause(), error, sink),
         }
     }
 }
@@ -489,12 +360,11 @@ impl Ros2PoseMessage {
 /// One rejection (event and count) for an `rmw_zenoh` attachment that does not parse; the
 /// sample it came with is stepped on its own, without a sequence number.
 pub fn reject_attachment(
-    pipeline: &mut impl Target,
-    robot: &Robot,
+    twin: &mut Twin,
     key: &str,
     stamp_s: f64,
     error: &AttachmentError,
     sink: &mut impl Sink,
 ) {
-    pipeline.reject(robot, key, stamp_s, RejectCause::Attachment, error, sink);
+    twin.reject(key, stamp_s, RejectCause::Attachment, error, sink);
 }

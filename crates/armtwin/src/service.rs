@@ -969,7 +969,7 @@ impl SharedTwin {
             let robot = &entry.robot;
             let message = JointMessage::decode(robot, codec, &payload, fallback_s);
             self.step(entry, |mut locked| {
-                message.step(locked.twin, robot, key, &mut locked.sink);
+                message.step(locked.twin, key, &mut locked.sink);
             });
         });
     }
@@ -1040,7 +1040,7 @@ impl SharedTwin {
                         let robot = &entry.robot;
                         let message = JointMessage::decode(robot, codec, &payload, fallback_s);
                         self.step(entry, |mut locked| {
-                            message.step(locked.twin, robot, key, &mut locked.sink);
+                            message.step(locked.twin, key, &mut locked.sink);
                         });
                     }
                     SourceStream::Measured => {
@@ -1083,14 +1083,7 @@ impl SharedTwin {
             let robot = &entry.robot;
             let reject_attachment = |locked: &mut Stepping<'_>, stamp_s: f64| {
                 if let Some(Err(error)) = &attachment {
-                    ingest::reject_attachment(
-                        locked.twin,
-                        robot,
-                        key,
-                        stamp_s,
-                        error,
-                        &mut locked.sink,
-                    );
+                    ingest::reject_attachment(locked.twin, key, stamp_s, error, &mut locked.sink);
                 }
             };
             match source.config.stream {
@@ -1103,7 +1096,7 @@ impl SharedTwin {
                             let seq = source.gateway_seq(robot, attachment, locked.publisher_seqs);
                             message.set_seq(seq);
                         }
-                        message.step(locked.twin, robot, key, &mut locked.sink);
+                        message.step(locked.twin, key, &mut locked.sink);
                     });
                 }
                 SourceStream::Measured => {
@@ -1111,7 +1104,7 @@ impl SharedTwin {
                     self.step(entry, |mut locked| {
                         reject_attachment(&mut locked, message.stamp_s());
                         let stream = MeasuredStream::Robot;
-                        message.step(locked.twin, robot, key, stream, &mut locked.sink);
+                        message.step(locked.twin, key, stream, &mut locked.sink);
                     });
                 }
             }
@@ -1129,7 +1122,7 @@ impl SharedTwin {
         let message = MeasuredMessage::decode(codec, payload, || transport_stamp_s(sample));
         let key = sample.key_expr().as_str();
         self.step(entry, |mut locked| {
-            message.step(locked.twin, &entry.robot, key, stream, &mut locked.sink);
+            message.step(locked.twin, key, stream, &mut locked.sink);
         });
     }
 

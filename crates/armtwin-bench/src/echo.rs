@@ -6,7 +6,7 @@
 //! from Zenoh's receive callback (no queue, no thread hop, no decoding), through a publisher
 //! declared up front per robot: `joints/<robot>` → `pose/<robot>`, `measured/<robot>` → `deviation/<robot>`.
 //! Each robot's input keys are declared (`declare_keyexpr`) so Zenoh caches their routes, as
-//! armtwin does; `--naive` leaves them undeclared to measure what that costs. `--lazy` meets
+//! armtwin does for a robot that streams; `--naive` leaves them undeclared to measure what that costs. `--lazy` meets
 //! the robots on first contact: nothing is declared per robot up front, and a robot's publisher
 //! is declared in the receive callback on its first sample (the baseline of a system that is not
 //! told its fleet in advance).

@@ -822,9 +822,9 @@ impl Load {
     }
 
     /// armtwin declares a newly tracked robot's liveliness token on its control thread, after
-    /// the robot's first sample has been answered, every new robot's token before the publishers
-    /// that cache the routes of its poses and deviations (Zenoh's declarations cost O(robots)
-    /// each). The echo declares everything before it reports ready. So that both are measured
+    /// the robot's first sample has been answered, every new robot's token before any robot's
+    /// route caches (Zenoh's declarations cost O(robots) each). The echo declares everything
+    /// before it reports ready. So that both are measured
     /// tracking every robot, this waits until armtwin's token of the last of the first `robots`
     /// robots is visible (they are declared in the order the robots were first seen, which is
     /// the order the warm-up sent them over one session), then until every robot's token is.
@@ -1136,16 +1136,15 @@ impl Load {
             let started = Instant::now();
             self.warm_up(base_robots..robots)?;
             if round == 0 && self.wait_for_tracking(robots)? {
-                declare_s = Some(started.elapsed().as_secs_f64());
+                let elapsed_s = started.elapsed().as_secs_f64();
+                declare_s = Some(elapsed_s);
                 eprintln!(
-                    "load: {} new robots declared {:.1} s after their first samples",
+                    "load: {} new robots declared {elapsed_s:.1} s after their first samples",
                     robots - base_robots,
-                    started.elapsed().as_secs_f64()
                 );
             }
             eprintln!("load: memory round {}/{samples} done", round + 1);
         }
-        self.wait_for_tracking(robots)?;
         thread::sleep(settle);
         let rss_full_kib = procfs::rss_kib(pid)?;
         let added = robots.saturating_sub(base_robots).max(1);

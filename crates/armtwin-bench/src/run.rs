@@ -57,7 +57,7 @@ pub struct RunArgs {
     pub encodings: Vec<WireEncoding>,
     /// Load sessions (gateways) the robots are split over (default 1,4). The first count runs
     /// every robot count in every encoding; each further one the largest robot count in the
-    /// last encoding, and the memory, declaration and restart measurements use the largest.
+    /// last encoding, and the memory and declaration measurements use the largest.
     #[arg(long, value_delimiter = ',', value_parser = clap::value_parser!(u16).range(1..))]
     pub gateways: Vec<u16>,
     /// Robots for the memory measurement, whose run also times declaring them and a restart
@@ -358,7 +358,7 @@ pub struct FirstContact {
     pub armtwin: Trial,
 }
 
-/// One target of the benchmark's issue, against what this run measured.
+/// One of the benchmark's targets, against what this run measured.
 #[derive(Debug, Clone, Serialize)]
 pub struct TargetRow {
     /// The figure.
@@ -687,7 +687,7 @@ impl Orchestrator {
     /// alternate between them, so that both see the same machine; then each one's search, the
     /// echo's from `start_rate`, armtwin's from half the echo's result. The last latency round
     /// runs in the load process of the search, which saves each system a load process's start
-    /// (at a thousand robots, seconds of declarations).
+    /// and its declarations.
     fn compare(
         &self,
         robots: usize,
@@ -793,20 +793,18 @@ impl Orchestrator {
             "--first-contact-duration".into(),
             s.first_contact_duration_s.to_string(),
         ];
+        let trial = |sut: SystemUnderTest, target: Target| -> Result<Trial> {
+            let trial = self
+                .load(&sut, target, encoding, &args)?
+                .first_contact
+                .context("the load ran no first-contact trial")?;
+            sut.stop();
+            Ok(trial)
+        };
         eprintln!("== first contact: {robots} new robots at {rate:.0} samples/s, echo --lazy");
-        let sut = self.start_echo(robots, true)?;
-        let echo = self
-            .load(&sut, Target::Echo, encoding, &args)?
-            .first_contact
-            .context("the load ran no first-contact trial")?;
-        sut.stop();
+        let echo = trial(self.start_echo(robots, true)?, Target::Echo)?;
         eprintln!("== first contact: armtwin serve");
-        let sut = self.start_armtwin(robots, encoding)?;
-        let armtwin = self
-            .load(&sut, Target::Armtwin, encoding, &args)?
-            .first_contact
-            .context("the load ran no first-contact trial")?;
-        sut.stop();
+        let armtwin = trial(self.start_armtwin(robots, encoding)?, Target::Armtwin)?;
         let echo_delivered_rate = echo.delivered_rate.unwrap_or(0.0);
         let armtwin_delivered_rate = armtwin.delivered_rate.unwrap_or(0.0);
         Ok(FirstContact {
@@ -975,7 +973,7 @@ impl Orchestrator {
         for &(robots, encoding, gateways) in &rows {
             let fleet = fleet_rate.filter(|_| (robots, encoding, gateways) == fleet_row);
             // The echo's search starts at its last result in the same encoding, where the next
-            // row's usually is (two or three trials fewer than from the start rate).
+            // row's usually is (fewer doubling trials than from the start rate).
             let start_rate = by_robots
                 .iter()
                 .rev()
@@ -1135,7 +1133,7 @@ fn targets_table(report: &Report) -> String {
     text
 }
 
-/// The issue's targets against this run's figures.
+/// The benchmark's targets against this run's figures.
 fn targets(report: &Report) -> Vec<TargetRow> {
     let mut rows = Vec::new();
     for c in &report.by_robots {

@@ -9,21 +9,14 @@ use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::registry::{Registry, Unit};
 use std::sync::atomic::AtomicU64;
 
-use crate::metrics::{METRIC_NAMES, Stats, StatsSet};
+use super::metric_index;
+use crate::metrics::{Stats, StatsSet};
 use crate::service::{FleetRow, ServiceTotals};
 
 /// A series' labels: a few pairs, the robot's first.
 type Labels = Vec<(&'static str, String)>;
 type Gauges = Family<Labels, Gauge<f64, AtomicU64>>;
 type Counters = Family<Labels, Counter<u64, AtomicU64>>;
-
-/// The index of a metric among [`METRIC_NAMES`].
-fn metric_index(name: &str) -> usize {
-    METRIC_NAMES
-        .iter()
-        .position(|&known| known == name)
-        .unwrap_or(0)
-}
 
 /// One statistic's gauges of one metric (`position` in metres, `angle` in radians).
 struct ErrorGauges {

@@ -10,7 +10,7 @@
 
 mod exposition;
 
-use std::collections::HashMap;
+use std::collections::BTreeMap;
 use std::convert::Infallible;
 use std::fmt::Write as _;
 use std::sync::{Arc, Mutex, PoisonError};
@@ -405,6 +405,7 @@ struct AlarmJson {
     angle: bool,
 }
 
+/// The index of a metric among [`METRIC_NAMES`].
 fn metric_index(name: &str) -> usize {
     METRIC_NAMES
         .iter()
@@ -582,7 +583,8 @@ struct RobotJson<'a> {
     /// The chain's link frames for the last valid joints, base to TCP (`null` before any).
     frames: Option<Vec<FrameJson>>,
     poses: u64,
-    rejected_by_cause: HashMap<&'static str, u64>,
+    /// By cause name, in name order (a stable line on a page that redraws many times a second).
+    rejected_by_cause: BTreeMap<&'static str, u64>,
     /// The robot's last published events, oldest first.
     events: Vec<serde_json::Value>,
 }

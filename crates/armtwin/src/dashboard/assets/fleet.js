@@ -91,17 +91,26 @@ function query() {
   return params.toString();
 }
 
+// Bumped by every open(): an open() that a newer one overtook while it awaited stops there, so
+// one stream renders, never two in turn.
+let opening = 0;
+
 async function open() {
+  const mine = ++opening;
   if (source) source.close();
+  source = null;
   filterError.textContent = "";
   // A bad filter is a 400 the stream cannot show: ask once first.
   const response = await fetch("/api/fleet?" + query());
+  if (mine !== opening) return;
   if (!response.ok) {
     filterError.textContent = (await response.json()).error;
     rowsBody.replaceChildren();
     return;
   }
-  render(await response.json());
+  const fleet = await response.json();
+  if (mine !== opening) return;
+  render(fleet);
   source = new EventSource("/api/fleet/stream?" + query());
   source.onmessage = (message) => render(JSON.parse(message.data));
 }

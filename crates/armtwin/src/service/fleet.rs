@@ -345,3 +345,131 @@ impl Fleet {
             .map(|written| written.elapsed().as_secs_f64())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    #![allow(
+        clippy::expect_used,
+        reason = "a test that fails an expectation fails the test"
+    )]
+
+    use std::path::Path;
+    use std::sync::Arc;
+    use std::sync::mpsc::channel;
+
+    use super::{Fleet, Lookup};
+    use crate::config::{Overrides, ServiceConfig};
+    use crate::service::publish::Outputs;
+
+    /// A fleet on a session that joins nothing: it listens nowhere, scouts nothing and connects
+    /// to nobody, so its puts go nowhere.
+    async fn fleet_of(toml: &str) -> Arc<Fleet> {
+        let config = ServiceConfig::parse(toml, "test", Path::new("."), &Overrides::default())
+            .expect("valid configuration");
+        let mut zenoh = zenoh::Config::default();
+        for (key, value) in [
+            ("listen/endpoints", "[]"),
+            ("connect/endpoints", "[]"),
+            ("scouting/multicast/enabled", "false"),
+        ] {
+            zenoh.insert_json5(key, value).expect("zenoh key");
+        }
+        let session = zenoh::open(zenoh).await.expect("session");
+        let (control, _) = channel();
+        Arc::new(Fleet::new(&config, Outputs::new(session, &config, control)))
+    }
+
+    const SHARDED: &str = r#"
+[service]
+robots = "lab/**"
+reject_unknown = true
+[robots."lab/r1"]
+model = "ur5e"
+"#;
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 1)]
+    async fn inputs_find_configured_robots_and_refuse_others_and_foreign_ones() {
+        let fleet = fleet_of(SHARDED).await;
+        let Lookup::Found(cell) = fleet.lookup("lab/r1") else {
+            panic!("a configured robot has a cell");
+        };
+        assert_eq!(cell.robot.id(), "lab/r1");
+        // The same cell on every look-up: one lock per robot.
+        let Lookup::Found(again) = fleet.lookup("lab/r1") else {
+            panic!("found again");
+        };
+        assert!(Arc::ptr_eq(&cell, &again));
+        assert!(matches!(fleet.lookup("lab/unknown"), Lookup::Refused));
+        assert!(matches!(fleet.lookup("plant/r1"), Lookup::Foreign));
+        assert_eq!(fleet.cells().len(), 1);
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 1)]
+    async fn unlisted_robots_are_admitted_under_the_default_when_allowed() {
+        let fleet = fleet_of("[service]\nrobots = \"lab/**\"\n").await;
+        let Lookup::Found(cell) = fleet.lookup("lab/new") else {
+            panic!("admitted under the default");
+        };
+        assert_eq!(cell.robot.id(), "lab/new");
+        assert!(fleet.find("lab/new").is_some());
+        assert!(matches!(fleet.lookup("plant/new"), Lookup::Foreign));
+        assert!(fleet.find("plant/new").is_none());
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 1)]
+    async fn a_stopped_fleet_steps_and_counts_nothing() {
+        let fleet = fleet_of(SHARDED).await;
+        let Lookup::Found(cell) = fleet.lookup("lab/r1") else {
+            panic!("found");
+        };
+        assert!(fleet.count_input());
+        let mut stepped = 0;
+        fleet.step(&cell, |_| stepped += 1);
+        assert_eq!(stepped, 1);
+        fleet.stop();
+        fleet.step(&cell, |_| stepped += 1);
+        assert!(!fleet.count_input());
+        assert_eq!(stepped, 1);
+        assert_eq!(fleet.inputs.load(std::sync::atomic::Ordering::Relaxed), 2);
+        assert!(fleet.unless_stopped(&cell).is_none());
+    }
+
+    #[cfg(debug_assertions)]
+    #[tokio::test(flavor = "multi_thread", worker_threads = 1)]
+    #[should_panic(expected = "lock order")]
+    async fn taking_the_directory_under_a_robots_cell_is_caught() {
+        let fleet = fleet_of(SHARDED).await;
+        let Lookup::Found(cell) = fleet.lookup("lab/r1") else {
+            panic!("found");
+        };
+        let _guard = cell.lock();
+        let _ = fleet.find("lab/r1");
+    }
+
+    #[cfg(debug_assertions)]
+    #[tokio::test(flavor = "multi_thread", worker_threads = 1)]
+    #[should_panic(expected = "lock order")]
+    async fn a_second_cell_under_a_first_is_caught() {
+        let fleet = fleet_of("[service]\nrobots = \"lab/**\"\n").await;
+        let (Lookup::Found(a), Lookup::Found(b)) = (fleet.lookup("lab/a"), fleet.lookup("lab/b"))
+        else {
+            panic!("both admitted");
+        };
+        let _first = a.lock();
+        let _second = b.lock();
+    }
+
+    #[cfg(debug_assertions)]
+    #[tokio::test(flavor = "multi_thread", worker_threads = 1)]
+    async fn a_released_cell_leaves_the_thread_free_to_take_the_directory() {
+        let fleet = fleet_of(SHARDED).await;
+        let Lookup::Found(cell) = fleet.lookup("lab/r1") else {
+            panic!("found");
+        };
+        drop(cell.lock());
+        assert!(fleet.find("lab/r1").is_some());
+        let guard = fleet.unless_stopped(&cell);
+        drop(guard);
+        assert_eq!(fleet.cells().len(), 1);
+    }
+}

@@ -13,6 +13,7 @@
 //!   `rmw_zenoh`'s attachment, the twin pose output's key.
 //! - [`ingest`]: a gateway message's bytes into the pipeline, shared by the service and
 //!   `validate`.
+//! - [`mesh`]: armtwin's key space on Zenoh: every key built and read, the robot-id grammar.
 //! - [`config`]: the service's TOML configuration and command-line overrides.
 //! - [`service`]: `armtwin serve`, the pipeline on a Zenoh mesh.
 //! - [`snapshot`]: the service's snapshot file, each twin's cumulative state across restarts.
@@ -36,6 +37,7 @@ pub mod config;
 pub mod dashboard;
 pub mod fmu_package;
 pub mod ingest;
+pub mod mesh;
 pub mod replay;
 pub mod ros2;
 pub mod rosbag;

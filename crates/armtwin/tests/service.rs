@@ -11,7 +11,7 @@
 
 mod common;
 
-use common::{Outputs, RECEIVE_LIMIT, Service, connect_client, free_port, wait_for_subscriber};
+use common::{Outputs, RECEIVE_LIMIT, Service, connect_client, wait_for_subscriber};
 use std::collections::HashMap;
 use std::path::Path;
 use std::time::Duration;
@@ -24,7 +24,7 @@ use armtwin::kinematics::PoseReadout;
 use armtwin::model::RobotModel;
 use armtwin::pipeline::{Discard, Pipeline, RobotDirectory};
 use armtwin::replay::{ReplaySettings, replay};
-use armtwin::service::{ServeReport, serve};
+use armtwin::service::ServeReport;
 use armtwin::validate::validate;
 use serde_json::{Value, json};
 use zenoh::Session;

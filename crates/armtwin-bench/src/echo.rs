@@ -18,8 +18,8 @@ use std::io::{Read, Write};
 use std::sync::{Arc, PoisonError, RwLock};
 
 use armtwin::cli::ZenohArgs;
-use armtwin::mesh::keys::Stream;
-use armtwin::service::ServiceError;
+use armtwin::keys::Stream;
+use armtwin::mesh::MeshError;
 use clap::Args;
 use thiserror::Error;
 use zenoh::Wait;
@@ -56,7 +56,7 @@ pub struct EchoArgs {
 pub enum EchoError {
     /// The Zenoh configuration was refused.
     #[error(transparent)]
-    Config(#[from] ServiceError),
+    Config(#[from] MeshError),
     /// Zenoh failed.
     #[error("zenoh: {0}")]
     Zenoh(#[from] zenoh::Error),

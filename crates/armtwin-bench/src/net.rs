@@ -8,8 +8,8 @@ use std::sync::LazyLock;
 
 use armtwin::cli::ZenohArgs;
 use armtwin::config::ZenohSection;
-use armtwin::mesh::keys::{KeySpace, Stream};
-use armtwin::service::{ServiceError, aggregate_publishers, zenoh_config_of};
+use armtwin::keys::{KeySpace, Stream};
+use armtwin::mesh::{MeshError, aggregate_publishers, zenoh_config_of};
 
 /// Joint samples, gateway → twin.
 pub const JOINTS: Stream = Stream::Joints;
@@ -53,7 +53,7 @@ pub fn robot_of(key: &str, stream: Stream) -> Option<&str> {
 /// defaults (a peer, multicast scouting off), built as `armtwin serve` builds its own, with the
 /// publishers of every stream aggregated as the README advises a gateway of many robots (the
 /// load publishes inputs, the echo outputs), unless `--cfg` says otherwise.
-pub fn config_of(zenoh: &ZenohArgs) -> Result<zenoh::Config, ServiceError> {
+pub fn config_of(zenoh: &ZenohArgs) -> Result<zenoh::Config, MeshError> {
     let mut config = zenoh_config_of(&ZenohSection::default().overridden(&zenoh.overrides()))?;
     let streams = [JOINTS, MEASURED, POSE, DEVIATION].map(every_robot);
     aggregate_publishers(&mut config, &streams)?;

@@ -16,8 +16,8 @@ use zenoh::qos::CongestionControl;
 
 use crate::codec::recording::{self, Recording};
 use crate::config::ZenohSection;
-use crate::mesh::keys::{KeySpace, Stream};
-use crate::service::{ServiceError, TEARDOWN_STEP, bounded, zenoh_config_of};
+use crate::keys::{KeySpace, PlainKeyError, Stream};
+use crate::mesh::{MeshError, TEARDOWN_STEP, bounded, zenoh_config_of};
 
 /// How long to wait for a subscriber (the service) before giving up.
 const WAIT_FOR_SUBSCRIBER: Duration = Duration::from_secs(10);
@@ -63,6 +63,37 @@ async fn drain(session: &zenoh::Session, keys: &KeySpace, settings: &ReplaySetti
     }
 }
 
+/// Why a replay stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    /// The session could not be configured or opened.
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    /// Zenoh failed (declaring, publishing, …).
+    #[error("zenoh: {0}")]
+    Zenoh(#[from] zenoh::Error),
+    /// `--prefix` is not a plain key.
+    #[error("key prefix '{prefix}' {problem}")]
+    KeyPrefix {
+        /// The prefix given.
+        prefix: String,
+        /// What is wrong with it.
+        problem: PlainKeyError,
+    },
+    /// No subscriber (no service) took the recording's key in time.
+    #[error(
+        "nobody subscribes to {key} after {waited_s} s: is `armtwin serve` running and reachable ({connect:?})?"
+    )]
+    NoSubscriber {
+        /// The joints key the recording goes to.
+        key: String,
+        /// How long the replay waited.
+        waited_s: u64,
+        /// The endpoints it connected to.
+        connect: Vec<String>,
+    },
+}
+
 /// Publishes `recording` with source times `times_s` until done or `shutdown` completes, calling
 /// `progress` with the number of messages published.
 pub async fn replay(
@@ -71,10 +102,11 @@ pub async fn replay(
     settings: &ReplaySettings,
     shutdown: impl Future<Output = ()>,
     mut progress: impl FnMut(usize),
-) -> Result<ReplayReport, ServiceError> {
+) -> Result<ReplayReport, ReplayError> {
     // A prefix that is no plain key would fail at the publisher's declaration: fail before.
-    let keys = KeySpace::new(&settings.key_prefix).map_err(|problem| {
-        ServiceError::Zenoh(format!("key prefix '{}' {problem}", settings.key_prefix).into())
+    let keys = KeySpace::new(&settings.key_prefix).map_err(|problem| ReplayError::KeyPrefix {
+        prefix: settings.key_prefix.clone(),
+        problem,
     })?;
     let session = zenoh::open(zenoh_config_of(&settings.zenoh)?).await?;
     let key = keys.key(Stream::Joints, &settings.robot);
@@ -86,11 +118,11 @@ pub async fn replay(
     while !publisher.matching_status().await?.matching() {
         if Instant::now() >= deadline {
             bounded("closing the session", TEARDOWN_STEP, session.close()).await;
-            return Err(ServiceError::Worker(format!(
-                "nobody subscribes to {key} after {} s: is `armtwin serve` running and reachable ({:?})?",
-                WAIT_FOR_SUBSCRIBER.as_secs(),
-                settings.zenoh.connect
-            )));
+            return Err(ReplayError::NoSubscriber {
+                key,
+                waited_s: WAIT_FOR_SUBSCRIBER.as_secs(),
+                connect: settings.zenoh.connect.clone(),
+            });
         }
         tokio::time::sleep(Duration::from_millis(50)).await;
     }

@@ -18,7 +18,7 @@
 use serde::Deserialize;
 use thiserror::Error;
 
-use crate::mesh::keys;
+use crate::keys;
 
 /// The DDS type name `rmw_zenoh` puts in the key of `sensor_msgs/msg/JointState`.
 pub const JOINT_STATE_DDS_TYPE: &str = "sensor_msgs::msg::dds_::JointState_";

@@ -29,7 +29,7 @@ use self::zenoh_section::without_source_location;
 pub use self::zenoh_section::{Overrides, ZenohInsert, ZenohInsertError, ZenohMode, ZenohSection};
 use crate::align::AlignConfig;
 use crate::identify::IdentifyOptions;
-use crate::mesh::keys::KeySpace;
+use crate::keys::KeySpace;
 use crate::model::ModelError;
 use crate::pipeline::{PipelineConfig, RobotSettings};
 use crate::ros2::PoseOutputs;
@@ -645,7 +645,7 @@ mod tests {
 
     #[test]
     fn robot_ids_follow_the_one_grammar_in_robot_sections_and_sources() {
-        let long = "r".repeat(crate::mesh::keys::MAX_ROBOT_ID_BYTES);
+        let long = "r".repeat(crate::keys::MAX_ROBOT_ID_BYTES);
         for id in [
             "r1",
             "demo/ur10e",
@@ -662,7 +662,7 @@ mod tests {
             );
             parse(&source).unwrap_or_else(|e| panic!("{id}: {e}"));
         }
-        let too_long = "r".repeat(crate::mesh::keys::MAX_ROBOT_ID_BYTES + 1);
+        let too_long = "r".repeat(crate::keys::MAX_ROBOT_ID_BYTES + 1);
         for id in [
             "a/*",
             "a/**",

@@ -14,7 +14,7 @@ use super::file::{RobotFromKey, SourceSection};
 use super::zenoh_section::without_source_location;
 use crate::codec::cdr::JointNames;
 use crate::ingest::SourceCodec;
-use crate::mesh::keys::{self, KeySpace};
+use crate::keys::{self, KeySpace};
 use crate::pipeline::RobotSettings;
 use crate::ros2::{self, KeyScheme, NamespaceRule, PoseOutputs};
 

@@ -13,8 +13,8 @@ use std::collections::HashMap;
 
 use crate::codec::recording::{self, Format, Recording};
 use crate::ingest::{self, Codec};
+use crate::keys::{KeySpace, Stream};
 use crate::kinematics::{OutputFrame, PoseReadout};
-use crate::mesh::keys::{KeySpace, Stream};
 use crate::metrics::{Deviation, StatsSet};
 use crate::pipeline::{
     Event, EventDetail, EventKind, MetricsSnapshot, Pipeline, PipelineConfig, Robot,

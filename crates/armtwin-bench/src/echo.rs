@@ -18,6 +18,7 @@ use std::io::{Read, Write};
 use std::sync::{Arc, PoisonError, RwLock};
 
 use armtwin::cli::ZenohArgs;
+use armtwin::keys::Stream;
 use armtwin::mesh::MeshError;
 use clap::Args;
 use thiserror::Error;
@@ -67,7 +68,7 @@ pub enum EchoError {
 /// Publishers of one output stream, by robot id.
 type Routes = HashMap<Box<str>, Publisher<'static>>;
 
-fn routes(session: &Session, robots: usize, output: &str) -> Result<Routes, zenoh::Error> {
+fn routes(session: &Session, robots: usize, output: Stream) -> Result<Routes, zenoh::Error> {
     (0..robots)
         .map(|index| {
             let robot = net::robot_id(index);
@@ -81,7 +82,7 @@ fn routes(session: &Session, robots: usize, output: &str) -> Result<Routes, zeno
 }
 
 /// Republishes `sample`'s payload on its robot's publisher of `routes`.
-fn forward(routes: &Routes, input: &str, sample: &Sample) {
+fn forward(routes: &Routes, input: Stream, sample: &Sample) {
     let robot = net::robot_of(sample.key_expr().as_str(), input);
     if let Some(publisher) = robot.and_then(|robot| routes.get(robot)) {
         // Only fails when the session is closing.
@@ -95,7 +96,7 @@ fn forward(routes: &Routes, input: &str, sample: &Sample) {
 /// The publishers of one output stream, declared on each robot's first sample.
 struct LazyRoutes {
     session: Session,
-    output: &'static str,
+    output: Stream,
     routes: RwLock<Routes>,
 }
 
@@ -103,7 +104,7 @@ impl LazyRoutes {
     /// Republishes `sample`'s payload on its robot's publisher, declaring it first if this is
     /// the robot's first sample. The read lock is shared by every receiving thread; the write
     /// lock is taken once per robot.
-    fn forward(&self, input: &str, sample: &Sample) {
+    fn forward(&self, input: Stream, sample: &Sample) {
         let Some(robot) = net::robot_of(sample.key_expr().as_str(), input) else {
             return;
         };

@@ -18,6 +18,7 @@ use armtwin::pipeline::{
 };
 
 use crate::fleet::{parsed_service_config, robot_id};
+use crate::net;
 use crate::workload::Workload;
 
 /// Samples rendered ahead; a run longer than this starts again on a fresh pipeline (untimed).
@@ -86,8 +87,8 @@ impl Load {
             })
             .collect();
         Self {
-            joint_key: format!("twin/joints/{robot}"),
-            measured_key: format!("twin/measured/{robot}"),
+            joint_key: net::key(net::JOINTS, &robot),
+            measured_key: net::key(net::MEASURED, &robot),
             robot,
             samples,
         }

@@ -46,6 +46,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use armtwin::cli::ZenohArgs;
 use armtwin::codec::zser;
+use armtwin::keys::Stream;
 use armtwin::mesh::MeshError;
 use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};
@@ -600,7 +601,7 @@ impl Load {
                 .map(|_| net::key(net::POSE, &net::robot_id(0))),
             slow_poses: AtomicU64::new(0),
         });
-        let mut streams: Vec<(&str, OnReply)> = vec![
+        let mut streams: Vec<(Stream, OnReply)> = vec![
             (net::POSE, Replies::pose),
             (net::DEVIATION, |replies, _| replies.deviation()),
         ];
@@ -699,7 +700,7 @@ impl Load {
     /// measurement declares no reply keys: it receives a few replies per robot, and the system
     /// under test should not hold our declarations for it.
     fn declare_robots(&mut self, count: usize) -> Result<(), LoadError> {
-        let reply_streams: &[&str] = match (self.args.target, self.args.memory_base_robots) {
+        let reply_streams: &[Stream] = match (self.args.target, self.args.memory_base_robots) {
             (_, Some(_)) => &[],
             (Target::Echo, None) => &[net::POSE, net::DEVIATION],
             (Target::Armtwin, None) => &[net::POSE, net::DEVIATION, net::METRICS, net::EVENTS],
@@ -712,7 +713,7 @@ impl Load {
                 n => &self.senders[n - 1],
             };
             let binary = self.args.encoding == WireEncoding::ZenohSerialized;
-            let publisher = |stream: &str, schema: &str| {
+            let publisher = |stream: Stream, schema: &str| {
                 let encoding = if binary {
                     Encoding::ZENOH_SERIALIZED.with_schema(schema)
                 } else {
@@ -728,7 +729,7 @@ impl Load {
             let measured = publisher(net::MEASURED, zser::POSE_SCHEMA)?;
             let replies = reply_streams
                 .iter()
-                .map(|stream| {
+                .map(|&stream| {
                     self.session
                         .declare_keyexpr(net::key(stream, &robot))
                         .wait()

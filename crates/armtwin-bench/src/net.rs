@@ -1,52 +1,52 @@
-//! What the echo, the load generator and the orchestrator agree on: the key prefix, robot ids,
-//! stream names, and how each process joins the mesh (a Zenoh peer on TCP loopback, multicast
+//! What the echo, the load generator and the orchestrator agree on: armtwin's keys (its default
+//! prefix), robot ids, streams, and how each process joins the mesh (a Zenoh peer on TCP loopback, multicast
 //! scouting off, so every run is isolated on its own free port).
 //!
 //! Must not know what a process does with the mesh: no publishing or counting here.
 
+use std::sync::LazyLock;
+
 use armtwin::cli::ZenohArgs;
 use armtwin::config::ZenohSection;
+use armtwin::keys::{KeySpace, Stream};
 use armtwin::mesh::{MeshError, aggregate_publishers, zenoh_config_of};
 
-/// Key prefix of every stream (armtwin's default `[service] key_prefix`).
-pub const PREFIX: &str = "twin";
-
 /// Joint samples, gateway → twin.
-pub const JOINTS: &str = "joints";
+pub const JOINTS: Stream = Stream::Joints;
 /// Measured poses, gateway → twin.
-pub const MEASURED: &str = "measured";
+pub const MEASURED: Stream = Stream::Measured;
 /// Twin poses (the echo republishes joint samples here).
-pub const POSE: &str = "pose";
+pub const POSE: Stream = Stream::Pose;
 /// Deviations (the echo republishes measured poses here).
-pub const DEVIATION: &str = "deviation";
+pub const DEVIATION: Stream = Stream::Deviation;
 /// Running metrics (armtwin only).
-pub const METRICS: &str = "metrics";
+pub const METRICS: Stream = Stream::Metrics;
 /// Events (armtwin only; none expected in a benchmark).
-pub const EVENTS: &str = "events";
+pub const EVENTS: Stream = Stream::Events;
 /// Liveliness tokens, one per tracked robot (armtwin only).
-pub const ALIVE: &str = "alive";
+pub const ALIVE: Stream = Stream::Alive;
 
 pub use crate::fleet::robot_id;
 
-/// `<prefix>/<stream>/<robot>`.
+/// armtwin's keys under its default prefix, built once: the echo reads a robot id per sample.
+static KEYS: LazyLock<KeySpace> = LazyLock::new(KeySpace::default);
+
+/// `<prefix>/<stream>/<robot>`, under armtwin's default `[service] key_prefix`.
 #[must_use]
-pub fn key(stream: &str, robot: &str) -> String {
-    format!("{PREFIX}/{stream}/{robot}")
+pub fn key(stream: Stream, robot: &str) -> String {
+    KEYS.key(stream, robot)
 }
 
 /// `<prefix>/<stream>/**`: every robot's key of a stream.
 #[must_use]
-pub fn every_robot(stream: &str) -> String {
-    format!("{PREFIX}/{stream}/**")
+pub fn every_robot(stream: Stream) -> String {
+    KEYS.every_robot(stream)
 }
 
 /// The robot id of a `<prefix>/<stream>/<robot>` key.
 #[must_use]
-pub fn robot_of<'k>(key: &'k str, stream: &str) -> Option<&'k str> {
-    key.strip_prefix(PREFIX)?
-        .strip_prefix('/')?
-        .strip_prefix(stream)?
-        .strip_prefix('/')
+pub fn robot_of(key: &str, stream: Stream) -> Option<&str> {
+    KEYS.robot_of(stream, key).ok()
 }
 
 /// The Zenoh configuration of armtwin's `-m/-l/-e/--cfg` flags over Zenoh's and armtwin's

@@ -13,6 +13,8 @@
 //!   `rmw_zenoh`'s attachment, the twin pose output's key.
 //! - [`ingest`]: a gateway message's bytes into the pipeline, shared by the service and
 //!   `validate`.
+//! - [`keys`]: armtwin's key space on Zenoh: every key built and read, the robot-id grammar,
+//!   armtwin's own streams.
 //! - [`config`]: the service's TOML configuration and command-line overrides.
 //! - [`mesh`]: every armtwin session's Zenoh configuration, publisher aggregation and bounded
 //!   teardown.
@@ -38,6 +40,7 @@ pub mod config;
 pub mod dashboard;
 pub mod fmu_package;
 pub mod ingest;
+pub mod keys;
 pub mod mesh;
 #[cfg(test)]
 mod module_graph;

@@ -16,6 +16,7 @@ use zenoh::qos::CongestionControl;
 
 use crate::codec::recording::{self, Recording};
 use crate::config::ZenohSection;
+use crate::keys::{KeySpace, PlainKeyError, Stream};
 use crate::mesh::{MeshError, TEARDOWN_STEP, bounded, zenoh_config_of};
 
 /// How long to wait for a subscriber (the service) before giving up.
@@ -52,8 +53,8 @@ pub struct ReplayReport {
 /// whatever its transmit queue still holds, and a service slower than the replay leaves some there.
 /// A query for the robot's state travels behind the puts on the same link and is answered after
 /// them, so its final reply is a barrier. Without an `armtwin serve` answering it returns at once.
-async fn drain(session: &zenoh::Session, settings: &ReplaySettings) {
-    let key = format!("{}/state/{}", settings.key_prefix, settings.robot);
+async fn drain(session: &zenoh::Session, keys: &KeySpace, settings: &ReplaySettings) {
+    let key = keys.key(Stream::State, &settings.robot);
     match session.get(&key).timeout(DRAIN_LIMIT).await {
         Ok(replies) => while replies.recv_async().await.is_ok() {},
         Err(e) => {
@@ -71,6 +72,14 @@ pub enum ReplayError {
     /// Zenoh failed (declaring, publishing, …).
     #[error("zenoh: {0}")]
     Zenoh(#[from] zenoh::Error),
+    /// `--prefix` is not a plain key.
+    #[error("key prefix '{prefix}' {problem}")]
+    KeyPrefix {
+        /// The prefix given.
+        prefix: String,
+        /// What is wrong with it.
+        problem: PlainKeyError,
+    },
     /// No subscriber (no service) took the recording's key in time.
     #[error(
         "nobody subscribes to {key} after {waited_s} s: is `armtwin serve` running and reachable ({connect:?})?"
@@ -94,8 +103,13 @@ pub async fn replay(
     shutdown: impl Future<Output = ()>,
     mut progress: impl FnMut(usize),
 ) -> Result<ReplayReport, ReplayError> {
+    // A prefix that is no plain key would fail at the publisher's declaration: fail before.
+    let keys = KeySpace::new(&settings.key_prefix).map_err(|problem| ReplayError::KeyPrefix {
+        prefix: settings.key_prefix.clone(),
+        problem,
+    })?;
     let session = zenoh::open(zenoh_config_of(&settings.zenoh)?).await?;
-    let key = format!("{}/joints/{}", settings.key_prefix, settings.robot);
+    let key = keys.key(Stream::Joints, &settings.robot);
     let publisher = session
         .declare_publisher(key.clone())
         .congestion_control(CongestionControl::Block)
@@ -148,7 +162,7 @@ pub async fn replay(
     bounded(
         "waiting for the service to take every message",
         DRAIN_LIMIT + TEARDOWN_STEP,
-        drain(&session, settings),
+        drain(&session, &keys, settings),
     )
     .await;
     if let Some(result) = bounded(

@@ -18,6 +18,8 @@
 use serde::Deserialize;
 use thiserror::Error;
 
+use crate::keys;
+
 /// The DDS type name `rmw_zenoh` puts in the key of `sensor_msgs/msg/JointState`.
 pub const JOINT_STATE_DDS_TYPE: &str = "sensor_msgs::msg::dds_::JointState_";
 /// The DDS type name `rmw_zenoh` puts in the key of `geometry_msgs/msg/PoseStamped`.
@@ -118,7 +120,8 @@ impl NamespaceRule {
     }
 
     /// The robot id `key` names, if it carries this rule's topic (and, for `rmw_zenoh`, type)
-    /// under a non-empty namespace. `None` for any other key: the root namespace names no robot.
+    /// under a non-empty namespace that is a robot id ([`keys::robot_id`]). `None` for any other
+    /// key: the root namespace names no robot, nor does one over the robot id's length bound.
     #[must_use]
     pub fn robot_of<'k>(&self, key: &'k str) -> Option<&'k str> {
         let path = match self.scheme {
@@ -133,9 +136,8 @@ impl NamespaceRule {
             }
             KeyScheme::Bridge => key,
         };
-        path.strip_suffix(self.topic.as_str())?
-            .strip_suffix('/')
-            .filter(|namespace| !namespace.is_empty() && !namespace.contains(['*', '$']))
+        let namespace = path.strip_suffix(self.topic.as_str())?.strip_suffix('/')?;
+        keys::robot_id(namespace).ok()
     }
 
     /// A key expression every key this rule reads a robot from matches: a source's key

@@ -13,6 +13,7 @@ use std::collections::HashMap;
 
 use crate::codec::recording::{self, Format, Recording};
 use crate::ingest::{self, Codec};
+use crate::keys::{KeySpace, Stream};
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::{Deviation, StatsSet};
 use crate::pipeline::{
@@ -203,7 +204,9 @@ pub fn validate(
         events: EventCounts::default(),
         metrics: None,
     };
-    let key = format!("twin/joints/{ROBOT_ID}");
+    // The key a live sample of the robot would come on, named in the rejections as the service
+    // names them.
+    let key = KeySpace::default().key(Stream::Joints, ROBOT_ID);
     let mut malformed_lines = Vec::new();
     for (index, (entry, &stamp_s)) in recording.entries.iter().zip(times_s).enumerate() {
         let line = match entry {

@@ -1,0 +1,196 @@
+//! The configuration file's sections as written (serde), before any check.
+//!
+//! Owns the TOML shape: names, types, defaults and `deny_unknown_fields`. Must not check values
+//! or load anything: `super` turns these into the validated [`super::ServiceConfig`].
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+
+use serde::Deserialize;
+
+use super::{Congestion, EventBudget, OutputEncoding, SourceStream, ZenohSection};
+use crate::align::AlignConfig;
+use crate::identify::IdentifyOptions;
+use crate::ingest::SourceCodec;
+use crate::pipeline::PipelineConfig;
+use crate::ros2::KeyScheme;
+use crate::self_calibration::ReservoirConfig;
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct File {
+    #[serde(default)]
+    pub(super) zenoh: ZenohSection,
+    #[serde(default)]
+    pub(super) service: ServiceSection,
+    #[serde(default)]
+    pub(super) align: AlignSection,
+    #[serde(default)]
+    pub(super) self_calibration: SelfCalibrationSection,
+    #[serde(default)]
+    pub(super) robots: HashMap<String, RobotSection>,
+    #[serde(default)]
+    pub(super) sources: Vec<SourceSection>,
+    #[serde(default)]
+    pub(super) http: HttpSection,
+}
+
+/// `[http]`: the dashboard and `/metrics` (off unless `listen` is set).
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct HttpSection {
+    pub(super) listen: Option<String>,
+}
+
+/// `[self_calibration]`: how robots with `self_calibrate = true` keep their pairs and re-fit.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub(super) struct SelfCalibrationSection {
+    pub(super) refit_period_s: f64,
+    pub(super) train_capacity: usize,
+    pub(super) held_out_capacity: usize,
+    pub(super) block_s: f64,
+    pub(super) holdout_every: u64,
+    pub(super) min_spacing_s: f64,
+    pub(super) fit_tool: bool,
+    pub(super) orientation_weight_m_per_rad: f64,
+}
+
+impl Default for SelfCalibrationSection {
+    fn default() -> Self {
+        let reservoir = ReservoirConfig::default();
+        Self {
+            refit_period_s: 10.0,
+            train_capacity: reservoir.train_capacity,
+            held_out_capacity: reservoir.held_out_capacity,
+            block_s: reservoir.block_s,
+            holdout_every: reservoir.holdout_every,
+            min_spacing_s: reservoir.min_spacing_s,
+            fit_tool: false,
+            orientation_weight_m_per_rad: IdentifyOptions::default().orientation_weight_m_per_rad,
+        }
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub(super) struct ServiceSection {
+    pub(super) key_prefix: String,
+    pub(super) metrics_period_ms: u64,
+    pub(super) window_s: f64,
+    pub(super) window_max_samples: usize,
+    pub(super) reject_unknown: bool,
+    pub(super) encoding: OutputEncoding,
+    pub(super) pose_congestion: Congestion,
+    pub(super) events_per_s: f64,
+    pub(super) events_burst: u32,
+    pub(super) robots: String,
+    pub(super) state_dir: Option<PathBuf>,
+    pub(super) snapshot_period_s: f64,
+}
+
+impl Default for ServiceSection {
+    fn default() -> Self {
+        let pipeline = PipelineConfig::default();
+        Self {
+            key_prefix: "twin".to_owned(),
+            metrics_period_ms: 100,
+            window_s: pipeline.window_s,
+            window_max_samples: pipeline.window_max_samples,
+            reject_unknown: false,
+            encoding: OutputEncoding::Json,
+            pose_congestion: Congestion::Drop,
+            events_per_s: EventBudget::default().per_s,
+            events_burst: EventBudget::default().burst,
+            robots: "**".to_owned(),
+            state_dir: None,
+            snapshot_period_s: 10.0,
+        }
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub(super) struct AlignSection {
+    pub(super) max_gap_s: f64,
+    pub(super) max_wait_s: f64,
+    pub(super) history_s: f64,
+    pub(super) max_history: usize,
+    pub(super) max_pending: usize,
+    pub(super) restart_s: f64,
+}
+
+impl Default for AlignSection {
+    fn default() -> Self {
+        let align = AlignConfig::default();
+        Self {
+            max_gap_s: align.max_gap_s,
+            max_wait_s: align.max_wait_s,
+            history_s: align.history_s,
+            max_history: align.max_history,
+            max_pending: align.max_pending,
+            restart_s: align.restart_s,
+        }
+    }
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RobotSection {
+    pub(super) model: Option<String>,
+    pub(super) calibration: Option<PathBuf>,
+    pub(super) tcp: Option<[f64; 6]>,
+    pub(super) frame: Option<String>,
+    pub(super) alarm_position_m: Option<f64>,
+    pub(super) alarm_angle_rad: Option<f64>,
+    pub(super) alarm_hold_s: Option<f64>,
+    pub(super) self_calibrate: Option<bool>,
+    #[serde(default)]
+    pub(super) sensors: Vec<SensorSection>,
+    pub(super) ros2_pose: Option<Ros2PoseSection>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct SensorSection {
+    pub(super) key_expr: String,
+    /// `[x, y, z, rx, ry, rz]`: the sensor frame in the robot's base frame (m, rotation vector).
+    #[serde(default)]
+    pub(super) base_from_sensor: [f64; 6],
+}
+
+/// How `robot_from_key` reads a robot id.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub(super) enum RobotFromKey {
+    /// The ROS namespace of the key's topic.
+    Ros2Namespace,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct SourceSection {
+    pub(super) key: String,
+    pub(super) codec: SourceCodec,
+    pub(super) stream: SourceStream,
+    pub(super) robot: Option<String>,
+    pub(super) robot_from_key: Option<RobotFromKey>,
+    pub(super) scheme: Option<KeyScheme>,
+    pub(super) topic: Option<String>,
+    pub(super) tf_prefix: Option<String>,
+    pub(super) joint_names: Option<Vec<String>>,
+}
+
+/// `ros2_pose` of a robot section (fields the robot's own leaves out come from
+/// `[robots.default.ros2_pose]`).
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct Ros2PoseSection {
+    pub(super) enabled: Option<bool>,
+    pub(super) scheme: Option<KeyScheme>,
+    pub(super) domain_id: Option<u32>,
+    pub(super) namespace: Option<String>,
+    pub(super) topic: Option<String>,
+    pub(super) tf_prefix: Option<String>,
+    pub(super) type_hash: Option<String>,
+}

@@ -1,0 +1,268 @@
+//! `[zenoh]` and the command line's Zenoh flags (`-m`, `-l`, `-e`, `--cfg`), zenohd's style.
+//!
+//! Owns how the file's section and the flags combine. Must not build Zenoh's own configuration
+//! or open a session: the service does.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use serde::Deserialize;
+use thiserror::Error;
+
+use super::DEFAULT_CONFIG_TOML;
+use super::file::File;
+
+/// `[zenoh]`: how armtwin joins the mesh.
+#[derive(Debug, Clone, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ZenohSection {
+    /// The session's role.
+    #[serde(default)]
+    pub mode: ZenohMode,
+    /// Endpoints to listen on, e.g. `tcp/127.0.0.1:7447`.
+    #[serde(default)]
+    pub listen: Vec<String>,
+    /// Endpoints to connect to.
+    #[serde(default)]
+    pub connect: Vec<String>,
+    /// A complete Zenoh JSON5 configuration file; `mode`, `listen`, `connect` and
+    /// `multicast_scouting` given here override it.
+    pub file: Option<PathBuf>,
+    /// Multicast scouting (off by default: peers are found through `listen`/`connect`).
+    #[serde(default)]
+    pub multicast_scouting: bool,
+    /// Values set at a path of the Zenoh configuration (`zenohd --cfg` style), applied last so
+    /// that they win over every key above.
+    #[serde(default)]
+    pub cfg: Vec<ZenohInsert>,
+}
+
+/// A Zenoh session's role (`-m/--mode`, `[zenoh] mode`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum ZenohMode {
+    /// Talks to every session it reaches, directly.
+    #[default]
+    Peer,
+    /// Talks through one router (or peer) it connects to.
+    Client,
+    /// Routes for clients and other routers.
+    Router,
+}
+
+impl ZenohMode {
+    /// The name Zenoh's configuration uses.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Peer => "peer",
+            Self::Client => "client",
+            Self::Router => "router",
+        }
+    }
+}
+
+impl std::fmt::Display for ZenohMode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// One `KEY:VALUE` setting of the Zenoh configuration: a JSON5 `value` at the path `key`, e.g.
+/// `transport/shared_memory/enabled:false` (the key holds no `:`, the value may).
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
+#[serde(try_from = "String")]
+pub struct ZenohInsert {
+    /// The configuration path, e.g. `transport/shared_memory/enabled`.
+    pub key: String,
+    /// The JSON5 value, e.g. `false`; Zenoh checks it against the key when the session's
+    /// configuration is built.
+    pub value: String,
+}
+
+/// A `--cfg` (or `[zenoh] cfg`) entry that is not `KEY:VALUE`.
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+#[error(
+    "'{text}' is not KEY:VALUE (a Zenoh configuration path, a colon, a JSON5 value; e.g. transport/shared_memory/enabled:false)"
+)]
+pub struct ZenohInsertError {
+    /// The entry as given.
+    pub text: String,
+}
+
+impl std::str::FromStr for ZenohInsert {
+    type Err = ZenohInsertError;
+
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        match text.split_once(':') {
+            Some((key, value)) if !key.trim().is_empty() && !value.trim().is_empty() => Ok(Self {
+                key: key.trim().to_owned(),
+                value: value.trim().to_owned(),
+            }),
+            _ => Err(ZenohInsertError {
+                text: text.to_owned(),
+            }),
+        }
+    }
+}
+
+impl TryFrom<String> for ZenohInsert {
+    type Error = ZenohInsertError;
+
+    fn try_from(text: String) -> Result<Self, Self::Error> {
+        text.parse()
+    }
+}
+
+impl std::fmt::Display for ZenohInsert {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}:{}", self.key, self.value)
+    }
+}
+
+impl ZenohSection {
+    /// How a session joins the service running on the embedded default configuration: its
+    /// mode and multicast scouting, connecting to the endpoints it listens on
+    /// (`tcp/127.0.0.1:7447`). What `armtwin replay` starts from, so that a bare `replay` reaches
+    /// a bare `serve`.
+    #[must_use]
+    pub fn joining_default_service() -> Self {
+        // The embedded file is checked by this module's tests; a broken one would fall back to
+        // Zenoh's own defaults rather than stop `replay`.
+        let service = toml::from_str::<File>(DEFAULT_CONFIG_TOML)
+            .map(|file| file.zenoh)
+            .unwrap_or_default();
+        Self {
+            mode: service.mode,
+            connect: service.listen,
+            multicast_scouting: service.multicast_scouting,
+            ..Self::default()
+        }
+    }
+
+    /// The section with the command line's flags applied: a mode replaces the section's, an
+    /// endpoint list replaces the section's list, `--cfg` entries come after the section's own.
+    #[must_use]
+    pub fn overridden(mut self, overrides: &Overrides) -> Self {
+        if let Some(mode) = overrides.mode {
+            self.mode = mode;
+        }
+        if !overrides.listen.is_empty() {
+            self.listen.clone_from(&overrides.listen);
+        }
+        if !overrides.connect.is_empty() {
+            self.connect.clone_from(&overrides.connect);
+        }
+        self.cfg.extend(overrides.cfg.iter().cloned());
+        self
+    }
+}
+
+/// Command-line overrides, Zenoh style (`-m`, `-l`, `-e`, `--cfg`).
+#[derive(Debug, Clone, Default)]
+pub struct Overrides {
+    /// `-m/--mode`.
+    pub mode: Option<ZenohMode>,
+    /// `-l/--listen` (replaces the file's list when given).
+    pub listen: Vec<String>,
+    /// `-e/--connect` (replaces the file's list when given).
+    pub connect: Vec<String>,
+    /// `--cfg KEY:VALUE` (applied after the file's `cfg`, so they win).
+    pub cfg: Vec<ZenohInsert>,
+    /// `--http ADDRESS` (replaces `[http] listen`).
+    pub http_listen: Option<SocketAddr>,
+}
+
+/// Zenoh's error message without the source location it ends with (` at …/file.rs:line.`).
+pub(super) fn without_source_location(message: &str) -> &str {
+    message
+        .find(" at ")
+        .filter(|&at| message[at..].contains(".rs:"))
+        .map_or(message, |at| &message[..at])
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::*;
+    use crate::config::ServiceConfig;
+
+    #[test]
+    fn zenoh_flags_override_the_file_and_cfg_entries_come_last() {
+        let text = "[zenoh]\nmode = \"client\"\nlisten = [\"tcp/127.0.0.1:7000\"]\n\
+                    connect = [\"tcp/10.0.0.1:7447\"]\ncfg = [\"transport/shared_memory/enabled:false\"]\n";
+        let overrides = Overrides {
+            mode: Some(ZenohMode::Router),
+            listen: vec!["tcp/0.0.0.0:7447".to_owned()],
+            connect: Vec::new(),
+            cfg: vec![
+                "connect/timeout_ms:{router: -1, peer: 2000}"
+                    .parse()
+                    .expect("KEY:VALUE"),
+            ],
+            http_listen: None,
+        };
+        let config = ServiceConfig::parse(text, "test", Path::new(""), &overrides).expect("valid");
+        let zenoh = &config.zenoh;
+        assert_eq!(zenoh.mode, ZenohMode::Router);
+        assert_eq!(zenoh.listen, ["tcp/0.0.0.0:7447"]);
+        assert_eq!(
+            zenoh.connect,
+            ["tcp/10.0.0.1:7447"],
+            "no -e: the file's list stays"
+        );
+        let cfg: Vec<String> = zenoh.cfg.iter().map(ToString::to_string).collect();
+        assert_eq!(
+            cfg,
+            [
+                "transport/shared_memory/enabled:false",
+                "connect/timeout_ms:{router: -1, peer: 2000}"
+            ]
+        );
+        assert_eq!(zenoh.cfg[1].key, "connect/timeout_ms");
+        // The default: a peer, multicast scouting off, no extra settings.
+        let default = ServiceConfig::load(None, &Overrides::default()).expect("embedded");
+        assert_eq!(default.zenoh.mode, ZenohMode::Peer);
+        assert!(!default.zenoh.multicast_scouting && default.zenoh.cfg.is_empty());
+        assert_eq!(
+            ZenohSection::joining_default_service(),
+            ZenohSection {
+                connect: default.zenoh.listen,
+                ..ZenohSection::default()
+            }
+        );
+    }
+
+    #[test]
+    fn bad_zenoh_entries_are_named() {
+        for bad in ["novalue", ":false", "key:", ""] {
+            let error = bad.parse::<ZenohInsert>().expect_err(bad);
+            assert!(
+                error
+                    .to_string()
+                    .contains(&format!("'{bad}' is not KEY:VALUE")),
+                "{error}"
+            );
+        }
+        let error = ServiceConfig::parse(
+            "[zenoh]\nmode = \"hub\"\n",
+            "test",
+            Path::new(""),
+            &Overrides::default(),
+        )
+        .expect_err("unknown mode");
+        assert!(error.to_string().contains("hub"), "{error}");
+        let error = ServiceConfig::parse(
+            "[zenoh]\ncfg = [\"oops\"]\n",
+            "test",
+            Path::new(""),
+            &Overrides::default(),
+        )
+        .expect_err("not KEY:VALUE");
+        assert!(
+            error.to_string().contains("'oops' is not KEY:VALUE"),
+            "{error}"
+        );
+    }
+}

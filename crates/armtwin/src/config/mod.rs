@@ -25,8 +25,9 @@ use self::file::{AlignSection, File, SelfCalibrationSection, ServiceSection};
 use self::robots::{load_pose_outputs, load_robots};
 pub use self::sources::{Ros2Source, SourceConfig, SourceRobot, SourceStream};
 use self::sources::{SourceContext, load_sources};
-use self::zenoh_section::without_source_location;
-pub use self::zenoh_section::{Overrides, ZenohInsert, ZenohInsertError, ZenohMode, ZenohSection};
+pub use self::zenoh_section::{
+    Overrides, ZenohInsert, ZenohInsertError, ZenohMode, ZenohSection, without_source_location,
+};
 use crate::align::AlignConfig;
 use crate::identify::IdentifyOptions;
 use crate::keys::KeySpace;
@@ -154,9 +155,7 @@ pub struct ServiceConfig {
     pub source_name: String,
     /// `[zenoh]`, after command-line overrides.
     pub zenoh: ZenohSection,
-    /// Key prefix (`twin`).
-    pub key_prefix: String,
-    /// Every key of armtwin's under `key_prefix`.
+    /// Every key of armtwin's, under `[service] key_prefix` (`twin`).
     pub keys: KeySpace,
     /// Period of metrics publication while data flows.
     pub metrics_period: Duration,
@@ -264,7 +263,6 @@ impl ServiceConfig {
         Ok(Self {
             source_name: source_name.to_owned(),
             zenoh,
-            key_prefix: service.key_prefix,
             keys,
             metrics_period: Duration::from_millis(service.metrics_period_ms),
             encoding: service.encoding,

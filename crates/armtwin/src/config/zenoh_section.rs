@@ -173,8 +173,10 @@ pub struct Overrides {
     pub http_listen: Option<SocketAddr>,
 }
 
-/// Zenoh's error message without the source location it ends with (` at …/file.rs:line.`).
-pub(super) fn without_source_location(message: &str) -> &str {
+/// Zenoh's error message without the source location it ends with (` at …/file.rs:line.`):
+/// not the reader's business. The one scrubber of Zenoh's messages, for every module.
+#[must_use]
+pub fn without_source_location(message: &str) -> &str {
     message
         .find(" at ")
         .filter(|&at| message[at..].contains(".rs:"))
@@ -264,5 +266,17 @@ mod tests {
             error.to_string().contains("'oops' is not KEY:VALUE"),
             "{error}"
         );
+    }
+
+    #[test]
+    fn source_locations_are_cut_and_other_text_kept() {
+        let message = "invalid key expression 'a//b' at /root/.cargo/registry/src/zenoh-1.10.2/src/key_expr.rs:42.";
+        assert_eq!(
+            without_source_location(message),
+            "invalid key expression 'a//b'"
+        );
+        // " at " in the message itself, with no source file after it, stays.
+        let plain = "no value at this key";
+        assert_eq!(without_source_location(plain), plain);
     }
 }

@@ -31,7 +31,8 @@ use tokio::time::MissedTickBehavior;
 use tracing::{info, warn};
 use zenoh::key_expr::OwnedKeyExpr;
 
-use crate::mesh::{TEARDOWN_STEP, bounded, session::without_source_location};
+use crate::config::without_source_location;
+use crate::mesh::{TEARDOWN_STEP, bounded};
 use crate::metrics::METRIC_NAMES;
 
 /// Fleet page updates: at most 2 per second per page.

@@ -9,7 +9,7 @@ use std::time::Duration;
 use thiserror::Error;
 use tracing::warn;
 
-use crate::config::ZenohSection;
+use crate::config::{ZenohSection, without_source_location};
 
 /// How long each teardown step may take.
 pub const TEARDOWN_STEP: Duration = Duration::from_secs(5);
@@ -114,31 +114,4 @@ pub async fn bounded<T>(
         );
     }
     outcome
-}
-
-/// Zenoh's error message without the source location it ends with (` at …/file.rs:line.`):
-/// not the reader's business.
-#[must_use]
-pub fn without_source_location(message: &str) -> &str {
-    message
-        .find(" at ")
-        .filter(|&at| message[at..].contains(".rs:"))
-        .map_or(message, |at| &message[..at])
-}
-
-#[cfg(test)]
-mod tests {
-    use super::without_source_location;
-
-    #[test]
-    fn source_locations_are_cut_and_other_text_kept() {
-        let message = "invalid key expression 'a//b' at /root/.cargo/registry/src/zenoh-1.10.2/src/key_expr.rs:42.";
-        assert_eq!(
-            without_source_location(message),
-            "invalid key expression 'a//b'"
-        );
-        // " at " in the message itself, with no source file after it, stays.
-        let plain = "no value at this key";
-        assert_eq!(without_source_location(plain), plain);
-    }
 }

@@ -13,13 +13,14 @@ use std::time::{Duration, Instant};
 use tracing::{debug, info, warn};
 
 use super::fleet::Fleet;
-use super::publish::{RobotPublishers, Stream};
+use super::publish::RobotPublishers;
 use super::self_calibration::{FitJob, fitting_thread, schedule_fits};
 use super::sink::ZenohSink;
 use super::snapshot::save_snapshot;
 use super::{ServeReport, ServiceError};
 use crate::codec::wire;
 use crate::config::SelfCalibrationConfig;
+use crate::keys::Stream;
 use crate::pipeline::{Robot, Twin};
 use crate::snapshot::SnapshotStore;
 

@@ -7,13 +7,11 @@ use std::sync::Arc;
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use tracing::{debug, info, warn};
-use zenoh::key_expr::KeyExpr;
 use zenoh::sample::Sample;
 use zenoh::session::Session;
 
 use super::ServiceError;
 use super::fleet::{Fleet, Lookup, RobotCell, Stepping};
-use super::publish::Stream;
 use super::queries::Queries;
 use super::shard::claim_shard;
 use super::sink::ZenohSink;
@@ -22,6 +20,7 @@ use crate::config::{Ros2Source, ServiceConfig, SourceConfig, SourceRobot, Source
 use crate::ingest::{
     self, Codec, JointMessage, MeasuredMessage, Ros2JointMessage, Ros2PoseMessage, SourceCodec,
 };
+use crate::keys::{KeySpace, Stream};
 use crate::mesh::{TEARDOWN_STEP, bounded};
 use crate::pipeline::{MeasuredStream, Robot};
 use crate::ros2::{Attachment, KeyScheme, PublisherSeq};
@@ -52,28 +51,28 @@ impl Intake {
 
 pub(super) async fn declare_intake(
     session: &Session,
-    prefix: &str,
     config: &ServiceConfig,
     fleet: &Arc<Fleet>,
 ) -> Result<Intake, ServiceError> {
+    let keys = &config.keys;
     let mut subscribers = Vec::new();
-    let mut queryables = vec![claim_shard(session, prefix, &config.shard).await?];
-    let shard = &config.shard;
+    let mut queryables = vec![claim_shard(session, keys, &config.shard).await?];
+    let shard = config.shard.as_str();
     let router = Arc::new(Router {
         fleet: Arc::clone(fleet),
-        prefix: prefix.to_owned(),
+        keys: keys.clone(),
     });
     let joints = Arc::clone(&router);
     subscribers.push(
         session
-            .declare_subscriber(format!("{prefix}/joints/{shard}"))
+            .declare_subscriber(keys.key(Stream::Joints, shard))
             .callback(move |sample| joints.joints(&sample))
             .await?,
     );
     let measured = Arc::clone(&router);
     subscribers.push(
         session
-            .declare_subscriber(format!("{prefix}/measured/{shard}"))
+            .declare_subscriber(keys.key(Stream::Measured, shard))
             .callback(move |sample| measured.measured(&sample))
             .await?,
     );
@@ -84,7 +83,6 @@ pub(super) async fn declare_intake(
             continue;
         };
         for (index, sensor) in settings.sensors.iter().enumerate() {
-            check_sensor_key(prefix, robot, &sensor.key_expr)?;
             let sensor_router = Arc::clone(&router);
             let robot = handle.clone();
             subscribers.push(
@@ -98,13 +96,13 @@ pub(super) async fn declare_intake(
     declare_sources(session, config, &router, &mut subscribers).await?;
     let queries = Arc::new(Queries {
         fleet: Arc::clone(fleet),
-        prefix: prefix.to_owned(),
+        keys: keys.clone(),
     });
     for (stream, handler) in Queries::HANDLERS {
         let queries = Arc::clone(&queries);
         queryables.push(
             session
-                .declare_queryable(format!("{prefix}/{stream}/{shard}"))
+                .declare_queryable(keys.key(stream, shard))
                 .callback(move |query| queries.answer(&query, handler))
                 .await?,
         );
@@ -113,23 +111,6 @@ pub(super) async fn declare_intake(
         subscribers,
         queryables,
     })
-}
-
-/// Refuses a sensor key expression that would receive armtwin's own outputs: a local put is
-/// delivered in the publishing thread, which already holds the publishing robot's lock.
-fn check_sensor_key(prefix: &str, robot: &str, key_expr: &str) -> Result<(), ServiceError> {
-    let sensor = KeyExpr::try_from(key_expr)?;
-    for stream in Stream::ALL {
-        let output = KeyExpr::try_from(format!("{prefix}/{}/**", stream.as_str()))?;
-        if sensor.intersects(&output) {
-            return Err(ServiceError::SensorKeyLoop {
-                robot: robot.to_owned(),
-                key_expr: key_expr.to_owned(),
-                output: output.to_string(),
-            });
-        }
-    }
-    Ok(())
 }
 
 /// One subscriber per `[[sources]]` entry (their keys were checked when the configuration
@@ -212,19 +193,10 @@ fn transport_stamp_s(sample: &Sample) -> f64 {
         .map_or_else(unix_now_s, |t| t.get_time().as_secs_f64())
 }
 
-/// The robot id in `key` after `<prefix>/<stream>/`, if it is a plain key (a put on a wildcard
-/// key expression names no robot, and must not become one).
-pub(super) fn robot_of<'k>(prefix: &str, key: &'k str, stream: &str) -> Option<&'k str> {
-    key.strip_prefix(prefix)?
-        .strip_prefix('/')?
-        .strip_prefix(stream)?
-        .strip_prefix('/')
-        .filter(|robot| !robot.is_empty() && !robot.contains(['*', '$']))
-}
 /// Each sample's way from its key to its robot's twin, in Zenoh's callbacks.
 pub(super) struct Router {
     fleet: Arc<Fleet>,
-    prefix: String,
+    keys: KeySpace,
 }
 
 impl Router {
@@ -254,9 +226,12 @@ impl Router {
 
     fn joints(&self, sample: &Sample) {
         let key = sample.key_expr().as_str();
-        let Some(id) = robot_of(&self.prefix, key, "joints") else {
-            warn!(%key, "joint sample without a robot id in its key: ignored");
-            return;
+        let id = match self.keys.robot_of(Stream::Joints, key) {
+            Ok(id) => id,
+            Err(error) => {
+                warn!(%key, %error, "joint sample without a robot id in its key: ignored");
+                return;
+            }
         };
         let payload = sample.payload().to_bytes();
         let codec = Codec::from_encoding(sample.encoding());
@@ -272,9 +247,12 @@ impl Router {
 
     fn measured(&self, sample: &Sample) {
         let key = sample.key_expr().as_str();
-        let Some(id) = robot_of(&self.prefix, key, "measured") else {
-            warn!(%key, "measured pose without a robot id in its key: ignored");
-            return;
+        let id = match self.keys.robot_of(Stream::Measured, key) {
+            Ok(id) => id,
+            Err(error) => {
+                warn!(%key, %error, "measured pose without a robot id in its key: ignored");
+                return;
+            }
         };
         let payload = sample.payload().to_bytes();
         let codec = Codec::from_encoding(sample.encoding());

@@ -49,6 +49,7 @@ use self::publish::Outputs;
 use self::snapshot::restore_snapshot;
 use crate::config::ServiceConfig;
 use crate::dashboard;
+use crate::keys::Stream;
 use crate::mesh::{MeshError, TEARDOWN_STEP, aggregate_publishers, bounded, zenoh_config_of};
 use crate::snapshot::SnapshotStore;
 
@@ -61,19 +62,6 @@ pub enum ServiceError {
     /// Zenoh failed (opening the session, declaring, …).
     #[error("zenoh: {0}")]
     Zenoh(#[from] zenoh::Error),
-    /// A sensor's key expression covers one of armtwin's own outputs: its own puts would feed
-    /// back into it.
-    #[error(
-        "robot '{robot}': sensor key expression '{key_expr}' intersects armtwin's output '{output}'"
-    )]
-    SensorKeyLoop {
-        /// The robot the sensor belongs to.
-        robot: String,
-        /// The sensor's key expression.
-        key_expr: String,
-        /// The output key expression it intersects.
-        output: String,
-    },
     /// The control thread failed.
     #[error("control thread: {0}")]
     Worker(String),
@@ -131,13 +119,13 @@ pub async fn serve(
     // Bound first: an address in use fails the start before anything joins the mesh.
     let http_listener = bind_http(config.http_listen).await?;
     let mut zenoh_config = zenoh_config_of(&config.zenoh)?;
-    let prefix = config.key_prefix.clone();
+    let keys = &config.keys;
     // The outputs at the sample rate, one publisher per tracked robot on each.
     aggregate_publishers(
         &mut zenoh_config,
         &[
-            format!("{prefix}/pose/**"),
-            format!("{prefix}/deviation/**"),
+            keys.every_robot(Stream::Pose),
+            keys.every_robot(Stream::Deviation),
         ],
     )?;
     let session = zenoh::open(zenoh_config).await?;
@@ -146,7 +134,7 @@ pub async fn serve(
         mode = %config.zenoh.mode,
         listen = ?config.zenoh.listen,
         connect = ?config.zenoh.connect,
-        prefix = %config.key_prefix,
+        prefix = keys.prefix(),
         "armtwin serving"
     );
     let (control_tx, control_rx) = channel::<Control>();
@@ -154,7 +142,7 @@ pub async fn serve(
     let fleet = Arc::new(Fleet::new(&config, outputs));
     let snapshots = config.snapshots.as_ref().map(|settings| {
         (
-            SnapshotStore::new(&settings.state_dir, &prefix),
+            SnapshotStore::new(&settings.state_dir, keys.prefix()),
             settings.period,
         )
     });
@@ -168,7 +156,7 @@ pub async fn serve(
         restore_snapshot(store, &fleet, &config);
     }
 
-    let intake = match declare_intake(&session, &prefix, &config, &fleet).await {
+    let intake = match declare_intake(&session, &config, &fleet).await {
         Ok(intake) => intake,
         Err(e) => {
             let _ = control_tx.send(Control::Stop);

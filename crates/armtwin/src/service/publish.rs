@@ -23,6 +23,7 @@ use super::control::Control;
 use super::events::EventBucket;
 use crate::codec::zser;
 use crate::config::{Congestion, EventBudget, OutputEncoding, ServiceConfig};
+use crate::keys::{KeySpace, Stream};
 use crate::ros2::PoseOutputs;
 
 /// A streaming robot's publishers of its outputs at the sample rate, and its input keys:
@@ -37,41 +38,13 @@ pub(super) struct RobotPublishers {
     inputs: Vec<KeyExpr<'static>>,
 }
 
-/// The output streams of a robot.
-#[derive(Debug, Clone, Copy)]
-pub(super) enum Stream {
-    Pose,
-    Deviation,
-    Metrics,
-    Events,
-    /// Self-calibration estimates: a few per minute.
-    Calibration,
-}
-
-impl Stream {
-    pub(super) const ALL: [Self; 5] = [
-        Self::Pose,
-        Self::Deviation,
-        Self::Metrics,
-        Self::Events,
-        Self::Calibration,
-    ];
-
-    pub(super) fn as_str(self) -> &'static str {
-        match self {
-            Self::Pose => "pose",
-            Self::Deviation => "deviation",
-            Self::Metrics => "metrics",
-            Self::Events => "events",
-            Self::Calibration => "calibration",
-        }
-    }
-
-    fn publisher(self, outputs: &RobotPublishers) -> Option<&Publisher<'static>> {
-        match self {
-            Self::Pose => Some(&outputs.pose),
-            Self::Deviation => Some(&outputs.deviation),
-            Self::Metrics | Self::Events | Self::Calibration => None,
+impl RobotPublishers {
+    /// The publisher of `stream`, for the streams at the sample rate.
+    fn of(&self, stream: Stream) -> Option<&Publisher<'static>> {
+        match stream {
+            Stream::Pose => Some(&self.pose),
+            Stream::Deviation => Some(&self.deviation),
+            _ => None,
         }
     }
 }
@@ -81,7 +54,7 @@ impl Stream {
 /// ([`RobotOutputState`]).
 pub(super) struct Outputs {
     pub(super) session: Session,
-    prefix: String,
+    keys: KeySpace,
     /// The format of poses and deviations.
     pub(super) encoding: OutputEncoding,
     /// Of poses and deviations.
@@ -115,7 +88,7 @@ impl Outputs {
         };
         Self {
             session,
-            prefix: config.key_prefix.clone(),
+            keys: config.keys.clone(),
             encoding: config.encoding,
             pose_congestion: match config.pose_congestion {
                 Congestion::Block => CongestionControl::Block,
@@ -138,14 +111,8 @@ impl Outputs {
         match stream {
             Stream::Pose => (self.pose_congestion, self.pose_encoding.clone()),
             Stream::Deviation => (self.pose_congestion, self.deviation_encoding.clone()),
-            Stream::Metrics | Stream::Events | Stream::Calibration => {
-                (CongestionControl::Block, Encoding::APPLICATION_JSON)
-            }
+            _ => (CongestionControl::Block, Encoding::APPLICATION_JSON),
         }
-    }
-
-    fn key(&self, stream: &str, robot: &str) -> String {
-        format!("{}/{stream}/{robot}", self.prefix)
     }
 
     /// Publishes `payload` on `robot`'s `stream`: through its declared publisher, or, until the
@@ -158,13 +125,12 @@ impl Outputs {
         stream: Stream,
         payload: Vec<u8>,
     ) -> bool {
-        let result = if let Some(publisher) = outputs.and_then(|outputs| stream.publisher(outputs))
-        {
+        let result = if let Some(publisher) = outputs.and_then(|outputs| outputs.of(stream)) {
             publisher.put(payload).wait()
         } else {
             let (congestion, encoding) = self.qos(stream);
             self.session
-                .put(self.key(stream.as_str(), robot), payload)
+                .put(self.keys.key(stream, robot), payload)
                 .congestion_control(congestion)
                 .encoding(encoding)
                 .wait()
@@ -178,7 +144,7 @@ impl Outputs {
     fn publisher(&self, stream: Stream, robot: &str) -> zenoh::Result<Publisher<'static>> {
         let (congestion, encoding) = self.qos(stream);
         self.session
-            .declare_publisher(self.key(stream.as_str(), robot))
+            .declare_publisher(self.keys.key(stream, robot))
             .congestion_control(congestion)
             .encoding(encoding)
             .wait()
@@ -186,10 +152,10 @@ impl Outputs {
 
     pub(super) fn declare(&self, robot: &str) -> zenoh::Result<RobotPublishers> {
         let mut inputs = Vec::new();
-        for stream in ["joints", "measured"] {
+        for stream in [Stream::Joints, Stream::Measured] {
             inputs.push(
                 self.session
-                    .declare_keyexpr(self.key(stream, robot))
+                    .declare_keyexpr(self.keys.key(stream, robot))
                     .wait()?,
             );
         }
@@ -217,7 +183,7 @@ impl Outputs {
     pub(super) fn declare_token(&self, robot: &str) -> zenoh::Result<LivelinessToken> {
         self.session
             .liveliness()
-            .declare_token(self.key("alive", robot))
+            .declare_token(self.keys.key(Stream::Alive, robot))
             .wait()
     }
 

@@ -12,11 +12,11 @@ use zenoh::key_expr::KeyExpr;
 use zenoh::query::Query;
 
 use super::fleet::{Fleet, RobotCell};
-use super::intake::robot_of;
 use super::self_calibration::{CalibrationStatus, calibration_status};
 use super::sink::ZenohSink;
 use crate::codec::ik::{IkAnswerJson, IkRequest};
 use crate::codec::wire;
+use crate::keys::{KeySpace, Stream};
 use crate::model::RobotModel;
 use crate::pipeline::ReplaceModelError;
 
@@ -27,17 +27,17 @@ pub(super) type QueryHandler = fn(&Queries, &Query);
 /// time, each under its own lock, and replies once that lock is released.
 pub(super) struct Queries {
     pub(super) fleet: Arc<Fleet>,
-    pub(super) prefix: String,
+    pub(super) keys: KeySpace,
 }
 
 impl Queries {
     /// The handlers, by the stream their queryable is declared on.
-    pub(super) const HANDLERS: [(&'static str, QueryHandler); 5] = [
-        ("state", Self::state),
-        ("fk", Self::fk),
-        ("reset", Self::reset),
-        ("ik", Self::ik),
-        ("calibrate", Self::calibrate),
+    pub(super) const HANDLERS: [(Stream, QueryHandler); 5] = [
+        (Stream::State, Self::state),
+        (Stream::Fk, Self::fk),
+        (Stream::Reset, Self::reset),
+        (Stream::Ik, Self::ik),
+        (Stream::Calibrate, Self::calibrate),
     ];
 
     /// Answers `query` with `handler`, unless the service stopped.
@@ -52,16 +52,14 @@ impl Queries {
     fn matching_robots(
         &self,
         query: &Query,
-        stream: &str,
+        stream: Stream,
     ) -> Vec<(Arc<RobotCell>, KeyExpr<'static>)> {
         let mut robots: Vec<(Arc<RobotCell>, KeyExpr<'static>)> = self
             .fleet
             .cells()
             .into_iter()
             .filter_map(|cell| {
-                let key =
-                    KeyExpr::try_from(format!("{}/{stream}/{}", self.prefix, cell.robot.id()))
-                        .ok()?;
+                let key = KeyExpr::try_from(self.keys.key(stream, cell.robot.id())).ok()?;
                 query.key_expr().intersects(&key).then_some((cell, key))
             })
             .collect();
@@ -90,7 +88,7 @@ impl Queries {
     }
 
     fn state(&self, query: &Query) {
-        for (cell, key) in self.matching_robots(query, "state") {
+        for (cell, key) in self.matching_robots(query, Stream::State) {
             let payload = cell
                 .lock()
                 .twin
@@ -104,7 +102,7 @@ impl Queries {
 
     fn reset(&self, query: &Query) {
         let mut replies = Vec::new();
-        for (cell, key) in self.matching_robots(query, "reset") {
+        for (cell, key) in self.matching_robots(query, Stream::Reset) {
             let Some(mut guard) = self.fleet.unless_stopped(&cell) else {
                 return;
             };
@@ -130,10 +128,10 @@ impl Queries {
     fn robot_query<'q>(
         &self,
         query: &'q Query,
-        stream: &str,
+        stream: Stream,
         request: &str,
     ) -> Option<(&'q str, Arc<RobotModel>, Vec<u8>)> {
-        let Some(robot) = robot_of(&self.prefix, query.key_expr().as_str(), stream) else {
+        let Ok(robot) = self.keys.robot_of(stream, query.key_expr().as_str()) else {
             Self::reply_err(
                 query,
                 &format!("ask one robot: <prefix>/{stream}/<robot id> with {request}"),
@@ -153,7 +151,8 @@ impl Queries {
 
     fn fk(&self, query: &Query) {
         let key = query.key_expr().as_str();
-        let Some((robot, model, payload)) = self.robot_query(query, "fk", "{\"q\": [...]}") else {
+        let Some((robot, model, payload)) = self.robot_query(query, Stream::Fk, "{\"q\": [...]}")
+        else {
             return;
         };
         let joints = match wire::decode_joints(&payload, model.joint_count()) {
@@ -200,7 +199,7 @@ impl Queries {
     fn ik(&self, query: &Query) {
         let key = query.key_expr().as_str();
         let request = "{\"pose\": [x, y, z, qx, qy, qz, qw]}";
-        let Some((_, model, payload)) = self.robot_query(query, "ik", request) else {
+        let Some((_, model, payload)) = self.robot_query(query, Stream::Ik, request) else {
             return;
         };
         let answer = IkRequest::decode(&payload)
@@ -224,7 +223,7 @@ impl Queries {
     /// payload or the selector's `action` parameter.
     fn calibrate(&self, query: &Query) {
         let key = query.key_expr().as_str();
-        let Some(id) = robot_of(&self.prefix, key, "calibrate") else {
+        let Ok(id) = self.keys.robot_of(Stream::Calibrate, key) else {
             Self::reply_err(
                 query,
                 "ask one robot: <prefix>/calibrate/<robot id> with apply, discard or status",

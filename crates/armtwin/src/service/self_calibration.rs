@@ -10,10 +10,10 @@ use tracing::info;
 
 use super::ServiceError;
 use super::fleet::{Fleet, RobotState};
-use super::publish::Stream;
 use crate::calibrate::EstimateMessage;
 use crate::codec::wire;
 use crate::config::SelfCalibrationConfig;
+use crate::keys::Stream;
 use crate::model::RobotModel;
 use crate::pipeline::{Robot, Twin};
 use crate::self_calibration::{self, CalibrationBatch, Estimate};

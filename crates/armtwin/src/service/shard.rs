@@ -13,6 +13,7 @@ use zenoh::sample::Locality;
 use zenoh::session::Session;
 
 use super::ServiceError;
+use crate::keys::KeySpace;
 
 /// How long an instance waits for the others' shard claims at start.
 const SHARD_CLAIM_WAIT: Duration = Duration::from_secs(2);
@@ -23,12 +24,12 @@ const SHARD_CLAIM_WAIT: Duration = Duration::from_secs(2);
 /// key expression intersects this one's.
 pub(super) async fn claim_shard(
     session: &Session,
-    prefix: &str,
+    keys: &KeySpace,
     shard: &KeyExpr<'static>,
 ) -> Result<zenoh::query::Queryable<()>, ServiceError> {
     let zid = session.zid().to_string();
     let claim = serde_json::json!({ "robots": shard.as_str(), "zid": zid }).to_string();
-    let claim_key = KeyExpr::try_from(format!("{prefix}/shards/{zid}"))?;
+    let claim_key = KeyExpr::try_from(keys.shard_claim(&zid))?;
     let reply_key = claim_key.clone();
     let queryable = session
         .declare_queryable(claim_key)
@@ -43,7 +44,7 @@ pub(super) async fn claim_shard(
         })
         .await?;
     let replies = session
-        .get(format!("{prefix}/shards/**"))
+        .get(keys.every_shard_claim())
         .allowed_destination(Locality::Remote)
         .timeout(SHARD_CLAIM_WAIT)
         .await?;

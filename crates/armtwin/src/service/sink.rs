@@ -14,10 +14,11 @@ use zenoh::sample::Locality;
 
 use super::control::{Control, ROUTE_CACHE_AFTER_POSES};
 use super::events::EventBucket;
-use super::publish::{Outputs, RobotPublishers, Stream};
+use super::publish::{Outputs, RobotPublishers};
 use crate::codec::{PoseFields, cdr, wire, zser};
 use crate::config::OutputEncoding;
 use crate::dashboard::RobotCounts;
+use crate::keys::Stream;
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
 use crate::pipeline::{Event, EventDetail, EventKind, MetricsSnapshot, Robot, Sink};

@@ -17,8 +17,8 @@ use std::collections::HashMap;
 use std::io::{Read, Write};
 use std::sync::{Arc, PoisonError, RwLock};
 
-use armtwin::cli::ZenohArgs;
 use armtwin::service::ServiceError;
+use armtwin_cli::flags::ZenohArgs;
 use clap::Args;
 use thiserror::Error;
 use zenoh::Wait;

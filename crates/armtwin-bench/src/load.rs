@@ -44,9 +44,9 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::thread;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use armtwin::cli::ZenohArgs;
 use armtwin::codec::zser;
 use armtwin::service::ServiceError;
+use armtwin_cli::flags::ZenohArgs;
 use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;

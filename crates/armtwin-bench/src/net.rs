@@ -4,9 +4,9 @@
 //!
 //! Must not know what a process does with the mesh: no publishing or counting here.
 
-use armtwin::cli::ZenohArgs;
 use armtwin::config::ZenohSection;
 use armtwin::service::{ServiceError, aggregate_publishers, zenoh_config_of};
+use armtwin_cli::flags::ZenohArgs;
 
 /// Key prefix of every stream (armtwin's default `[service] key_prefix`).
 pub const PREFIX: &str = "twin";

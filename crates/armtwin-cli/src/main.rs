@@ -1,4 +1,5 @@
-//! The `armtwin` binary: parses the command line and reports errors; all work is in the library.
+//! The `armtwin` binary: parses the command line, sets up logging and reports errors; the
+//! commands are in this crate's library, all computing in the `armtwin` library.
 #![allow(
     clippy::print_stdout,
     clippy::print_stderr,
@@ -11,7 +12,7 @@ use std::process::ExitCode;
 use clap::Parser;
 
 fn main() -> ExitCode {
-    let cli = armtwin::cli::Cli::parse();
+    let cli = armtwin_cli::flags::Cli::parse();
     // Logs go to stderr, so `fk --csv` output on stdout stays clean; RUST_LOG overrides.
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
@@ -21,12 +22,12 @@ fn main() -> ExitCode {
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("armtwin=info,zenoh=warn")),
         )
         .init();
-    match armtwin::cli::run(cli) {
+    match armtwin_cli::run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(error) => {
-            if let Some(gate) = error.downcast_ref::<armtwin::cli::GateFailed>() {
+            if let Some(gate) = error.downcast_ref::<armtwin_cli::GateFailed>() {
                 eprintln!("armtwin: gate failed: {gate}");
-                return ExitCode::from(armtwin::cli::EXIT_GATE_FAILED);
+                return ExitCode::from(armtwin_cli::EXIT_GATE_FAILED);
             }
             eprintln!("armtwin: error: {error:#}");
             ExitCode::FAILURE

@@ -1,10 +1,5 @@
 //! `armtwin ik` end to end: the JSON answer round-trips through `armtwin fk`, and unreachable
 //! poses fail with their reason.
-#![allow(
-    clippy::expect_used,
-    clippy::unwrap_used,
-    reason = "a test, or a helper of one, that fails an expectation fails the test"
-)]
 
 use std::process::{Command, Output};
 

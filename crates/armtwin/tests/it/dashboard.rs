@@ -1,14 +1,7 @@
 //! The dashboard's HTTP side on bad input: raw requests over TCP loopback to an in-process
 //! `serve` with `[http] listen`; every one answered 4xx, none takes the service down.
-#![allow(
-    clippy::expect_used,
-    clippy::unwrap_used,
-    reason = "a test that fails an expectation fails"
-)]
 
-mod common;
-
-use common::{Service, connect_client, free_port, wait_for_subscriber};
+use crate::common::{Service, connect_client, free_port, wait_for_subscriber};
 use std::path::Path;
 use std::time::Duration;
 

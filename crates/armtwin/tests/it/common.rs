@@ -1,8 +1,4 @@
 //! What the service end-to-end tests share: the outputs a client collects.
-#![allow(
-    clippy::expect_used,
-    reason = "a helper of a test that fails an expectation fails the test"
-)]
 
 use std::time::Duration;
 

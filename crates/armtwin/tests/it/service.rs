@@ -1,17 +1,12 @@
 //! The live service end to end: real Zenoh sessions over TCP loopback, one in-process `serve`.
 #![allow(
-    clippy::expect_used,
-    clippy::unwrap_used,
-    reason = "a test, or a helper of one, that fails an expectation fails the test"
-)]
-#![allow(
     clippy::float_cmp,
     reason = "counts and exact pairings have exact answers"
 )]
 
-mod common;
-
-use common::{Outputs, RECEIVE_LIMIT, Service, connect_client, free_port, wait_for_subscriber};
+use crate::common::{
+    Outputs, RECEIVE_LIMIT, Service, connect_client, free_port, wait_for_subscriber,
+};
 use std::collections::HashMap;
 use std::path::Path;
 use std::time::Duration;

@@ -2,16 +2,9 @@
 //! fixed), `rmw_zenoh` attachments, the twin pose as a `PoseStamped` for ROS tools, and the
 //! configurations refused at load time. Real Zenoh sessions over TCP loopback, one in-process
 //! `serve`; messages from the MCAP bag `rosbags` wrote, attachments from zenoh-ext's serializer.
-#![allow(
-    clippy::expect_used,
-    clippy::unwrap_used,
-    reason = "a test, or a helper of one, that fails an expectation fails the test"
-)]
 #![allow(clippy::float_cmp, reason = "decoded values are copied, not computed")]
 
-mod common;
-
-use common::{Outputs, RECEIVE_LIMIT, Service, connect_client, wait_for_subscriber};
+use crate::common::{Outputs, RECEIVE_LIMIT, Service, connect_client, wait_for_subscriber};
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};

@@ -1,9 +1,4 @@
 //! The `armtwin` binary end to end: output shapes, CSV mode, exit codes and error messages.
-#![allow(
-    clippy::expect_used,
-    clippy::unwrap_used,
-    reason = "a test, or a helper of one, that fails an expectation fails the test"
-)]
 
 use std::io::Write;
 use std::path::Path;

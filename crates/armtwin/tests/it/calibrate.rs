@@ -1,10 +1,5 @@
 //! `armtwin calibrate` on the real sample recordings: identified on the long recording, judged
 //! on its later rows and on the other recording of the same arm.
-#![allow(
-    clippy::expect_used,
-    clippy::unwrap_used,
-    reason = "a test, or a helper of one, that fails an expectation fails the test"
-)]
 
 use std::path::Path;
 use std::sync::Arc;

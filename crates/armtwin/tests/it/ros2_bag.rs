@@ -1,13 +1,8 @@
 //! rosbag2 recordings offline: the MCAP and sqlite3 bags written by `rosbags` read into the rows
-//! their CSV export reads into, and validate with the same metrics; `armtwin validate` takes a bag.
-#![allow(
-    clippy::expect_used,
-    clippy::unwrap_used,
-    reason = "a test, or a helper of one, that fails an expectation fails the test"
-)]
+//! their CSV export reads into, and validate with the same metrics (`armtwin validate` on a bag is
+//! tested with the binary, in armtwin-cli).
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::sync::Arc;
 
 use armtwin::codec::recording::{self, Format, Recording};
@@ -130,48 +125,4 @@ fn topics_are_overridable_and_a_wrong_one_is_named() {
         400,
         "the poses are in 'base'"
     );
-}
-
-#[test]
-fn validate_takes_a_bag_on_the_command_line() {
-    let out = tempfile::tempdir().expect("temporary directory");
-    let output = Command::new(env!("CARGO_BIN_EXE_armtwin"))
-        .arg("validate")
-        .arg(fixtures().join("ur10e_lasttest_head_mcap"))
-        .arg("--out")
-        .arg(out.path())
-        .output()
-        .expect("runs");
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(output.status.success(), "{stderr}");
-    assert!(
-        stderr.contains("Mcap storage, 400 joint messages, 400 poses"),
-        "{stderr}"
-    );
-    let csv = tempfile::tempdir().expect("temporary directory");
-    let from_csv = Command::new(env!("CARGO_BIN_EXE_armtwin"))
-        .arg("validate")
-        .arg(fixtures().join("ur10e_lasttest_head.csv"))
-        .arg("--out")
-        .arg(csv.path())
-        .output()
-        .expect("runs");
-    assert!(from_csv.status.success());
-    let metrics = |dir: &Path| {
-        let report: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(dir.join("report.json")).expect("report"),
-        )
-        .expect("JSON");
-        [
-            "rows",
-            "paired",
-            "rejected",
-            "cumulative",
-            "mean_offset_m",
-            "t_first",
-            "t_last",
-        ]
-        .map(|key| report[key].clone())
-    };
-    assert_eq!(metrics(out.path()), metrics(csv.path()));
 }

@@ -45,7 +45,7 @@ use std::thread;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use armtwin::codec::zser;
-use armtwin::service::ServiceError;
+use armtwin::mesh::MeshError;
 use armtwin_cli::flags::ZenohArgs;
 use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};
@@ -211,7 +211,7 @@ pub struct LoadArgs {
 pub enum LoadError {
     /// The Zenoh configuration was refused.
     #[error(transparent)]
-    Config(#[from] ServiceError),
+    Config(#[from] MeshError),
     /// Zenoh failed.
     #[error("zenoh: {0}")]
     Zenoh(#[from] zenoh::Error),

@@ -17,9 +17,9 @@ use std::collections::HashMap;
 use std::io::{Read, Write};
 use std::sync::{Arc, PoisonError, RwLock};
 
-use armtwin::cli::ZenohArgs;
 use armtwin::keys::Stream;
 use armtwin::mesh::MeshError;
+use armtwin_cli::flags::ZenohArgs;
 use clap::Args;
 use thiserror::Error;
 use zenoh::Wait;

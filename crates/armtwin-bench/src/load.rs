@@ -44,10 +44,10 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::thread;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use armtwin::cli::ZenohArgs;
 use armtwin::codec::zser;
 use armtwin::keys::Stream;
 use armtwin::mesh::MeshError;
+use armtwin_cli::flags::ZenohArgs;
 use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;

@@ -13,7 +13,7 @@ use std::process::Command;
 
 use serde_json::Value;
 
-/// The `armtwin` binary of this build profile: `cargo test --workspace` builds it (armtwin's own
+/// The `armtwin` binary of this build profile: `cargo test --workspace` builds it (armtwin-cli's
 /// integration tests need it). Building it from here would run a second cargo whose environment
 /// differs from the outer one's, and each would rebuild what the other built.
 fn armtwin_binary(bench: &Path) -> PathBuf {

@@ -26,7 +26,8 @@
 //!   and plots.
 //! - [`calibrate`]: `armtwin calibrate`, a recording's kinematics identified, with its report.
 //! - [`fmu_package`]: `armtwin fmu build`, the FMU archive.
-//! - [`cli`]: the `armtwin` command line (with `main.rs`).
+//!
+//! The `armtwin` command line is the `armtwin-cli` crate, on this one.
 
 pub use armtwin_core::{
     align, fmi, identify, ik, kinematics, metrics, model, orientation, pipeline, pose_fields,
@@ -34,7 +35,6 @@ pub use armtwin_core::{
 };
 
 pub mod calibrate;
-pub mod cli;
 pub mod codec;
 pub mod config;
 pub mod dashboard;

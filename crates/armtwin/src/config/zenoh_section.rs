@@ -38,7 +38,7 @@ pub struct ZenohSection {
 }
 
 /// A Zenoh session's role (`-m/--mode`, `[zenoh] mode`).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ZenohMode {
     /// Talks to every session it reaches, directly.

@@ -1,0 +1,79 @@
+//! `armtwin fk`: the TCP pose of one joint configuration as JSON, or of every row of a joint CSV
+//! as a pose CSV on stdout.
+//!
+//! Owns parsing the angles and writing the answer; must not compute the pose (the model does).
+
+use std::fs::File;
+use std::io::{self, BufReader, BufWriter, Read, Write};
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
+use armtwin::codec::PoseFields;
+use armtwin::codec::joint_csv::{JointCsvReader, PoseCsvWriter};
+use armtwin::model::RobotModel;
+use serde::Serialize;
+
+use crate::flags::FkArgs;
+
+#[derive(Serialize)]
+struct FkOutput {
+    #[serde(flatten)]
+    pose: PoseFields,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    matrix: Option<[[f64; 4]; 4]>,
+}
+
+fn to_radians(q: &mut [f64], degrees: bool) {
+    if degrees {
+        for angle in q {
+            *angle = angle.to_radians();
+        }
+    }
+}
+
+pub(super) fn run(args: &FkArgs) -> Result<()> {
+    let model = args.robot.load()?;
+    if let Some(path) = &args.csv {
+        return run_csv(&model, path, args.deg);
+    }
+    if args.joints.is_empty() {
+        bail!(
+            "give {} joint angles (or --csv FILE); e.g. armtwin fk --model {} 0 -1.57 0 -1.57 0 0",
+            model.joint_count(),
+            model.arm().name
+        );
+    }
+    let mut q = args.joints.clone();
+    to_radians(&mut q, args.deg);
+    let pose = model.pose(&q)?;
+    let output = FkOutput {
+        pose: PoseFields::from(&pose.readout()),
+        matrix: args.matrix.then(|| pose.homogeneous_rows()),
+    };
+    let stdout = io::stdout();
+    let mut out = stdout.lock();
+    serde_json::to_writer(&mut out, &output)?;
+    writeln!(out)?;
+    Ok(())
+}
+
+fn run_csv(model: &RobotModel, path: &Path, degrees: bool) -> Result<()> {
+    let (input, name): (Box<dyn Read>, String) = if path == Path::new("-") {
+        (Box::new(io::stdin().lock()), "stdin".to_owned())
+    } else {
+        let file = File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+        (Box::new(BufReader::new(file)), path.display().to_string())
+    };
+    let rows = JointCsvReader::new(input, model.joint_count()).with_context(|| name.clone())?;
+    let mut writer = PoseCsvWriter::new(BufWriter::new(io::stdout().lock()))?;
+    for row in rows {
+        let mut row = row.with_context(|| name.clone())?;
+        to_radians(&mut row.q, degrees);
+        let pose = model
+            .pose(&row.q)
+            .with_context(|| format!("{name}: line {}", row.line))?;
+        writer.write(row.time_s, &PoseFields::from(&pose.readout()))?;
+    }
+    writer.finish()?;
+    Ok(())
+}

@@ -1,0 +1,206 @@
+//! The commands behind the flags, one file each, and what several of them share: the robot and
+//! the recording a command names, read from their files; the progress bar; the shutdown signal.
+//!
+//! The command line's edge: reads the files named on it, prints to its user and turns every error
+//! into one message with context (`anyhow`). Must not compute: every pose, metric and fit comes
+//! from the `armtwin` library.
+#![allow(
+    clippy::print_stderr,
+    reason = "the command line reports progress and problems to its user"
+)]
+
+mod calibrate;
+mod fk;
+mod fmu;
+mod ik;
+mod models;
+mod replay;
+mod serve;
+mod validate;
+
+pub use validate::{EXIT_GATE_FAILED, GateFailed};
+
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
+use armtwin::codec::recording::{self, ColumnMap, PoseForm, Recording};
+use armtwin::kinematics::TcpOffset;
+use armtwin::model::{Calibration, RobotModel, catalog, custom};
+use armtwin::rosbag::{self, BagOptions, BagTopics};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+use crate::flags::{
+    Cli, Command, FmuArgs, FmuCommand, PoseFormArg, RecordingArgs, RobotArgs, TimeUnit,
+};
+
+/// Runs one parsed command line.
+pub fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Fk(args) => fk::run(&args),
+        Command::Models(args) => models::run(&args),
+        Command::Serve(args) => serve::run(&args),
+        Command::Replay(args) => replay::run(&args),
+        Command::Validate(args) => validate::run(&args),
+        Command::Fmu(FmuArgs {
+            command: FmuCommand::Build(args),
+        }) => fmu::build(&args),
+        Command::Ik(args) => ik::run(&args),
+        Command::Calibrate(args) => calibrate::run(&args),
+    }
+}
+
+impl RecordingArgs {
+    /// Reads the recording and its source times, and says on stderr what was recognised.
+    fn load(&self) -> Result<(Recording, Vec<f64>)> {
+        if let Some(period) = self.period
+            && !(period.is_finite() && period > 0.0)
+        {
+            bail!("--period must be a positive number of seconds, got {period}");
+        }
+        let map = (!self.joint_columns.is_empty()).then(|| ColumnMap {
+            time: self.time_column.clone(),
+            time_scale_s: match self.time_unit {
+                TimeUnit::S => 1.0,
+                TimeUnit::Ms => 1e-3,
+                TimeUnit::Us => 1e-6,
+                TimeUnit::Ns => 1e-9,
+            },
+            joints: self.joint_columns.clone(),
+            pose: (!self.pose_columns.is_empty()).then(|| {
+                let form = match self.pose_form {
+                    PoseFormArg::Quaternion => PoseForm::Quaternion,
+                    PoseFormArg::Rpy => PoseForm::Rpy,
+                    PoseFormArg::Rotvec => PoseForm::RotationVector,
+                };
+                (form, self.pose_columns.clone())
+            }),
+        });
+        let recording = if rosbag::is_bag(&self.recording) {
+            self.read_bag()?
+        } else {
+            let text = read_text(&self.recording)?;
+            recording::read_with(&text, map.as_ref())
+                .with_context(|| self.recording.display().to_string())?
+        };
+        let times = recording::source_times(&recording, self.period);
+        let malformed: Vec<_> = recording
+            .entries
+            .iter()
+            .filter_map(|e| e.as_ref().err())
+            .collect();
+        eprintln!(
+            "{}: {} ({} rows{}, {} malformed lines)",
+            self.recording.display(),
+            recording.format.describe(),
+            recording.entries.len(),
+            if recording.has_pose {
+                " with measured pose"
+            } else {
+                ", joints only"
+            },
+            malformed.len()
+        );
+        for line in malformed.iter().take(5) {
+            eprintln!("  line {}: {}", line.line, line.problem);
+        }
+        if malformed.len() > 5 {
+            eprintln!("  … and {} more", malformed.len() - 5);
+        }
+        Ok((recording, times))
+    }
+
+    /// Reads a rosbag2 recording into rows, and says on stderr what its topics held.
+    fn read_bag(&self) -> Result<Recording> {
+        let options = BagOptions {
+            topics: BagTopics {
+                joint_states: self.joint_topic.clone(),
+                pose: self.pose_topic.clone(),
+            },
+            tf_prefix: self.tf_prefix.clone(),
+        };
+        let bag = rosbag::read(&self.recording, &options)
+            .with_context(|| self.recording.display().to_string())?;
+        eprintln!(
+            "{}: {:?} storage, {}",
+            self.recording.display(),
+            bag.storage,
+            bag.summary
+        );
+        for (number, reason) in bag.summary.pose_errors.iter().take(5) {
+            eprintln!("  {} message {number}: {reason}", self.pose_topic);
+        }
+        Ok(bag.recording)
+    }
+}
+
+/// A progress bar on stderr for `total` steps; hidden when stderr is not a terminal.
+fn progress_bar(total: usize, what: &str) -> ProgressBar {
+    let bar = ProgressBar::with_draw_target(Some(total as u64), ProgressDrawTarget::stderr());
+    bar.set_style(
+        ProgressStyle::with_template(&format!(
+            "{what} {{bar:40}} {{pos}}/{{len}} rows ({{per_sec}}, {{eta}} left)"
+        ))
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar
+}
+
+/// Completes on Ctrl-C (SIGINT) or SIGTERM.
+async fn shutdown_signal() {
+    let interrupt = tokio::signal::ctrl_c();
+    #[cfg(unix)]
+    {
+        let mut terminate =
+            match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+                Ok(signal) => signal,
+                Err(e) => {
+                    tracing::warn!(error = %e, "cannot listen for SIGTERM; Ctrl-C still works");
+                    let _ = interrupt.await;
+                    return;
+                }
+            };
+        tokio::select! {
+            _ = interrupt => tracing::info!("SIGINT received"),
+            _ = terminate.recv() => tracing::info!("SIGTERM received"),
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = interrupt.await;
+    }
+}
+
+fn read_text(path: &Path) -> Result<String> {
+    std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))
+}
+
+impl RobotArgs {
+    /// Loads the model, calibration and tool these arguments name.
+    pub fn load(&self) -> Result<RobotModel> {
+        let arm = if Path::new(&self.model)
+            .extension()
+            .is_some_and(|e| e == "toml")
+        {
+            let path = Path::new(&self.model);
+            custom::parse_arm(&read_text(path)?, &path.display().to_string())?
+        } else {
+            catalog::arm(&self.model)?
+        };
+        let calibration = self
+            .calibration
+            .as_deref()
+            .map(|path| -> Result<Calibration> {
+                Ok(Calibration::parse(
+                    &read_text(path)?,
+                    &path.display().to_string(),
+                )?)
+            })
+            .transpose()?;
+        Ok(RobotModel::new(
+            arm,
+            calibration,
+            self.tcp.unwrap_or(TcpOffset::FLANGE),
+            self.frame.into(),
+        )?)
+    }
+}

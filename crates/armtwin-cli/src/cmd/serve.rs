@@ -1,0 +1,28 @@
+//! `armtwin serve`: the configuration loaded with the flags' overrides, then the service run on a
+//! tokio runtime until Ctrl-C or SIGTERM.
+//!
+//! Owns the runtime and the shutdown signal's wiring; must not hold service logic.
+
+use anyhow::{Context, Result};
+use armtwin::config::{Overrides, ServiceConfig};
+use armtwin::service;
+
+use super::shutdown_signal;
+use crate::flags::ServeArgs;
+
+pub(super) fn run(args: &ServeArgs) -> Result<()> {
+    let overrides = Overrides {
+        http_listen: args.http_listen,
+        ..args.zenoh.overrides()
+    };
+    let config = ServiceConfig::load(args.config.as_deref(), &overrides)?;
+    tracing::info!(config = %config.source_name, "configuration loaded");
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    runtime.block_on(async {
+        service::serve(config, shutdown_signal()).await?;
+        Ok(())
+    })
+}

@@ -1,0 +1,108 @@
+//! `armtwin validate`: a recording through the twin offline, its report written and summed up on
+//! stderr, and the gate's exit status.
+//!
+//! Owns the flags' checks, the summary and the gate's failure; must not compute metrics or write
+//! report files itself (the library's `validate` does).
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::{Context, Result, bail};
+use armtwin::config::{Overrides, ServiceConfig};
+use armtwin::pipeline::RobotSettings;
+use armtwin::validate;
+
+use super::progress_bar;
+use crate::flags::ValidateArgs;
+
+/// Exit status of `validate` when a gate limit is exceeded.
+pub const EXIT_GATE_FAILED: u8 = 3;
+
+/// `validate` ran, but a `--max-…-error` limit was exceeded.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct GateFailed(pub String);
+
+pub(super) fn run(args: &ValidateArgs) -> Result<()> {
+    for (flag, value) in [
+        ("--max-position-error", args.max_position_error),
+        ("--max-angle-error", args.max_angle_error),
+    ] {
+        if let Some(v) = value
+            && !(v.is_finite() && v >= 0.0)
+        {
+            bail!("{flag} must be a non-negative number, got {v}");
+        }
+    }
+    let model = args.robot.load()?;
+    let config = ServiceConfig::load(args.config.as_deref(), &Overrides::default())?;
+    let (recording, times) = args.input.load()?;
+    let alarm = config
+        .default_robot
+        .as_ref()
+        .map(|robot| robot.alarm)
+        .unwrap_or_default();
+    let model = Arc::new(model);
+    let settings = RobotSettings {
+        model: Arc::clone(&model),
+        alarm,
+        sensors: Vec::new(),
+        self_calibration: None,
+    };
+    let bar = progress_bar(recording.entries.len(), "validate");
+    let validation = validate::validate(&recording, &times, config.pipeline, settings, |done| {
+        if done % 1024 == 0 {
+            bar.set_position(done as u64);
+        }
+    });
+    bar.finish_and_clear();
+    let out = args.out.clone().unwrap_or_else(|| {
+        let stem = args
+            .input
+            .recording
+            .file_stem()
+            .map_or_else(|| "recording".into(), |s| s.to_string_lossy().into_owned());
+        PathBuf::from(format!("{stem}-validation"))
+    });
+    let recording_name = args.input.recording.display().to_string();
+    let context = validate::report::Context {
+        recording: &recording_name,
+        model: &model,
+        max_position_error_m: args.max_position_error,
+        max_angle_error_rad: args.max_angle_error,
+    };
+    let (report, written) = validate::report::write_all(&out, &validation, &context)
+        .with_context(|| format!("cannot write the report into {}", out.display()))?;
+    let position = &report.cumulative.position;
+    eprintln!(
+        "{} rows: {} twin poses, {} paired, {} rejected, {} unpaired",
+        report.rows, report.poses, report.paired, report.rejected, report.unpaired
+    );
+    if report.paired > 0 {
+        eprintln!(
+            "position error: MAE {:.4} mm, RMSE {:.4} mm, max {:.4} mm; rotation angle MAE {:.4e} rad, max {:.4e} rad",
+            position.mae * 1e3,
+            position.rmse * 1e3,
+            position.max * 1e3,
+            report.cumulative.angle.mae,
+            report.cumulative.angle.max
+        );
+    }
+    for rejection in report.rejections.iter().take(5) {
+        eprintln!(
+            "  rejected line {} ({}): {}",
+            rejection.line, rejection.cause, rejection.reason
+        );
+    }
+    if report.rejections.len() > 5 {
+        eprintln!(
+            "  … {} rejections in all, listed in report.json",
+            report.rejections.len()
+        );
+    }
+    eprintln!("wrote {} files into {}", written.len(), out.display());
+    if !report.gate.passed {
+        return Err(GateFailed(report.gate.failures.join("; ")).into());
+    }
+    Ok(())
+}

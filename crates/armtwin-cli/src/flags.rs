@@ -1,0 +1,413 @@
+//! `armtwin`'s flags: the clap definitions of every command's arguments, their value enums and
+//! parsers, and the zenohd-style mesh flags the benchmarks share.
+//!
+//! Owns what the command line accepts (names, defaults, help text) and how each value maps to the
+//! library's types; must not read files or compute (the commands in [`crate::cmd`] do).
+
+use std::path::PathBuf;
+
+use armtwin::config::{Overrides, ZenohInsert, ZenohMode};
+use armtwin::kinematics::{OutputFrame, TcpOffset};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+
+/// armtwin: live digital twin for robot arms.
+#[derive(Debug, Parser)]
+#[command(name = "armtwin", version, about, propagate_version = true)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// armtwin's commands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Forward kinematics: TCP pose of one joint configuration (JSON), or of every row of a CSV.
+    Fk(FkArgs),
+    /// List the built-in robot models with their DH parameters and joint limits.
+    Models(ModelsArgs),
+    /// Run the live twin service on Zenoh (peer on tcp/127.0.0.1:7447 by default).
+    Serve(ServeArgs),
+    /// Publish a recording (CSV) to the mesh as a gateway would, for `armtwin serve` to twin.
+    Replay(ReplayArgs),
+    /// Run a recording through the twin offline: report (JSON, Markdown), per-row CSV and plots;
+    /// exits 3 when --max-position-error or --max-angle-error is exceeded.
+    Validate(ValidateArgs),
+    /// FMI 2.0 co-simulation FMU of the forward kinematics.
+    Fmu(FmuArgs),
+    /// Inverse kinematics: every joint configuration reaching a TCP pose (JSON), nearest the
+    /// seed first; exits 1 with the reason when the pose is unreachable.
+    Ik(IkArgs),
+    /// Identify the robot's kinematics (calibration.conf deltas, optionally the tool) from a
+    /// recording with measured poses; writes calibration.conf, report.json, report.md and a plot.
+    Calibrate(CalibrateArgs),
+}
+
+/// `armtwin fmu` arguments.
+#[derive(Debug, Args)]
+pub struct FmuArgs {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: FmuCommand,
+}
+
+/// `armtwin fmu` commands.
+#[derive(Debug, Subcommand)]
+pub enum FmuCommand {
+    /// Package one robot (catalog model, calibration, tool, frame) as an FMU file.
+    Build(FmuBuildArgs),
+}
+
+/// `armtwin fmu build` arguments.
+#[derive(Debug, Args)]
+pub struct FmuBuildArgs {
+    /// The robot (catalog models only; the tool becomes the `tcp_*` parameters' start values).
+    #[command(flatten)]
+    pub robot: RobotArgs,
+    /// The FMU file to write, e.g. `UR10e_FK.fmu`; its name without `.fmu` is the model
+    /// identifier.
+    #[arg(long, value_name = "FILE")]
+    pub out: PathBuf,
+    /// The FMU library (`libarmtwin_fmu.so`); by default the one next to this executable, built
+    /// by `cargo build --release -p armtwin-fmu`.
+    #[arg(long, value_name = "PATH")]
+    pub library: Option<PathBuf>,
+}
+
+/// Which recording and how to read it; shared by `replay` and `validate`.
+#[derive(Debug, Args)]
+pub struct RecordingArgs {
+    /// The recording: the UR10e FMU report's CSV form, a ROS 2 export or a UR RTDE recording
+    /// (recognised from the header), any CSV with --joint-columns, or a rosbag2 recording (a bag
+    /// directory, or its `.mcap` / `.db3` file).
+    pub recording: PathBuf,
+    /// Seconds between rows, ignoring the recording's time column (e.g. 0.1 for the report's
+    /// `fmpy_inputs.csv`, whose time column is a row index).
+    #[arg(long, value_name = "SECONDS")]
+    pub period: Option<f64>,
+    /// Joint angle columns, in joint order, for a header armtwin does not recognise (or to
+    /// override what it recognises): `--joint-columns j1,j2,j3,j4,j5,j6`.
+    #[arg(long, value_name = "NAMES", value_delimiter = ',')]
+    pub joint_columns: Vec<String>,
+    /// With --joint-columns: the time column.
+    #[arg(long, value_name = "NAME", requires = "joint_columns")]
+    pub time_column: Option<String>,
+    /// With --time-column: its unit.
+    #[arg(long, value_enum, default_value_t = TimeUnit::S)]
+    pub time_unit: TimeUnit,
+    /// With --joint-columns: the measured pose columns, `x,y,z` then the orientation columns of
+    /// --pose-form.
+    #[arg(
+        long,
+        value_name = "NAMES",
+        value_delimiter = ',',
+        requires = "joint_columns"
+    )]
+    pub pose_columns: Vec<String>,
+    /// With --pose-columns: the orientation form.
+    #[arg(long, value_enum, default_value_t = PoseFormArg::Quaternion)]
+    pub pose_form: PoseFormArg,
+    /// For a rosbag2 recording: the `sensor_msgs/msg/JointState` topic.
+    #[arg(long, value_name = "TOPIC", default_value = "/joint_states")]
+    pub joint_topic: String,
+    /// For a rosbag2 recording: the `geometry_msgs/msg/PoseStamped` topic of the measured pose,
+    /// in the robot's `base` frame.
+    #[arg(
+        long,
+        value_name = "TOPIC",
+        default_value = "/tcp_pose_broadcaster/pose"
+    )]
+    pub pose_topic: String,
+    /// For a rosbag2 recording: the robot's `tf_prefix`, of its joint names and of its `base`
+    /// frame.
+    #[arg(long, value_name = "PREFIX", default_value = "")]
+    pub tf_prefix: String,
+}
+
+/// `--time-unit` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum TimeUnit {
+    /// Seconds.
+    S,
+    /// Milliseconds.
+    Ms,
+    /// Microseconds.
+    Us,
+    /// Nanoseconds.
+    Ns,
+}
+
+/// `--pose-form` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum PoseFormArg {
+    /// `qx,qy,qz,qw`.
+    Quaternion,
+    /// `roll,pitch,yaw` (rad).
+    Rpy,
+    /// A UR rotation vector `rx,ry,rz` (rad).
+    Rotvec,
+}
+
+/// `armtwin replay` arguments.
+#[derive(Debug, Args)]
+pub struct ReplayArgs {
+    /// The recording.
+    #[command(flatten)]
+    pub input: RecordingArgs,
+    /// Robot id to publish as (may span several key chunks, e.g. plant-a/cell-3/ur10e-07).
+    #[arg(long)]
+    pub robot: String,
+    /// Playback speed relative to the recording's time (2.0 = twice as fast).
+    #[arg(long, default_value_t = 1.0, conflicts_with = "max_rate")]
+    pub speed: f64,
+    /// Publish as fast as the transport takes it.
+    #[arg(long)]
+    pub max_rate: bool,
+    /// Key prefix of the service.
+    #[arg(long, default_value = "twin")]
+    pub prefix: String,
+    /// How to join the mesh; without flags, as the default `armtwin serve` configuration says
+    /// (a peer, multicast scouting off), connecting to where it listens (tcp/127.0.0.1:7447).
+    #[command(flatten)]
+    pub zenoh: ZenohArgs,
+}
+
+/// `armtwin validate` arguments.
+#[derive(Debug, Args)]
+pub struct ValidateArgs {
+    /// The recording.
+    #[command(flatten)]
+    pub input: RecordingArgs,
+    /// The robot the recording is of.
+    #[command(flatten)]
+    pub robot: RobotArgs,
+    /// A service configuration whose alignment, window and default alarm settings to use
+    /// (default: the built-in one, as `armtwin serve`).
+    #[arg(short = 'c', long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Directory for the report (default: `<recording name>-validation`).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Fail (exit 3) if the largest position error exceeds this many metres.
+    #[arg(long, value_name = "METRES")]
+    pub max_position_error: Option<f64>,
+    /// Fail (exit 3) if the largest rotation angle between twin and measured exceeds this many
+    /// radians.
+    #[arg(long, value_name = "RADIANS")]
+    pub max_angle_error: Option<f64>,
+}
+
+/// `armtwin serve` arguments.
+#[derive(Debug, Args)]
+pub struct ServeArgs {
+    /// The configuration file (TOML); without it, the built-in `config/armtwin.toml`.
+    #[arg(short = 'c', long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// How to join the mesh; the flags override the configuration's `[zenoh]`.
+    #[command(flatten)]
+    pub zenoh: ZenohArgs,
+    /// Serve the dashboard and `/metrics` on this address, e.g. 127.0.0.1:8080 (replaces the
+    /// configuration's `[http] listen`).
+    #[arg(long = "http", value_name = "ADDRESS")]
+    pub http_listen: Option<std::net::SocketAddr>,
+}
+
+/// How a command joins the Zenoh mesh, in Zenoh's own style (as `zenohd`): the same flags, with
+/// the same meaning, for every command that opens a session. Each flag overrides the command's
+/// `[zenoh]` settings ([`armtwin::config::ZenohSection::overridden`]); what is not given stays as they say.
+#[derive(Debug, Clone, Default, Args)]
+pub struct ZenohArgs {
+    /// Zenoh mode [default: the configuration's, peer].
+    #[arg(short = 'm', long, value_enum, value_name = "MODE")]
+    pub mode: Option<ZenohModeArg>,
+    /// Endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable; replaces the configuration's
+    /// list).
+    #[arg(short = 'l', long = "listen", value_name = "ENDPOINT")]
+    pub listen: Vec<String>,
+    /// Endpoint to connect to, e.g. tcp/10.0.0.5:7447 (repeatable; replaces the configuration's
+    /// list).
+    #[arg(short = 'e', long = "connect", value_name = "ENDPOINT")]
+    pub connect: Vec<String>,
+    /// Any Zenoh configuration value, as `zenohd --cfg`: a JSON5 VALUE at the configuration path
+    /// KEY, e.g. `--cfg transport/shared_memory/enabled:false` or
+    /// `--cfg scouting/multicast/enabled:true` (repeatable; applied last, so it wins).
+    #[arg(long = "cfg", value_name = "KEY:VALUE")]
+    pub cfg: Vec<ZenohInsert>,
+}
+
+impl ZenohArgs {
+    /// The flags as configuration overrides.
+    #[must_use]
+    pub fn overrides(&self) -> Overrides {
+        Overrides {
+            mode: self.mode.map(ZenohMode::from),
+            listen: self.listen.clone(),
+            connect: self.connect.clone(),
+            cfg: self.cfg.clone(),
+            http_listen: None,
+        }
+    }
+}
+
+/// `-m/--mode` values: the library's [`ZenohMode`], named as Zenoh names its session roles.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ZenohModeArg {
+    /// Talks to every session it reaches, directly.
+    Peer,
+    /// Talks through one router (or peer) it connects to.
+    Client,
+    /// Routes for clients and other routers.
+    Router,
+}
+
+impl From<ZenohModeArg> for ZenohMode {
+    fn from(mode: ZenohModeArg) -> Self {
+        match mode {
+            ZenohModeArg::Peer => Self::Peer,
+            ZenohModeArg::Client => Self::Client,
+            ZenohModeArg::Router => Self::Router,
+        }
+    }
+}
+
+/// Which robot: model, its calibration, its tool, and the output frame. Shared by every command
+/// that computes poses.
+#[derive(Debug, Args)]
+pub struct RobotArgs {
+    /// Catalog model (see `armtwin models`) or a custom arm's TOML file.
+    #[arg(long, default_value = "ur10e")]
+    pub model: String,
+    /// The robot's factory calibration: the controller's `calibration.conf` or the YAML written by
+    /// ROS `ur_calibration`.
+    #[arg(long, value_name = "FILE")]
+    pub calibration: Option<PathBuf>,
+    /// Tool (TCP) offset `x,y,z,rx,ry,rz` as on the UR pendant: metres and a rotation vector in
+    /// radians. Write `--tcp=-0.1,...` when the first value is negative.
+    #[arg(long, value_name = "X,Y,Z,RX,RY,RZ", value_parser = parse_tcp)]
+    pub tcp: Option<TcpOffset>,
+    /// Frame of the output pose: the controller's `base` (as RTDE `actual_TCP_pose`) or ROS
+    /// `base_link` (base rotated π about z).
+    #[arg(long, value_enum, default_value_t = FrameArg::Base)]
+    pub frame: FrameArg,
+}
+
+/// `--frame` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum FrameArg {
+    /// The controller's base frame.
+    Base,
+    /// ROS `base_link`.
+    #[value(name = "base_link")]
+    BaseLink,
+}
+
+impl From<FrameArg> for OutputFrame {
+    fn from(frame: FrameArg) -> Self {
+        match frame {
+            FrameArg::Base => Self::Base,
+            FrameArg::BaseLink => Self::BaseLink,
+        }
+    }
+}
+
+/// `armtwin fk` arguments.
+#[derive(Debug, Args)]
+pub struct FkArgs {
+    /// The robot.
+    #[command(flatten)]
+    pub robot: RobotArgs,
+    /// Joint angles are in degrees (outputs stay in metres and radians).
+    #[arg(long)]
+    pub deg: bool,
+    /// Also print the 4×4 homogeneous matrix (row-major) of the pose.
+    #[arg(long)]
+    pub matrix: bool,
+    /// Read joint angles from a CSV (`q1..qn` or `time,q1..qn` columns; `-` for stdin) and write
+    /// the pose CSV `time,x,y,z,roll,pitch,yaw,qx,qy,qz,qw` to stdout.
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["joints", "matrix"])]
+    pub csv: Option<PathBuf>,
+    /// Joint angles q1 … qn (radians unless --deg).
+    #[arg(allow_negative_numbers = true, value_name = "Q")]
+    pub joints: Vec<f64>,
+}
+
+/// `armtwin models` arguments.
+#[derive(Debug, Args)]
+pub struct ModelsArgs {
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Parses `x,y,z,rx,ry,rz`; also accepts the pendant's `p[x, y, z, rx, ry, rz]` spelling.
+fn parse_tcp(text: &str) -> Result<TcpOffset, String> {
+    let inner = text.trim();
+    let inner = inner.strip_prefix('p').unwrap_or(inner);
+    let inner = inner
+        .strip_prefix('[')
+        .and_then(|t| t.strip_suffix(']'))
+        .unwrap_or(inner);
+    let values = inner
+        .split(',')
+        .map(|item| {
+            item.trim()
+                .parse::<f64>()
+                .map_err(|_| format!("'{}' is not a number", item.trim()))
+        })
+        .collect::<Result<Vec<f64>, String>>()?;
+    let values: [f64; 6] = values
+        .try_into()
+        .map_err(|v: Vec<f64>| format!("expected 6 values x,y,z,rx,ry,rz, got {}", v.len()))?;
+    TcpOffset::from_ur_pose(values).ok_or_else(|| "every value must be finite".to_owned())
+}
+
+/// `armtwin ik` arguments.
+#[derive(Debug, Args)]
+pub struct IkArgs {
+    /// The robot.
+    #[command(flatten)]
+    pub robot: RobotArgs,
+    /// The TCP pose `x,y,z,qx,qy,qz,qw` in the output frame (metres; quaternion in wire order,
+    /// normalised here). Write `--pose=-0.4,...` when the first value is negative.
+    #[arg(
+        long,
+        value_name = "X,Y,Z,QX,QY,QZ,QW",
+        value_delimiter = ',',
+        allow_negative_numbers = true,
+        required = true
+    )]
+    pub pose: Vec<f64>,
+    /// Joint angles q1,…,q6 (rad) to order the solutions by (nearest first) and to pick each
+    /// joint's turn; also gives q6 where the wrist is singular.
+    #[arg(
+        long,
+        value_name = "Q1,…,Q6",
+        value_delimiter = ',',
+        allow_negative_numbers = true
+    )]
+    pub seed: Vec<f64>,
+}
+
+/// `armtwin calibrate` arguments.
+#[derive(Debug, Args)]
+pub struct CalibrateArgs {
+    /// The recording (any layout `validate` reads; it must carry measured poses).
+    #[command(flatten)]
+    pub input: RecordingArgs,
+    /// The robot: the nominal model and the tool the recording was made with (`--calibration`
+    /// is refused: the fit starts from the nominal arm).
+    #[command(flatten)]
+    pub robot: RobotArgs,
+    /// Also fit the tool offset, starting from --tcp (or the flange).
+    #[arg(long)]
+    pub fit_tcp: bool,
+    /// Fraction of the rows, taken from the end of the recording, held out from the fit.
+    #[arg(long, default_value_t = 0.3, value_name = "FRACTION")]
+    pub holdout: f64,
+    /// Metres one radian of orientation error weighs as in the fit.
+    #[arg(long, default_value_t = 1.0, value_name = "M_PER_RAD")]
+    pub orientation_weight: f64,
+    /// Directory for calibration.conf and the report.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+}

@@ -26,7 +26,7 @@ use crate::config::{Overrides, ServiceConfig, ZenohInsert, ZenohMode, ZenohSecti
 use crate::fmi::FmuSettings;
 use crate::fmu_package::{self, FmuContents, FmuPackageError};
 use crate::kinematics::{OutputFrame, TcpOffset};
-use crate::model::{Calibration, RobotModel, catalog, custom};
+use crate::model::{Calibration, ModelRef, RobotModel, catalog, custom};
 use crate::pipeline::RobotSettings;
 use crate::replay::{self, ReplaySettings};
 use crate::rosbag::{self, BagOptions, BagTopics};
@@ -707,14 +707,11 @@ fn read_text(path: &Path) -> Result<String> {
 impl RobotArgs {
     /// Loads the model, calibration and tool these arguments name.
     pub fn load(&self) -> Result<RobotModel> {
-        let arm = if Path::new(&self.model)
-            .extension()
-            .is_some_and(|e| e == "toml")
-        {
-            let path = Path::new(&self.model);
-            custom::parse_arm(&read_text(path)?, &path.display().to_string())?
-        } else {
-            catalog::arm(&self.model)?
+        let arm = match ModelRef::parse(&self.model) {
+            ModelRef::CustomArm(path) => {
+                custom::parse_arm(&read_text(path)?, &path.display().to_string())?
+            }
+            ModelRef::Catalog(name) => catalog::arm(name)?,
         };
         let calibration = self
             .calibration

@@ -1151,7 +1151,7 @@ pub(crate) struct FleetRow {
     /// Its metrics at the read (counters and statistics of the current epoch).
     pub(crate) metrics: MetricsSnapshot,
     /// Position and angle alarms.
-    pub(crate) alarms_active: [bool; 2],
+    pub(crate) alarms_active: crate::pipeline::Alarms,
     /// Its totals over the service's life (no recent events: the fleet does not show them).
     pub(crate) counts: RobotCounts,
 }

@@ -28,7 +28,7 @@ use tokio::time::MissedTickBehavior;
 use tracing::{info, warn};
 use zenoh::key_expr::OwnedKeyExpr;
 
-use crate::metrics::METRIC_NAMES;
+use crate::metrics::Metric;
 use crate::service::{FleetRow, RobotDetail, ServiceTotals, TEARDOWN_STEP, TwinView, bounded};
 
 /// Fleet page updates: at most 2 per second per page.
@@ -405,14 +405,6 @@ struct AlarmJson {
     angle: bool,
 }
 
-/// The index of a metric among [`METRIC_NAMES`].
-fn metric_index(name: &str) -> usize {
-    METRIC_NAMES
-        .iter()
-        .position(|&known| known == name)
-        .unwrap_or(0)
-}
-
 fn age_s(read: &FleetRead, row: &FleetRow) -> Option<f64> {
     row.counts
         .last_active
@@ -421,8 +413,7 @@ fn age_s(read: &FleetRead, row: &FleetRow) -> Option<f64> {
 
 /// The page of the fleet `selection` asks for.
 fn fleet_page_json(read: &FleetRead, selection: &FleetSelection) -> String {
-    let position = metric_index("position");
-    let angle = metric_index("angle");
+    let (position, angle) = (Metric::Position, Metric::Angle);
     let mut matched: Vec<&FleetRow> = read
         .rows
         .iter()
@@ -434,11 +425,8 @@ fn fleet_page_json(read: &FleetRead, selection: &FleetSelection) -> String {
         })
         .map(|(row, _)| row)
         .collect();
-    let alarms = matched
-        .iter()
-        .filter(|row| row.alarms_active.iter().any(|&active| active))
-        .count();
-    let window = |row: &FleetRow, metric: usize| row.metrics.window.stats[metric].mae;
+    let alarms = matched.iter().filter(|row| row.alarms_active.any()).count();
+    let window = |row: &FleetRow, metric: Metric| row.metrics.window.of(metric).mae;
     // Rows come in id order: a stable sort keeps it among equals.
     match selection.sort {
         SortKey::Robot => {}
@@ -450,7 +438,7 @@ fn fleet_page_json(read: &FleetRead, selection: &FleetSelection) -> String {
         SortKey::Unpaired => matched.sort_by_key(|row| row.metrics.unpaired),
         SortKey::Rejected => matched.sort_by_key(|row| row.metrics.rejected),
         SortKey::Alarm => {
-            matched.sort_by_key(|row| row.alarms_active.iter().filter(|&&a| a).count());
+            matched.sort_by_key(|row| row.alarms_active.active_count());
         }
         SortKey::Age => matched.sort_by(|a, b| {
             let age = |row: &FleetRow| age_s(read, row).unwrap_or(f64::INFINITY);
@@ -474,8 +462,8 @@ fn fleet_page_json(read: &FleetRead, selection: &FleetSelection) -> String {
             rejected: row.metrics.rejected,
             poses: row.counts.poses,
             alarm: AlarmJson {
-                position: row.alarms_active[0],
-                angle: row.alarms_active[1],
+                position: row.alarms_active.position,
+                angle: row.alarms_active.angle,
             },
             age_s: age_s(read, row),
         })
@@ -702,7 +690,7 @@ async fn robot_stream(State(state): State<AppState>, Query(query): Query<RobotQu
 mod tests {
     use super::*;
     use crate::metrics::StatsSet;
-    use crate::pipeline::MetricsSnapshot;
+    use crate::pipeline::{Alarms, MetricsSnapshot};
     use crate::service::RobotCounts;
 
     fn row(id: &str, position_m: f64, paired: u64, alarm: bool) -> FleetRow {
@@ -710,7 +698,7 @@ mod tests {
             n: paired,
             ..StatsSet::default()
         };
-        window.stats[metric_index("position")].mae = position_m;
+        window.stats[Metric::Position.index()].mae = position_m;
         FleetRow {
             id: Arc::from(id),
             metrics: MetricsSnapshot {
@@ -724,7 +712,10 @@ mod tests {
                 window_s: 10.0,
                 epoch: 0,
             },
-            alarms_active: [alarm, false],
+            alarms_active: Alarms {
+                position: alarm,
+                angle: false,
+            },
             counts: RobotCounts::default(),
         }
     }

@@ -9,8 +9,8 @@ use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::registry::{Registry, Unit};
 use std::sync::atomic::AtomicU64;
 
+use super::{FleetRow, ServiceTotals};
 use crate::metrics::{Metric, Stats, StatsSet};
-use crate::service::{FleetRow, ServiceTotals};
 
 /// A series' labels: a few pairs, the robot's first.
 type Labels = Vec<(&'static str, String)>;

@@ -31,8 +31,6 @@ pub struct Encode {
 }
 
 impl Sink for Encode {
-    fn tracking(&mut self, _robot: &Robot) {}
-
     fn pose(
         &mut self,
         robot: &Robot,

@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::kinematics::{OutputFrame, TcpOffset};
-use crate::model::{Calibration, ModelError, RobotModel, catalog};
+use crate::model::{Calibration, ModelError, ModelRef, RobotModel, catalog};
 use crate::pose_fields::PoseFields;
 
 /// Name of the robot description inside the FMU's `resources/` folder.
@@ -373,15 +373,14 @@ impl FmuSettings {
         &self,
         calibration_text: Option<&str>,
     ) -> Result<RobotModel, FmuSettingsError> {
-        if std::path::Path::new(&self.model)
-            .extension()
-            .is_some_and(|e| e == "toml")
-        {
-            return Err(FmuSettingsError::CustomArm {
-                model: self.model.clone(),
-            });
-        }
-        let arm = catalog::arm(&self.model)?;
+        let arm = match ModelRef::parse(&self.model) {
+            ModelRef::Catalog(name) => catalog::arm(name)?,
+            ModelRef::CustomArm(_) => {
+                return Err(FmuSettingsError::CustomArm {
+                    model: self.model.clone(),
+                });
+            }
+        };
         let calibration = match (&self.calibration_file, calibration_text) {
             (Some(name), Some(text)) => {
                 Some(Calibration::parse(text, name).map_err(ModelError::from)?)

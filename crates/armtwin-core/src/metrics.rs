@@ -30,6 +30,70 @@ pub const METRIC_NAMES: [&str; METRIC_COUNT] = [
     "yaw",
 ];
 
+/// One of the nine metrics, by name: its position in [`METRIC_NAMES`], [`Deviation::magnitudes`]
+/// and [`StatsSet::stats`] is [`Metric::index`], so no caller counts positions by hand.
+///
+/// ```
+/// use armtwin_core::metrics::{Metric, METRIC_NAMES};
+/// assert_eq!(Metric::from_name("angle"), Some(Metric::Angle));
+/// assert_eq!(Metric::from_name("angel"), None);
+/// assert_eq!(METRIC_NAMES[Metric::Angle.index()], Metric::Angle.as_str());
+/// ```
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Metric {
+    /// Position error (m).
+    Position,
+    /// Absolute x error (m).
+    X,
+    /// Absolute y error (m).
+    Y,
+    /// Absolute z error (m).
+    Z,
+    /// Quaternion distance, in [0, 1].
+    QuatDistance,
+    /// Rotation angle between the two orientations (rad).
+    Angle,
+    /// Absolute wrapped roll difference (rad).
+    Roll,
+    /// Absolute wrapped pitch difference (rad).
+    Pitch,
+    /// Absolute wrapped yaw difference (rad).
+    Yaw,
+}
+
+impl Metric {
+    /// Every metric, in [`METRIC_NAMES`] order.
+    pub const ALL: [Self; METRIC_COUNT] = [
+        Self::Position,
+        Self::X,
+        Self::Y,
+        Self::Z,
+        Self::QuatDistance,
+        Self::Angle,
+        Self::Roll,
+        Self::Pitch,
+        Self::Yaw,
+    ];
+
+    /// The metric called `name` (as in [`METRIC_NAMES`]); `None` for a name that is none.
+    #[must_use]
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|metric| metric.as_str() == name)
+    }
+
+    /// Its name, as the wire formats and reports write it.
+    #[must_use]
+    pub const fn as_str(self) -> &'static str {
+        METRIC_NAMES[self.index()]
+    }
+
+    /// Its position in [`METRIC_NAMES`], [`Deviation::magnitudes`] and [`StatsSet::stats`].
+    #[must_use]
+    pub const fn index(self) -> usize {
+        self as usize
+    }
+}
+
 /// Statistics accept only magnitudes at most this large: far beyond any physical deviation in
 /// metres or radians, and small enough that no sum of squares can overflow to infinity (which
 /// would poison a sliding window forever, since `∞ − ∞` is NaN).
@@ -132,6 +196,12 @@ pub struct StatsSet {
 }
 
 impl StatsSet {
+    /// The statistics of `metric`.
+    #[must_use]
+    pub fn of(&self, metric: Metric) -> &Stats {
+        &self.stats[metric.index()]
+    }
+
     /// Statistics from per-metric sums, sums of squares and maxima of `n` samples.
     fn from_sums(
         n: u64,
@@ -845,6 +915,29 @@ mod tests {
 
     fn uniform(x: f64) -> [f64; METRIC_COUNT] {
         [x; METRIC_COUNT]
+    }
+
+    #[test]
+    fn every_metric_is_named_at_its_index() {
+        for (index, metric) in Metric::ALL.into_iter().enumerate() {
+            assert_eq!(metric.index(), index);
+            assert_eq!(Metric::from_name(METRIC_NAMES[index]), Some(metric));
+        }
+        assert_eq!(Metric::from_name("Position"), None, "names are exact");
+        let deviation = Deviation {
+            dx_m: 0.0,
+            dy_m: 0.0,
+            dz_m: 0.0,
+            position_m: 1.0,
+            quat_distance: 0.0,
+            angle_rad: 2.0,
+            droll_rad: 0.0,
+            dpitch_rad: 0.0,
+            dyaw_rad: 0.0,
+        };
+        let magnitudes = deviation.magnitudes();
+        assert_eq!(magnitudes[Metric::Position.index()], 1.0);
+        assert_eq!(magnitudes[Metric::Angle.index()], 2.0);
     }
 
     #[test]

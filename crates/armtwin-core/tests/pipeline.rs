@@ -9,53 +9,16 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use armtwin_core::kinematics::{OutputFrame, PoseReadout};
-use armtwin_core::metrics::Deviation;
+use armtwin_core::kinematics::OutputFrame;
+use armtwin_core::metrics::Metric;
 use armtwin_core::model::RobotModel;
+use armtwin_core::pipeline::sinks::Record;
 use armtwin_core::pipeline::{
-    AlarmConfig, Event, EventDetail, EventKind, MetricsSnapshot, Pipeline, PipelineConfig,
-    ReplaceModelError, Robot, RobotDirectory, RobotIndex, RobotSettings, Sink,
+    AlarmConfig, EventDetail, EventKind, Pipeline, PipelineConfig, ReplaceModelError, Robot,
+    RobotDirectory, RobotIndex, RobotSettings, Sink,
 };
 use armtwin_core::sample::JointSample;
 use armtwin_core::self_calibration::ReservoirConfig;
-
-/// Everything the pipeline sends, in order.
-#[derive(Default)]
-struct Recorder {
-    poses: Vec<(f64, u64)>,
-    deviations: Vec<f64>,
-    events: Vec<(EventKind, EventDetail, f64)>,
-    metrics: Vec<MetricsSnapshot>,
-}
-
-impl Sink for Recorder {
-    fn tracking(&mut self, _robot: &Robot) {}
-    fn pose(
-        &mut self,
-        _robot: &Robot,
-        stamp_s: f64,
-        seq: u64,
-        _frame: OutputFrame,
-        _pose: &PoseReadout,
-    ) {
-        self.poses.push((stamp_s, seq));
-    }
-    fn deviation(
-        &mut self,
-        _robot: &Robot,
-        stamp_s: f64,
-        _measured: &PoseReadout,
-        _deviation: &Deviation,
-    ) {
-        self.deviations.push(stamp_s);
-    }
-    fn event(&mut self, event: &Event<'_>) {
-        self.events.push((event.kind, event.detail, event.stamp_s));
-    }
-    fn metrics(&mut self, _robot: &Robot, snapshot: &MetricsSnapshot) {
-        self.metrics.push(snapshot.clone());
-    }
-}
 
 fn pipeline() -> (Pipeline, Arc<RobotModel>, RobotDirectory) {
     let model = Arc::new(RobotModel::nominal("ur10e").expect("catalog"));
@@ -105,7 +68,7 @@ fn sample(model: &RobotModel, q: [f64; 6], with_measured: bool) -> JointSample {
 fn a_clock_restart_starts_alignment_and_window_afresh() {
     let (mut pipeline, model, mut directory) = pipeline();
     let r1 = robot(&mut directory, "r1");
-    let mut sink = Recorder::default();
+    let mut sink = Record::default();
     let q = [0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
     for i in 0..20 {
         let t = 1000.0 + f64::from(i) * 0.01;
@@ -137,16 +100,16 @@ fn a_clock_restart_starts_alignment_and_window_afresh() {
         );
     }
     assert_eq!(
-        sink.poses.len(),
+        sink.poses().count(),
         25,
         "every sample but the out-of-order one"
     );
-    assert_eq!(sink.deviations.len(), 25);
-    let kinds: Vec<EventKind> = sink.events.iter().map(|e| e.0).collect();
+    assert_eq!(sink.deviations().count(), 25);
+    let kinds: Vec<EventKind> = sink.events().map(|e| e.kind).collect();
     assert_eq!(kinds, [EventKind::Rejected, EventKind::Restart]);
     assert!(matches!(
-        sink.events[1].1,
-        EventDetail::Restart { from_s, to_s } if (from_s - 1000.19).abs() < 1e-9 && to_s == 0.0
+        sink.events().nth(1).map(|e| e.detail),
+        Some(EventDetail::Restart { from_s, to_s }) if (from_s - 1000.19).abs() < 1e-9 && to_s == 0.0
     ));
     let metrics = pipeline.state(r1.index()).expect("tracked").metrics;
     assert_eq!(metrics.paired, 25);
@@ -155,7 +118,7 @@ fn a_clock_restart_starts_alignment_and_window_afresh() {
     assert_eq!(metrics.window.n, 5, "the window restarted with the clock");
     assert!((metrics.stamp_s - 0.04).abs() < 1e-12);
     // Pose seq keeps counting without gaps across the restart.
-    let seqs: Vec<u64> = sink.poses.iter().map(|p| p.1).collect();
+    let seqs: Vec<u64> = sink.poses().map(|p| p.seq).collect();
     assert_eq!(seqs, (0..25).collect::<Vec<u64>>());
 }
 
@@ -163,7 +126,7 @@ fn a_clock_restart_starts_alignment_and_window_afresh() {
 fn finish_reports_waiting_measurements_and_sends_final_metrics() {
     let (mut pipeline, model, mut directory) = pipeline();
     let r1 = robot(&mut directory, "r1");
-    let mut sink = Recorder::default();
+    let mut sink = Record::default();
     let q = [0.0, -1.0, 1.0, -1.0, 1.0, 0.0];
     pipeline.joints(
         &r1,
@@ -181,20 +144,23 @@ fn finish_reports_waiting_measurements_and_sends_final_metrics() {
         &pose,
         &mut sink,
     );
-    assert!(sink.events.is_empty(), "it waits for a later joint sample");
+    assert_eq!(
+        sink.events().count(),
+        0,
+        "it waits for a later joint sample"
+    );
     pipeline.finish(&mut sink);
     assert!(matches!(
-        sink.events[0],
-        (
+        sink.events().next().map(|e| (e.kind, e.detail)),
+        Some((
             EventKind::Unpaired,
             EventDetail::Unpaired {
                 cause: "stream_ended",
                 ..
             },
-            _
-        )
+        ))
     ));
-    let last = sink.metrics.last().expect("final metrics");
+    let last = sink.metrics().last().expect("final metrics");
     assert_eq!((last.paired, last.unpaired), (0, 1));
 }
 
@@ -202,7 +168,7 @@ fn finish_reports_waiting_measurements_and_sends_final_metrics() {
 fn streams_keep_their_own_stamp_order_and_the_window_ages_without_pairs() {
     let (mut pipeline, model, mut directory) = pipeline();
     let r1 = robot(&mut directory, "r1");
-    let mut sink = Recorder::default();
+    let mut sink = Record::default();
     let q = [0.2, -1.1, 1.0, -1.2, 1.0, 0.3];
     let pose = model.pose(&q).expect("valid").readout();
     // Joints with the controller's pose at 10 ms, a second stream (a sensor) 3 ms later each time.
@@ -225,7 +191,12 @@ fn streams_keep_their_own_stamp_order_and_the_window_ages_without_pairs() {
         );
     }
     let metrics = pipeline.state(r1.index()).expect("tracked").metrics;
-    assert_eq!(metrics.rejected, 0, "{:?}", sink.events);
+    assert_eq!(
+        metrics.rejected,
+        0,
+        "{:?}",
+        sink.events().collect::<Vec<_>>()
+    );
     // The first sensor pose (t = -0.007) precedes every joint sample; the others pair.
     assert_eq!((metrics.paired, metrics.unpaired), (199, 1));
     // Pairs stop, joints go on for 20 s: the 10 s window empties, cumulative keeps everything.
@@ -249,7 +220,7 @@ fn streams_keep_their_own_stamp_order_and_the_window_ages_without_pairs() {
 fn a_resent_message_is_one_rejection_and_bad_stamps_do_not_move_time() {
     let (mut pipeline, model, mut directory) = pipeline();
     let r1 = robot(&mut directory, "r1");
-    let mut sink = Recorder::default();
+    let mut sink = Record::default();
     let q = [0.0, -1.0, 1.0, -1.0, 1.0, 0.0];
     pipeline.joints(
         &r1,
@@ -269,7 +240,12 @@ fn a_resent_message_is_one_rejection_and_bad_stamps_do_not_move_time() {
     beyond_limits.q_rad[2] = 9.0;
     pipeline.joints(&r1, "twin/joints/r1", 1e9, &beyond_limits, &mut sink);
     let metrics = pipeline.state(r1.index()).expect("tracked").metrics;
-    assert_eq!(metrics.rejected, 2, "{:?}", sink.events);
+    assert_eq!(
+        metrics.rejected,
+        2,
+        "{:?}",
+        sink.events().collect::<Vec<_>>()
+    );
     assert_eq!(metrics.paired, 1);
     assert_eq!(
         metrics.stamp_s, 1.0,
@@ -281,7 +257,7 @@ fn a_resent_message_is_one_rejection_and_bad_stamps_do_not_move_time() {
 fn periodic_metrics_go_out_once_per_robot_with_new_results() {
     let (mut pipeline, model, mut directory) = pipeline();
     let r1 = robot(&mut directory, "r1");
-    let mut sink = Recorder::default();
+    let mut sink = Record::default();
     let q = [0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
     let r2 = robot(&mut directory, "r2");
     for robot in [&r1, &r2] {
@@ -301,7 +277,7 @@ fn periodic_metrics_go_out_once_per_robot_with_new_results() {
         // A second call before new results sends nothing.
         publish_metrics_if_due(&mut pipeline, robot, &mut sink);
     }
-    let robots: Vec<&str> = sink.metrics.iter().map(|m| m.robot.as_str()).collect();
+    let robots: Vec<&str> = sink.metrics().map(|m| m.robot.as_str()).collect();
     assert_eq!(robots, ["r1", "r2"]);
     assert!(pipeline.robots_with_due_metrics().is_empty());
     pipeline.joints(
@@ -315,7 +291,7 @@ fn periodic_metrics_go_out_once_per_robot_with_new_results() {
     // Unknown robots have no metrics to send.
     let nobody = robot(&mut directory, "nobody");
     publish_metrics_if_due(&mut pipeline, &nobody, &mut sink);
-    assert_eq!(sink.metrics.len(), 2);
+    assert_eq!(sink.metrics().count(), 2);
     // Taken instead of sent (the service encodes and sends them outside its lock): counted as
     // sent all the same.
     assert!(pipeline.take_due_metrics(r1.index()).is_none());
@@ -323,7 +299,7 @@ fn periodic_metrics_go_out_once_per_robot_with_new_results() {
     assert_eq!((taken.robot.as_str(), taken.stamp_s), ("r2", 1.01));
     assert!(pipeline.take_due_metrics(r2.index()).is_none());
     assert!(pipeline.robots_with_due_metrics().is_empty());
-    assert_eq!(sink.metrics.len(), 2);
+    assert_eq!(sink.metrics().count(), 2);
 }
 
 #[test]
@@ -341,7 +317,7 @@ fn a_replaced_model_starts_a_new_epoch_and_self_calibration_keeps_only_accepted_
     let mut directory = RobotDirectory::new(Some(settings), HashMap::new());
     let mut pipeline = Pipeline::new(PipelineConfig::default());
     let r1 = robot(&mut directory, "r1");
-    let mut sink = Recorder::default();
+    let mut sink = Record::default();
     let q = [0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
     for i in 0..10 {
         let t = f64::from(i) * 0.01;
@@ -377,10 +353,10 @@ fn a_replaced_model_starts_a_new_epoch_and_self_calibration_keeps_only_accepted_
         .replace_model(r1.index(), Arc::clone(&tooled), &mut sink)
         .expect("tracked");
     assert_eq!((last.epoch, last.paired), (0, 10));
-    assert_eq!(sink.metrics.last().map(|m| m.paired), Some(10));
+    assert_eq!(sink.metrics().last().map(|m| m.paired), Some(10));
     assert!(matches!(
-        sink.events.last(),
-        Some((EventKind::Epoch, EventDetail::Epoch { epoch: 1 }, _))
+        sink.events().last().map(|e| (e.kind, e.detail)),
+        Some((EventKind::Epoch, EventDetail::Epoch { epoch: 1 }))
     ));
     let state = pipeline.state(r1.index()).expect("tracked");
     assert_eq!((state.metrics.epoch, state.metrics.paired), (1, 0));
@@ -392,7 +368,7 @@ fn a_replaced_model_starts_a_new_epoch_and_self_calibration_keeps_only_accepted_
     pipeline.joints(&r1, "k", 0.3, &sample(&model, q, true), &mut sink);
     let state = pipeline.state(r1.index()).expect("tracked");
     assert_eq!(state.metrics.paired, 1);
-    assert!((state.metrics.cumulative.stats[0].max - 0.1).abs() < 1e-12);
+    assert!((state.metrics.cumulative.of(Metric::Position).max - 0.1).abs() < 1e-12);
     // A robot without a twin has no model to replace.
     let r2 = robot(&mut directory, "r2");
     assert_eq!(

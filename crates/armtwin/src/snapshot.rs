@@ -18,7 +18,7 @@ use thiserror::Error;
 use crate::kinematics::TcpOffset;
 use crate::metrics::{CumulativeParts, METRIC_COUNT};
 use crate::model::MountingDeltas;
-use crate::pipeline::{AppliedModel, TwinRecord};
+use crate::pipeline::{Alarms, AppliedModel, TwinRecord};
 
 /// The format the file declares; a file of another format is refused.
 pub const SNAPSHOT_FORMAT: &str = "armtwin-twin-state/v1";
@@ -79,6 +79,7 @@ struct RecordJson {
     next_pose_seq: u64,
     last_gateway_seq: Option<u64>,
     cumulative: CumulativeJson,
+    /// Position alarm, angle alarm: the file's order.
     alarms_active: [bool; 2],
     #[serde(default, skip_serializing_if = "Option::is_none")]
     applied: Option<AppliedJson>,
@@ -156,12 +157,13 @@ impl RecordJson {
                 sums_of_squares: parts.sums_of_squares,
                 maxima: (parts.n > 0).then_some(parts.maxima),
             },
-            alarms_active: record.alarms_active,
+            alarms_active: [record.alarms_active.position, record.alarms_active.angle],
             applied: record.applied.as_ref().map(AppliedJson::new),
         }
     }
 
     fn into_record(self) -> Result<TwinRecord, String> {
+        let [position, angle] = self.alarms_active;
         let cumulative = self.cumulative;
         let maxima = match (cumulative.n, cumulative.maxima) {
             (0, _) => [f64::NEG_INFINITY; METRIC_COUNT],
@@ -188,7 +190,7 @@ impl RecordJson {
                 sums_of_squares: cumulative.sums_of_squares,
                 maxima,
             },
-            alarms_active: self.alarms_active,
+            alarms_active: Alarms { position, angle },
             applied: self.applied.map(AppliedJson::into_applied),
         })
     }
@@ -352,7 +354,10 @@ mod tests {
                     [0.3; METRIC_COUNT]
                 },
             },
-            alarms_active: [true, false],
+            alarms_active: Alarms {
+                position: true,
+                angle: false,
+            },
             applied: None,
         }
     }

@@ -17,7 +17,7 @@ use armtwin::kinematics::PoseReadout;
 use armtwin::metrics::{Deviation, METRIC_NAMES, Stats, StatsSet};
 use armtwin::model::RobotModel;
 use armtwin::pipeline::{
-    Event, EventDetail, EventKind, MetricsSnapshot, Reason, RejectCause, RobotState,
+    Alarms, Event, EventDetail, EventKind, MetricsSnapshot, Reason, RejectCause, RobotState,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 use serde_json::Value;
@@ -893,10 +893,13 @@ fn state_message_fields() {
         robot: "ur10e_1",
         model: &model,
         last_joints: Some((2.0, &q)),
-        last_twin: Some((2.0, &twin)),
+        last_twin_pose: Some((2.0, &twin)),
         last_measured: None,
         metrics: snapshot(),
-        alarms_active: [true, false],
+        alarms_active: Alarms {
+            position: true,
+            angle: false,
+        },
     };
     let json = parse(&to_json_bytes(&StateMessage::new(&state)));
     assert_eq!(

@@ -25,7 +25,7 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 use armtwin::codec::recording::{self, ColumnMap, PoseForm, Recording};
 use armtwin::kinematics::TcpOffset;
-use armtwin::model::{Calibration, RobotModel, catalog, custom};
+use armtwin::model::{Calibration, ModelRef, RobotModel, catalog, custom};
 use armtwin::rosbag::{self, BagOptions, BagTopics};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
@@ -177,14 +177,11 @@ fn read_text(path: &Path) -> Result<String> {
 impl RobotArgs {
     /// Loads the model, calibration and tool these arguments name.
     pub fn load(&self) -> Result<RobotModel> {
-        let arm = if Path::new(&self.model)
-            .extension()
-            .is_some_and(|e| e == "toml")
-        {
-            let path = Path::new(&self.model);
-            custom::parse_arm(&read_text(path)?, &path.display().to_string())?
-        } else {
-            catalog::arm(&self.model)?
+        let arm = match ModelRef::parse(&self.model) {
+            ModelRef::CustomArm(path) => {
+                custom::parse_arm(&read_text(path)?, &path.display().to_string())?
+            }
+            ModelRef::Catalog(name) => catalog::arm(name)?,
         };
         let calibration = self
             .calibration

@@ -1,5 +1,6 @@
-//! Robot descriptions: the built-in catalog, custom arms, factory calibration and tool, and the
-//! [`RobotModel`] that joins them into one compiled chain.
+//! Robot descriptions: the built-in catalog, custom arms, how a user names either
+//! ([`ModelRef`]), factory calibration and tool, and the [`RobotModel`] that joins them into one
+//! compiled chain.
 //!
 //! Owns what a robot *is*; [`crate::kinematics`] owns how a pose is computed from it. Files are
 //! parsed from text handed in by the caller: nothing here opens a file.
@@ -7,6 +8,7 @@
 pub mod calibration;
 pub mod catalog;
 pub mod custom;
+mod reference;
 
 use thiserror::Error;
 
@@ -14,6 +16,7 @@ use crate::kinematics::{
     Chain, DhConvention, DhParameters, KinematicsError, OutputFrame, Pose, TcpOffset,
 };
 pub use calibration::{Calibration, CalibrationError, CalibrationForm, MountingDeltas};
+pub use reference::ModelRef;
 
 /// Position limits of one revolute joint (rad); `None` on a side means unlimited.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -35,7 +35,7 @@ use super::flat_json::FlatObject;
 use crate::kinematics::PoseReadout;
 use crate::metrics::{Deviation, METRIC_NAMES, Stats, StatsSet};
 use crate::orientation::{self, Rpy};
-use crate::pipeline::{Event, EventDetail, MetricsSnapshot, RejectCause, RobotState};
+use crate::pipeline::{Alarms, Event, EventDetail, MetricsSnapshot, RejectCause, RobotState};
 use crate::sample::{JointSample, MeasuredSample};
 
 /// Largest accepted payload (bytes); larger ones are rejected before parsing.
@@ -1715,7 +1715,7 @@ impl StateMessage {
             t,
             pose: PoseFields::from(pose),
         };
-        let [position, angle] = state.alarms_active;
+        let Alarms { position, angle } = state.alarms_active;
         Self {
             robot: state.robot.to_owned(),
             model: state.model.arm().name.clone(),
@@ -1728,7 +1728,7 @@ impl StateMessage {
             joints: state
                 .last_joints
                 .map(|(t, q)| StampedJointsJson { t, q: q.to_vec() }),
-            twin: state.last_twin.as_ref().map(stamped),
+            twin: state.last_twin_pose.as_ref().map(stamped),
             measured: state.last_measured.as_ref().map(stamped),
             alarms: AlarmsJson { position, angle },
             metrics: MetricsMessage::new(&state.metrics),

@@ -18,7 +18,7 @@ use super::file::{RobotSection, Ros2PoseSection};
 use super::zenoh_section::without_source_location;
 use crate::keys::{self, KeySpace};
 use crate::kinematics::{OutputFrame, TcpOffset};
-use crate::model::{Calibration, ModelError, RobotModel, catalog, custom};
+use crate::model::{Calibration, ModelError, ModelRef, RobotModel, catalog, custom};
 use crate::orientation;
 use crate::pipeline::{AlarmConfig, RobotSettings, SensorStream};
 use crate::ros2::{self, PoseOutput, PoseOutputs};
@@ -118,14 +118,12 @@ impl RobotSource<'_> {
         let model_name = self
             .pick(|s| s.model.clone())
             .unwrap_or_else(|| DEFAULT_MODEL.to_owned());
-        let arm = if Path::new(&model_name)
-            .extension()
-            .is_some_and(|e| e == "toml")
-        {
-            let (text, path) = self.read(Path::new(&model_name))?;
-            custom::parse_arm(&text, &path).map_err(|e| self.model_error(e))?
-        } else {
-            catalog::arm(&model_name).map_err(|e| self.model_error(e))?
+        let arm = match ModelRef::parse(&model_name) {
+            ModelRef::CustomArm(relative) => {
+                let (text, path) = self.read(relative)?;
+                custom::parse_arm(&text, &path).map_err(|e| self.model_error(e))?
+            }
+            ModelRef::Catalog(name) => catalog::arm(name).map_err(|e| self.model_error(e))?,
         };
         let calibration = match self.pick(|s| s.calibration.clone()) {
             Some(relative) => {

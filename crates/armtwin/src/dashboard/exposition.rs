@@ -9,9 +9,8 @@ use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::registry::{Registry, Unit};
 use std::sync::atomic::AtomicU64;
 
-use super::metric_index;
 use super::{FleetRow, ServiceTotals};
-use crate::metrics::{Stats, StatsSet};
+use crate::metrics::{Metric, Stats, StatsSet};
 
 /// A series' labels: a few pairs, the robot's first.
 type Labels = Vec<(&'static str, String)>;
@@ -137,7 +136,7 @@ impl RobotFamilies {
         families
     }
 
-    fn add(&self, row: &FleetRow, position_index: usize, angle_index: usize) {
+    fn add(&self, row: &FleetRow) {
         let robot = &*row.id;
         let robot_labels = || vec![("robot", robot.to_owned())];
         let scopes: [(&'static str, &StatsSet); 2] = [
@@ -145,8 +144,8 @@ impl RobotFamilies {
             ("window", &row.metrics.window),
         ];
         for (scope, set) in scopes {
-            self.position.set(robot, scope, &set.stats[position_index]);
-            self.rotation.set(robot, scope, &set.stats[angle_index]);
+            self.position.set(robot, scope, set.of(Metric::Position));
+            self.rotation.set(robot, scope, set.of(Metric::Angle));
         }
         self.pairs
             .get_or_create(&robot_labels())
@@ -167,8 +166,11 @@ impl RobotFamilies {
             ];
             self.rejected.get_or_create(&labels).inc_by(count);
         }
-        for (metric, active) in ["position", "angle"].into_iter().zip(row.alarms_active) {
-            let labels = vec![("robot", robot.to_owned()), ("metric", metric.to_owned())];
+        for (metric, active) in row.alarms_active.by_metric() {
+            let labels = vec![
+                ("robot", robot.to_owned()),
+                ("metric", metric.as_str().to_owned()),
+            ];
             self.alarm
                 .get_or_create(&labels)
                 .set(f64::from(u8::from(active)));
@@ -223,9 +225,8 @@ fn register_totals(registry: &mut Registry, totals: &ServiceTotals) {
 pub(crate) fn render(totals: &ServiceTotals, rows: &[FleetRow]) -> String {
     let mut registry = Registry::with_prefix("armtwin");
     let families = RobotFamilies::register(&mut registry);
-    let (position_index, angle_index) = (metric_index("position"), metric_index("angle"));
     for row in rows {
-        families.add(row, position_index, angle_index);
+        families.add(row);
     }
     register_totals(&mut registry, totals);
     let mut text = String::with_capacity(256 + rows.len() * 2048);

@@ -33,7 +33,7 @@ use zenoh::key_expr::OwnedKeyExpr;
 
 use crate::config::without_source_location;
 use crate::mesh::{TEARDOWN_STEP, bounded};
-use crate::metrics::METRIC_NAMES;
+use crate::metrics::Metric;
 
 /// Fleet page updates: at most 2 per second per page.
 const FLEET_PERIOD: Duration = Duration::from_millis(500);
@@ -406,14 +406,6 @@ struct AlarmJson {
     angle: bool,
 }
 
-/// The index of a metric among [`METRIC_NAMES`].
-fn metric_index(name: &str) -> usize {
-    METRIC_NAMES
-        .iter()
-        .position(|&known| known == name)
-        .unwrap_or(0)
-}
-
 fn age_s(read: &FleetRead, row: &FleetRow) -> Option<f64> {
     row.counts
         .last_active
@@ -422,8 +414,7 @@ fn age_s(read: &FleetRead, row: &FleetRow) -> Option<f64> {
 
 /// The page of the fleet `selection` asks for.
 fn fleet_page_json(read: &FleetRead, selection: &FleetSelection) -> String {
-    let position = metric_index("position");
-    let angle = metric_index("angle");
+    let (position, angle) = (Metric::Position, Metric::Angle);
     let mut matched: Vec<&FleetRow> = read
         .rows
         .iter()
@@ -435,11 +426,8 @@ fn fleet_page_json(read: &FleetRead, selection: &FleetSelection) -> String {
         })
         .map(|(row, _)| row)
         .collect();
-    let alarms = matched
-        .iter()
-        .filter(|row| row.alarms_active.iter().any(|&active| active))
-        .count();
-    let window = |row: &FleetRow, metric: usize| row.metrics.window.stats[metric].mae;
+    let alarms = matched.iter().filter(|row| row.alarms_active.any()).count();
+    let window = |row: &FleetRow, metric: Metric| row.metrics.window.of(metric).mae;
     // Rows come in id order: a stable sort keeps it among equals.
     match selection.sort {
         SortKey::Robot => {}
@@ -451,7 +439,7 @@ fn fleet_page_json(read: &FleetRead, selection: &FleetSelection) -> String {
         SortKey::Unpaired => matched.sort_by_key(|row| row.metrics.unpaired),
         SortKey::Rejected => matched.sort_by_key(|row| row.metrics.rejected),
         SortKey::Alarm => {
-            matched.sort_by_key(|row| row.alarms_active.iter().filter(|&&a| a).count());
+            matched.sort_by_key(|row| row.alarms_active.active_count());
         }
         SortKey::Age => matched.sort_by(|a, b| {
             let age = |row: &FleetRow| age_s(read, row).unwrap_or(f64::INFINITY);
@@ -475,8 +463,8 @@ fn fleet_page_json(read: &FleetRead, selection: &FleetSelection) -> String {
             rejected: row.metrics.rejected,
             poses: row.counts.poses,
             alarm: AlarmJson {
-                position: row.alarms_active[0],
-                angle: row.alarms_active[1],
+                position: row.alarms_active.position,
+                angle: row.alarms_active.angle,
             },
             age_s: age_s(read, row),
         })
@@ -704,14 +692,14 @@ mod tests {
     use super::RobotCounts;
     use super::*;
     use crate::metrics::StatsSet;
-    use crate::pipeline::MetricsSnapshot;
+    use crate::pipeline::{Alarms, MetricsSnapshot};
 
     fn row(id: &str, position_m: f64, paired: u64, alarm: bool) -> FleetRow {
         let mut window = StatsSet {
             n: paired,
             ..StatsSet::default()
         };
-        window.stats[metric_index("position")].mae = position_m;
+        window.stats[Metric::Position.index()].mae = position_m;
         FleetRow {
             id: Arc::from(id),
             metrics: MetricsSnapshot {
@@ -725,7 +713,10 @@ mod tests {
                 window_s: 10.0,
                 epoch: 0,
             },
-            alarms_active: [alarm, false],
+            alarms_active: Alarms {
+                position: alarm,
+                angle: false,
+            },
             counts: RobotCounts::default(),
         }
     }

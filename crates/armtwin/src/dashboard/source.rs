@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use crate::codec::wire;
 use crate::model::RobotModel;
-use crate::pipeline::{MetricsSnapshot, RejectCause};
+use crate::pipeline::{Alarms, MetricsSnapshot, RejectCause};
 
 /// Read access to a running fleet: each call copies what it needs out and holds nothing
 /// afterwards, so the dashboard keeps no second copy of the state that could drift from it.
@@ -31,7 +31,7 @@ pub struct FleetRow {
     /// Its metrics at the read (counters and statistics of the current epoch).
     pub metrics: MetricsSnapshot,
     /// Position and angle alarms.
-    pub alarms_active: [bool; 2],
+    pub alarms_active: Alarms,
     /// Its totals over the service's life (no recent events: the fleet does not show them).
     pub counts: RobotCounts,
 }

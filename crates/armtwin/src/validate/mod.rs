@@ -117,8 +117,6 @@ impl Collector {
 }
 
 impl Sink for Collector {
-    fn tracking(&mut self, _robot: &Robot) {}
-
     fn pose(
         &mut self,
         _robot: &Robot,

@@ -43,17 +43,17 @@ use zenoh::query::Query;
 use zenoh::sample::{Locality, Sample};
 use zenoh::session::Session;
 
-use crate::calibrate::EstimateMessage;
+use crate::codec::decoded::{self, Arrival, Decoded, Decoder};
+use crate::codec::gateway::{self, Codec, SourceCodec};
 use crate::codec::ik::{IkAnswerJson, IkRequest};
-use crate::codec::{PoseFields, cdr, wire, zser};
+use crate::codec::json::{self as wire, EstimateMessage};
+use crate::codec::{PoseFields, cdr, zser};
 use crate::config::{
-    Congestion, EventBudget, OutputEncoding, Ros2Source, SelfCalibrationConfig, ServiceConfig,
-    SourceConfig, SourceRobot, SourceStream, ZenohSection,
+    Congestion, EventBudget, OutputEncoding, SelfCalibrationConfig, ServiceConfig, SourceConfig,
+    SourceRobot, SourceStream, ZenohSection,
 };
 use crate::dashboard;
-use crate::ingest::{
-    self, Codec, JointMessage, MeasuredMessage, Ros2JointMessage, Ros2PoseMessage, SourceCodec,
-};
+use crate::ingest;
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
 use crate::model::RobotModel;
@@ -902,17 +902,28 @@ impl SharedTwin {
         }
     }
 
-    /// Runs `step` with the entry of robot `id`, whose input arrived on `key`: found under the
-    /// read locks or, on a robot's first input, admitted under the default settings. The input
-    /// of a robot that may not be tracked is rejected as such instead.
-    fn with_robot(
+    /// One input of robot `id`, arrived on `key`, decoded with `decoder` and stepped into the
+    /// robot's twin: the one intake path of every sample (armtwin's own keys, sensors' and
+    /// `[[sources]]`', whatever the codec). The robot is found under the read locks or, on its
+    /// first input, admitted under the default settings; the input of a robot that may not be
+    /// tracked is rejected as such, at the stamp the decoder finds in it, instead.
+    ///
+    /// `fallback_s` gives the stamp of a message without one (read only then). `transport` sees
+    /// the decoded message under the robot's lock before it is stepped: what the transport adds
+    /// to it (`rmw_zenoh`'s attachment).
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "one input: who, where, how, and its bytes"
+    )]
+    fn intake<D: Decoder>(
         &self,
         id: &str,
         key: &str,
-        codec: Codec,
+        stream: MeasuredStream,
+        decoder: &D,
         payload: &[u8],
         fallback_s: impl FnOnce() -> f64,
-        step: impl FnOnce(&RobotEntry),
+        transport: impl FnOnce(&mut Stepping<'_>, &mut Decoded<D::Message, D::Error>),
     ) {
         let found = {
             let robots = self.read_robots();
@@ -923,7 +934,8 @@ impl SharedTwin {
         };
         let admits_unlisted = match found {
             Ok(entry) => {
-                step(&entry);
+                let arrival = Arrival { key, stream };
+                self.decode_and_step(&entry, arrival, decoder, payload, fallback_s, transport);
                 return;
             }
             Err(admits_unlisted) => admits_unlisted,
@@ -946,14 +958,33 @@ impl SharedTwin {
             if !self.stopped.load(Ordering::Acquire) {
                 self.inputs.fetch_add(1, Ordering::Relaxed);
                 let mut sink = RobotSink::untracked(&self.output);
-                ingest::unknown_robot(id, key, codec, payload, fallback_s, &mut sink);
+                gateway::unknown_robot(id, key, decoder, payload, fallback_s, &mut sink);
             }
             return;
         }
         let entry = self.read_robots().find(id).map(|robot| self.entry(robot));
         if let Some(entry) = entry {
-            step(&entry);
+            let arrival = Arrival { key, stream };
+            self.decode_and_step(&entry, arrival, decoder, payload, fallback_s, transport);
         }
+    }
+
+    /// Decodes an input against `entry`'s robot before taking its lock, then steps the twin
+    /// with it under that lock alone.
+    fn decode_and_step<D: Decoder>(
+        &self,
+        entry: &RobotEntry,
+        arrival: Arrival<'_>,
+        decoder: &D,
+        payload: &[u8],
+        fallback_s: impl FnOnce() -> f64,
+        transport: impl FnOnce(&mut Stepping<'_>, &mut Decoded<D::Message, D::Error>),
+    ) {
+        let mut message = Decoded::decode(decoder, &entry.robot, payload, fallback_s);
+        self.step(entry, |mut locked| {
+            transport(&mut locked, &mut message);
+            message.step(locked.twin, arrival, &mut locked.sink);
+        });
     }
 
     fn joints(&self, sample: &Sample) {
@@ -962,16 +993,11 @@ impl SharedTwin {
             warn!(%key, "joint sample without a robot id in its key: ignored");
             return;
         };
+        let decoder = gateway::Joints(ingest::codec_of(sample.encoding()));
         let payload = sample.payload().to_bytes();
-        let codec = Codec::from_encoding(sample.encoding());
         let fallback_s = || transport_stamp_s(sample);
-        self.with_robot(id, key, codec, &payload, fallback_s, |entry| {
-            let robot = &entry.robot;
-            let message = JointMessage::decode(robot, codec, &payload, fallback_s);
-            self.step(entry, |mut locked| {
-                message.step(locked.twin, key, &mut locked.sink);
-            });
-        });
+        let stream = MeasuredStream::Robot;
+        self.intake(id, key, stream, &decoder, &payload, fallback_s, |_, _| {});
     }
 
     fn measured(&self, sample: &Sample) {
@@ -980,30 +1006,29 @@ impl SharedTwin {
             warn!(%key, "measured pose without a robot id in its key: ignored");
             return;
         };
+        let decoder = gateway::Pose(ingest::codec_of(sample.encoding()));
         let payload = sample.payload().to_bytes();
-        let codec = Codec::from_encoding(sample.encoding());
         let fallback_s = || transport_stamp_s(sample);
-        self.with_robot(id, key, codec, &payload, fallback_s, |entry| {
-            self.measured_pose(entry, MeasuredStream::Robot, codec, sample, &payload);
-        });
+        let stream = MeasuredStream::Robot;
+        self.intake(id, key, stream, &decoder, &payload, fallback_s, |_, _| {});
     }
 
+    /// A pose of one of `robot`'s sensors: the robot is the sensor's, resolved when its key was
+    /// declared.
     fn sensor(&self, robot: &Robot, index: usize, sample: &Sample) {
+        let arrival = Arrival {
+            key: sample.key_expr().as_str(),
+            stream: MeasuredStream::Sensor(index),
+        };
+        let decoder = gateway::Pose(ingest::codec_of(sample.encoding()));
         let payload = sample.payload().to_bytes();
-        let codec = Codec::from_encoding(sample.encoding());
+        let fallback_s = || transport_stamp_s(sample);
         let entry = self.entry(robot);
-        self.measured_pose(
-            &entry,
-            MeasuredStream::Sensor(index),
-            codec,
-            sample,
-            &payload,
-        );
+        self.decode_and_step(&entry, arrival, &decoder, &payload, fallback_s, |_, _| {});
     }
 
     /// A sample of a `[[sources]]` entry: its robot from the source (fixed, or the key's ROS
-    /// namespace), decoded with the source's codec before the lock, stepped like the built-in
-    /// inputs.
+    /// namespace), decoded with the source's codec, stepped like the built-in inputs.
     fn source(&self, source: &SourceIntake, sample: &Sample) {
         let key = sample.key_expr().as_str();
         let id = match &source.config.robot {
@@ -1023,6 +1048,7 @@ impl SharedTwin {
             }
         };
         let payload = sample.payload().to_bytes();
+        let stream = MeasuredStream::Robot;
         let Some(ros2) = &source.config.ros2 else {
             let fallback_s = || transport_stamp_s(sample);
             let codec = match (source.config.codec, source.config.stream) {
@@ -1032,41 +1058,24 @@ impl SharedTwin {
                 (SourceCodec::ZenohSerialized, SourceStream::Measured) => {
                     Codec::ZenohSerialized(Some(zser::Schema::Pose))
                 }
-                _ => Codec::from_encoding(sample.encoding()),
+                _ => ingest::codec_of(sample.encoding()),
             };
-            self.with_robot(id, key, codec, &payload, fallback_s, |entry| {
-                match source.config.stream {
-                    SourceStream::Joints => {
-                        let robot = &entry.robot;
-                        let message = JointMessage::decode(robot, codec, &payload, fallback_s);
-                        self.step(entry, |mut locked| {
-                            message.step(locked.twin, key, &mut locked.sink);
-                        });
-                    }
-                    SourceStream::Measured => {
-                        let stream = MeasuredStream::Robot;
-                        self.measured_pose(entry, stream, codec, sample, &payload);
-                    }
+            match source.config.stream {
+                SourceStream::Joints => {
+                    let decoder = gateway::Joints(codec);
+                    self.intake(id, key, stream, &decoder, &payload, fallback_s, |_, _| {});
                 }
-            });
+                SourceStream::Measured => {
+                    let decoder = gateway::Pose(codec);
+                    self.intake(id, key, stream, &decoder, &payload, fallback_s, |_, _| {});
+                }
+            }
             return;
         };
-        self.ros2_sample(source, ros2, id, sample, &payload);
-    }
-
-    /// A ROS 2 sample of robot `id`: `header.stamp` is its source time (else the attachment's
-    /// source timestamp, else the transport's); the `rmw_zenoh` attachment's sequence number is
-    /// the gateway `seq` of joint samples, and an attachment that does not parse is rejected on
-    /// its own while the message still goes in.
-    fn ros2_sample(
-        &self,
-        source: &SourceIntake,
-        ros2: &Ros2Source,
-        id: &str,
-        sample: &Sample,
-        payload: &[u8],
-    ) {
-        let key = sample.key_expr().as_str();
+        // ROS 2: `header.stamp` is the source time (else the attachment's source timestamp,
+        // else the transport's); the `rmw_zenoh` attachment's sequence number is the gateway
+        // `seq` of joint samples, and an attachment that does not parse is rejected on its own
+        // while the message still goes in.
         let attachment = match (ros2.scheme, sample.attachment()) {
             (KeyScheme::RmwZenoh, Some(bytes)) => Some(Attachment::parse(&bytes.to_bytes())),
             _ => None,
@@ -1076,54 +1085,50 @@ impl SharedTwin {
             .and_then(|parsed| parsed.as_ref().ok())
             .and_then(Attachment::source_timestamp_s);
         let fallback_s = || source_stamp_s.unwrap_or_else(|| transport_stamp_s(sample));
-        // A robot that may not be tracked is rejected at the header's stamp (the JSON stamp
-        // hint `with_robot` reads has nothing to read in CDR).
-        let unknown_stamp_s = || cdr::stamp_hint(payload).unwrap_or_else(fallback_s);
-        self.with_robot(id, key, Codec::Json, &[], unknown_stamp_s, |entry| {
-            let robot = &entry.robot;
-            let reject_attachment = |locked: &mut Stepping<'_>, stamp_s: f64| {
-                if let Some(Err(error)) = &attachment {
-                    ingest::reject_attachment(locked.twin, key, stamp_s, error, &mut locked.sink);
-                }
-            };
-            match source.config.stream {
-                SourceStream::Joints => {
-                    let mut message =
-                        Ros2JointMessage::decode(payload, &ros2.joint_names, fallback_s);
-                    self.step(entry, |mut locked| {
-                        reject_attachment(&mut locked, message.stamp_s());
-                        if let Some(Ok(attachment)) = &attachment {
-                            let seq = source.gateway_seq(robot, attachment, locked.publisher_seqs);
-                            message.set_seq(seq);
-                        }
-                        message.step(locked.twin, key, &mut locked.sink);
-                    });
-                }
-                SourceStream::Measured => {
-                    let message = Ros2PoseMessage::decode(payload, &ros2.base_frame, fallback_s);
-                    self.step(entry, |mut locked| {
-                        reject_attachment(&mut locked, message.stamp_s());
-                        let stream = MeasuredStream::Robot;
-                        message.step(locked.twin, key, stream, &mut locked.sink);
-                    });
-                }
+        let reject_attachment = |locked: &mut Stepping<'_>, stamp_s: f64| {
+            if let Some(Err(error)) = &attachment {
+                decoded::reject(locked.twin, key, stamp_s, error, &mut locked.sink);
             }
-        });
-    }
-
-    fn measured_pose(
-        &self,
-        entry: &RobotEntry,
-        stream: MeasuredStream,
-        codec: Codec,
-        sample: &Sample,
-        payload: &[u8],
-    ) {
-        let message = MeasuredMessage::decode(codec, payload, || transport_stamp_s(sample));
-        let key = sample.key_expr().as_str();
-        self.step(entry, |mut locked| {
-            message.step(locked.twin, key, stream, &mut locked.sink);
-        });
+        };
+        match source.config.stream {
+            SourceStream::Joints => {
+                let decoder = cdr::JointStates(&ros2.joint_names);
+                self.intake(
+                    id,
+                    key,
+                    stream,
+                    &decoder,
+                    &payload,
+                    fallback_s,
+                    |locked, message| {
+                        reject_attachment(locked, message.stamp_s());
+                        if let (Some(Ok(attachment)), Some(sample)) =
+                            (&attachment, message.message_mut())
+                        {
+                            let by_source = &mut *locked.publisher_seqs;
+                            let robot = locked.twin.robot();
+                            sample.seq = Some(source.gateway_seq(robot, attachment, by_source));
+                        }
+                    },
+                );
+            }
+            SourceStream::Measured => {
+                let decoder = cdr::PosesStamped {
+                    expected_frame: &ros2.base_frame,
+                };
+                self.intake(
+                    id,
+                    key,
+                    stream,
+                    &decoder,
+                    &payload,
+                    fallback_s,
+                    |locked, message| {
+                        reject_attachment(locked, message.stamp_s());
+                    },
+                );
+            }
+        }
     }
 
     fn query(&self, query: &Query, handler: QueryHandler) {

@@ -11,8 +11,8 @@ use std::path::Path;
 use std::process::Command;
 use std::sync::Arc;
 
+use armtwin::codec::json::MetricsMessage;
 use armtwin::codec::recording::{self, ColumnMap, PoseForm};
-use armtwin::codec::wire::MetricsMessage;
 use armtwin::model::RobotModel;
 use armtwin::pipeline::{AlarmConfig, PipelineConfig, RobotSettings};
 use armtwin::validate::report::{self, Context, PLOT_FILES};

@@ -18,7 +18,7 @@ use std::io::{Read, Write};
 use std::sync::{Arc, PoisonError, RwLock};
 
 use armtwin::cli::ZenohArgs;
-use armtwin::service::ServiceError;
+use armtwin::mesh::MeshError;
 use clap::Args;
 use thiserror::Error;
 use zenoh::Wait;
@@ -55,7 +55,7 @@ pub struct EchoArgs {
 pub enum EchoError {
     /// The Zenoh configuration was refused.
     #[error(transparent)]
-    Config(#[from] ServiceError),
+    Config(#[from] MeshError),
     /// Zenoh failed.
     #[error("zenoh: {0}")]
     Zenoh(#[from] zenoh::Error),

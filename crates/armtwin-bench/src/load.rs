@@ -46,7 +46,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use armtwin::cli::ZenohArgs;
 use armtwin::codec::zser;
-use armtwin::service::ServiceError;
+use armtwin::mesh::MeshError;
 use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
@@ -211,7 +211,7 @@ pub struct LoadArgs {
 pub enum LoadError {
     /// The Zenoh configuration was refused.
     #[error(transparent)]
-    Config(#[from] ServiceError),
+    Config(#[from] MeshError),
     /// Zenoh failed.
     #[error("zenoh: {0}")]
     Zenoh(#[from] zenoh::Error),

@@ -6,7 +6,7 @@
 
 use armtwin::cli::ZenohArgs;
 use armtwin::config::ZenohSection;
-use armtwin::service::{ServiceError, aggregate_publishers, zenoh_config_of};
+use armtwin::mesh::{MeshError, aggregate_publishers, zenoh_config_of};
 
 /// Key prefix of every stream (armtwin's default `[service] key_prefix`).
 pub const PREFIX: &str = "twin";
@@ -53,7 +53,7 @@ pub fn robot_of<'k>(key: &'k str, stream: &str) -> Option<&'k str> {
 /// defaults (a peer, multicast scouting off), built as `armtwin serve` builds its own, with the
 /// publishers of every stream aggregated as the README advises a gateway of many robots (the
 /// load publishes inputs, the echo outputs), unless `--cfg` says otherwise.
-pub fn config_of(zenoh: &ZenohArgs) -> Result<zenoh::Config, ServiceError> {
+pub fn config_of(zenoh: &ZenohArgs) -> Result<zenoh::Config, MeshError> {
     let mut config = zenoh_config_of(&ZenohSection::default().overridden(&zenoh.overrides()))?;
     let streams = [JOINTS, MEASURED, POSE, DEVIATION].map(every_robot);
     aggregate_publishers(&mut config, &streams)?;

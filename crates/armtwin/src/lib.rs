@@ -14,7 +14,9 @@
 //!   twin pose output's key.
 //! - [`ingest`]: the codec a Zenoh sample's encoding selects.
 //! - [`config`]: the service's TOML configuration and command-line overrides.
-//! - [`service`]: `armtwin serve`, the pipeline on a Zenoh mesh.
+//! - [`mesh`]: every armtwin session's Zenoh configuration, publisher aggregation and bounded
+//!   teardown.
+//! - [`service`]: `armtwin serve`, the fleet of twins on a Zenoh mesh, one file per concern.
 //! - [`snapshot`]: the service's snapshot file, each twin's cumulative state across restarts.
 //! - [`dashboard`]: the service's HTTP side: fleet and robot pages, live streams, `/metrics`.
 //! - [`replay`]: `armtwin replay`, a recording published as a gateway would.
@@ -36,6 +38,9 @@ pub mod config;
 pub mod dashboard;
 pub mod fmu_package;
 pub mod ingest;
+pub mod mesh;
+#[cfg(test)]
+mod module_graph;
 pub mod replay;
 pub mod ros2;
 pub mod rosbag;

@@ -16,7 +16,7 @@ use zenoh::qos::CongestionControl;
 
 use crate::codec::recording::{self, Recording};
 use crate::config::ZenohSection;
-use crate::service::{ServiceError, TEARDOWN_STEP, bounded, zenoh_config_of};
+use crate::mesh::{MeshError, TEARDOWN_STEP, bounded, zenoh_config_of};
 
 /// How long to wait for a subscriber (the service) before giving up.
 const WAIT_FOR_SUBSCRIBER: Duration = Duration::from_secs(10);
@@ -62,6 +62,29 @@ async fn drain(session: &zenoh::Session, settings: &ReplaySettings) {
     }
 }
 
+/// Why a replay stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    /// The session could not be configured or opened.
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    /// Zenoh failed (declaring, publishing, …).
+    #[error("zenoh: {0}")]
+    Zenoh(#[from] zenoh::Error),
+    /// No subscriber (no service) took the recording's key in time.
+    #[error(
+        "nobody subscribes to {key} after {waited_s} s: is `armtwin serve` running and reachable ({connect:?})?"
+    )]
+    NoSubscriber {
+        /// The joints key the recording goes to.
+        key: String,
+        /// How long the replay waited.
+        waited_s: u64,
+        /// The endpoints it connected to.
+        connect: Vec<String>,
+    },
+}
+
 /// Publishes `recording` with source times `times_s` until done or `shutdown` completes, calling
 /// `progress` with the number of messages published.
 pub async fn replay(
@@ -70,7 +93,7 @@ pub async fn replay(
     settings: &ReplaySettings,
     shutdown: impl Future<Output = ()>,
     mut progress: impl FnMut(usize),
-) -> Result<ReplayReport, ServiceError> {
+) -> Result<ReplayReport, ReplayError> {
     let session = zenoh::open(zenoh_config_of(&settings.zenoh)?).await?;
     let key = format!("{}/joints/{}", settings.key_prefix, settings.robot);
     let publisher = session
@@ -81,11 +104,11 @@ pub async fn replay(
     while !publisher.matching_status().await?.matching() {
         if Instant::now() >= deadline {
             bounded("closing the session", TEARDOWN_STEP, session.close()).await;
-            return Err(ServiceError::Worker(format!(
-                "nobody subscribes to {key} after {} s: is `armtwin serve` running and reachable ({:?})?",
-                WAIT_FOR_SUBSCRIBER.as_secs(),
-                settings.zenoh.connect
-            )));
+            return Err(ReplayError::NoSubscriber {
+                key,
+                waited_s: WAIT_FOR_SUBSCRIBER.as_secs(),
+                connect: settings.zenoh.connect.clone(),
+            });
         }
         tokio::time::sleep(Duration::from_millis(50)).await;
     }

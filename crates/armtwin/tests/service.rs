@@ -789,16 +789,10 @@ async fn a_flood_of_bad_input_is_counted_but_its_events_are_rate_limited() {
             5,
             "the burst, then nothing"
         );
-        // A token comes back after 2 s: the next event says how many were held back.
-        tokio::time::sleep(Duration::from_millis(2100)).await;
-        h.put_raw(key, b"not json".to_vec()).await;
-        h.receive_until("the event after the pause", |r| {
-            r.iter().filter(|(k, _)| k == "twin/events/flood").count() == 6
-        })
-        .await;
+        // How the bucket refills and what the next event then reports is the event budget's
+        // own unit test (`service::events`), with the time passed in rather than waited for.
         let events = h.on("twin/events/flood");
-        assert_eq!(events[5]["suppressed"], 45, "{}", events[5]);
-        assert!(events[..5].iter().all(|e| e.get("suppressed").is_none()));
+        assert!(events.iter().all(|e| e.get("suppressed").is_none()));
         h.stop().await;
     })
     .await
@@ -1128,13 +1122,13 @@ fn output_publishers_are_aggregated_unless_the_operator_chose_otherwise() {
         serde_json::from_str(&config.get_json("aggregation/publishers").unwrap()).unwrap()
     };
     let mut config = zenoh::Config::default();
-    armtwin::service::aggregate_publishers(&mut config, &outputs).unwrap();
+    armtwin::mesh::aggregate_publishers(&mut config, &outputs).unwrap();
     assert_eq!(aggregated(&config), outputs);
 
     let mut chosen = zenoh::Config::default();
     chosen
         .insert_json5("aggregation/publishers", r#"["plant/**"]"#)
         .unwrap();
-    armtwin::service::aggregate_publishers(&mut chosen, &outputs).unwrap();
+    armtwin::mesh::aggregate_publishers(&mut chosen, &outputs).unwrap();
     assert_eq!(aggregated(&chosen), ["plant/**"]);
 }

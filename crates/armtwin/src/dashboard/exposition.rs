@@ -10,8 +10,8 @@ use prometheus_client::registry::{Registry, Unit};
 use std::sync::atomic::AtomicU64;
 
 use super::metric_index;
+use super::{FleetRow, ServiceTotals};
 use crate::metrics::{Stats, StatsSet};
-use crate::service::{FleetRow, ServiceTotals};
 
 /// A series' labels: a few pairs, the robot's first.
 type Labels = Vec<(&'static str, String)>;

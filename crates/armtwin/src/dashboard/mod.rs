@@ -2,13 +2,16 @@
 //! pages, their live streams (server-sent events), `/metrics` for Prometheus and `/healthz`.
 //!
 //! It runs on the service's tokio runtime and reads the twin only through
-//! [`TwinView`](crate::service::TwinView), each robot under its own lock in turn: it keeps no copy
+//! a [`FleetSource`] (the service implements it), each robot under its own lock in turn: it keeps no copy
 //! of the twin's state beyond one fleet read shared by every fleet page for half a second. Each
 //! stream is paced by its own timer that skips missed ticks and reads the twin only when the
 //! client's socket takes more, so a slow or stalled browser costs the twin nothing. The pages and
 //! three.js are embedded in the binary: nothing is fetched from elsewhere at run time.
 
 mod exposition;
+mod source;
+
+pub use source::{FleetRow, FleetSource, RobotCounts, RobotDetail, ServiceTotals};
 
 use std::collections::BTreeMap;
 use std::convert::Infallible;
@@ -28,8 +31,8 @@ use tokio::time::MissedTickBehavior;
 use tracing::{info, warn};
 use zenoh::key_expr::OwnedKeyExpr;
 
+use crate::mesh::{TEARDOWN_STEP, bounded, session::without_source_location};
 use crate::metrics::METRIC_NAMES;
-use crate::service::{FleetRow, RobotDetail, ServiceTotals, TEARDOWN_STEP, TwinView, bounded};
 
 /// Fleet page updates: at most 2 per second per page.
 const FLEET_PERIOD: Duration = Duration::from_millis(500);
@@ -53,7 +56,7 @@ pub(crate) struct Dashboard {
 
 impl Dashboard {
     /// Serves the dashboard on `listener` (already bound) until [`Dashboard::stop`].
-    pub(crate) fn start(listener: tokio::net::TcpListener, view: TwinView) -> Self {
+    pub(crate) fn start(listener: tokio::net::TcpListener, view: Arc<dyn FleetSource>) -> Self {
         let (stopping, stop_rx) = watch::channel(false);
         let address = listener
             .local_addr()
@@ -99,7 +102,7 @@ struct FleetRead {
 
 #[derive(Clone)]
 struct AppState {
-    view: TwinView,
+    view: Arc<dyn FleetSource>,
     fleet: Arc<Mutex<Option<Arc<FleetRead>>>>,
     /// Held while the fleet is read: pages whose ticks meet wait for that one read.
     fleet_reading: Arc<tokio::sync::Mutex<()>>,
@@ -333,11 +336,8 @@ impl FleetQuery {
                 ));
             }
             Some(text) => Some(OwnedKeyExpr::autocanonize(text.to_owned()).map_err(|e| {
-                // Zenoh's message ends with its source location: not the reader's business.
                 let message = e.to_string();
-                let reason = message
-                    .find(" at /")
-                    .map_or(message.as_str(), |at| &message[..at]);
+                let reason = without_source_location(&message);
                 format!("the filter is not a key expression: {reason}")
             })?),
         };
@@ -700,10 +700,10 @@ async fn robot_stream(State(state): State<AppState>, Query(query): Query<RobotQu
 #[cfg(test)]
 #[allow(clippy::float_cmp, reason = "values are copied, not computed")]
 mod tests {
+    use super::RobotCounts;
     use super::*;
     use crate::metrics::StatsSet;
     use crate::pipeline::MetricsSnapshot;
-    use crate::service::RobotCounts;
 
     fn row(id: &str, position_m: f64, paired: u64, alarm: bool) -> FleetRow {
         let mut window = StatsSet {

@@ -1,0 +1,77 @@
+//! What the dashboard reads of a running fleet: the [`FleetSource`] trait, which the service
+//! implements, and the rows it returns.
+//!
+//! Must not name the service: the dashboard defines what it needs, and whoever runs a fleet
+//! provides it.
+
+use std::collections::VecDeque;
+use std::sync::Arc;
+use std::time::Instant;
+
+use crate::codec::json;
+use crate::model::RobotModel;
+use crate::pipeline::{MetricsSnapshot, RejectCause};
+
+/// Read access to a running fleet: each call copies what it needs out and holds nothing
+/// afterwards, so the dashboard keeps no second copy of the state that could drift from it.
+pub trait FleetSource: Send + Sync + 'static {
+    /// Every tracked robot's row, in id order, and the service's totals.
+    fn fleet(&self) -> (ServiceTotals, Vec<FleetRow>);
+    /// Robot `id`'s state, model and recent events, if it is tracked.
+    fn robot(&self, id: &str) -> Option<RobotDetail>;
+    /// Robot `id`'s twin pose count (`None` if it is not tracked): changes whenever it moves.
+    fn poses_of(&self, id: &str) -> Option<u64>;
+}
+
+/// One tracked robot as the fleet page and `/metrics` read it.
+#[derive(Debug, Clone)]
+pub struct FleetRow {
+    /// The robot id.
+    pub id: Arc<str>,
+    /// Its metrics at the read (counters and statistics of the current epoch).
+    pub metrics: MetricsSnapshot,
+    /// Position and angle alarms.
+    pub alarms_active: [bool; 2],
+    /// Its totals over the service's life (no recent events: the fleet does not show them).
+    pub counts: RobotCounts,
+}
+
+/// The service's own totals.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct ServiceTotals {
+    /// Inputs (samples and queries) processed.
+    pub inputs: u64,
+    /// Twin poses published.
+    pub poses: u64,
+    /// Outputs Zenoh refused to send.
+    pub publish_errors: u64,
+    /// Robots tracked.
+    pub robots: usize,
+    /// Seconds since the snapshot was last written, once it has been (with `state_dir`).
+    pub snapshot_age_s: Option<f64>,
+}
+
+/// One robot as its page reads it.
+pub struct RobotDetail {
+    /// What `get <prefix>/state/<robot>` answers.
+    pub state: json::StateMessage,
+    /// The model the twin runs and the last valid joints, for the link frames.
+    pub model: Arc<RobotModel>,
+    /// Its totals and recent events.
+    pub counts: RobotCounts,
+}
+
+/// A robot's totals over the service's life (reset and model replacement do not touch them) and
+/// its last published events.
+#[derive(Debug, Default, Clone)]
+pub struct RobotCounts {
+    /// Twin poses published.
+    pub poses: u64,
+    /// Rejected inputs by cause (a handful of causes at most: a short list beats a map).
+    pub rejected_by_cause: Vec<(RejectCause, u64)>,
+    /// The last recent published events, oldest first, as published (JSON).
+    pub recent_events: VecDeque<Arc<[u8]>>,
+    /// When the control thread last found results of the robot it had not published (to its
+    /// metrics period).
+    pub last_active: Option<Instant>,
+}

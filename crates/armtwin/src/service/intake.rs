@@ -1,0 +1,430 @@
+//! Intake: the subscribers and queryables that feed the fleet, and each sample's way from its
+//! key to its robot's twin (decoded before the robot's lock, stepped under it).
+//!
+//! Must not block in a callback beyond the robot's own lock and its outputs' `put`.
+
+use std::sync::Arc;
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use tracing::{debug, info, warn};
+use zenoh::key_expr::KeyExpr;
+use zenoh::sample::Sample;
+use zenoh::session::Session;
+
+use super::ServiceError;
+use super::fleet::{Fleet, Lookup, RobotCell, Stepping};
+use super::publish::Stream;
+use super::queries::Queries;
+use super::shard::claim_shard;
+use super::sink::ZenohSink;
+use crate::codec::decoded::{self, Arrival, Decoded, Decoder};
+use crate::codec::gateway::{self, Codec, SourceCodec};
+use crate::codec::{cdr, zser};
+use crate::config::{ServiceConfig, SourceConfig, SourceRobot, SourceStream};
+use crate::ingest;
+use crate::mesh::{TEARDOWN_STEP, bounded};
+use crate::pipeline::{MeasuredStream, Robot};
+use crate::ros2::{Attachment, KeyScheme, PublisherSeq};
+
+/// The subscribers and queryables that feed the twin.
+pub(super) struct Intake {
+    subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
+    queryables: Vec<zenoh::query::Queryable<()>>,
+}
+
+impl Intake {
+    /// Undeclares every subscriber and queryable, each within [`TEARDOWN_STEP`].
+    pub(super) async fn undeclare(self) {
+        for subscriber in self.subscribers {
+            let step = format!("undeclaring the subscriber on {}", subscriber.key_expr());
+            if let Some(Err(e)) = bounded(&step, TEARDOWN_STEP, subscriber.undeclare()).await {
+                warn!(error = %e, step, "undeclaring failed");
+            }
+        }
+        for queryable in self.queryables {
+            let step = format!("undeclaring the queryable on {}", queryable.key_expr());
+            if let Some(Err(e)) = bounded(&step, TEARDOWN_STEP, queryable.undeclare()).await {
+                warn!(error = %e, step, "undeclaring failed");
+            }
+        }
+    }
+}
+
+pub(super) async fn declare_intake(
+    session: &Session,
+    prefix: &str,
+    config: &ServiceConfig,
+    fleet: &Arc<Fleet>,
+) -> Result<Intake, ServiceError> {
+    let mut subscribers = Vec::new();
+    let mut queryables = vec![claim_shard(session, prefix, &config.shard).await?];
+    let shard = &config.shard;
+    let router = Arc::new(Router {
+        fleet: Arc::clone(fleet),
+        prefix: prefix.to_owned(),
+    });
+    let joints = Arc::clone(&router);
+    subscribers.push(
+        session
+            .declare_subscriber(format!("{prefix}/joints/{shard}"))
+            .callback(move |sample| joints.joints(&sample))
+            .await?,
+    );
+    let measured = Arc::clone(&router);
+    subscribers.push(
+        session
+            .declare_subscriber(format!("{prefix}/measured/{shard}"))
+            .callback(move |sample| measured.measured(&sample))
+            .await?,
+    );
+    for (robot, settings) in &config.robots {
+        // A configured robot is in the directory from the start: its sensors' samples need no
+        // look-up at all.
+        let Some(handle) = fleet.find(robot) else {
+            continue;
+        };
+        for (index, sensor) in settings.sensors.iter().enumerate() {
+            check_sensor_key(prefix, robot, &sensor.key_expr)?;
+            let sensor_router = Arc::clone(&router);
+            let robot = handle.clone();
+            subscribers.push(
+                session
+                    .declare_subscriber(sensor.key_expr.clone())
+                    .callback(move |sample| sensor_router.sensor(&robot, index, &sample))
+                    .await?,
+            );
+        }
+    }
+    declare_sources(session, config, &router, &mut subscribers).await?;
+    let queries = Arc::new(Queries {
+        fleet: Arc::clone(fleet),
+        prefix: prefix.to_owned(),
+    });
+    for (stream, handler) in Queries::HANDLERS {
+        let queries = Arc::clone(&queries);
+        queryables.push(
+            session
+                .declare_queryable(format!("{prefix}/{stream}/{shard}"))
+                .callback(move |query| queries.answer(&query, handler))
+                .await?,
+        );
+    }
+    Ok(Intake {
+        subscribers,
+        queryables,
+    })
+}
+
+/// Refuses a sensor key expression that would receive armtwin's own outputs: a local put is
+/// delivered in the publishing thread, which already holds the publishing robot's lock.
+fn check_sensor_key(prefix: &str, robot: &str, key_expr: &str) -> Result<(), ServiceError> {
+    let sensor = KeyExpr::try_from(key_expr)?;
+    for stream in Stream::ALL {
+        let output = KeyExpr::try_from(format!("{prefix}/{}/**", stream.as_str()))?;
+        if sensor.intersects(&output) {
+            return Err(ServiceError::SensorKeyLoop {
+                robot: robot.to_owned(),
+                key_expr: key_expr.to_owned(),
+                output: output.to_string(),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// One subscriber per `[[sources]]` entry (their keys were checked when the configuration
+/// loaded: outside armtwin's own keys and twin pose outputs, disjoint from each other).
+async fn declare_sources(
+    session: &Session,
+    config: &ServiceConfig,
+    router: &Arc<Router>,
+    subscribers: &mut Vec<zenoh::pubsub::Subscriber<()>>,
+) -> Result<(), ServiceError> {
+    for (index, source) in config.sources.iter().enumerate() {
+        let intake = Arc::new(SourceIntake {
+            index,
+            config: source.clone(),
+        });
+        let source_router = Arc::clone(router);
+        subscribers.push(
+            session
+                .declare_subscriber(source.key_expr.clone())
+                .callback(move |sample| source_router.source(&intake, &sample))
+                .await?,
+        );
+        info!(
+            key = %source.key_expr,
+            codec = source.codec.as_str(),
+            stream = source.stream.as_str(),
+            "source subscribed"
+        );
+    }
+    Ok(())
+}
+
+/// A `[[sources]]` entry as the service runs it.
+struct SourceIntake {
+    /// Its place in `[[sources]]`: what a robot's entry keys the source's sequence numbers by.
+    index: usize,
+    config: SourceConfig,
+}
+
+impl SourceIntake {
+    /// The gateway `seq` of a joint sample of `robot` with `attachment`; `by_source` is the
+    /// robot's [`RobotState::publisher_seqs`], so only the robot's own lock is held.
+    fn gateway_seq(
+        &self,
+        robot: &Robot,
+        attachment: &Attachment,
+        by_source: &mut Vec<(usize, PublisherSeq)>,
+    ) -> u64 {
+        let known = by_source
+            .iter()
+            .position(|(source, _)| *source == self.index);
+        let position = known.unwrap_or_else(|| {
+            by_source.push((self.index, PublisherSeq::default()));
+            by_source.len() - 1
+        });
+        let (seq, changed) = by_source[position].1.gateway_seq(attachment);
+        if changed {
+            info!(
+                robot = robot.id(),
+                key = %self.config.key_expr,
+                sequence_number = attachment.sequence_number,
+                "another ROS publisher (gid): its sequence numbers carry on from the previous one's"
+            );
+        }
+        seq
+    }
+}
+
+fn unix_now_s() -> f64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
+}
+
+/// The stamp of a message without its own: the Zenoh timestamp, else the arrival time (read only
+/// for such a message: most carry `t`, and a clock read per message adds up).
+fn transport_stamp_s(sample: &Sample) -> f64 {
+    sample
+        .timestamp()
+        .map_or_else(unix_now_s, |t| t.get_time().as_secs_f64())
+}
+
+/// The robot id in `key` after `<prefix>/<stream>/`, if it is a plain key (a put on a wildcard
+/// key expression names no robot, and must not become one).
+pub(super) fn robot_of<'k>(prefix: &str, key: &'k str, stream: &str) -> Option<&'k str> {
+    key.strip_prefix(prefix)?
+        .strip_prefix('/')?
+        .strip_prefix(stream)?
+        .strip_prefix('/')
+        .filter(|robot| !robot.is_empty() && !robot.contains(['*', '$']))
+}
+/// Each sample's way from its key to its robot's twin, in Zenoh's callbacks.
+pub(super) struct Router {
+    fleet: Arc<Fleet>,
+    prefix: String,
+}
+
+impl Router {
+    /// One input of robot `id`, arrived on `key`, decoded with `decoder` and stepped into the
+    /// robot's twin: the one intake path of every sample (armtwin's own keys, sensors' and
+    /// `[[sources]]`', whatever the codec). The robot is found under the read locks or, on its
+    /// first input, admitted under the default settings ([`Fleet::lookup`]); the input of a robot
+    /// that may not be tracked is rejected as such, at the stamp the decoder finds in it, instead.
+    ///
+    /// `fallback_s` gives the stamp of a message without one (read only then). `transport` sees
+    /// the decoded message under the robot's lock before it is stepped: what the transport adds
+    /// to it (`rmw_zenoh`'s attachment).
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "one input: who, where, how, and its bytes"
+    )]
+    fn intake<D: Decoder>(
+        &self,
+        id: &str,
+        key: &str,
+        stream: MeasuredStream,
+        decoder: &D,
+        payload: &[u8],
+        fallback_s: impl FnOnce() -> f64,
+        transport: impl FnOnce(&mut Stepping<'_>, &mut Decoded<D::Message, D::Error>),
+    ) {
+        match self.fleet.lookup(id) {
+            Lookup::Found(cell) => {
+                let arrival = Arrival { key, stream };
+                self.decode_and_step(&cell, arrival, decoder, payload, fallback_s, transport);
+            }
+            Lookup::Foreign => debug!(robot = id, %key, "robot of another instance: ignored"),
+            Lookup::Refused => {
+                if self.fleet.count_input() {
+                    let mut sink = ZenohSink::untracked(&self.fleet.outputs);
+                    gateway::unknown_robot(id, key, decoder, payload, fallback_s, &mut sink);
+                }
+            }
+        }
+    }
+
+    /// Decodes an input against `cell`'s robot before taking its lock, then steps the twin with
+    /// it under that lock alone.
+    fn decode_and_step<D: Decoder>(
+        &self,
+        cell: &RobotCell,
+        arrival: Arrival<'_>,
+        decoder: &D,
+        payload: &[u8],
+        fallback_s: impl FnOnce() -> f64,
+        transport: impl FnOnce(&mut Stepping<'_>, &mut Decoded<D::Message, D::Error>),
+    ) {
+        let mut message = Decoded::decode(decoder, &cell.robot, payload, fallback_s);
+        self.fleet.step(cell, |mut locked| {
+            transport(&mut locked, &mut message);
+            message.step(locked.twin, arrival, &mut locked.sink);
+        });
+    }
+
+    fn joints(&self, sample: &Sample) {
+        let key = sample.key_expr().as_str();
+        let Some(id) = robot_of(&self.prefix, key, "joints") else {
+            warn!(%key, "joint sample without a robot id in its key: ignored");
+            return;
+        };
+        let decoder = gateway::Joints(ingest::codec_of(sample.encoding()));
+        let payload = sample.payload().to_bytes();
+        let fallback_s = || transport_stamp_s(sample);
+        let stream = MeasuredStream::Robot;
+        self.intake(id, key, stream, &decoder, &payload, fallback_s, |_, _| {});
+    }
+
+    fn measured(&self, sample: &Sample) {
+        let key = sample.key_expr().as_str();
+        let Some(id) = robot_of(&self.prefix, key, "measured") else {
+            warn!(%key, "measured pose without a robot id in its key: ignored");
+            return;
+        };
+        let decoder = gateway::Pose(ingest::codec_of(sample.encoding()));
+        let payload = sample.payload().to_bytes();
+        let fallback_s = || transport_stamp_s(sample);
+        let stream = MeasuredStream::Robot;
+        self.intake(id, key, stream, &decoder, &payload, fallback_s, |_, _| {});
+    }
+
+    /// A pose of one of `robot`'s sensors: the robot is the sensor's, resolved when its key was
+    /// declared.
+    fn sensor(&self, robot: &Robot, index: usize, sample: &Sample) {
+        let arrival = Arrival {
+            key: sample.key_expr().as_str(),
+            stream: MeasuredStream::Sensor(index),
+        };
+        let decoder = gateway::Pose(ingest::codec_of(sample.encoding()));
+        let payload = sample.payload().to_bytes();
+        let fallback_s = || transport_stamp_s(sample);
+        let cell = self.fleet.cell(robot);
+        self.decode_and_step(&cell, arrival, &decoder, &payload, fallback_s, |_, _| {});
+    }
+
+    /// A sample of a `[[sources]]` entry: its robot from the source (fixed, or the key's ROS
+    /// namespace), decoded with the source's codec, stepped like the built-in inputs.
+    fn source(&self, source: &SourceIntake, sample: &Sample) {
+        let key = sample.key_expr().as_str();
+        let id = match &source.config.robot {
+            SourceRobot::Fixed(id) => id.as_str(),
+            SourceRobot::FromKey(rule) => {
+                let Some(id) = rule.robot_of(key) else {
+                    warn!(
+                        %key,
+                        source = %source.config.key_expr,
+                        topic = rule.topic(),
+                        "sample whose key names no robot (no ROS namespace before the topic, or \
+                         another type): ignored"
+                    );
+                    return;
+                };
+                id
+            }
+        };
+        let payload = sample.payload().to_bytes();
+        let stream = MeasuredStream::Robot;
+        let Some(ros2) = &source.config.ros2 else {
+            let fallback_s = || transport_stamp_s(sample);
+            let codec = match (source.config.codec, source.config.stream) {
+                (SourceCodec::ZenohSerialized, SourceStream::Joints) => {
+                    Codec::ZenohSerialized(Some(zser::Schema::Joints))
+                }
+                (SourceCodec::ZenohSerialized, SourceStream::Measured) => {
+                    Codec::ZenohSerialized(Some(zser::Schema::Pose))
+                }
+                _ => ingest::codec_of(sample.encoding()),
+            };
+            match source.config.stream {
+                SourceStream::Joints => {
+                    let decoder = gateway::Joints(codec);
+                    self.intake(id, key, stream, &decoder, &payload, fallback_s, |_, _| {});
+                }
+                SourceStream::Measured => {
+                    let decoder = gateway::Pose(codec);
+                    self.intake(id, key, stream, &decoder, &payload, fallback_s, |_, _| {});
+                }
+            }
+            return;
+        };
+        // ROS 2: `header.stamp` is the source time (else the attachment's source timestamp,
+        // else the transport's); the `rmw_zenoh` attachment's sequence number is the gateway
+        // `seq` of joint samples, and an attachment that does not parse is rejected on its own
+        // while the message still goes in.
+        let attachment = match (ros2.scheme, sample.attachment()) {
+            (KeyScheme::RmwZenoh, Some(bytes)) => Some(Attachment::parse(&bytes.to_bytes())),
+            _ => None,
+        };
+        let source_stamp_s = attachment
+            .as_ref()
+            .and_then(|parsed| parsed.as_ref().ok())
+            .and_then(Attachment::source_timestamp_s);
+        let fallback_s = || source_stamp_s.unwrap_or_else(|| transport_stamp_s(sample));
+        let reject_attachment = |locked: &mut Stepping<'_>, stamp_s: f64| {
+            if let Some(Err(error)) = &attachment {
+                decoded::reject(locked.twin, key, stamp_s, error, &mut locked.sink);
+            }
+        };
+        match source.config.stream {
+            SourceStream::Joints => {
+                let decoder = cdr::JointStates(&ros2.joint_names);
+                self.intake(
+                    id,
+                    key,
+                    stream,
+                    &decoder,
+                    &payload,
+                    fallback_s,
+                    |locked, message| {
+                        reject_attachment(locked, message.stamp_s());
+                        if let (Some(Ok(attachment)), Some(sample)) =
+                            (&attachment, message.message_mut())
+                        {
+                            let by_source = &mut *locked.publisher_seqs;
+                            let robot = locked.twin.robot();
+                            sample.seq = Some(source.gateway_seq(robot, attachment, by_source));
+                        }
+                    },
+                );
+            }
+            SourceStream::Measured => {
+                let decoder = cdr::PosesStamped {
+                    expected_frame: &ros2.base_frame,
+                };
+                self.intake(
+                    id,
+                    key,
+                    stream,
+                    &decoder,
+                    &payload,
+                    fallback_s,
+                    |locked, message| {
+                        reject_attachment(locked, message.stamp_s());
+                    },
+                );
+            }
+        }
+    }
+}

@@ -1,0 +1,240 @@
+//! `armtwin serve`: the pipeline on a Zenoh mesh.
+//!
+//! Owns the session, the wildcard subscriptions and queryables (and one subscription per
+//! `[[sources]]` entry: JSON or ROS 2 on keys of their own), the per-robot publishers (the twin
+//! pose as a ROS 2 `PoseStamped` among them, for robots with `ros2_pose`) and liveliness tokens,
+//! and the ordered teardown. Samples and queries are handled in Zenoh's callbacks: each sample
+//! resolves its robot and decodes against the robot's immutable settings first, then steps that
+//! robot's twin under the robot's own lock, so robots arriving on different links never wait on
+//! each other (see [`fleet::Fleet`]); a control thread declares newly tracked robots' liveliness
+//! tokens (and, once a robot streams, the publishers that cache its routes), publishes the periodic metrics (and the snapshot, with `[service] state_dir`) and finishes
+//! every twin at shutdown, each robot locked in turn.
+//!
+//! An instance owns the robots of `[service] robots`: its wildcard subscriptions and queryables
+//! cover those ids alone, and it claims them on the mesh (`<prefix>/shards/<zid>`) before taking
+//! input, refusing to start over another instance's claim. A snapshot is restored before the
+//! first input, whole or not at all.
+//!
+//! Flow control: inputs are received reliably; while a callback works, Zenoh does not read its
+//! link, which backpressures the transport and, through it, the gateways: nothing valid is
+//! dropped. Poses and deviations use `[service] pose_congestion` (`drop` by default: a message a
+//! subscriber's link cannot take is dropped for that subscriber alone, after at most Zenoh's
+//! `wait_before_drop`, and the twin goes on; `block` waits). Metrics, events and query replies
+//! always block: they are few and must arrive; a subscriber that stops reading them is
+//! disconnected after Zenoh's `wait_before_close`. Every output carries its encoding.
+
+mod control;
+mod events;
+mod fleet;
+mod intake;
+mod publish;
+mod queries;
+mod self_calibration;
+mod shard;
+mod sink;
+mod snapshot;
+mod view;
+
+use std::future::Future;
+use std::sync::Arc;
+use std::sync::mpsc::channel;
+
+use thiserror::Error;
+use tracing::{info, warn};
+
+use self::control::Control;
+use self::fleet::Fleet;
+use self::intake::declare_intake;
+use self::publish::Outputs;
+use self::snapshot::restore_snapshot;
+use crate::config::ServiceConfig;
+use crate::dashboard;
+use crate::mesh::{MeshError, TEARDOWN_STEP, aggregate_publishers, bounded, zenoh_config_of};
+use crate::snapshot::SnapshotStore;
+
+/// Why the service stopped with an error.
+#[derive(Debug, Error)]
+pub enum ServiceError {
+    /// The Zenoh configuration is invalid.
+    #[error("zenoh configuration: {0}")]
+    ZenohConfig(String),
+    /// Zenoh failed (opening the session, declaring, …).
+    #[error("zenoh: {0}")]
+    Zenoh(#[from] zenoh::Error),
+    /// A sensor's key expression covers one of armtwin's own outputs: its own puts would feed
+    /// back into it.
+    #[error(
+        "robot '{robot}': sensor key expression '{key_expr}' intersects armtwin's output '{output}'"
+    )]
+    SensorKeyLoop {
+        /// The robot the sensor belongs to.
+        robot: String,
+        /// The sensor's key expression.
+        key_expr: String,
+        /// The output key expression it intersects.
+        output: String,
+    },
+    /// The control thread failed.
+    #[error("control thread: {0}")]
+    Worker(String),
+    /// Another instance on the mesh already owns some of this instance's robots.
+    #[error(
+        "service.robots '{own}' overlaps '{other}', owned by the armtwin instance {zid}: a robot \
+         must belong to one instance (give each a disjoint key expression)"
+    )]
+    ShardOverlap {
+        /// This instance's `[service] robots`.
+        own: String,
+        /// The other instance's.
+        other: String,
+        /// The other instance's Zenoh id.
+        zid: String,
+    },
+    /// The dashboard's address cannot be listened on.
+    #[error("http: cannot listen on {address}")]
+    HttpListen {
+        /// The `[http] listen` address.
+        address: std::net::SocketAddr,
+        /// Why.
+        source: std::io::Error,
+    },
+}
+
+/// Totals reported when the service stops.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ServeReport {
+    /// Inputs (samples and queries) processed.
+    pub inputs: u64,
+    /// Twin poses published.
+    pub poses: u64,
+    /// Robots tracked.
+    pub robots: usize,
+    /// Outputs Zenoh refused to send.
+    pub publish_errors: u64,
+}
+
+impl From<MeshError> for ServiceError {
+    fn from(error: MeshError) -> Self {
+        match error {
+            MeshError::Config(message) => Self::ZenohConfig(message),
+            MeshError::Zenoh(error) => Self::Zenoh(error),
+        }
+    }
+}
+
+/// Runs the service until `shutdown` completes, then tears down in order: stop intake, finish
+/// every twin (final metrics for every robot), undeclare, close the session.
+pub async fn serve(
+    config: ServiceConfig,
+    shutdown: impl Future<Output = ()>,
+) -> Result<ServeReport, ServiceError> {
+    // Bound first: an address in use fails the start before anything joins the mesh.
+    let http_listener = bind_http(config.http_listen).await?;
+    let mut zenoh_config = zenoh_config_of(&config.zenoh)?;
+    let prefix = config.key_prefix.clone();
+    // The outputs at the sample rate, one publisher per tracked robot on each.
+    aggregate_publishers(
+        &mut zenoh_config,
+        &[
+            format!("{prefix}/pose/**"),
+            format!("{prefix}/deviation/**"),
+        ],
+    )?;
+    let session = zenoh::open(zenoh_config).await?;
+    info!(
+        zid = %session.zid(),
+        mode = %config.zenoh.mode,
+        listen = ?config.zenoh.listen,
+        connect = ?config.zenoh.connect,
+        prefix = %config.key_prefix,
+        "armtwin serving"
+    );
+    let (control_tx, control_rx) = channel::<Control>();
+    let outputs = Outputs::new(session.clone(), &config, control_tx.clone());
+    let fleet = Arc::new(Fleet::new(&config, outputs));
+    let snapshots = config.snapshots.as_ref().map(|settings| {
+        (
+            SnapshotStore::new(&settings.state_dir, &prefix),
+            settings.period,
+        )
+    });
+    let control = Control::thread(
+        fleet.clone(),
+        control_rx,
+        (config.metrics_period, config.self_calibration),
+        snapshots.clone(),
+    )?;
+    if let Some((store, _)) = &snapshots {
+        restore_snapshot(store, &fleet, &config);
+    }
+
+    let intake = match declare_intake(&session, &prefix, &config, &fleet).await {
+        Ok(intake) => intake,
+        Err(e) => {
+            let _ = control_tx.send(Control::Stop);
+            bounded(
+                "stopping the control thread",
+                TEARDOWN_STEP * 4,
+                tokio::task::spawn_blocking(move || control.join()),
+            )
+            .await;
+            bounded("closing the session", TEARDOWN_STEP, session.close()).await;
+            return Err(e);
+        }
+    };
+
+    let dashboard = http_listener.map(|listener| {
+        dashboard::Dashboard::start(listener, Arc::new(view::FleetView::new(Arc::clone(&fleet))))
+    });
+
+    shutdown.await;
+    if let Some(dashboard) = dashboard {
+        dashboard.stop().await;
+    }
+    info!("shutting down: stopping intake");
+    intake.undeclare().await;
+    // Samples that arrive after this are ignored: the control thread finishes the pipeline.
+    let _ = control_tx.send(Control::Stop);
+    let report = match bounded(
+        "finishing the pipeline and undeclaring the robots' outputs",
+        TEARDOWN_STEP * 4,
+        tokio::task::spawn_blocking(move || control.join()),
+    )
+    .await
+    {
+        Some(Ok(Ok(report))) => Ok(report),
+        Some(Ok(Err(_))) => Err(ServiceError::Worker(
+            "the control thread panicked".to_owned(),
+        )),
+        Some(Err(e)) => Err(ServiceError::Worker(e.to_string())),
+        None => Err(ServiceError::Worker(
+            "the control thread did not stop in time".to_owned(),
+        )),
+    };
+    // Closed even when the control thread failed: the session's links go down either way.
+    if let Some(Err(e)) = bounded("closing the session", TEARDOWN_STEP, session.close()).await {
+        warn!(error = %e, "closing the session failed");
+    }
+    let report = report?;
+    info!(
+        inputs = report.inputs,
+        poses = report.poses,
+        robots = report.robots,
+        publish_errors = report.publish_errors,
+        "armtwin stopped"
+    );
+    Ok(report)
+}
+
+/// The dashboard's listener, if `[http] listen` asks for one.
+async fn bind_http(
+    address: Option<std::net::SocketAddr>,
+) -> Result<Option<tokio::net::TcpListener>, ServiceError> {
+    let Some(address) = address else {
+        return Ok(None);
+    };
+    tokio::net::TcpListener::bind(address)
+        .await
+        .map(Some)
+        .map_err(|source| ServiceError::HttpListen { address, source })
+}

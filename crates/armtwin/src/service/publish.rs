@@ -1,0 +1,267 @@
+//! Publishing a robot's outputs: its keys, encodings and congestion control, the publishers
+//! and input keys that cache a streaming robot's routes, its liveliness token, and their
+//! undeclaration.
+//!
+//! Must not lock a robot's cell: callers publish with the cell they hold, or none.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::Sender;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use tracing::warn;
+use zenoh::Wait;
+use zenoh::bytes::Encoding;
+use zenoh::key_expr::KeyExpr;
+use zenoh::liveliness::LivelinessToken;
+use zenoh::pubsub::Publisher;
+use zenoh::qos::CongestionControl;
+use zenoh::sample::Locality;
+use zenoh::session::Session;
+
+use super::control::Control;
+use super::events::EventBucket;
+use crate::codec::zser;
+use crate::config::{Congestion, EventBudget, OutputEncoding, ServiceConfig};
+use crate::ros2::PoseOutputs;
+
+/// A streaming robot's publishers of its outputs at the sample rate, and its input keys:
+/// declared so Zenoh caches their routes (after [`ROUTE_CACHE_AFTER_POSES`]). Its metrics, events and calibration, a few per second at most,
+/// go out without a publisher: every declaration costs in proportion to the keys beside it, on
+/// this side and on every subscriber's.
+pub(super) struct RobotPublishers {
+    pose: Publisher<'static>,
+    deviation: Publisher<'static>,
+    /// The twin pose as a ROS 2 `PoseStamped`, if the robot has `ros2_pose`.
+    pub(super) ros2_pose: Option<Publisher<'static>>,
+    inputs: Vec<KeyExpr<'static>>,
+}
+
+/// The output streams of a robot.
+#[derive(Debug, Clone, Copy)]
+pub(super) enum Stream {
+    Pose,
+    Deviation,
+    Metrics,
+    Events,
+    /// Self-calibration estimates: a few per minute.
+    Calibration,
+}
+
+impl Stream {
+    pub(super) const ALL: [Self; 5] = [
+        Self::Pose,
+        Self::Deviation,
+        Self::Metrics,
+        Self::Events,
+        Self::Calibration,
+    ];
+
+    pub(super) fn as_str(self) -> &'static str {
+        match self {
+            Self::Pose => "pose",
+            Self::Deviation => "deviation",
+            Self::Metrics => "metrics",
+            Self::Events => "events",
+            Self::Calibration => "calibration",
+        }
+    }
+
+    fn publisher(self, outputs: &RobotPublishers) -> Option<&Publisher<'static>> {
+        match self {
+            Self::Pose => Some(&outputs.pose),
+            Self::Deviation => Some(&outputs.deviation),
+            Self::Metrics | Self::Events | Self::Calibration => None,
+        }
+    }
+}
+
+/// What every robot's outputs share: the session's publishing side, the control thread's queue
+/// and the service's output totals. Per-robot output state lives in each robot's cell
+/// ([`RobotOutputState`]).
+pub(super) struct Outputs {
+    pub(super) session: Session,
+    prefix: String,
+    /// The format of poses and deviations.
+    pub(super) encoding: OutputEncoding,
+    /// Of poses and deviations.
+    pub(super) pose_congestion: CongestionControl,
+    pose_encoding: Encoding,
+    deviation_encoding: Encoding,
+    /// Which robots publish their twin pose for ROS tools, and where.
+    pub(super) ros2_pose: PoseOutputs,
+    /// Asks the control thread to declare newly tracked robots.
+    pub(super) control: Sender<Control>,
+    pub(super) event_budget: EventBudget,
+    /// Shared by the robots that may not be tracked, so a flood of made-up ids cannot grow the
+    /// buckets. A leaf lock: held for a bucket's arithmetic only, never across a `put`.
+    pub(super) untracked_bucket: Mutex<EventBucket>,
+    /// Twin poses published.
+    pub(super) poses: AtomicU64,
+    /// Outputs Zenoh refused to send.
+    pub(super) publish_errors: AtomicU64,
+}
+
+impl Outputs {
+    /// The outputs of `config`'s robots on `session`; new robots are handed to the control
+    /// thread through `control`.
+    pub(super) fn new(session: Session, config: &ServiceConfig, control: Sender<Control>) -> Self {
+        let (pose_encoding, deviation_encoding) = match config.encoding {
+            OutputEncoding::Json => (Encoding::APPLICATION_JSON, Encoding::APPLICATION_JSON),
+            OutputEncoding::ZenohSerialized => (
+                Encoding::ZENOH_SERIALIZED.with_schema(zser::TWIN_POSE_SCHEMA),
+                Encoding::ZENOH_SERIALIZED.with_schema(zser::DEVIATION_SCHEMA),
+            ),
+        };
+        Self {
+            session,
+            prefix: config.key_prefix.clone(),
+            encoding: config.encoding,
+            pose_congestion: match config.pose_congestion {
+                Congestion::Block => CongestionControl::Block,
+                Congestion::Drop => CongestionControl::Drop,
+            },
+            pose_encoding,
+            deviation_encoding,
+            ros2_pose: config.ros2_pose.clone(),
+            control,
+            event_budget: config.event_budget,
+            untracked_bucket: Mutex::new(EventBucket::full(config.event_budget, Instant::now())),
+            poses: AtomicU64::new(0),
+            publish_errors: AtomicU64::new(0),
+        }
+    }
+
+    /// The congestion control and encoding of `stream`: poses and deviations as configured,
+    /// metrics and events blocking JSON.
+    fn qos(&self, stream: Stream) -> (CongestionControl, Encoding) {
+        match stream {
+            Stream::Pose => (self.pose_congestion, self.pose_encoding.clone()),
+            Stream::Deviation => (self.pose_congestion, self.deviation_encoding.clone()),
+            Stream::Metrics | Stream::Events | Stream::Calibration => {
+                (CongestionControl::Block, Encoding::APPLICATION_JSON)
+            }
+        }
+    }
+
+    fn key(&self, stream: &str, robot: &str) -> String {
+        format!("{}/{stream}/{robot}", self.prefix)
+    }
+
+    /// Publishes `payload` on `robot`'s `stream`: through its declared publisher, or, until the
+    /// control thread has declared it (and for robots that are not tracked), on the plain key.
+    /// Returns whether Zenoh took it; a failure is logged here, and counted by the caller.
+    pub(super) fn put(
+        &self,
+        outputs: Option<&RobotPublishers>,
+        robot: &str,
+        stream: Stream,
+        payload: Vec<u8>,
+    ) -> bool {
+        let result = if let Some(publisher) = outputs.and_then(|outputs| stream.publisher(outputs))
+        {
+            publisher.put(payload).wait()
+        } else {
+            let (congestion, encoding) = self.qos(stream);
+            self.session
+                .put(self.key(stream.as_str(), robot), payload)
+                .congestion_control(congestion)
+                .encoding(encoding)
+                .wait()
+        };
+        if let Err(e) = &result {
+            warn!(error = %e, %robot, stream = stream.as_str(), "publish failed");
+        }
+        result.is_ok()
+    }
+
+    fn publisher(&self, stream: Stream, robot: &str) -> zenoh::Result<Publisher<'static>> {
+        let (congestion, encoding) = self.qos(stream);
+        self.session
+            .declare_publisher(self.key(stream.as_str(), robot))
+            .congestion_control(congestion)
+            .encoding(encoding)
+            .wait()
+    }
+
+    pub(super) fn declare(&self, robot: &str) -> zenoh::Result<RobotPublishers> {
+        let mut inputs = Vec::new();
+        for stream in ["joints", "measured"] {
+            inputs.push(
+                self.session
+                    .declare_keyexpr(self.key(stream, robot))
+                    .wait()?,
+            );
+        }
+        let pose = self.publisher(Stream::Pose, robot)?;
+        let deviation = self.publisher(Stream::Deviation, robot)?;
+        let ros2_pose = match self.ros2_pose.of(robot) {
+            Some(output) => Some(
+                self.session
+                    .declare_publisher(output.key(robot))
+                    .congestion_control(self.pose_congestion)
+                    // Never delivered back into this session's sources, whatever their keys.
+                    .allowed_destination(Locality::Remote)
+                    .wait()?,
+            ),
+            None => None,
+        };
+        Ok(RobotPublishers {
+            pose,
+            deviation,
+            ros2_pose,
+            inputs,
+        })
+    }
+
+    pub(super) fn declare_token(&self, robot: &str) -> zenoh::Result<LivelinessToken> {
+        self.session
+            .liveliness()
+            .declare_token(self.key("alive", robot))
+            .wait()
+    }
+
+    pub(super) fn undeclare_all(
+        &self,
+        outputs: Vec<(Arc<str>, RobotPublishers)>,
+        tokens: Vec<(Arc<str>, LivelinessToken)>,
+    ) {
+        for (robot, outputs) in outputs {
+            let RobotPublishers {
+                pose,
+                deviation,
+                ros2_pose,
+                inputs,
+            } = outputs;
+            for publisher in [pose, deviation].into_iter().chain(ros2_pose) {
+                if let Err(e) = publisher.undeclare().wait() {
+                    warn!(%robot, error = %e, "undeclaring a publisher failed");
+                }
+            }
+            for key in inputs {
+                if let Err(e) = self.session.undeclare(key).wait() {
+                    warn!(%robot, error = %e, "undeclaring a key expression failed");
+                }
+            }
+        }
+        for (robot, token) in tokens {
+            if let Err(e) = token.undeclare().wait() {
+                warn!(%robot, error = %e, "undeclaring the liveliness token failed");
+            }
+        }
+    }
+    /// Publishes `payload` on `robot`'s `stream` ([`Declarer::put`], through `declared`, the
+    /// robot's publishers, when they exist), counting a refusal: every robot output but the
+    /// twin pose for ROS tools goes out here.
+    pub(super) fn publish(
+        &self,
+        declared: Option<&RobotPublishers>,
+        robot: &str,
+        stream: Stream,
+        payload: Vec<u8>,
+    ) {
+        if !self.put(declared, robot, stream, payload) {
+            self.publish_errors.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}

@@ -1,0 +1,315 @@
+//! The queryables: `state`, `reset`, `fk`, `ik` and `calibrate`, each answered from the robots
+//! it names, one cell at a time, replying once that cell's lock is released.
+//!
+//! Must not hold a robot's cell across a reply.
+
+use std::sync::Arc;
+
+use tracing::{info, warn};
+use zenoh::Wait;
+use zenoh::bytes::Encoding;
+use zenoh::key_expr::KeyExpr;
+use zenoh::query::Query;
+
+use super::fleet::{Fleet, RobotCell};
+use super::intake::robot_of;
+use super::self_calibration::{CalibrationStatus, calibration_status};
+use super::sink::ZenohSink;
+use crate::codec::ik::{IkAnswerJson, IkRequest};
+use crate::codec::json;
+use crate::model::RobotModel;
+use crate::pipeline::ReplaceModelError;
+
+/// Answers one kind of query; each handler locks the robots it reads one at a time.
+pub(super) type QueryHandler = fn(&Queries, &Query);
+
+/// The queryables' side of the fleet. Each handler takes the robots it answers about one at a
+/// time, each under its own lock, and replies once that lock is released.
+pub(super) struct Queries {
+    pub(super) fleet: Arc<Fleet>,
+    pub(super) prefix: String,
+}
+
+impl Queries {
+    /// The handlers, by the stream their queryable is declared on.
+    pub(super) const HANDLERS: [(&'static str, QueryHandler); 5] = [
+        ("state", Self::state),
+        ("fk", Self::fk),
+        ("reset", Self::reset),
+        ("ik", Self::ik),
+        ("calibrate", Self::calibrate),
+    ];
+
+    /// Answers `query` with `handler`, unless the service stopped.
+    pub(super) fn answer(&self, query: &Query, handler: QueryHandler) {
+        if self.fleet.count_input() {
+            handler(self, query);
+        }
+    }
+
+    /// Robots with a cell whose `<prefix>/<stream>/<robot>` key the query's key expression
+    /// covers, in id order.
+    fn matching_robots(
+        &self,
+        query: &Query,
+        stream: &str,
+    ) -> Vec<(Arc<RobotCell>, KeyExpr<'static>)> {
+        let mut robots: Vec<(Arc<RobotCell>, KeyExpr<'static>)> = self
+            .fleet
+            .cells()
+            .into_iter()
+            .filter_map(|cell| {
+                let key =
+                    KeyExpr::try_from(format!("{}/{stream}/{}", self.prefix, cell.robot.id()))
+                        .ok()?;
+                query.key_expr().intersects(&key).then_some((cell, key))
+            })
+            .collect();
+        robots.sort_by(|a, b| a.0.robot.id().cmp(b.0.robot.id()));
+        robots
+    }
+
+    fn reply(query: &Query, key: &KeyExpr<'static>, payload: Vec<u8>) {
+        let reply = query
+            .reply(key.clone(), payload)
+            .encoding(Encoding::APPLICATION_JSON);
+        if let Err(e) = reply.wait() {
+            warn!(error = %e, %key, "reply failed");
+        }
+    }
+
+    fn reply_err(query: &Query, message: &str) {
+        let body = serde_json::json!({ "error": message }).to_string();
+        if let Err(e) = query
+            .reply_err(body)
+            .encoding(Encoding::APPLICATION_JSON)
+            .wait()
+        {
+            warn!(error = %e, "error reply failed");
+        }
+    }
+
+    fn state(&self, query: &Query) {
+        for (cell, key) in self.matching_robots(query, "state") {
+            let payload = cell
+                .lock()
+                .twin
+                .as_ref()
+                .map(|twin| json::to_json_bytes(&json::StateMessage::new(&twin.state())));
+            if let Some(payload) = payload {
+                Self::reply(query, &key, payload);
+            }
+        }
+    }
+
+    fn reset(&self, query: &Query) {
+        let mut replies = Vec::new();
+        for (cell, key) in self.matching_robots(query, "reset") {
+            let Some(mut guard) = self.fleet.unless_stopped(&cell) else {
+                return;
+            };
+            let state = &mut *guard;
+            let Some(twin) = &mut state.twin else {
+                continue;
+            };
+            let snapshot = twin.reset(&mut ZenohSink::of(&self.fleet.outputs, &mut state.outputs));
+            drop(guard);
+            info!(robot = cell.robot.id(), "metrics reset");
+            replies.push((key, json::MetricsMessage::new(&snapshot).to_json_bytes()));
+        }
+        if replies.is_empty() {
+            Self::reply_err(query, "no tracked robot matches this key expression");
+        }
+        for (key, payload) in replies {
+            Self::reply(query, &key, payload);
+        }
+    }
+
+    /// The robot a per-robot query (`<prefix>/<stream>/<robot id>`) asks about, its current
+    /// model and the query's payload; `None` once an error reply says why there are none.
+    fn robot_query<'q>(
+        &self,
+        query: &'q Query,
+        stream: &str,
+        request: &str,
+    ) -> Option<(&'q str, Arc<RobotModel>, Vec<u8>)> {
+        let Some(robot) = robot_of(&self.prefix, query.key_expr().as_str(), stream) else {
+            Self::reply_err(
+                query,
+                &format!("ask one robot: <prefix>/{stream}/<robot id> with {request}"),
+            );
+            return None;
+        };
+        let Some(model) = self.current_model(robot) else {
+            Self::reply_err(query, &format!("robot '{robot}' is not configured"));
+            return None;
+        };
+        let payload = query
+            .payload()
+            .map(|p| p.to_bytes().into_owned())
+            .unwrap_or_default();
+        Some((robot, model, payload))
+    }
+
+    fn fk(&self, query: &Query) {
+        let key = query.key_expr().as_str();
+        let Some((robot, model, payload)) = self.robot_query(query, "fk", "{\"q\": [...]}") else {
+            return;
+        };
+        let joints = match json::decode_joints(&payload, model.joint_count()) {
+            Ok(decoded) => decoded.sample,
+            Err(e) => {
+                Self::reply_err(query, &e.to_string());
+                return;
+            }
+        };
+        match model.pose(&joints.q_rad) {
+            Ok(pose) => {
+                let Ok(reply_key) = KeyExpr::try_from(key.to_owned()) else {
+                    return;
+                };
+                let frame = model.frame().as_str();
+                let message = json::PoseMessage::new(
+                    robot,
+                    joints.stamp_s.unwrap_or(0.0),
+                    0,
+                    frame,
+                    &pose.readout(),
+                );
+                Self::reply(query, &reply_key, message.to_json_bytes());
+            }
+            Err(e) => Self::reply_err(query, &e.to_string()),
+        }
+    }
+
+    /// The model robot `id`'s FK runs: its twin's (which an applied calibration replaces), else
+    /// the one its settings give it.
+    fn current_model(&self, id: &str) -> Option<Arc<RobotModel>> {
+        let configured = self.fleet.configured_model(id);
+        let twin_model = self.fleet.existing_cell_of(id).and_then(|cell| {
+            cell.lock()
+                .twin
+                .as_ref()
+                .map(|twin| Arc::clone(twin.model()))
+        });
+        twin_model.or(configured)
+    }
+
+    /// `<prefix>/ik/<robot>` with `{"pose": [x, y, z, qx, qy, qz, qw], "seed": [...]}`: the joint
+    /// configurations that reach the pose with the robot's current model.
+    fn ik(&self, query: &Query) {
+        let key = query.key_expr().as_str();
+        let request = "{\"pose\": [x, y, z, qx, qy, qz, qw]}";
+        let Some((_, model, payload)) = self.robot_query(query, "ik", request) else {
+            return;
+        };
+        let answer = IkRequest::decode(&payload)
+            .and_then(|request| Ok(crate::ik::solve(&model, &request.target, request.seed())?));
+        match answer {
+            Ok(answer) => {
+                let Ok(reply_key) = KeyExpr::try_from(key.to_owned()) else {
+                    return;
+                };
+                Self::reply(
+                    query,
+                    &reply_key,
+                    json::to_json_bytes(&IkAnswerJson::from(&answer)),
+                );
+            }
+            Err(e) => Self::reply_err(query, &e.to_string()),
+        }
+    }
+
+    /// `<prefix>/calibrate/<robot>` with `apply`, `discard` or `status` (the default), as the
+    /// payload or the selector's `action` parameter.
+    fn calibrate(&self, query: &Query) {
+        let key = query.key_expr().as_str();
+        let Some(id) = robot_of(&self.prefix, key, "calibrate") else {
+            Self::reply_err(
+                query,
+                "ask one robot: <prefix>/calibrate/<robot id> with apply, discard or status",
+            );
+            return;
+        };
+        let payload = query
+            .payload()
+            .map(|p| p.to_bytes().into_owned())
+            .unwrap_or_default();
+        let action = query.parameters().get("action").map_or_else(
+            || String::from_utf8_lossy(&payload).trim().to_owned(),
+            str::to_owned,
+        );
+        let Some(robot) = self.fleet.find(id) else {
+            Self::reply_err(query, &format!("robot '{id}' is not tracked"));
+            return;
+        };
+        if robot.settings().self_calibration.is_none() {
+            Self::reply_err(
+                query,
+                &format!(
+                    "robot '{id}' does not self-calibrate (self_calibrate = true in its section)"
+                ),
+            );
+            return;
+        }
+        let Ok(reply_key) = KeyExpr::try_from(key.to_owned()) else {
+            return;
+        };
+        let cell = self.fleet.existing_cell_of(id);
+        match action.as_str() {
+            "" | "status" => {
+                let status = match &cell {
+                    Some(cell) => calibration_status(&robot, Some(&*cell.lock())),
+                    None => calibration_status(&robot, None),
+                };
+                Self::reply(query, &reply_key, json::to_json_bytes(&status));
+            }
+            "discard" => {
+                let discarded =
+                    cell.is_some_and(|cell| cell.lock().calibration.pending.take().is_some());
+                let body = serde_json::json!({ "robot": id, "discarded": discarded });
+                Self::reply(query, &reply_key, body.to_string().into_bytes());
+            }
+            "apply" => {
+                let applied = cell.and_then(|cell| self.apply_estimate(&cell));
+                match applied {
+                    None => {
+                        Self::reply_err(query, &format!("robot '{id}' has no estimate to apply"));
+                    }
+                    Some(Ok(status)) => {
+                        Self::reply(query, &reply_key, json::to_json_bytes(&status));
+                    }
+                    Some(Err(e)) => Self::reply_err(query, &e.to_string()),
+                }
+            }
+            other => Self::reply_err(query, &format!("'{other}' is not apply, discard or status")),
+        }
+    }
+
+    /// Replaces `cell`'s model by its pending estimate's under its lock; `None` if it has no
+    /// estimate (or the service stopped).
+    fn apply_estimate(
+        &self,
+        cell: &RobotCell,
+    ) -> Option<Result<CalibrationStatus, ReplaceModelError>> {
+        let mut guard = self.fleet.unless_stopped(cell)?;
+        let state = &mut *guard;
+        let pending = state.calibration.pending.take()?;
+        let model = Arc::clone(&pending.estimate.model);
+        let Some(twin) = &mut state.twin else {
+            return Some(Err(ReplaceModelError::NotTracked));
+        };
+        let replaced = twin.replace_model(
+            model,
+            &mut ZenohSink::of(&self.fleet.outputs, &mut state.outputs),
+        );
+        Some(replaced.map(|_| {
+            info!(
+                robot = cell.robot.id(),
+                improvement = pending.estimate.improvement(),
+                "self-calibration applied"
+            );
+            calibration_status(&cell.robot, Some(&*state))
+        }))
+    }
+}

@@ -1,0 +1,286 @@
+//! The service's [`Sink`]: one robot's results published on Zenoh, its event budget applied,
+//! and the totals the dashboard reads counted.
+//!
+//! Must not take any lock but the untracked robots' event bucket: it runs under the robot's cell.
+
+use std::sync::Arc;
+use std::sync::PoisonError;
+use std::sync::atomic::Ordering;
+use std::time::{Instant, SystemTime, UNIX_EPOCH};
+
+use tracing::{debug, info, warn};
+use zenoh::Wait;
+use zenoh::sample::Locality;
+
+use super::control::{Control, ROUTE_CACHE_AFTER_POSES};
+use super::events::EventBucket;
+use super::publish::{Outputs, RobotPublishers, Stream};
+use crate::codec::{PoseFields, cdr, json, zser};
+use crate::config::OutputEncoding;
+use crate::dashboard::RobotCounts;
+use crate::kinematics::{OutputFrame, PoseReadout};
+use crate::metrics::Deviation;
+use crate::pipeline::{Event, EventDetail, EventKind, MetricsSnapshot, Robot, Sink};
+use crate::ros2;
+
+/// Events kept per robot for the dashboard's robot page.
+const RECENT_EVENTS: usize = 10;
+
+/// A robot's output state: its publishers, event bucket, twin pose for ROS tools and totals.
+#[derive(Default)]
+pub(super) struct RobotOutputState {
+    /// Once the control thread has declared them.
+    pub(super) declared: Option<RobotPublishers>,
+    /// From tracking on.
+    event_bucket: Option<EventBucket>,
+    /// From tracking on: the twin pose for ROS tools.
+    ros2_pose: Option<Ros2PoseState>,
+    /// What the dashboard and `/metrics` read beyond the twin's own state.
+    pub(super) counts: RobotCounts,
+}
+
+/// A robot's twin pose output for ROS tools, as the sink publishes it.
+struct Ros2PoseState {
+    /// Its key, for the poses sent before the publisher is declared.
+    key: String,
+    /// `<tf_prefix>base` or `<tf_prefix>base_link`: the robot's output frame.
+    frame_id: String,
+    /// `Some` for `rmw_zenoh`: the publisher gid of the attachment.
+    gid: Option<[u8; 16]>,
+    /// The attachment's next sequence number (from 1, as `rmw_zenoh` counts).
+    next_seq: i64,
+}
+
+/// Publishes one robot's results on Zenoh: made for one call into the twin, from the shared
+/// [`Outputs`] and the robot's own [`RobotOutputState`] (borrowed from the robot's locked entry),
+/// or without one for inputs of robots that may not be tracked.
+pub(super) struct ZenohSink<'a> {
+    outputs: &'a Outputs,
+    robot: Option<&'a mut RobotOutputState>,
+}
+
+impl<'a> ZenohSink<'a> {
+    pub(super) fn of(outputs: &'a Outputs, robot: &'a mut RobotOutputState) -> Self {
+        Self {
+            outputs,
+            robot: Some(robot),
+        }
+    }
+
+    /// For the rejection of a robot that may not be tracked.
+    pub(super) fn untracked(outputs: &'a Outputs) -> Self {
+        Self {
+            outputs,
+            robot: None,
+        }
+    }
+
+    /// Publishes `payload` on `robot`'s `stream` ([`Outputs::publish`]).
+    fn put(&self, robot: &str, stream: Stream, payload: Vec<u8>) {
+        let declared = self
+            .robot
+            .as_deref()
+            .and_then(|state| state.declared.as_ref());
+        self.outputs.publish(declared, robot, stream, payload);
+    }
+
+    /// Prepares `robot`'s twin pose output for ROS tools, if it has one.
+    fn track_ros2_pose(&mut self, robot: &Robot) {
+        let outputs = &self.outputs;
+        let Some(output) = outputs.ros2_pose.of(robot.id()) else {
+            return;
+        };
+        if output.namespace.is_none()
+            && let Err(e) = ros2::relative_ros_name(robot.id(), true)
+        {
+            warn!(robot = robot.id(), error = %e, "the robot id is its twin pose's ROS namespace, but not a ROS name: ROS nodes cannot subscribe to it (set ros2_pose.namespace)");
+        }
+        let state = Ros2PoseState {
+            key: output.key(robot.id()),
+            frame_id: cdr::frame_id(&output.tf_prefix, robot.settings().model.frame()),
+            gid: output
+                .attaches()
+                .then(|| ros2::publisher_gid(&outputs.session.zid().to_le_bytes(), robot.id())),
+            next_seq: 1,
+        };
+        if let Some(robot_state) = self.robot.as_deref_mut() {
+            robot_state.ros2_pose = Some(state);
+        }
+    }
+
+    /// Publishes the twin pose as a CDR `PoseStamped` (with `rmw_zenoh`'s attachment for that
+    /// scheme), if `robot` has the output.
+    fn put_ros2_pose(&mut self, robot: &Robot, stamp_s: f64, pose: &PoseReadout) {
+        let Some(robot_state) = self.robot.as_deref_mut() else {
+            return;
+        };
+        let Some(state) = &mut robot_state.ros2_pose else {
+            return;
+        };
+        let payload = cdr::encode_pose_stamped(stamp_s, &state.frame_id, pose);
+        let attachment = state.gid.map(|gid| {
+            let seq = state.next_seq;
+            state.next_seq += 1;
+            ros2::encode_attachment(seq, unix_now_ns(), &gid)
+        });
+        let publisher = robot_state
+            .declared
+            .as_ref()
+            .and_then(|publishers| publishers.ros2_pose.as_ref());
+        let outputs = &self.outputs;
+        let result = match publisher {
+            Some(publisher) => publisher.put(payload).attachment(attachment).wait(),
+            None => outputs
+                .session
+                .put(&state.key, payload)
+                .attachment(attachment)
+                .congestion_control(outputs.pose_congestion)
+                .allowed_destination(Locality::Remote)
+                .wait(),
+        };
+        if let Err(e) = result {
+            warn!(error = %e, robot = robot.id(), key = %state.key, "publish failed");
+            self.outputs.publish_errors.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
+impl Sink for ZenohSink<'_> {
+    fn tracking(&mut self, robot: &Robot) {
+        if let Some(state) = self.robot.as_deref_mut() {
+            state.event_bucket = Some(EventBucket::full(self.outputs.event_budget, Instant::now()));
+        }
+        self.track_ros2_pose(robot);
+        // Fails only once the control thread has stopped, when nothing is declared any more.
+        let _ = self.outputs.control.send(Control::Track(robot.clone()));
+    }
+
+    fn pose(
+        &mut self,
+        robot: &Robot,
+        stamp_s: f64,
+        seq: u64,
+        frame: OutputFrame,
+        pose: &PoseReadout,
+    ) {
+        let payload = match self.outputs.encoding {
+            OutputEncoding::Json => {
+                json::PoseMessage::new(robot.id(), stamp_s, seq, frame.as_str(), pose)
+                    .to_json_bytes()
+            }
+            OutputEncoding::ZenohSerialized => {
+                zser::twin_pose_bytes(stamp_s, seq, &PoseFields::from(pose))
+            }
+        };
+        self.put(robot.id(), Stream::Pose, payload);
+        self.outputs.poses.fetch_add(1, Ordering::Relaxed);
+        if let Some(state) = self.robot.as_deref_mut() {
+            state.counts.poses += 1;
+            if state.counts.poses == ROUTE_CACHE_AFTER_POSES {
+                // Fails only once the control thread has stopped.
+                let _ = self
+                    .outputs
+                    .control
+                    .send(Control::CacheRoutes(robot.clone()));
+            }
+        }
+        self.put_ros2_pose(robot, stamp_s, pose);
+    }
+
+    fn deviation(
+        &mut self,
+        robot: &Robot,
+        stamp_s: f64,
+        _measured: &PoseReadout,
+        deviation: &Deviation,
+    ) {
+        let payload = match self.outputs.encoding {
+            OutputEncoding::Json => {
+                json::DeviationMessage::new(robot.id(), stamp_s, deviation).to_json_bytes()
+            }
+            OutputEncoding::ZenohSerialized => zser::deviation_bytes(stamp_s, deviation),
+        };
+        self.put(robot.id(), Stream::Deviation, payload);
+    }
+
+    /// Publishes the event unless its robot's rate limit keeps it back, and logs it once (at
+    /// warn for rejections and alarms); a kept-back event is only counted, and formats nothing.
+    fn event(&mut self, event: &Event<'_>) {
+        let always = matches!(
+            event.kind,
+            EventKind::Alarm | EventKind::Recovered | EventKind::Restart | EventKind::Epoch
+        );
+        // An event names its robot's index only when it has a twin, whose entry this sink holds.
+        let mut robot_state = self.robot.as_deref_mut().filter(|_| event.index.is_some());
+        if let (Some(state), EventDetail::Rejected { cause }) = (&mut robot_state, &event.detail) {
+            let by_cause = &mut state.counts.rejected_by_cause;
+            match by_cause.iter_mut().find(|(counted, _)| counted == cause) {
+                Some((_, count)) => *count += 1,
+                None => by_cause.push((*cause, 1)),
+            }
+        }
+        let now = Instant::now();
+        let budget = self.outputs.event_budget;
+        let tracked = robot_state
+            .as_mut()
+            .and_then(|state| state.event_bucket.as_mut());
+        let passed = match tracked {
+            Some(bucket) => bucket.pass(budget, now, always),
+            None => self
+                .outputs
+                .untracked_bucket
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .pass(budget, now, always),
+        };
+        let suppressed = match passed {
+            Ok(suppressed) => suppressed,
+            Err(suppressed) => {
+                if suppressed == 1 {
+                    warn!(robot = %event.robot, per_s = budget.per_s, burst = budget.burst, "event rate limit reached: further events are counted, not published");
+                }
+                return;
+            }
+        };
+        let mut message = json::EventMessage::new(event);
+        message.suppressed = suppressed;
+        let cause = match event.detail {
+            EventDetail::Rejected { cause } => Some(cause.as_str()),
+            EventDetail::Unpaired { cause, .. } => Some(cause),
+            _ => None,
+        };
+        let payload = json::to_json_bytes(&message);
+        if let Some(state) = robot_state {
+            let recent = &mut state.counts.recent_events;
+            if recent.len() == RECENT_EVENTS {
+                recent.pop_front();
+            }
+            recent.push_back(Arc::from(payload.as_slice()));
+        }
+        self.put(event.robot, Stream::Events, payload);
+        let (robot, kind, key) = (event.robot, event.kind.as_str(), event.key);
+        let reason = message.reason.as_str();
+        match event.kind {
+            EventKind::Rejected | EventKind::Alarm => {
+                warn!(robot, kind, cause, key, reason, "event");
+            }
+            EventKind::Recovered | EventKind::Restart | EventKind::Epoch => {
+                info!(robot, kind, cause, key, reason, "event");
+            }
+            EventKind::Gap | EventKind::Unpaired => {
+                debug!(robot, kind, cause, key, reason, "event");
+            }
+        }
+    }
+
+    fn metrics(&mut self, robot: &Robot, snapshot: &MetricsSnapshot) {
+        let message = json::MetricsMessage::new(snapshot);
+        self.put(robot.id(), Stream::Metrics, message.to_json_bytes());
+    }
+}
+
+fn unix_now_ns() -> i64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX))
+}

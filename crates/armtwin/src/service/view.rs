@@ -1,0 +1,73 @@
+//! The dashboard's read of the fleet ([`FleetSource`]): copied out under each robot's own lock
+//! in turn.
+//!
+//! Must not keep anything between reads.
+
+use std::collections::VecDeque;
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+
+use super::fleet::Fleet;
+use crate::codec::json;
+use crate::dashboard::{FleetRow, FleetSource, RobotCounts, RobotDetail, ServiceTotals};
+
+/// The fleet as the dashboard reads it.
+pub(super) struct FleetView {
+    fleet: Arc<Fleet>,
+}
+
+impl FleetView {
+    pub(super) fn new(fleet: Arc<Fleet>) -> Self {
+        Self { fleet }
+    }
+}
+
+impl FleetSource for FleetView {
+    fn fleet(&self) -> (ServiceTotals, Vec<FleetRow>) {
+        let fleet = &self.fleet;
+        let mut rows: Vec<FleetRow> = fleet
+            .cells()
+            .iter()
+            .filter_map(|cell| {
+                let guard = cell.lock();
+                let state = guard.twin.as_ref()?.state();
+                Some(FleetRow {
+                    id: Arc::clone(cell.robot.shared_id()),
+                    metrics: state.metrics,
+                    alarms_active: state.alarms_active,
+                    counts: RobotCounts {
+                        recent_events: VecDeque::new(),
+                        ..guard.outputs.counts.clone()
+                    },
+                })
+            })
+            .collect();
+        rows.sort_by(|a, b| a.id.cmp(&b.id));
+        let totals = ServiceTotals {
+            inputs: fleet.inputs.load(Ordering::Relaxed),
+            poses: fleet.outputs.poses.load(Ordering::Relaxed),
+            publish_errors: fleet.outputs.publish_errors.load(Ordering::Relaxed),
+            robots: rows.len(),
+            snapshot_age_s: fleet.snapshot_age_s(),
+        };
+        (totals, rows)
+    }
+
+    fn robot(&self, id: &str) -> Option<RobotDetail> {
+        let cell = self.fleet.existing_cell_of(id)?;
+        let guard = cell.lock();
+        let twin = guard.twin.as_ref()?;
+        Some(RobotDetail {
+            state: json::StateMessage::new(&twin.state()),
+            model: Arc::clone(twin.model()),
+            counts: guard.outputs.counts.clone(),
+        })
+    }
+
+    fn poses_of(&self, id: &str) -> Option<u64> {
+        let cell = self.fleet.existing_cell_of(id)?;
+        let guard = cell.lock();
+        guard.twin.as_ref()?;
+        Some(guard.outputs.counts.poses)
+    }
+}

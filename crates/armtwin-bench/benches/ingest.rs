@@ -16,7 +16,7 @@
 use std::hint::black_box;
 use std::time::{Duration, Instant};
 
-use armtwin::codec::{PoseFields, cdr, wire, zser};
+use armtwin::codec::{PoseFields, cdr, json, zser};
 use armtwin::kinematics::OutputFrame;
 use armtwin::metrics::Deviation;
 use armtwin::model::RobotModel;
@@ -61,7 +61,7 @@ fn parts(c: &mut Criterion) {
     let load = Load::starting_at(0);
     let (_, joints, measured) = &load.samples[7];
     c.bench_function("decode/joints", |b| {
-        b.iter(|| wire::decode_joints(black_box(joints.as_bytes()), 6));
+        b.iter(|| json::decode_joints(black_box(joints.as_bytes()), 6));
     });
     // The UR driver's `/joint_states` as CDR (six joints in the driver's order, with velocity
     // and effort), written by `rosbags`: the binary counterpart of `decode/joints`.
@@ -78,7 +78,7 @@ fn parts(c: &mut Criterion) {
         b.iter(|| ros2::Attachment::parse(black_box(&attachment)));
     });
     c.bench_function("decode/measured", |b| {
-        b.iter(|| wire::decode_measured(black_box(measured.as_bytes())));
+        b.iter(|| json::decode_measured(black_box(measured.as_bytes())));
     });
     binary_decoding(c);
     let model = RobotModel::nominal("ur10e").expect("catalog");
@@ -91,7 +91,7 @@ fn parts(c: &mut Criterion) {
     let deviation = Deviation::between(&twin, &measured);
     // What the service does for each twin pose: build the message (the robot id copied), write it.
     let pose_message = || {
-        wire::PoseMessage::new(
+        json::PoseMessage::new(
             black_box(&load.robot).as_str(),
             1000.25,
             42,
@@ -111,11 +111,11 @@ fn parts(c: &mut Criterion) {
         });
     });
     c.bench_function("encode/pose_serde_json", |b| {
-        b.iter(|| wire::to_json_bytes(&pose_message()));
+        b.iter(|| json::to_json_bytes(&pose_message()));
     });
     c.bench_function("encode/deviation", |b| {
         b.iter(|| {
-            let message = wire::DeviationMessage::new(
+            let message = json::DeviationMessage::new(
                 black_box(&load.robot).as_str(),
                 1000.25,
                 black_box(&deviation),
@@ -151,7 +151,7 @@ fn binary_decoding(c: &mut Criterion) {
     });
     let json = workload.joints_with_measured(7, 1000.07);
     c.bench_function("decode/joints_with_measured", |b| {
-        b.iter(|| wire::decode_joints(black_box(json.as_bytes()), 6));
+        b.iter(|| json::decode_joints(black_box(json.as_bytes()), 6));
     });
     let binary = workload.joints_zser(7, 1000.07, 7, true);
     c.bench_function("decode/joints_with_measured_zser", |b| {
@@ -164,13 +164,13 @@ fn binary_decoding(c: &mut Criterion) {
 }
 
 /// A metrics message with full-precision statistics, as a robot's metrics look.
-fn metrics_message(robot: &str) -> wire::MetricsMessage {
-    let stats = |seed: f64| wire::StatsJson {
+fn metrics_message(robot: &str) -> json::MetricsMessage {
+    let stats = |seed: f64| json::StatsJson {
         mae: 1e-3 * (1.1 + seed.sin()),
         rmse: 1e-3 * (1.2 + seed.cos()),
         max: 1e-3 * (2.3 + (seed * 1.7).sin()),
     };
-    let set = |n: u64, seed: f64| wire::StatsSetJson {
+    let set = |n: u64, seed: f64| json::StatsSetJson {
         n,
         position: stats(seed),
         x: stats(seed + 1.0),
@@ -182,7 +182,7 @@ fn metrics_message(robot: &str) -> wire::MetricsMessage {
         pitch: stats(seed + 7.0),
         yaw: stats(seed + 8.0),
     };
-    wire::MetricsMessage {
+    json::MetricsMessage {
         robot: robot.to_owned(),
         t: 1_234.567_891,
         paired: 123_456,
@@ -190,7 +190,7 @@ fn metrics_message(robot: &str) -> wire::MetricsMessage {
         rejected: 0,
         epoch: 0,
         cumulative: set(123_456, 0.3),
-        window: wire::WindowJson {
+        window: json::WindowJson {
             seconds: 10.0,
             stats: set(1000, 0.7),
         },
@@ -203,7 +203,7 @@ fn metrics(c: &mut Criterion) {
         b.iter(|| black_box(&message).to_json_bytes());
     });
     c.bench_function("encode/metrics_serde_json", |b| {
-        b.iter(|| wire::to_json_bytes(black_box(&message)));
+        b.iter(|| json::to_json_bytes(black_box(&message)));
     });
 }
 

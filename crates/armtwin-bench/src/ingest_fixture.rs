@@ -9,7 +9,7 @@
 
 use std::hint::black_box;
 
-use armtwin::codec::wire;
+use armtwin::codec::json;
 use armtwin::ingest::{self, Codec};
 use armtwin::kinematics::{OutputFrame, PoseReadout};
 use armtwin::metrics::Deviation;
@@ -39,21 +39,21 @@ impl Sink for Encode {
         frame: OutputFrame,
         pose: &PoseReadout,
     ) {
-        let message = wire::PoseMessage::new(robot.id(), stamp_s, seq, frame.as_str(), pose);
+        let message = json::PoseMessage::new(robot.id(), stamp_s, seq, frame.as_str(), pose);
         self.bytes += black_box(message.to_json_bytes()).len();
     }
 
     fn deviation(&mut self, robot: &Robot, stamp_s: f64, _: &PoseReadout, deviation: &Deviation) {
-        let message = wire::DeviationMessage::new(robot.id(), stamp_s, deviation);
+        let message = json::DeviationMessage::new(robot.id(), stamp_s, deviation);
         self.bytes += black_box(message.to_json_bytes()).len();
     }
 
     fn event(&mut self, event: &Event<'_>) {
-        self.bytes += black_box(wire::to_json_bytes(&wire::EventMessage::new(event))).len();
+        self.bytes += black_box(json::to_json_bytes(&json::EventMessage::new(event))).len();
     }
 
     fn metrics(&mut self, _robot: &Robot, snapshot: &MetricsSnapshot) {
-        self.bytes += black_box(wire::MetricsMessage::new(snapshot).to_json_bytes()).len();
+        self.bytes += black_box(json::MetricsMessage::new(snapshot).to_json_bytes()).len();
     }
 }
 

@@ -173,13 +173,13 @@ fn push_f64s(bytes: &mut Vec<u8>, values: &[f64]) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use armtwin::codec::{wire, zser};
+    use armtwin::codec::{json, zser};
 
     #[test]
     fn messages_decode_as_the_contract_says() {
         let workload = Workload::ur10e().expect("ur10e");
         for sample in 0..CONFIGURATIONS as u64 {
-            let joints = wire::decode_joints(workload.joints(sample, 1.25).as_bytes(), 6)
+            let joints = json::decode_joints(workload.joints(sample, 1.25).as_bytes(), 6)
                 .expect("joint message");
             assert_eq!(joints.sample.stamp_s, Some(1.25));
             assert_eq!(joints.sample.seq, None);
@@ -187,7 +187,7 @@ mod tests {
             model
                 .check_joints(&joints.sample.q_rad)
                 .expect("within limits");
-            let measured = wire::decode_measured(workload.measured(sample, 1.25).as_bytes())
+            let measured = json::decode_measured(workload.measured(sample, 1.25).as_bytes())
                 .expect("measured message");
             assert_eq!(measured.stamp_s, Some(1.25));
             let twin = model.pose(&joints.sample.q_rad).expect("pose").readout();
@@ -197,7 +197,7 @@ mod tests {
                 .sqrt();
             assert!((distance_m - 0.000_538_5).abs() < 1e-6, "{distance_m}");
             let embedded =
-                wire::decode_joints(workload.joints_with_measured(sample, 1.25).as_bytes(), 6)
+                json::decode_joints(workload.joints_with_measured(sample, 1.25).as_bytes(), 6)
                     .expect("joint message with its measured pose");
             assert_eq!(embedded.sample.q_rad, joints.sample.q_rad);
             assert_eq!(embedded.sample.measured, Some(measured.pose));

@@ -9,11 +9,12 @@ use std::fmt::Write as _;
 
 use serde::Serialize;
 
+pub use crate::codec::json::{ErrorsJson, ParameterJson};
+use crate::codec::json::{not_identifiable, parameters_json};
 use crate::codec::recording::{Cell, Recording};
 use crate::identify::{Identification, PairedSample, PoseErrors};
 use crate::kinematics::Pose;
 use crate::orientation;
-use crate::self_calibration::{CalibrationBatch, Estimate, FitError};
 use crate::validate::Validation;
 use crate::validate::svg::{self, Series};
 
@@ -44,52 +45,6 @@ pub fn paired_samples(
         lines.push(row.line);
     }
     (samples, lines)
-}
-
-/// Error figures as written in the report (mm and mrad).
-#[derive(Debug, Clone, Copy, Serialize)]
-pub struct ErrorsJson {
-    /// Samples.
-    pub count: usize,
-    /// Position MAE (mm).
-    pub position_mae_mm: f64,
-    /// Position RMSE (mm).
-    pub position_rmse_mm: f64,
-    /// Largest position error (mm).
-    pub position_max_mm: f64,
-    /// Rotation angle MAE (mrad).
-    pub angle_mae_mrad: f64,
-    /// Rotation angle RMSE (mrad).
-    pub angle_rmse_mrad: f64,
-    /// Largest rotation angle (mrad).
-    pub angle_max_mrad: f64,
-}
-
-impl From<PoseErrors> for ErrorsJson {
-    fn from(e: PoseErrors) -> Self {
-        Self {
-            count: e.count,
-            position_mae_mm: e.position_mae_m * 1e3,
-            position_rmse_mm: e.position_rmse_m * 1e3,
-            position_max_mm: e.position_max_m * 1e3,
-            angle_mae_mrad: e.angle_mae_rad * 1e3,
-            angle_rmse_mrad: e.angle_rmse_rad * 1e3,
-            angle_max_mrad: e.angle_max_rad * 1e3,
-        }
-    }
-}
-
-/// One parameter in the report.
-#[derive(Debug, Clone, Serialize)]
-pub struct ParameterJson {
-    /// `delta_theta[1]`, `beta[2]`, `tool_x`, …
-    pub name: String,
-    /// Value (m or rad).
-    pub value: f64,
-    /// One standard deviation, if identified.
-    pub std_dev: Option<f64>,
-    /// Whether identified (false: fixed at zero).
-    pub identified: bool,
 }
 
 /// `report.json`.
@@ -163,119 +118,6 @@ pub fn report(
                           MAE whatever the model: a tenfold improvement is only measurable where \
                           nominal is above ~5 mm"
             .to_owned(),
-    }
-}
-
-/// Every candidate parameter of a fit, as written.
-fn parameters_json(fit: &Identification) -> Vec<ParameterJson> {
-    fit.parameters
-        .iter()
-        .map(|p| ParameterJson {
-            name: p.name.clone(),
-            value: p.value,
-            std_dev: p.std_dev,
-            identified: p.identified,
-        })
-        .collect()
-}
-
-/// The names of the parameters a fit left fixed.
-fn not_identifiable(parameters: &[ParameterJson]) -> Vec<String> {
-    parameters
-        .iter()
-        .filter(|p| !p.identified)
-        .map(|p| p.name.clone())
-        .collect()
-}
-
-/// A live robot's self-calibration estimate, as published on `<prefix>/calibration/<robot>` and
-/// answered by the `status` query: judged against the model the robot's twin runs.
-#[derive(Debug, Clone, Serialize)]
-pub struct EstimateMessage {
-    /// Robot id.
-    pub robot: String,
-    /// `estimate`, or `refused` (then `error` says why and the figures are absent).
-    pub status: &'static str,
-    /// Why the pairs gave no estimate.
-    pub error: Option<String>,
-    /// The metrics epoch of the model it was judged against.
-    pub epoch: u64,
-    /// Pairs the robot's reservoir had taken into account.
-    pub offered: u64,
-    /// Pairs fitted.
-    pub train_pairs: usize,
-    /// Pairs judged on (other time blocks than the fitted ones).
-    pub held_out_pairs: usize,
-    /// The current model's held-out errors.
-    pub current: Option<ErrorsJson>,
-    /// The estimate's held-out errors.
-    pub identified: Option<ErrorsJson>,
-    /// Current over identified held-out position MAE (above 1: the estimate is better).
-    pub improvement: Option<f64>,
-    /// Every candidate parameter.
-    pub parameters: Vec<ParameterJson>,
-    /// Parameters fixed because the pairs cannot tell them apart.
-    pub not_identifiable: Vec<String>,
-    /// Standard deviation of each joint's angle over the fitted pairs (rad).
-    pub joint_spread_rad: Option<[f64; 6]>,
-    /// Condition number of the identified subset (column-scaled).
-    pub condition_number: Option<f64>,
-    /// The fitted or given tool `[x, y, z, rx, ry, rz]`.
-    pub tool: Option<[f64; 6]>,
-    /// The estimate as the controller's `calibration.conf`.
-    pub calibration_conf: Option<String>,
-}
-
-impl EstimateMessage {
-    /// The message of an estimate.
-    #[must_use]
-    pub fn estimate(robot: &str, epoch: u64, estimate: &Estimate) -> Self {
-        let fit = &estimate.identification;
-        let parameters = parameters_json(fit);
-        Self {
-            robot: robot.to_owned(),
-            status: "estimate",
-            error: None,
-            epoch,
-            offered: estimate.offered,
-            train_pairs: estimate.train_pairs,
-            held_out_pairs: estimate.held_out_current.count,
-            current: Some(estimate.held_out_current.into()),
-            identified: Some(estimate.held_out_identified.into()),
-            improvement: Some(estimate.improvement()).filter(|v| v.is_finite()),
-            not_identifiable: not_identifiable(&parameters),
-            parameters,
-            joint_spread_rad: Some(fit.excitation.joint_spread_rad),
-            condition_number: Some(fit.excitation.condition_number).filter(|v| v.is_finite()),
-            tool: Some(fit.tool.to_ur_pose()),
-            calibration_conf: Some(estimate.deltas().to_conf_text(&format!(
-                "Identified by armtwin self-calibration of robot {robot} from {} pairs, judged on {} held out.",
-                estimate.train_pairs, estimate.held_out_current.count
-            ))),
-        }
-    }
-
-    /// The message of pairs that gave no estimate.
-    #[must_use]
-    pub fn refused(robot: &str, epoch: u64, batch: &CalibrationBatch, error: &FitError) -> Self {
-        Self {
-            robot: robot.to_owned(),
-            status: "refused",
-            error: Some(error.to_string()),
-            epoch,
-            offered: batch.offered,
-            train_pairs: batch.train.len(),
-            held_out_pairs: batch.held_out.len(),
-            current: None,
-            identified: None,
-            improvement: None,
-            parameters: Vec::new(),
-            not_identifiable: Vec::new(),
-            joint_spread_rad: None,
-            condition_number: None,
-            tool: None,
-            calibration_conf: None,
-        }
     }
 }
 

@@ -6,13 +6,13 @@
 //! command line, the live service, offline validation and the FMU.
 //!
 //! This crate is the outer ring, around the core:
-//! - [`codec`]: the core's types to and from CSV, the service's JSON and Zenoh-serialized wire
-//!   messages and ROS 2 CDR messages.
+//! - [`codec`]: the codec crate ([`armtwin_codec`]): the core's types to and from CSV, the
+//!   service's JSON and Zenoh-serialized messages, ROS 2 CDR messages and `rmw_zenoh`
+//!   attachments, and the one decoded-message path into the pipeline.
 //! - [`rosbag`]: rosbag2 recordings (MCAP, sqlite3) read into the rows a CSV becomes.
-//! - [`ros2`]: ROS 2 on Zenoh: `rmw_zenoh` and bridge key layouts, the robot a key names,
-//!   `rmw_zenoh`'s attachment, the twin pose output's key.
-//! - [`ingest`]: a gateway message's bytes into the pipeline, shared by the service and
-//!   `validate`.
+//! - [`ros2`]: ROS 2 on Zenoh: `rmw_zenoh` and bridge key layouts, the robot a key names, the
+//!   twin pose output's key.
+//! - [`ingest`]: the codec a Zenoh sample's encoding selects.
 //! - [`keys`]: armtwin's key space on Zenoh: every key built and read, the robot-id grammar,
 //!   armtwin's own streams.
 //! - [`config`]: the service's TOML configuration and command-line overrides.
@@ -29,13 +29,13 @@
 //!
 //! The `armtwin` command line is the `armtwin-cli` crate, on this one.
 
+pub use armtwin_codec as codec;
 pub use armtwin_core::{
     align, fmi, identify, ik, kinematics, metrics, model, orientation, pipeline, pose_fields,
     sample, self_calibration, trig,
 };
 
 pub mod calibrate;
-pub mod codec;
 pub mod config;
 pub mod dashboard;
 pub mod fmu_package;

@@ -48,47 +48,23 @@ impl EventKind {
     }
 }
 
-/// Why an input was rejected: the decoders' classes (one per `WireError` variant of the wire
-/// codec; the ROS 2 CDR decoder shares the classes it has in common with it and adds its own)
-/// and the pipeline's own checks.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+/// Why an input was rejected: the pipeline's own checks, or a decoder's refusal.
+///
+/// The core names only what it detects itself (joint count and limits, finiteness, stamp order,
+/// `seq`, range, unknown robots). A codec's refusal is [`RejectCause::Decode`] with the codec's
+/// own stable class name, so a new codec (RTDE, a joint-state extension) adds its classes in its
+/// own crate, not here. A codec that refuses for a class the core also has (a non-finite
+/// number, a wrong joint count) uses the core's variant.
+///
+/// Causes compare, hash and sort by their wire name ([`as_str`](Self::as_str)): a
+/// `Decode("non_finite")` is the same cause as [`NonFinite`](Self::NonFinite), so a count by
+/// cause never holds one name twice.
+#[derive(Debug, Clone, Copy)]
 pub enum RejectCause {
-    /// The payload exceeds the size limit.
-    TooLarge,
-    /// The payload is not UTF-8.
-    NotUtf8,
-    /// The payload is not JSON.
-    NotJson,
-    /// The payload is JSON but not an object.
-    NotObject,
-    /// A required field is absent.
-    MissingField,
-    /// A field holds the wrong JSON type.
-    WrongType,
     /// A number, joint angle or stamp is not finite.
     NonFinite,
     /// Not as many joint angles as the arm has joints.
     JointCount,
-    /// Two fields that mean the same thing are both present.
-    AmbiguousFields,
-    /// A field appears twice in one object.
-    DuplicateField,
-    /// The angle unit is neither `rad` nor `deg`.
-    Unit,
-    /// A measured pose has no orientation, or more than one form of it.
-    OrientationForms,
-    /// A quaternion's norm is too far from 1.
-    QuaternionNorm,
-    /// A binary message ends inside a field.
-    Truncated,
-    /// A binary message goes on after its last field.
-    TrailingBytes,
-    /// A binary sequence length is not a LEB128 number of at most 64 bits.
-    MalformedLength,
-    /// A binary sequence holds a number of values its schema does not allow.
-    SequenceLength,
-    /// A binary message's encoding names no schema armtwin reads on that key.
-    Schema,
     /// A joint angle lies outside the joint's limits.
     JointLimits,
     /// A stamp older than its stream's previous one.
@@ -101,21 +77,9 @@ pub enum RejectCause {
     OutOfRange,
     /// The robot is neither configured nor covered by a default.
     UnknownRobot,
-    /// A CDR payload without a plain XCDR1 encapsulation header.
-    CdrHeader,
-    /// A CDR field runs past the end of the payload.
-    CdrTruncated,
-    /// A CDR message damaged otherwise: a count beyond any sane message, a string without its
-    /// NUL, nanoseconds of a second or more, fewer or more positions than names.
-    CdrMalformed,
-    /// One of the arm's joints is not named in a `JointState`.
-    MissingJoint,
-    /// One of the arm's joints is named twice in a `JointState`.
-    DuplicateJoint,
-    /// A `PoseStamped` in another frame than the robot's `<tf_prefix>base`.
-    FrameId,
-    /// An `rmw_zenoh` sample attachment that does not parse (the sample itself is still taken).
-    Attachment,
+    /// A decoder refused the payload: its stable `snake_case` class name (`not_json`,
+    /// `cdr_header`, `attachment`, …), one of a fixed set its codec declares.
+    Decode(&'static str),
 }
 
 impl RejectCause {
@@ -124,38 +88,42 @@ impl RejectCause {
     #[must_use]
     pub fn as_str(self) -> &'static str {
         match self {
-            Self::TooLarge => "too_large",
-            Self::NotUtf8 => "not_utf8",
-            Self::NotJson => "not_json",
-            Self::NotObject => "not_object",
-            Self::MissingField => "missing_field",
-            Self::WrongType => "wrong_type",
             Self::NonFinite => "non_finite",
             Self::JointCount => "joint_count",
-            Self::AmbiguousFields => "ambiguous_fields",
-            Self::DuplicateField => "duplicate_field",
-            Self::Unit => "unit",
-            Self::OrientationForms => "orientation_forms",
-            Self::QuaternionNorm => "quaternion_norm",
-            Self::Truncated => "truncated",
-            Self::TrailingBytes => "trailing_bytes",
-            Self::MalformedLength => "malformed_length",
-            Self::SequenceLength => "sequence_length",
-            Self::Schema => "schema",
             Self::JointLimits => "joint_limits",
             Self::OutOfOrder => "out_of_order",
             Self::DuplicateStamp => "duplicate_stamp",
             Self::SeqNotIncreasing => "seq_not_increasing",
             Self::OutOfRange => "out_of_range",
             Self::UnknownRobot => "unknown_robot",
-            Self::CdrHeader => "cdr_header",
-            Self::CdrTruncated => "cdr_truncated",
-            Self::CdrMalformed => "cdr_malformed",
-            Self::MissingJoint => "missing_joint",
-            Self::DuplicateJoint => "duplicate_joint",
-            Self::FrameId => "frame_id",
-            Self::Attachment => "attachment",
+            Self::Decode(kind) => kind,
         }
+    }
+}
+
+impl PartialEq for RejectCause {
+    fn eq(&self, other: &Self) -> bool {
+        self.as_str() == other.as_str()
+    }
+}
+
+impl Eq for RejectCause {}
+
+impl std::hash::Hash for RejectCause {
+    fn hash<H: std::hash::Hasher>(&self, state: &mut H) {
+        self.as_str().hash(state);
+    }
+}
+
+impl PartialOrd for RejectCause {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for RejectCause {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.as_str().cmp(other.as_str())
     }
 }
 
@@ -586,5 +554,14 @@ mod tests {
         for (event, sentence) in cases {
             assert_eq!(event.to_string(), sentence);
         }
+    }
+
+    /// A decoder's class that the core also has is the core's cause: one name, one count.
+    #[test]
+    fn causes_compare_by_name() {
+        assert_eq!(RejectCause::Decode("non_finite"), RejectCause::NonFinite);
+        assert_ne!(RejectCause::Decode("not_json"), RejectCause::NonFinite);
+        assert!(RejectCause::Decode("attachment") < RejectCause::JointCount);
+        assert_eq!(RejectCause::Decode("cdr_header").to_string(), "cdr_header");
     }
 }

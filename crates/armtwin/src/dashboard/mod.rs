@@ -568,7 +568,7 @@ struct FrameJson {
 
 #[derive(Serialize)]
 struct RobotJson<'a> {
-    state: &'a crate::codec::wire::StateMessage,
+    state: &'a crate::codec::json::StateMessage,
     /// The chain's link frames for the last valid joints, base to TCP (`null` before any).
     frames: Option<Vec<FrameJson>>,
     poses: u64,
@@ -798,7 +798,8 @@ mod tests {
     fn the_exposition_escapes_ids_and_names_base_units() {
         let mut quoted = row("cell/\"odd\"\\id", 0.004, 5, true);
         quoted.counts.poses = 7;
-        quoted.counts.rejected_by_cause = vec![(crate::pipeline::RejectCause::NotJson, 2)];
+        quoted.counts.rejected_by_cause =
+            vec![(crate::pipeline::RejectCause::Decode("not_json"), 2)];
         let text = exposition::render(&ServiceTotals::default(), &[quoted]);
         let robot = r#"robot="cell/\"odd\"\\id""#;
         for line in [

@@ -8,7 +8,7 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::Instant;
 
-use crate::codec::wire;
+use crate::codec::json;
 use crate::model::RobotModel;
 use crate::pipeline::{Alarms, MetricsSnapshot, RejectCause};
 
@@ -54,7 +54,7 @@ pub struct ServiceTotals {
 /// One robot as its page reads it.
 pub struct RobotDetail {
     /// What `get <prefix>/state/<robot>` answers.
-    pub state: wire::StateMessage,
+    pub state: json::StateMessage,
     /// The model the twin runs and the last valid joints, for the link frames.
     pub model: Arc<RobotModel>,
     /// Its totals and recent events.

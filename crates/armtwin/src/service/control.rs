@@ -18,7 +18,7 @@ use super::self_calibration::{FitJob, fitting_thread, schedule_fits};
 use super::sink::ZenohSink;
 use super::snapshot::save_snapshot;
 use super::{ServeReport, ServiceError};
-use crate::codec::wire;
+use crate::codec::json;
 use crate::config::SelfCalibrationConfig;
 use crate::keys::Stream;
 use crate::pipeline::{Robot, Twin};
@@ -38,7 +38,7 @@ fn publish_due_metrics(fleet: &Fleet) {
             state.outputs.counts.last_active = Some(Instant::now());
             snapshot
         };
-        let payload = wire::MetricsMessage::new(&snapshot).to_json_bytes();
+        let payload = json::MetricsMessage::new(&snapshot).to_json_bytes();
         fleet
             .outputs
             .publish(None, &snapshot.robot, Stream::Metrics, payload);

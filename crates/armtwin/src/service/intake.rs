@@ -15,11 +15,11 @@ use super::fleet::{Fleet, Lookup, RobotCell, Stepping};
 use super::queries::Queries;
 use super::shard::claim_shard;
 use super::sink::ZenohSink;
+use crate::codec::decoded::{self, Arrival, Decoded, Decoder};
+use crate::codec::gateway::{self, Codec, SourceCodec};
 use crate::codec::{cdr, zser};
-use crate::config::{Ros2Source, ServiceConfig, SourceConfig, SourceRobot, SourceStream};
-use crate::ingest::{
-    self, Codec, JointMessage, MeasuredMessage, Ros2JointMessage, Ros2PoseMessage, SourceCodec,
-};
+use crate::config::{ServiceConfig, SourceConfig, SourceRobot, SourceStream};
+use crate::ingest;
 use crate::keys::{KeySpace, Stream};
 use crate::mesh::{TEARDOWN_STEP, bounded};
 use crate::pipeline::{MeasuredStream, Robot};
@@ -200,28 +200,60 @@ pub(super) struct Router {
 }
 
 impl Router {
-    /// Runs `step` with the cell of robot `id`, whose input arrived on `key`: found under the
-    /// read locks or, on a robot's first input, admitted under the default settings. The input
-    /// of a robot that may not be tracked is rejected as such instead.
-    fn with_robot(
+    /// One input of robot `id`, arrived on `key`, decoded with `decoder` and stepped into the
+    /// robot's twin: the one intake path of every sample (armtwin's own keys, sensors' and
+    /// `[[sources]]`', whatever the codec). The robot is found under the read locks or, on its
+    /// first input, admitted under the default settings ([`Fleet::lookup`]); the input of a robot
+    /// that may not be tracked is rejected as such, at the stamp the decoder finds in it, instead.
+    ///
+    /// `fallback_s` gives the stamp of a message without one (read only then). `transport` sees
+    /// the decoded message under the robot's lock before it is stepped: what the transport adds
+    /// to it (`rmw_zenoh`'s attachment).
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "one input: who, where, how, and its bytes"
+    )]
+    fn intake<D: Decoder>(
         &self,
         id: &str,
         key: &str,
-        codec: Codec,
+        stream: MeasuredStream,
+        decoder: &D,
         payload: &[u8],
         fallback_s: impl FnOnce() -> f64,
-        step: impl FnOnce(&RobotCell),
+        transport: impl FnOnce(&mut Stepping<'_>, &mut Decoded<D::Message, D::Error>),
     ) {
         match self.fleet.lookup(id) {
-            Lookup::Found(cell) => step(&cell),
+            Lookup::Found(cell) => {
+                let arrival = Arrival { key, stream };
+                self.decode_and_step(&cell, arrival, decoder, payload, fallback_s, transport);
+            }
             Lookup::Foreign => debug!(robot = id, %key, "robot of another instance: ignored"),
             Lookup::Refused => {
                 if self.fleet.count_input() {
                     let mut sink = ZenohSink::untracked(&self.fleet.outputs);
-                    ingest::unknown_robot(id, key, codec, payload, fallback_s, &mut sink);
+                    gateway::unknown_robot(id, key, decoder, payload, fallback_s, &mut sink);
                 }
             }
         }
+    }
+
+    /// Decodes an input against `cell`'s robot before taking its lock, then steps the twin with
+    /// it under that lock alone.
+    fn decode_and_step<D: Decoder>(
+        &self,
+        cell: &RobotCell,
+        arrival: Arrival<'_>,
+        decoder: &D,
+        payload: &[u8],
+        fallback_s: impl FnOnce() -> f64,
+        transport: impl FnOnce(&mut Stepping<'_>, &mut Decoded<D::Message, D::Error>),
+    ) {
+        let mut message = Decoded::decode(decoder, &cell.robot, payload, fallback_s);
+        self.fleet.step(cell, |mut locked| {
+            transport(&mut locked, &mut message);
+            message.step(locked.twin, arrival, &mut locked.sink);
+        });
     }
 
     fn joints(&self, sample: &Sample) {
@@ -233,16 +265,11 @@ impl Router {
                 return;
             }
         };
+        let decoder = gateway::Joints(ingest::codec_of(sample.encoding()));
         let payload = sample.payload().to_bytes();
-        let codec = Codec::from_encoding(sample.encoding());
         let fallback_s = || transport_stamp_s(sample);
-        self.with_robot(id, key, codec, &payload, fallback_s, |entry| {
-            let robot = &entry.robot;
-            let message = JointMessage::decode(robot, codec, &payload, fallback_s);
-            self.fleet.step(entry, |mut locked| {
-                message.step(locked.twin, key, &mut locked.sink);
-            });
-        });
+        let stream = MeasuredStream::Robot;
+        self.intake(id, key, stream, &decoder, &payload, fallback_s, |_, _| {});
     }
 
     fn measured(&self, sample: &Sample) {
@@ -254,30 +281,29 @@ impl Router {
                 return;
             }
         };
+        let decoder = gateway::Pose(ingest::codec_of(sample.encoding()));
         let payload = sample.payload().to_bytes();
-        let codec = Codec::from_encoding(sample.encoding());
         let fallback_s = || transport_stamp_s(sample);
-        self.with_robot(id, key, codec, &payload, fallback_s, |entry| {
-            self.measured_pose(entry, MeasuredStream::Robot, codec, sample, &payload);
-        });
+        let stream = MeasuredStream::Robot;
+        self.intake(id, key, stream, &decoder, &payload, fallback_s, |_, _| {});
     }
 
+    /// A pose of one of `robot`'s sensors: the robot is the sensor's, resolved when its key was
+    /// declared.
     fn sensor(&self, robot: &Robot, index: usize, sample: &Sample) {
+        let arrival = Arrival {
+            key: sample.key_expr().as_str(),
+            stream: MeasuredStream::Sensor(index),
+        };
+        let decoder = gateway::Pose(ingest::codec_of(sample.encoding()));
         let payload = sample.payload().to_bytes();
-        let codec = Codec::from_encoding(sample.encoding());
-        let entry = self.fleet.cell(robot);
-        self.measured_pose(
-            &entry,
-            MeasuredStream::Sensor(index),
-            codec,
-            sample,
-            &payload,
-        );
+        let fallback_s = || transport_stamp_s(sample);
+        let cell = self.fleet.cell(robot);
+        self.decode_and_step(&cell, arrival, &decoder, &payload, fallback_s, |_, _| {});
     }
 
     /// A sample of a `[[sources]]` entry: its robot from the source (fixed, or the key's ROS
-    /// namespace), decoded with the source's codec before the lock, stepped like the built-in
-    /// inputs.
+    /// namespace), decoded with the source's codec, stepped like the built-in inputs.
     fn source(&self, source: &SourceIntake, sample: &Sample) {
         let key = sample.key_expr().as_str();
         let id = match &source.config.robot {
@@ -297,6 +323,7 @@ impl Router {
             }
         };
         let payload = sample.payload().to_bytes();
+        let stream = MeasuredStream::Robot;
         let Some(ros2) = &source.config.ros2 else {
             let fallback_s = || transport_stamp_s(sample);
             let codec = match (source.config.codec, source.config.stream) {
@@ -306,41 +333,24 @@ impl Router {
                 (SourceCodec::ZenohSerialized, SourceStream::Measured) => {
                     Codec::ZenohSerialized(Some(zser::Schema::Pose))
                 }
-                _ => Codec::from_encoding(sample.encoding()),
+                _ => ingest::codec_of(sample.encoding()),
             };
-            self.with_robot(id, key, codec, &payload, fallback_s, |entry| {
-                match source.config.stream {
-                    SourceStream::Joints => {
-                        let robot = &entry.robot;
-                        let message = JointMessage::decode(robot, codec, &payload, fallback_s);
-                        self.fleet.step(entry, |mut locked| {
-                            message.step(locked.twin, key, &mut locked.sink);
-                        });
-                    }
-                    SourceStream::Measured => {
-                        let stream = MeasuredStream::Robot;
-                        self.measured_pose(entry, stream, codec, sample, &payload);
-                    }
+            match source.config.stream {
+                SourceStream::Joints => {
+                    let decoder = gateway::Joints(codec);
+                    self.intake(id, key, stream, &decoder, &payload, fallback_s, |_, _| {});
                 }
-            });
+                SourceStream::Measured => {
+                    let decoder = gateway::Pose(codec);
+                    self.intake(id, key, stream, &decoder, &payload, fallback_s, |_, _| {});
+                }
+            }
             return;
         };
-        self.ros2_sample(source, ros2, id, sample, &payload);
-    }
-
-    /// A ROS 2 sample of robot `id`: `header.stamp` is its source time (else the attachment's
-    /// source timestamp, else the transport's); the `rmw_zenoh` attachment's sequence number is
-    /// the gateway `seq` of joint samples, and an attachment that does not parse is rejected on
-    /// its own while the message still goes in.
-    fn ros2_sample(
-        &self,
-        source: &SourceIntake,
-        ros2: &Ros2Source,
-        id: &str,
-        sample: &Sample,
-        payload: &[u8],
-    ) {
-        let key = sample.key_expr().as_str();
+        // ROS 2: `header.stamp` is the source time (else the attachment's source timestamp,
+        // else the transport's); the `rmw_zenoh` attachment's sequence number is the gateway
+        // `seq` of joint samples, and an attachment that does not parse is rejected on its own
+        // while the message still goes in.
         let attachment = match (ros2.scheme, sample.attachment()) {
             (KeyScheme::RmwZenoh, Some(bytes)) => Some(Attachment::parse(&bytes.to_bytes())),
             _ => None,
@@ -350,53 +360,49 @@ impl Router {
             .and_then(|parsed| parsed.as_ref().ok())
             .and_then(Attachment::source_timestamp_s);
         let fallback_s = || source_stamp_s.unwrap_or_else(|| transport_stamp_s(sample));
-        // A robot that may not be tracked is rejected at the header's stamp (the JSON stamp
-        // hint `with_robot` reads has nothing to read in CDR).
-        let unknown_stamp_s = || cdr::stamp_hint(payload).unwrap_or_else(fallback_s);
-        self.with_robot(id, key, Codec::Json, &[], unknown_stamp_s, |entry| {
-            let robot = &entry.robot;
-            let reject_attachment = |locked: &mut Stepping<'_>, stamp_s: f64| {
-                if let Some(Err(error)) = &attachment {
-                    ingest::reject_attachment(locked.twin, key, stamp_s, error, &mut locked.sink);
-                }
-            };
-            match source.config.stream {
-                SourceStream::Joints => {
-                    let mut message =
-                        Ros2JointMessage::decode(payload, &ros2.joint_names, fallback_s);
-                    self.fleet.step(entry, |mut locked| {
-                        reject_attachment(&mut locked, message.stamp_s());
-                        if let Some(Ok(attachment)) = &attachment {
-                            let seq = source.gateway_seq(robot, attachment, locked.publisher_seqs);
-                            message.set_seq(seq);
-                        }
-                        message.step(locked.twin, key, &mut locked.sink);
-                    });
-                }
-                SourceStream::Measured => {
-                    let message = Ros2PoseMessage::decode(payload, &ros2.base_frame, fallback_s);
-                    self.fleet.step(entry, |mut locked| {
-                        reject_attachment(&mut locked, message.stamp_s());
-                        let stream = MeasuredStream::Robot;
-                        message.step(locked.twin, key, stream, &mut locked.sink);
-                    });
-                }
+        let reject_attachment = |locked: &mut Stepping<'_>, stamp_s: f64| {
+            if let Some(Err(error)) = &attachment {
+                decoded::reject(locked.twin, key, stamp_s, error, &mut locked.sink);
             }
-        });
-    }
-
-    fn measured_pose(
-        &self,
-        entry: &RobotCell,
-        stream: MeasuredStream,
-        codec: Codec,
-        sample: &Sample,
-        payload: &[u8],
-    ) {
-        let message = MeasuredMessage::decode(codec, payload, || transport_stamp_s(sample));
-        let key = sample.key_expr().as_str();
-        self.fleet.step(entry, |mut locked| {
-            message.step(locked.twin, key, stream, &mut locked.sink);
-        });
+        };
+        match source.config.stream {
+            SourceStream::Joints => {
+                let decoder = cdr::JointStates(&ros2.joint_names);
+                self.intake(
+                    id,
+                    key,
+                    stream,
+                    &decoder,
+                    &payload,
+                    fallback_s,
+                    |locked, message| {
+                        reject_attachment(locked, message.stamp_s());
+                        if let (Some(Ok(attachment)), Some(sample)) =
+                            (&attachment, message.message_mut())
+                        {
+                            let by_source = &mut *locked.publisher_seqs;
+                            let robot = locked.twin.robot();
+                            sample.seq = Some(source.gateway_seq(robot, attachment, by_source));
+                        }
+                    },
+                );
+            }
+            SourceStream::Measured => {
+                let decoder = cdr::PosesStamped {
+                    expected_frame: &ros2.base_frame,
+                };
+                self.intake(
+                    id,
+                    key,
+                    stream,
+                    &decoder,
+                    &payload,
+                    fallback_s,
+                    |locked, message| {
+                        reject_attachment(locked, message.stamp_s());
+                    },
+                );
+            }
+        }
     }
 }

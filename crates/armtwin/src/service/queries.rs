@@ -15,7 +15,7 @@ use super::fleet::{Fleet, RobotCell};
 use super::self_calibration::{CalibrationStatus, calibration_status};
 use super::sink::ZenohSink;
 use crate::codec::ik::{IkAnswerJson, IkRequest};
-use crate::codec::wire;
+use crate::codec::json;
 use crate::keys::{KeySpace, Stream};
 use crate::model::RobotModel;
 use crate::pipeline::ReplaceModelError;
@@ -93,7 +93,7 @@ impl Queries {
                 .lock()
                 .twin
                 .as_ref()
-                .map(|twin| wire::to_json_bytes(&wire::StateMessage::new(&twin.state())));
+                .map(|twin| json::to_json_bytes(&json::StateMessage::new(&twin.state())));
             if let Some(payload) = payload {
                 Self::reply(query, &key, payload);
             }
@@ -113,7 +113,7 @@ impl Queries {
             let snapshot = twin.reset(&mut ZenohSink::of(&self.fleet.outputs, &mut state.outputs));
             drop(guard);
             info!(robot = cell.robot.id(), "metrics reset");
-            replies.push((key, wire::MetricsMessage::new(&snapshot).to_json_bytes()));
+            replies.push((key, json::MetricsMessage::new(&snapshot).to_json_bytes()));
         }
         if replies.is_empty() {
             Self::reply_err(query, "no tracked robot matches this key expression");
@@ -155,7 +155,7 @@ impl Queries {
         else {
             return;
         };
-        let joints = match wire::decode_joints(&payload, model.joint_count()) {
+        let joints = match json::decode_joints(&payload, model.joint_count()) {
             Ok(decoded) => decoded.sample,
             Err(e) => {
                 Self::reply_err(query, &e.to_string());
@@ -168,7 +168,7 @@ impl Queries {
                     return;
                 };
                 let frame = model.frame().as_str();
-                let message = wire::PoseMessage::new(
+                let message = json::PoseMessage::new(
                     robot,
                     joints.stamp_s.unwrap_or(0.0),
                     0,
@@ -212,7 +212,7 @@ impl Queries {
                 Self::reply(
                     query,
                     &reply_key,
-                    wire::to_json_bytes(&IkAnswerJson::from(&answer)),
+                    json::to_json_bytes(&IkAnswerJson::from(&answer)),
                 );
             }
             Err(e) => Self::reply_err(query, &e.to_string()),
@@ -261,7 +261,7 @@ impl Queries {
                     Some(cell) => calibration_status(&robot, Some(&*cell.lock())),
                     None => calibration_status(&robot, None),
                 };
-                Self::reply(query, &reply_key, wire::to_json_bytes(&status));
+                Self::reply(query, &reply_key, json::to_json_bytes(&status));
             }
             "discard" => {
                 let discarded =
@@ -276,7 +276,7 @@ impl Queries {
                         Self::reply_err(query, &format!("robot '{id}' has no estimate to apply"));
                     }
                     Some(Ok(status)) => {
-                        Self::reply(query, &reply_key, wire::to_json_bytes(&status));
+                        Self::reply(query, &reply_key, json::to_json_bytes(&status));
                     }
                     Some(Err(e)) => Self::reply_err(query, &e.to_string()),
                 }

@@ -10,8 +10,7 @@ use tracing::info;
 
 use super::ServiceError;
 use super::fleet::{Fleet, RobotState};
-use crate::calibrate::EstimateMessage;
-use crate::codec::wire;
+use crate::codec::json::{self, EstimateMessage};
 use crate::config::SelfCalibrationConfig;
 use crate::keys::Stream;
 use crate::model::RobotModel;
@@ -150,7 +149,7 @@ pub(super) fn fitting_thread(
                     Ok(estimate) => EstimateMessage::estimate(robot.id(), epoch, estimate),
                     Err(e) => EstimateMessage::refused(robot.id(), epoch, &batch, e),
                 };
-                let payload = wire::to_json_bytes(&message);
+                let payload = json::to_json_bytes(&message);
                 let (message_status, message_improvement) = (message.status, message.improvement);
                 {
                     let cell = fleet.cell(&robot);

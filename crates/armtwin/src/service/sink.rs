@@ -15,7 +15,7 @@ use zenoh::sample::Locality;
 use super::control::{Control, ROUTE_CACHE_AFTER_POSES};
 use super::events::EventBucket;
 use super::publish::{Outputs, RobotPublishers};
-use crate::codec::{PoseFields, cdr, wire, zser};
+use crate::codec::{PoseFields, cdr, json, zser};
 use crate::config::OutputEncoding;
 use crate::dashboard::RobotCounts;
 use crate::keys::Stream;
@@ -166,7 +166,7 @@ impl Sink for ZenohSink<'_> {
     ) {
         let payload = match self.outputs.encoding {
             OutputEncoding::Json => {
-                wire::PoseMessage::new(robot.id(), stamp_s, seq, frame.as_str(), pose)
+                json::PoseMessage::new(robot.id(), stamp_s, seq, frame.as_str(), pose)
                     .to_json_bytes()
             }
             OutputEncoding::ZenohSerialized => {
@@ -197,7 +197,7 @@ impl Sink for ZenohSink<'_> {
     ) {
         let payload = match self.outputs.encoding {
             OutputEncoding::Json => {
-                wire::DeviationMessage::new(robot.id(), stamp_s, deviation).to_json_bytes()
+                json::DeviationMessage::new(robot.id(), stamp_s, deviation).to_json_bytes()
             }
             OutputEncoding::ZenohSerialized => zser::deviation_bytes(stamp_s, deviation),
         };
@@ -243,14 +243,14 @@ impl Sink for ZenohSink<'_> {
                 return;
             }
         };
-        let mut message = wire::EventMessage::new(event);
+        let mut message = json::EventMessage::new(event);
         message.suppressed = suppressed;
         let cause = match event.detail {
             EventDetail::Rejected { cause } => Some(cause.as_str()),
             EventDetail::Unpaired { cause, .. } => Some(cause),
             _ => None,
         };
-        let payload = wire::to_json_bytes(&message);
+        let payload = json::to_json_bytes(&message);
         if let Some(state) = robot_state {
             let recent = &mut state.counts.recent_events;
             if recent.len() == RECENT_EVENTS {
@@ -275,7 +275,7 @@ impl Sink for ZenohSink<'_> {
     }
 
     fn metrics(&mut self, robot: &Robot, snapshot: &MetricsSnapshot) {
-        let message = wire::MetricsMessage::new(snapshot);
+        let message = json::MetricsMessage::new(snapshot);
         self.put(robot.id(), Stream::Metrics, message.to_json_bytes());
     }
 }

@@ -8,7 +8,7 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 
 use super::fleet::Fleet;
-use crate::codec::wire;
+use crate::codec::json;
 use crate::dashboard::{FleetRow, FleetSource, RobotCounts, RobotDetail, ServiceTotals};
 
 /// The fleet as the dashboard reads it.
@@ -58,7 +58,7 @@ impl FleetSource for FleetView {
         let guard = cell.lock();
         let twin = guard.twin.as_ref()?;
         Some(RobotDetail {
-            state: wire::StateMessage::new(&twin.state()),
+            state: json::StateMessage::new(&twin.state()),
             model: Arc::clone(twin.model()),
             counts: guard.outputs.counts.clone(),
         })

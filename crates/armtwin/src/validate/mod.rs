@@ -11,6 +11,7 @@ pub mod svg;
 
 use std::collections::HashMap;
 
+use crate::codec::gateway::Joints;
 use crate::codec::recording::{self, Format, Recording};
 use crate::ingest::{self, Codec};
 use crate::keys::{KeySpace, Stream};
@@ -243,7 +244,7 @@ pub fn validate(
             None => ingest::unknown_robot(
                 ROBOT_ID,
                 &key,
-                Codec::Json,
+                &Joints(Codec::Json),
                 &payload,
                 || stamp_s,
                 &mut collector,

@@ -14,7 +14,7 @@ use serde::Serialize;
 use super::svg::{self, Series};
 use super::{EventCounts, Rejection, Validation};
 use crate::codec::PoseFields;
-use crate::codec::wire::StatsSetJson;
+use crate::codec::json::StatsSetJson;
 use crate::kinematics::PoseReadout;
 use crate::metrics::{Deviation, METRIC_NAMES};
 use crate::model::RobotModel;

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use armtwin::codec::cdr;
-use armtwin::codec::wire::MetricsMessage;
+use armtwin::codec::json::MetricsMessage;
 use armtwin::config::{Overrides, ServiceConfig, SourceRobot};
 use armtwin::ros2::{self, Attachment, AttachmentError, KeyScheme, NamespaceRule};
 use armtwin::rosbag::{self, BagOptions};

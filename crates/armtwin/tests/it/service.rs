@@ -9,8 +9,8 @@ use std::collections::HashMap;
 use std::path::Path;
 use std::time::Duration;
 
+use armtwin::codec::json::MetricsMessage;
 use armtwin::codec::recording;
-use armtwin::codec::wire::MetricsMessage;
 use armtwin::config::{ConfigError, Overrides, ServiceConfig, ZenohMode, ZenohSection};
 use armtwin::ingest::{self, Codec};
 use armtwin::kinematics::PoseReadout;

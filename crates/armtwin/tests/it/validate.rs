@@ -5,8 +5,8 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
+use armtwin::codec::json::MetricsMessage;
 use armtwin::codec::recording::{self, ColumnMap, PoseForm};
-use armtwin::codec::wire::MetricsMessage;
 use armtwin::model::RobotModel;
 use armtwin::pipeline::{AlarmConfig, PipelineConfig, RobotSettings};
 use armtwin::validate::report::{self, Context, PLOT_FILES};

@@ -1,11 +1,33 @@
-//! A fixed-layout JSON object writer for the messages armtwin sends most often (twin pose and
+//! Encoding armtwin's JSON messages: [`to_json_bytes`] for any of them through `serde_json`, and
+//! a fixed-layout object writer for the messages armtwin sends most often (twin pose and
 //! deviation once per sample, metrics periodically per robot): keys known at compile time,
 //! numbers in the shortest round-trip form, written straight into one buffer. It writes the bytes
-//! `serde_json` writes for the same fields in the same order (the tests in `wire` compare them
-//! byte for byte), at less cost (`benches/ingest.rs` measures both): no serialiser state machine,
+//! `serde_json` writes for the same fields in the same order (the crate's `json` tests compare
+//! them byte for byte), at less cost (`benches/ingest.rs` measures both): no serialiser state machine,
 //! no escaping scan of constant keys, no small copies per token.
 //!
 //! Pure: bytes in memory, nothing else.
+
+use serde::Serialize;
+
+/// Serialises an output message to JSON bytes.
+///
+/// # Panics
+///
+/// If `value`'s `Serialize` implementation fails, which armtwin's message types never do (plain
+/// structs, string keys, no custom implementations).
+#[must_use]
+#[allow(
+    clippy::expect_used,
+    reason = "serialising armtwin's plain message structs into a Vec cannot fail"
+)]
+pub fn to_json_bytes<T: Serialize>(value: &T) -> Vec<u8> {
+    // Room for most messages at once: growing from serde_json's small default copied each
+    // message twice.
+    let mut bytes = Vec::with_capacity(512);
+    serde_json::to_writer(&mut bytes, value).expect("armtwin's wire messages always serialise");
+    bytes
+}
 
 /// One JSON object being written; [`Self::finish`] closes it.
 pub(crate) struct FlatObject {

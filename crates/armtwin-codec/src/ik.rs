@@ -7,9 +7,9 @@
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use crate::ik::{IkAnswer, IkError};
-use crate::kinematics::Pose;
-use crate::orientation;
+use armtwin_core::ik::{IkAnswer, IkError};
+use armtwin_core::kinematics::Pose;
+use armtwin_core::orientation;
 
 /// Largest request accepted (bytes): a pose and a seed take under 1 KiB.
 pub const MAX_REQUEST_BYTES: usize = 4096;

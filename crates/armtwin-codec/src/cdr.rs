@@ -15,11 +15,12 @@ use std::fmt;
 
 use thiserror::Error;
 
-use super::wire::{self, MAX_PAYLOAD_BYTES, WireError};
-use crate::kinematics::{OutputFrame, PoseReadout};
-use crate::model::catalog::UR_JOINT_NAMES;
-use crate::pipeline::RejectCause;
-use crate::sample::{JointSample, MeasuredSample};
+use crate::decoded::{CodecError, Decoder, Refused};
+use crate::json::{self, MAX_PAYLOAD_BYTES, WireError};
+use armtwin_core::kinematics::{OutputFrame, PoseReadout};
+use armtwin_core::model::catalog::UR_JOINT_NAMES;
+use armtwin_core::pipeline::{RejectCause, Robot};
+use armtwin_core::sample::{JointSample, MeasuredSample};
 
 /// Most names (and values per array) a `JointState` may carry; more is a damaged message.
 pub const MAX_JOINT_STATE_ENTRIES: usize = 256;
@@ -172,20 +173,28 @@ impl CdrError {
     #[must_use]
     pub fn cause(&self) -> RejectCause {
         match self {
-            Self::TooLarge { .. } => RejectCause::TooLarge,
-            Self::NoHeader { .. } | Self::Representation { .. } => RejectCause::CdrHeader,
-            Self::Truncated { .. } => RejectCause::CdrTruncated,
+            Self::TooLarge { .. } => RejectCause::Decode("too_large"),
+            Self::NoHeader { .. } | Self::Representation { .. } => {
+                RejectCause::Decode("cdr_header")
+            }
+            Self::Truncated { .. } => RejectCause::Decode("cdr_truncated"),
             Self::Count { .. }
             | Self::Unterminated { .. }
             | Self::Nanosec { .. }
-            | Self::LengthMismatch { .. } => RejectCause::CdrMalformed,
-            Self::NotUtf8 { .. } => RejectCause::NotUtf8,
-            Self::MissingJoint { .. } => RejectCause::MissingJoint,
-            Self::DuplicateJoint { .. } => RejectCause::DuplicateJoint,
+            | Self::LengthMismatch { .. } => RejectCause::Decode("cdr_malformed"),
+            Self::NotUtf8 { .. } => RejectCause::Decode("not_utf8"),
+            Self::MissingJoint { .. } => RejectCause::Decode("missing_joint"),
+            Self::DuplicateJoint { .. } => RejectCause::Decode("duplicate_joint"),
             Self::NonFinite { .. } => RejectCause::NonFinite,
-            Self::QuaternionNorm { .. } => RejectCause::QuaternionNorm,
-            Self::FrameId { .. } => RejectCause::FrameId,
+            Self::QuaternionNorm { .. } => RejectCause::Decode("quaternion_norm"),
+            Self::FrameId { .. } => RejectCause::Decode("frame_id"),
         }
+    }
+}
+
+impl CodecError for CdrError {
+    fn reject_cause(&self) -> RejectCause {
+        CdrError::cause(self)
     }
 }
 
@@ -536,7 +545,7 @@ pub fn decode_pose_stamped(payload: &[u8]) -> Result<DecodedPose<'_>, CdrError> 
         reader.f64(Field::plain("PoseStamped.pose.orientation.z"))?,
         reader.f64(Field::plain("PoseStamped.pose.orientation.w"))?,
     ];
-    let pose = wire::pose_from_quaternion(position_m, xyzw).map_err(|error| match error {
+    let pose = json::pose_from_quaternion(position_m, xyzw).map_err(|error| match error {
         WireError::QuaternionNorm { norm, .. } => CdrError::QuaternionNorm {
             field: "PoseStamped.pose.orientation".to_owned(),
             norm,
@@ -582,6 +591,54 @@ pub fn stamp_hint(payload: &[u8]) -> Option<f64> {
         )
         .ok()
         .flatten()
+}
+
+/// A refused message with the stamp its header still offers.
+fn refused(payload: &[u8]) -> impl FnOnce(CdrError) -> Refused<CdrError> + '_ {
+    |error| Refused {
+        error,
+        stamp_s: stamp_hint(payload),
+    }
+}
+
+/// A ROS 2 source's `sensor_msgs/msg/JointState` messages, matched by name to the arm's joints.
+#[derive(Debug, Clone, Copy)]
+pub struct JointStates<'a>(pub &'a JointNames);
+
+impl Decoder for JointStates<'_> {
+    type Message = JointSample;
+    type Error = CdrError;
+
+    fn read(&self, _robot: &Robot, payload: &[u8]) -> Result<JointSample, Refused<CdrError>> {
+        decode_joint_state(payload, self.0).map_err(refused(payload))
+    }
+
+    fn stamp_hint(&self, payload: &[u8]) -> Option<f64> {
+        stamp_hint(payload)
+    }
+}
+
+/// A ROS 2 source's `geometry_msgs/msg/PoseStamped` messages, in the frame the robot's poses are
+/// read in (`<tf_prefix>base`).
+#[derive(Debug, Clone, Copy)]
+pub struct PosesStamped<'a> {
+    /// The frame every pose must be in.
+    pub expected_frame: &'a str,
+}
+
+impl Decoder for PosesStamped<'_> {
+    type Message = MeasuredSample;
+    type Error = CdrError;
+
+    fn read(&self, _robot: &Robot, payload: &[u8]) -> Result<MeasuredSample, Refused<CdrError>> {
+        decode_pose_stamped_in(payload, self.expected_frame)
+            .map(|pose| pose.sample)
+            .map_err(refused(payload))
+    }
+
+    fn stamp_hint(&self, payload: &[u8]) -> Option<f64> {
+        stamp_hint(payload)
+    }
 }
 
 /// The ROS frame id of a twin pose expressed in `frame`, for an arm with `tf_prefix`:

@@ -1,25 +1,23 @@
 //! Zenoh-serialized messages: armtwin's reader and writer against zenoh-ext's own
-//! `z_serialize` / `z_deserialize`, every rejection class, and the codec a sample's encoding
-//! selects.
-#![allow(
-    clippy::expect_used,
-    clippy::unwrap_used,
-    reason = "a test, or a helper of one, that fails an expectation fails the test"
-)]
-#![allow(clippy::float_cmp, reason = "decoded values are copied, not computed")]
+//! `z_serialize` / `z_deserialize`, every rejection class, and binary messages into the
+//! pipeline. (The codec a sample's encoding selects is tested beside `armtwin::ingest`.)
 
-use armtwin::codec::PoseFields;
-use armtwin::codec::wire::{self, Undecodable};
-use armtwin::codec::zser::{self, Schema};
-use armtwin::config::{Overrides, ServiceConfig};
-use armtwin::ingest::{self, Codec};
-use armtwin::kinematics::{OutputFrame, PoseReadout};
-use armtwin::metrics::Deviation;
-use armtwin::pipeline::{
-    Event, EventDetail, MeasuredStream, MetricsSnapshot, Pipeline, Robot, RobotDirectory, Sink,
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use armtwin_codec::PoseFields;
+use armtwin_codec::gateway::{self, Codec};
+use armtwin_codec::json::{self, Undecodable};
+use armtwin_codec::zser::{self, Schema};
+use armtwin_core::kinematics::{OutputFrame, PoseReadout};
+use armtwin_core::metrics::Deviation;
+use armtwin_core::model::RobotModel;
+use armtwin_core::pipeline::{
+    AlarmConfig, Event, EventDetail, MeasuredStream, MetricsSnapshot, Pipeline, PipelineConfig,
+    Robot, RobotDirectory, RobotSettings, Sink,
 };
 use proptest::prelude::*;
-use zenoh::bytes::{Encoding, ZBytes};
+use zenoh::bytes::ZBytes;
 use zenoh_ext::{z_deserialize, z_serialize};
 
 /// A joint message as zenoh-ext serializes it: `(t, q, seq, measured)`.
@@ -41,7 +39,7 @@ fn json_pose(values: [f64; 7]) -> PoseReadout {
     let json = format!(
         r#"{{"t": 0, "x": {x}, "y": {y}, "z": {z}, "qx": {qx}, "qy": {qy}, "qz": {qz}, "qw": {qw}}}"#
     );
-    wire::decode_measured(json.as_bytes()).unwrap().pose
+    json::decode_measured(json.as_bytes()).unwrap().pose
 }
 
 fn expect_refused<T: std::fmt::Debug>(
@@ -263,37 +261,6 @@ fn a_bad_measured_part_leaves_the_joint_sample_valid() {
     assert_eq!(error.kind(), "non_finite");
 }
 
-#[test]
-fn the_encoding_selects_the_codec() {
-    let serialized = |schema: &str| Encoding::ZENOH_SERIALIZED.with_schema(schema);
-    let cases = [
-        (
-            serialized("armtwin/joints/v1"),
-            Codec::ZenohSerialized(Some(Schema::Joints)),
-        ),
-        (
-            serialized("armtwin/pose/v1"),
-            Codec::ZenohSerialized(Some(Schema::Pose)),
-        ),
-        (
-            serialized("armtwin/joints/v2"),
-            Codec::ZenohSerialized(None),
-        ),
-        (Encoding::ZENOH_SERIALIZED, Codec::ZenohSerialized(None)),
-        (
-            Encoding::from("zenoh/serialized;armtwin/pose/v1"),
-            Codec::ZenohSerialized(Some(Schema::Pose)),
-        ),
-        (Encoding::default(), Codec::Json),
-        (Encoding::APPLICATION_JSON, Codec::Json),
-        (Encoding::TEXT_PLAIN.with_schema("utf-8"), Codec::Json),
-        (Encoding::from("my/encoding;armtwin/joints/v1"), Codec::Json),
-    ];
-    for (encoding, codec) in cases {
-        assert_eq!(Codec::from_encoding(&encoding), codec, "{encoding}");
-    }
-}
-
 /// What the pipeline reports: poses (stamp, seq) and rejections (cause, stamp, sentence).
 #[derive(Default)]
 struct Recorded {
@@ -325,15 +292,15 @@ impl Sink for Recorded {
 
 #[test]
 fn binary_messages_step_the_pipeline_and_a_wrong_schema_is_rejected_at_its_stamp() {
-    let config = ServiceConfig::parse(
-        "[robots.default]\nmodel = \"ur10e\"\n",
-        "test",
-        std::path::Path::new(""),
-        &Overrides::default(),
-    )
-    .unwrap();
-    let mut robots = RobotDirectory::new(config.default_robot, config.robots);
-    let mut pipeline = Pipeline::new(config.pipeline);
+    // A service's `[robots.default] model = "ur10e"`.
+    let settings = RobotSettings {
+        model: Arc::new(RobotModel::nominal("ur10e").unwrap()),
+        alarm: AlarmConfig::default(),
+        sensors: Vec::new(),
+        self_calibration: None,
+    };
+    let mut robots = RobotDirectory::new(Some(settings), HashMap::new());
+    let mut pipeline = Pipeline::new(PipelineConfig::default());
     let robot = robots.admit("r1").unwrap().clone();
     let mut sink = Recorded::default();
     let joints = Codec::ZenohSerialized(Some(Schema::Joints));
@@ -348,7 +315,7 @@ fn binary_messages_step_the_pipeline_and_a_wrong_schema_is_rejected_at_its_stamp
         (Codec::ZenohSerialized(None), joints_bytes(2.5, &q, 3, &[])),
     ];
     for (codec, payload) in &payloads {
-        ingest::joint_message(
+        gateway::joint_message(
             &mut pipeline,
             &robot,
             "twin/joints/r1",
@@ -358,7 +325,7 @@ fn binary_messages_step_the_pipeline_and_a_wrong_schema_is_rejected_at_its_stamp
             &mut sink,
         );
     }
-    ingest::measured_message(
+    gateway::measured_message(
         &mut pipeline,
         &robot,
         "twin/measured/r1",

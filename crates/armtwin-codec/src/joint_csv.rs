@@ -10,7 +10,7 @@ use std::io::{Read, Write};
 
 use thiserror::Error;
 
-use super::PoseFields;
+use crate::PoseFields;
 
 /// One row of joint angles.
 #[derive(Debug, Clone, PartialEq)]

@@ -4,16 +4,18 @@
 //! It never reports an error: anything unusual (a `null`, a repeated field, a wrong type, an
 //! escape in a key or a string it must read, a non-finite number, a failed check) makes it give
 //! up, and the general decoder reads the message again and names the problem exactly. So both
-//! paths agree by construction on every message the fast one accepts (tested in `wire`).
+//! paths agree by construction on every message the fast one accepts (tested in the crate's
+//! `json_paths` tests).
 //!
 //! Numbers are checked against JSON's grammar, then converted by the standard library's
 //! correctly rounded `f64` parser: the same value `serde_json` (with `float_roundtrip`) gives.
 //! Fields it does not know are skipped after checking that they are well-formed JSON, as the
 //! general decoder skips them.
 
-use super::{DecodedJoints, MAX_PAYLOAD_BYTES, OrientationForm, joint_index, pose_of};
-use crate::kinematics::PoseReadout;
-use crate::sample::{JointSample, MeasuredSample};
+use super::MAX_PAYLOAD_BYTES;
+use super::decode::{DecodedJoints, OrientationForm, joint_index, pose_of};
+use armtwin_core::kinematics::PoseReadout;
+use armtwin_core::sample::{JointSample, MeasuredSample};
 
 /// Nesting the skipper follows inside an unknown field before it gives up.
 const MAX_SKIP_DEPTH: usize = 32;
@@ -324,7 +326,7 @@ fn whole<'a, T>(payload: &'a [u8], read: impl FnOnce(&mut Scanner<'a>) -> Option
 }
 
 /// A joint message in its usual shape, or `None` for the general decoder.
-pub(super) fn joints(payload: &[u8], joint_count: usize) -> Option<DecodedJoints> {
+pub fn joints(payload: &[u8], joint_count: usize) -> Option<DecodedJoints> {
     let mut stamp_s = None;
     let mut time_s = None;
     let mut seq = None;
@@ -380,7 +382,7 @@ pub(super) fn joints(payload: &[u8], joint_count: usize) -> Option<DecodedJoints
 }
 
 /// A measured pose in its usual shape, or `None` for the general decoder.
-pub(super) fn measured(payload: &[u8]) -> Option<MeasuredSample> {
+pub fn measured(payload: &[u8]) -> Option<MeasuredSample> {
     let slots = whole(payload, |scanner| PoseSlots::read(scanner, true))?;
     Some(MeasuredSample {
         stamp_s: stamp_of(slots.stamp_s, slots.time_s).ok()?,

@@ -1,29 +1,23 @@
 //! Wire messages: every accepted gateway form, every rejection class, and the exact field sets of
 //! the messages armtwin publishes.
-#![allow(
-    clippy::expect_used,
-    clippy::unwrap_used,
-    reason = "a test, or a helper of one, that fails an expectation fails the test"
-)]
-#![allow(clippy::float_cmp, reason = "decoded values are copied, not computed")]
 
 use std::collections::BTreeSet;
 
-use armtwin::codec::wire::{
+use armtwin_codec::json::{
     DeviationMessage, EventMessage, MAX_PAYLOAD_BYTES, MetricsMessage, PoseMessage, StateMessage,
     StatsSetJson, WireError, decode_joints, decode_measured, to_json_bytes,
 };
-use armtwin::kinematics::PoseReadout;
-use armtwin::metrics::{Deviation, METRIC_NAMES, Stats, StatsSet};
-use armtwin::model::RobotModel;
-use armtwin::pipeline::{
+use armtwin_core::kinematics::PoseReadout;
+use armtwin_core::metrics::{Deviation, METRIC_NAMES, Stats, StatsSet};
+use armtwin_core::model::RobotModel;
+use armtwin_core::pipeline::{
     Alarms, Event, EventDetail, EventKind, MetricsSnapshot, Reason, RejectCause, RobotState,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 use serde_json::Value;
 
 /// The joint sample, or the message's error, or the error of its `measured` part.
-fn joints(json: &str, joint_count: usize) -> Result<armtwin::sample::JointSample, WireError> {
+fn joints(json: &str, joint_count: usize) -> Result<armtwin_core::sample::JointSample, WireError> {
     let decoded = decode_joints(json.as_bytes(), joint_count)?;
     match decoded.measured_error {
         Some(error) => Err(error),
@@ -47,13 +41,13 @@ fn an_invalid_measured_part_leaves_the_joint_sample_valid() {
     assert_eq!(error.kind(), "wrong_type");
     assert!(error.to_string().contains("measured.qz"), "{error}");
     assert_eq!(
-        armtwin::codec::wire::stamp_hint(br#"{"t": 3.5, "q": "x"}"#),
+        armtwin_codec::json::stamp_hint(br#"{"t": 3.5, "q": "x"}"#),
         Some(3.5)
     );
-    assert_eq!(armtwin::codec::wire::stamp_hint(b"not json"), None);
+    assert_eq!(armtwin_codec::json::stamp_hint(b"not json"), None);
 }
 
-fn measured(json: &str) -> Result<armtwin::sample::MeasuredSample, WireError> {
+fn measured(json: &str) -> Result<armtwin_core::sample::MeasuredSample, WireError> {
     decode_measured(json.as_bytes())
 }
 
@@ -430,7 +424,7 @@ fn unknown_units_are_rejected() {
 // ----- Measured poses ------------------------------------------------------------------------------
 
 /// A measured message with position `[0.4, -0.2, 0.9]` and the given orientation fields.
-fn measured_with(orientation: &str) -> Result<armtwin::sample::MeasuredSample, WireError> {
+fn measured_with(orientation: &str) -> Result<armtwin_core::sample::MeasuredSample, WireError> {
     measured(&format!(
         r#"{{"t": 4.25, "x": 0.4, "y": -0.2, "z": 0.9, {orientation}}}"#
     ))
@@ -760,7 +754,7 @@ fn event_message_fields() {
         reason: Reason::Error(&error),
         key: Some("armtwin/joints/ur10e_1"),
         detail: EventDetail::Rejected {
-            cause: RejectCause::WrongType,
+            cause: RejectCause::Decode("wrong_type"),
         },
     };
     let json = parse(&to_json_bytes(&EventMessage::new(&event)));
@@ -943,8 +937,8 @@ fn state_message_fields() {
 mod fixed_layout {
     //! The frequent messages' own writer against `serde_json` writing the same structs: the
     //! same bytes, for any values and any robot id.
-    use armtwin::codec::PoseFields;
-    use armtwin::codec::wire::{
+    use armtwin_codec::PoseFields;
+    use armtwin_codec::json::{
         DeviationMessage, MetricsMessage, PoseMessage, StatsJson, StatsSetJson, WindowJson,
         to_json_bytes,
     };

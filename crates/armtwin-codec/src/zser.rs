@@ -24,10 +24,10 @@
 
 use std::fmt;
 
-use super::PoseFields;
-use super::wire::{self, DecodedJoints, MAX_PAYLOAD_BYTES, Undecodable, WireError};
-use crate::metrics::Deviation;
-use crate::sample::{JointSample, MeasuredSample};
+use crate::PoseFields;
+use crate::json::{self, DecodedJoints, MAX_PAYLOAD_BYTES, Undecodable, WireError};
+use armtwin_core::metrics::Deviation;
+use armtwin_core::sample::{JointSample, MeasuredSample};
 
 /// The schema of a joint message (`twin/joints/<robot>`).
 pub const JOINTS_SCHEMA: &str = "armtwin/joints/v1";
@@ -235,7 +235,7 @@ pub fn stamp_hint(payload: &[u8]) -> Option<f64> {
 /// bytes) refuses the whole message.
 ///
 /// ```
-/// use armtwin::codec::zser::read_joints;
+/// use armtwin_codec::zser::read_joints;
 /// let mut payload = 2.5_f64.to_le_bytes().to_vec();
 /// payload.push(2); // q: 2 values
 /// payload.extend([0.5_f64, -1.0].iter().flat_map(|q| q.to_le_bytes()));
@@ -246,7 +246,7 @@ pub fn stamp_hint(payload: &[u8]) -> Option<f64> {
 /// let refused = read_joints(&payload[..12], 2).unwrap_err();
 /// assert_eq!(refused.error.kind(), "truncated");
 /// assert_eq!(refused.stamp_s, Some(2.5));
-/// # Ok::<(), armtwin::codec::wire::Undecodable>(())
+/// # Ok::<(), armtwin_codec::json::Undecodable>(())
 /// ```
 pub fn read_joints(payload: &[u8], joint_count: usize) -> Result<DecodedJoints, Undecodable> {
     let refused = |error| Undecodable {
@@ -343,9 +343,12 @@ pub fn read_measured(payload: &[u8]) -> Result<MeasuredSample, Undecodable> {
 
 /// The pose of `x, y, z, qx, qy, qz, qw` (sequence `name`), with the JSON decoder's quaternion
 /// checks.
-fn pose_of(name: &str, values: [f64; 7]) -> Result<crate::kinematics::PoseReadout, WireError> {
+fn pose_of(
+    name: &str,
+    values: [f64; 7],
+) -> Result<armtwin_core::kinematics::PoseReadout, WireError> {
     let [x, y, z, qx, qy, qz, qw] = values;
-    wire::pose_from_quaternion([x, y, z], [qx, qy, qz, qw]).map_err(|error| match error {
+    json::pose_from_quaternion([x, y, z], [qx, qy, qz, qw]).map_err(|error| match error {
         WireError::QuaternionNorm { norm, .. } => WireError::QuaternionNorm {
             fields: format!("{name}[3..7]"),
             norm,
@@ -358,7 +361,7 @@ fn pose_of(name: &str, values: [f64; 7]) -> Result<crate::kinematics::PoseReadou
 /// 10 values in [`PoseFields::NAMES`] order (97 bytes).
 ///
 /// ```
-/// use armtwin::codec::{PoseFields, zser};
+/// use armtwin_codec::{PoseFields, zser};
 /// let pose = PoseFields { x: 1.0, y: 2.0, z: 3.0, roll: 0.0, pitch: 0.0, yaw: 0.0,
 ///                         qx: 0.0, qy: 0.0, qz: 0.0, qw: 1.0 };
 /// let bytes = zser::twin_pose_bytes(0.5, 3, &pose);

@@ -111,6 +111,7 @@ pub fn general_measured(payload: &[u8]) -> Result<MeasuredSample, Undecodable> {
 }
 
 /// The `n` in a flat joint field `qn` (`q1`, `q2`, …; no sign, no leading zero).
+#[must_use]
 pub fn joint_index(key: &str) -> Option<usize> {
     let digits = key.strip_prefix('q')?;
     if digits.is_empty() || digits.starts_with('0') || !digits.bytes().all(|b| b.is_ascii_digit()) {

@@ -326,6 +326,7 @@ fn whole<'a, T>(payload: &'a [u8], read: impl FnOnce(&mut Scanner<'a>) -> Option
 }
 
 /// A joint message in its usual shape, or `None` for the general decoder.
+#[must_use]
 pub fn joints(payload: &[u8], joint_count: usize) -> Option<DecodedJoints> {
     let mut stamp_s = None;
     let mut time_s = None;
@@ -382,6 +383,7 @@ pub fn joints(payload: &[u8], joint_count: usize) -> Option<DecodedJoints> {
 }
 
 /// A measured pose in its usual shape, or `None` for the general decoder.
+#[must_use]
 pub fn measured(payload: &[u8]) -> Option<MeasuredSample> {
     let slots = whole(payload, |scanner| PoseSlots::read(scanner, true))?;
     Some(MeasuredSample {

@@ -498,6 +498,7 @@ pub struct ParameterJson {
 }
 
 /// Every candidate parameter of a fit, as written (the `calibrate` report and the live estimate).
+#[must_use]
 pub fn parameters_json(fit: &Identification) -> Vec<ParameterJson> {
     fit.parameters
         .iter()
@@ -511,6 +512,7 @@ pub fn parameters_json(fit: &Identification) -> Vec<ParameterJson> {
 }
 
 /// The names of the parameters a fit left fixed.
+#[must_use]
 pub fn not_identifiable(parameters: &[ParameterJson]) -> Vec<String> {
     parameters
         .iter()

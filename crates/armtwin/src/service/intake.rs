@@ -257,35 +257,30 @@ impl Router {
     }
 
     fn joints(&self, sample: &Sample) {
-        let key = sample.key_expr().as_str();
-        let id = match self.keys.robot_of(Stream::Joints, key) {
-            Ok(id) => id,
-            Err(error) => {
-                warn!(%key, %error, "joint sample without a robot id in its key: ignored");
-                return;
-            }
-        };
         let decoder = gateway::Joints(ingest::codec_of(sample.encoding()));
-        let payload = sample.payload().to_bytes();
-        let fallback_s = || transport_stamp_s(sample);
-        let stream = MeasuredStream::Robot;
-        self.intake(id, key, stream, &decoder, &payload, fallback_s, |_, _| {});
+        self.gateway_sample(sample, Stream::Joints, &decoder);
     }
 
     fn measured(&self, sample: &Sample) {
+        let decoder = gateway::Pose(ingest::codec_of(sample.encoding()));
+        self.gateway_sample(sample, Stream::Measured, &decoder);
+    }
+
+    /// A gateway's sample on `<prefix>/<stream>/<robot>`: its robot from the key, decoded with
+    /// `decoder` (the sample's encoding chose it).
+    fn gateway_sample<D: Decoder>(&self, sample: &Sample, stream: Stream, decoder: &D) {
         let key = sample.key_expr().as_str();
-        let id = match self.keys.robot_of(Stream::Measured, key) {
+        let id = match self.keys.robot_of(stream, key) {
             Ok(id) => id,
             Err(error) => {
-                warn!(%key, %error, "measured pose without a robot id in its key: ignored");
+                warn!(%key, %error, "sample without a robot id in its key: ignored");
                 return;
             }
         };
-        let decoder = gateway::Pose(ingest::codec_of(sample.encoding()));
         let payload = sample.payload().to_bytes();
         let fallback_s = || transport_stamp_s(sample);
-        let stream = MeasuredStream::Robot;
-        self.intake(id, key, stream, &decoder, &payload, fallback_s, |_, _| {});
+        let measured = MeasuredStream::Robot;
+        self.intake(id, key, measured, decoder, &payload, fallback_s, |_, _| {});
     }
 
     /// A pose of one of `robot`'s sensors: the robot is the sensor's, resolved when its key was

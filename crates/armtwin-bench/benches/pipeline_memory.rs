@@ -21,11 +21,13 @@ use std::sync::atomic::{AtomicIsize, AtomicUsize, Ordering};
 
 use armtwin::align::Aligner;
 use armtwin::ingest::{self, Codec};
+use armtwin::keys::Stream;
 use armtwin::kinematics::PoseReadout;
 use armtwin::metrics::{CumulativeStats, Deviation, WindowStats};
 use armtwin::model::RobotModel;
 use armtwin::pipeline::{Discard, MeasuredStream, Pipeline, PipelineConfig, RobotDirectory};
 use armtwin_bench::fleet::{parsed_service_config, robot_id};
+use armtwin_bench::net;
 
 /// `System`, counting the bytes live and the allocations made.
 struct Counting;
@@ -119,8 +121,8 @@ fn feed(
         let measured = messages.measured(sample, stamp_s);
         for index in range.clone() {
             let id = robot_id(index);
-            let joint_key = format!("twin/joints/{id}");
-            let measured_key = format!("twin/measured/{id}");
+            let joint_key = net::key(Stream::Joints, &id);
+            let measured_key = net::key(Stream::Measured, &id);
             let robot = robots.admit(&id).expect("a configured robot");
             ingest::joint_message(
                 pipeline,

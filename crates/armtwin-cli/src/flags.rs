@@ -164,7 +164,7 @@ pub struct ReplayArgs {
     #[arg(long)]
     pub max_rate: bool,
     /// Key prefix of the service.
-    #[arg(long, default_value = "twin")]
+    #[arg(long, default_value = armtwin::keys::DEFAULT_PREFIX)]
     pub prefix: String,
     /// How to join the mesh; without flags, as the default `armtwin serve` configuration says
     /// (a peer, multicast scouting off), connecting to where it listens (tcp/127.0.0.1:7447).

@@ -10,7 +10,8 @@ use armtwin_codec::json::WireError;
 use armtwin_codec::ros2_attachment::AttachmentError;
 use armtwin_core::pipeline::RejectCause;
 
-/// The wire names before the codecs' classes left the core, in its old declaration order.
+/// Every cause name the events, reports and `/metrics` carry, written out here on their own so that
+/// a cause renamed or dropped by either the core or a codec fails this test.
 const WIRE_NAMES: [&str; 31] = [
     "too_large",
     "not_utf8",

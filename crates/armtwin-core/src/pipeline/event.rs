@@ -77,8 +77,8 @@ pub enum RejectCause {
     OutOfRange,
     /// The robot is neither configured nor covered by a default.
     UnknownRobot,
-    /// A decoder refused the payload: its stable `snake_case` class name (`not_json`,
-    /// `cdr_header`, `attachment`, …), one of a fixed set its codec declares.
+    /// A decoder refused the payload: its stable `snake_case` class name, one of a fixed set
+    /// its codec declares (the core knows none of them).
     Decode(&'static str),
 }
 

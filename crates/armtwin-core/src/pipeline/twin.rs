@@ -201,7 +201,6 @@ impl Twin {
         error: &dyn Error,
         sink: &mut impl Sink,
     ) {
-        self.dirty = true;
         self.count_rejection(key, stamp_s, cause, Reason::Error(error), sink);
     }
 

@@ -93,7 +93,7 @@ impl Default for ServiceSection {
     fn default() -> Self {
         let pipeline = PipelineConfig::default();
         Self {
-            key_prefix: "twin".to_owned(),
+            key_prefix: crate::keys::DEFAULT_PREFIX.to_owned(),
             metrics_period_ms: 100,
             window_s: pipeline.window_s,
             window_max_samples: pipeline.window_max_samples,

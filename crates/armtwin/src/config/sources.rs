@@ -306,7 +306,7 @@ fn load_source(
     })
 }
 
-/// Why `id` is not a robot id, in the words the configuration has always used for the grammar.
+/// Why `id` is not a robot id, as a source's `robot` field reports it.
 fn robot_id_problem(id: &str, problem: keys::PlainKeyError) -> String {
     match problem {
         keys::PlainKeyError::TooLong { .. } => format!("'{id}' is not a robot id: it {problem}"),

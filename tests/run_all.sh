@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs every armtwin test from a fresh clone: Rust (format, lints, unit, integration and doc tests,
-# every workspace member under crates/) and the Python tests (independent
-# numpy/scipy reference, the FMU in FMPy), in a virtualenv this script creates.
+# every workspace member under crates/; a short fuzzing pass of every decoder) and the Python
+# tests (independent numpy/scipy reference, the FMU in FMPy), in a virtualenv this script creates.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -9,12 +9,16 @@ step() { printf '\n== %s\n' "$*"; }
 
 step "cargo fmt --check"
 cargo fmt --all -- --check
+cargo fmt --manifest-path fuzz/Cargo.toml -- --check
 
 step "cargo clippy (pedantic, warnings are errors)"
 cargo clippy --locked --workspace --all-targets -- -D warnings
 
 step "cargo test"
 cargo test --locked --workspace
+
+step "fuzz every decoder briefly (scripts/fuzz.sh: cargo-fuzz cached under .cache/)"
+bash scripts/fuzz.sh short
 
 step "Python virtualenv (.venv) from tests/python/requirements.txt"
 venv=.venv

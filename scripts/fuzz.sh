@@ -1,0 +1,72 @@
+#!/usr/bin/env bash
+# Coverage-guided fuzzing of every decoder of untrusted bytes (the targets in fuzz/fuzz_targets/),
+# with cargo-fuzz and libFuzzer on the stable toolchain (`-s none`: no sanitizer, which would
+# need nightly; Rust's own bounds and overflow checks still turn bad memory use into a panic).
+#
+#   scripts/fuzz.sh short [SECONDS]          each target SECONDS (15) from its committed corpus;
+#                                            new inputs go to a scratch folder (CI's pass)
+#   scripts/fuzz.sh long SECONDS [TARGET…]   each target (all by default) SECONDS, one at a time,
+#                                            then the inputs that add coverage merged into
+#                                            fuzz/corpus/<target>/
+#   scripts/fuzz.sh cmin [TARGET…]           minimise the committed corpora
+#
+# cargo-fuzz is installed once into .cache/cargo-fuzz-<version>/. A finding stops the script
+# with the input under fuzz/artifacts/<target>/; `cargo fuzz run -s none <target> <file>`
+# (from fuzz/) replays it.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+cargo_fuzz_version=0.13.2
+dir=".cache/cargo-fuzz-$cargo_fuzz_version"
+if [ "$(cargo fuzz --version 2>/dev/null)" != "cargo-fuzz $cargo_fuzz_version" ]; then
+  if [ ! -x "$dir/bin/cargo-fuzz" ]; then
+    rm -rf "$dir.partial"
+    # A debug build: the tool only drives cargo and libFuzzer, and builds in a third of the time.
+    cargo install --quiet --locked --debug --root "$dir.partial" cargo-fuzz --version "$cargo_fuzz_version" >&2
+    rm -rf "$dir"
+    mv "$dir.partial" "$dir"
+  fi
+  PATH="$PWD/$dir/bin:$PATH"
+fi
+
+mode=${1:-short}
+shift || true
+case "$mode" in
+  short) seconds=${1:-15}; shift || true ;;
+  long) seconds=${1:?"usage: scripts/fuzz.sh long SECONDS [TARGET…]"}; shift ;;
+  cmin) ;;
+  *) echo "usage: scripts/fuzz.sh short [SECONDS] | long SECONDS [TARGET…] | cmin [TARGET…]" >&2; exit 2 ;;
+esac
+targets=("$@")
+cd fuzz
+if [ ${#targets[@]} -eq 0 ]; then
+  mapfile -t targets < <(cargo fuzz list)
+fi
+
+# Every flag that is not libFuzzer's own default: an input that runs 10 s is a hang, and a
+# decoder must never need 2 GB.
+libfuzzer_flags=(-timeout=10 -rss_limit_mb=2048 -print_final_stats=1)
+
+cargo fuzz build -s none
+scratch=$(mktemp -d)
+trap 'rm -rf "$scratch"' EXIT
+for target in "${targets[@]}"; do
+  corpus="corpus/$target"
+  mkdir -p "$corpus"
+  case "$mode" in
+    short | long)
+      printf '\n== fuzz %s for %s s\n' "$target" "$seconds"
+      mkdir -p "$scratch/$target"
+      cargo fuzz run -s none "$target" "$scratch/$target" "$corpus" -- \
+        "${libfuzzer_flags[@]}" -max_total_time="$seconds"
+      if [ "$mode" = long ]; then
+        cargo fuzz run -s none "$target" "$corpus" "$scratch/$target" -- -merge=1
+      fi
+      ;;
+    cmin)
+      # Edges only, not their hit counts: the fewest inputs that reach every branch, so the
+      # committed corpora stay small (tens of kilobytes).
+      cargo fuzz cmin -s none "$target" "$corpus" -- -use_counters=0
+      ;;
+  esac
+done

@@ -42,6 +42,38 @@ def armtwin_bin() -> Path:
     return _require_binary()
 
 
+@pytest.fixture(scope="module")
+def router_bin(armtwin_bin) -> Path:
+    """``armtwin-router`` beside the armtwin binary (or ``$ARMTWIN_ROUTER_BIN``); fails if missing."""
+    from fleet import router_path
+
+    path = router_path(armtwin_bin)
+    if not path.is_file():
+        pytest.fail(f"armtwin-router not found at {path}: cargo build --workspace first", pytrace=False)
+    return path
+
+
+@pytest.fixture
+def processes():
+    """Processes a test started, stopped (SIGINT, bounded) in reverse order after it."""
+    started = []
+    yield started
+    for process in reversed(started):
+        process.stop()
+
+
+@pytest.fixture
+def sessions():
+    """Zenoh sessions a test opened, closed after it."""
+    opened = []
+    yield opened
+    for session in opened:
+        try:
+            session.close()
+        except Exception:
+            pass
+
+
 def run_armtwin(*args, input: str | None = None) -> subprocess.CompletedProcess:
     """Run armtwin with ``args`` (converted with str), text mode, 60 s timeout."""
     binary = _require_binary()

@@ -118,13 +118,16 @@ class Router(Process):
     """``armtwin-router`` listening on one loopback port, REST on another if asked."""
 
     def __init__(self, binary: Path, workdir: Path, rest: bool = False, config: Path | None = None,
-                 port: int | None = None, scheme: str = "tcp", env: dict | None = None):
+                 port: int | None = None, scheme: str = "tcp", env: dict | None = None,
+                 connect: list[str] | None = None):
         self.port = port or free_port()
         self.rest_port = free_port() if rest else None
         self.endpoint = f"{scheme}/127.0.0.1:{self.port}" if scheme == "tcp" else f"{scheme}/localhost:{self.port}"
         argv = [binary, "-l", self.endpoint, "--no-multicast-scouting"]
         if config is not None:
             argv += ["-c", config]
+        for endpoint in connect or []:
+            argv += ["-e", endpoint]
         if rest:
             argv += ["--rest-http-port", f"127.0.0.1:{self.rest_port}"]
         super().__init__(f"router-{self.port}", argv, workdir, env)
@@ -142,13 +145,15 @@ class Armtwin(Process):
     """``armtwin serve -m client -e <router>`` with a configuration of its own."""
 
     def __init__(self, binary: Path, workdir: Path, name: str, config_text: str, router_endpoint: str,
-                 extra: list[str] | None = None):
+                 extra: list[str] | None = None, wrapper: list[str] | None = None):
         workdir = Path(workdir) / name
         workdir.mkdir(parents=True, exist_ok=True)
         self.config_path = workdir / "armtwin.toml"
         self.config_path.write_text(config_text)
         argv = [binary, "serve", "-c", self.config_path, "-m", "client", "-e", router_endpoint]
-        super().__init__(name, argv + list(extra or []), workdir, {"RUST_LOG": "armtwin=info"})
+        # `wrapper` runs armtwin through another command (e.g. `unshare`), which must exec it.
+        argv = list(wrapper or []) + argv + list(extra or [])
+        super().__init__(name, argv, workdir, {"RUST_LOG": "armtwin=info"})
 
     def start(self, ready: bool = True) -> "Armtwin":
         super().start()
@@ -245,3 +250,23 @@ class Gateway:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5)
+
+
+class Poses:
+    """A dashboard's subscriber of one robot's poses (seq, arrival time)."""
+
+    def __init__(self, session, robot: str):
+        self.items: list[tuple[float, int]] = []
+        self.sub = session.declare_subscriber(f"twin/pose/{robot}", self)
+
+    def __call__(self, sample):
+        self.items.append((time.monotonic(), json.loads(sample.payload.to_bytes())["seq"]))
+
+    def seqs(self) -> list[int]:
+        return [seq for _, seq in list(self.items)]
+
+
+def wait_matched(publisher, timeout: float = 20.0) -> None:
+    assert wait_until(lambda: publisher.matching_status.matching, timeout), (
+        f"no subscriber of {publisher.key_expr} reached through the router"
+    )

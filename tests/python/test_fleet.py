@@ -10,12 +10,9 @@ import http.client
 import json
 import time
 import urllib.request
-from pathlib import Path
-
-import pytest
 
 from armtwin_service import wait_until
-from fleet import Armtwin, Gateway, Router, get_json, open_client, router_path, wait_queryable
+from fleet import Armtwin, Gateway, Poses, Router, get_json, open_client, wait_matched, wait_queryable
 
 TWIN_CONFIG = """
 [service]
@@ -34,52 +31,6 @@ alarm_hold_s = 0.0
 def twin_config(robots: str = "**", extra: str = "") -> str:
     return TWIN_CONFIG.format(robots=robots, extra=extra)
 
-
-@pytest.fixture(scope="module")
-def router_bin(armtwin_bin) -> Path:
-    path = router_path(armtwin_bin)
-    if not path.is_file():
-        pytest.fail(f"armtwin-router not found at {path}: cargo build --workspace first", pytrace=False)
-    return path
-
-
-@pytest.fixture
-def processes():
-    started = []
-    yield started
-    for process in reversed(started):
-        process.stop()
-
-
-@pytest.fixture
-def sessions():
-    opened = []
-    yield opened
-    for session in opened:
-        try:
-            session.close()
-        except Exception:
-            pass
-
-
-class Poses:
-    """A dashboard's subscriber of one robot's poses (seq, arrival time)."""
-
-    def __init__(self, session, robot: str):
-        self.items: list[tuple[float, int]] = []
-        self.sub = session.declare_subscriber(f"twin/pose/{robot}", self)
-
-    def __call__(self, sample):
-        self.items.append((time.monotonic(), json.loads(sample.payload.to_bytes())["seq"]))
-
-    def seqs(self) -> list[int]:
-        return [seq for _, seq in list(self.items)]
-
-
-def wait_matched(publisher, timeout: float = 20.0) -> None:
-    assert wait_until(lambda: publisher.matching_status.matching, timeout), (
-        f"no subscriber of {publisher.key_expr} reached through the router"
-    )
 
 
 def test_gateway_and_dashboard_reach_armtwin_through_the_router_and_rest(

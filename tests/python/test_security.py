@@ -1,7 +1,8 @@
 """TLS, mutual TLS and access control on a fleet's router, with the shipped example configurations
 (config/router-tls-acl.json5, config/zenoh-client-tls.json5) and certificates this test makes
 with the openssl CLI: only gateways put joints, only armtwin publishes outputs, dashboards only
-subscribe and query, and a client without a certificate of the fleet's CA cannot connect."""
+subscribe and read, operators may also change a twin (reset, apply or discard a calibration), and
+a client without a certificate of the fleet's CA cannot connect."""
 
 from __future__ import annotations
 
@@ -57,7 +58,7 @@ def certs(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("pki") / "certs"
     folder.mkdir()
     make_ca(folder, "ca")
-    for name in ("router", "armtwin", "gateway", "dashboard"):
+    for name in ("router", "armtwin", "gateway", "dashboard", "operator"):
         make_cert(folder, name)
     # A certificate named like a gateway, signed by a CA the router does not trust.
     make_ca(folder, "stranger-ca")
@@ -74,18 +75,23 @@ def tls_of(certs: Path, name: str | None) -> dict:
     return tls
 
 
-def test_only_gateways_put_joints_only_armtwin_publishes_and_strangers_cannot_connect(
-    tmp_path, certs, armtwin_bin
-):
-    router_bin = router_path(armtwin_bin)
+def tls_router_and_twin(tmp_path, certs, armtwin_bin) -> tuple[Router, Armtwin]:
+    """The shipped TLS + ACL router and armtwin behind it with its certificate, not started."""
     (tmp_path / "certs").symlink_to(certs)
-    router = Router(router_bin, tmp_path, config=ROUTER_CONFIG, scheme="tls", env={"RUST_LOG": ACL_LOG})
+    router = Router(router_path(armtwin_bin), tmp_path, config=ROUTER_CONFIG, scheme="tls", env={"RUST_LOG": ACL_LOG})
     twin = Armtwin(
         armtwin_bin, tmp_path, "twin",
         f'[zenoh]\nfile = "{CLIENT_CONFIG}"\n[service]\npose_congestion = "block"\n',
         router.endpoint,
     )
     (tmp_path / "twin" / "certs").symlink_to(certs)
+    return router, twin
+
+
+def test_only_gateways_put_joints_only_armtwin_publishes_and_strangers_cannot_connect(
+    tmp_path, certs, armtwin_bin
+):
+    router, twin = tls_router_and_twin(tmp_path, certs, armtwin_bin)
     sessions = []
     try:
         router.start()
@@ -140,6 +146,72 @@ def test_only_gateways_put_joints_only_armtwin_publishes_and_strangers_cannot_co
         # Plain TCP to the TLS port does not open a session either.
         with pytest.raises(zenoh.ZError):
             zenoh.open(_client(f"tcp/127.0.0.1:{router.port}", None)).close()
+    finally:
+        for session in sessions:
+            session.close()
+        twin.stop()
+        router.stop()
+
+
+def replies(session: zenoh.Session, selector: str) -> tuple[list[dict], list[dict]]:
+    """The ok and error replies to ``selector``, each a JSON object."""
+    oks, errs = [], []
+    for reply in session.get(selector, timeout=5.0, consolidation=zenoh.ConsolidationMode.NONE):
+        if reply.ok is not None:
+            oks.append(json.loads(reply.ok.payload.to_bytes()))
+        else:
+            errs.append(json.loads(reply.err.payload.to_bytes()))
+    return oks, errs
+
+
+def test_a_dashboard_reads_a_twin_but_cannot_change_it_and_an_operator_can(tmp_path, certs, armtwin_bin):
+    router, twin = tls_router_and_twin(tmp_path, certs, armtwin_bin)
+    sessions = []
+    try:
+        router.start()
+        twin.start()
+        gateway_session = zenoh.open(_client(router.endpoint, tls_of(certs, "gateway")))
+        dashboard = zenoh.open(_client(router.endpoint, tls_of(certs, "dashboard")))
+        operator = zenoh.open(_client(router.endpoint, tls_of(certs, "operator")))
+        sessions += [gateway_session, dashboard, operator]
+        assert wait_queryable(dashboard, "twin/state/**"), router.log()
+        assert wait_queryable(operator, "twin/admin/reset/**"), router.log()
+        gateway = Gateway(gateway_session, "r1")
+        assert wait_until(lambda: gateway.pub.matching_status.matching, 20), router.log()
+        for _ in range(20):
+            gateway.send_one()
+            time.sleep(0.005)
+        assert wait_until(lambda: get_json(dashboard, "twin/state/r1")[0][1]["metrics"]["paired"] == 20, 15)
+
+        # The dashboard reads, and every change it asks for is dropped at the router or refused.
+        for selector in ("twin/admin/reset/r1", "twin/admin/calibrate/r1?action=apply",
+                         "twin/admin/calibrate/r1?action=discard", "twin/admin/**"):
+            assert replies(dashboard, selector) == ([], []), selector
+        oks, [refused] = replies(dashboard, "twin/calibrate/r1?action=apply")
+        assert oks == [] and "twin/admin/calibrate/r1" in refused["error"], refused
+        # A wide read that reaches the admin queryables changes nothing either.
+        list(dashboard.get("twin/**", timeout=5.0))
+        [(_, state)] = get_json(dashboard, "twin/state/r1")
+        assert state["metrics"]["paired"] == 20, "the dashboard changed nothing"
+
+        def denied(name: str, key: str) -> bool:
+            return any(
+                f"CertCommonName({name})" in line and "is unauthorized to Query" in line and key in line
+                for line in router.log(10**9).splitlines()
+            )
+
+        assert wait_until(lambda: denied("dashboard", "twin/admin/reset/r1"), 10), router.log()
+        assert denied("dashboard", "twin/admin/calibrate/r1")
+
+        # The operator reads and changes.
+        [(_, by_operator)] = get_json(operator, "twin/state/r1")
+        assert by_operator["metrics"]["paired"] == 20
+        oks, errs = replies(operator, "twin/admin/reset/r1")
+        assert errs == [] and len(oks) == 1 and oks[0]["paired"] == 20, (oks, errs)
+        [(_, after)] = get_json(dashboard, "twin/state/r1")
+        assert after["metrics"]["paired"] == 0, "reset by the operator"
+        oks, [answer] = replies(operator, "twin/admin/calibrate/r1?action=discard")
+        assert "does not self-calibrate" in answer["error"], "the service answered the operator"
     finally:
         for session in sessions:
             session.close()

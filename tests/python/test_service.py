@@ -596,7 +596,7 @@ def test_queries(twin):
 
     # reset
     before = twin.collector.count("metrics", "r1")
-    oks, errs = reply_payloads(client.get(f"{PREFIX}/reset/r1"))
+    oks, errs = reply_payloads(client.get(f"{PREFIX}/admin/reset/r1"))
     checks.equal(errs, [], "reset r1: error replies")
     if checks.equal(len(oks), 1, "reset r1: replies"):
         snap = oks[0][1]

@@ -12,8 +12,12 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import struct
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -278,4 +282,48 @@ def test_bad_binary_input_is_rejected_like_bad_json(twin):
     checks.equal([p[0] for p in twin_poses(c, robot)], [1.0, 3.0, 5.0], "valid joint messages twinned")
     final = metrics_when(c, robot, lambda m: m.get("rejected") == len(want), timeout=10)
     checks.true(final is not None, f"rejections counted (last metrics {c.last('metrics', robot)})")
+    checks.done(proc.logs())
+
+
+def readme_gateway_example() -> str:
+    """The README's binary gateway example, exactly as a user would copy it."""
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text(encoding="utf-8")
+    blocks = re.findall(r"```python\n(.*?)```", readme, re.DOTALL)
+    example = [b for b in blocks if "z_serialize((time.time()" in b]
+    assert len(example) == 1, "the README has one binary gateway example"
+    return example[0]
+
+
+def test_readme_gateway_example_run_twice_gets_all_its_poses(twin, tmp_path):
+    """A gateway that restarts counts ``seq`` from 0 again: the second run is taken at once, with one
+    ``restart`` event, not refused until its ``seq`` passes the first run's."""
+    proc, client = twin
+    example = readme_gateway_example()
+    default_endpoint = "tcp/127.0.0.1:7447"
+    assert default_endpoint in example
+    script = tmp_path / "gateway.py"
+    script.write_text(example.replace(default_endpoint, proc.endpoint), encoding="utf-8")
+    printed = []
+    for _ in range(2):
+        run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
+        assert run.returncode == 0, run.stderr
+        printed.append([line.split()[0] for line in run.stdout.splitlines() if line.strip()])
+    checks = Checks()
+    # Each run prints the twin poses it got back; the pose seq counts on across the runs. A
+    # subscriber declared as the run starts may miss the first pose or so before it is matched.
+    checks.true(90 <= len(printed[0]) <= 100, f"first run: {len(printed[0])} poses back")
+    checks.true(90 <= len(printed[1]) <= 100, f"second run: {len(printed[1])} poses back")
+    c = client.collector
+    robot = "demo/ur10e"
+    wait_until(lambda: c.count("pose", robot) >= 200, 10)
+    checks.equal(c.count("pose", robot), 200, "every sample of both runs twinned")
+    events = c.messages("events", robot)
+    checks.equal(
+        [(e.get("kind"), e.get("detail")) for e in events if e.get("kind") != "gap"],
+        [("restart", {"from_seq": 99, "to_seq": 0})],
+        "one restart event, no rejection",
+    )
+    final = metrics_when(c, robot, lambda m: m.get("paired") == 200, timeout=10)
+    checks.true(final is not None, f"200 pairs, cumulative (last metrics {c.last('metrics', robot)})")
+    checks.equal((final or {}).get("rejected"), 0, "nothing rejected")
     checks.done(proc.logs())

@@ -7,7 +7,7 @@
 //! encoding's name is read here; comparing Zenoh `Encoding` values is the transport's side.
 //! Must not know the network, the filesystem or the clock.
 
-use armtwin_core::pipeline::{self, MeasuredStream, Pipeline, Robot, Sink};
+use armtwin_core::pipeline::{self, MeasuredStream, Pipeline, Robot, Sink, Untracked};
 use armtwin_core::sample::MeasuredSample;
 use serde::Deserialize;
 
@@ -170,10 +170,15 @@ pub fn measured_message(
     message.step(pipeline.track(robot, sink), Arrival { key, stream }, sink);
 }
 
-/// A message of a robot that may not be tracked (`robot` is the id its key names): one
-/// rejection event at the best stamp `decoder` finds in it.
-pub fn unknown_robot(
+/// A message of a robot that may not be tracked (`robot` is the id its key names), for the
+/// reason `why`: one rejection event at the best stamp `decoder` finds in it.
+#[allow(
+    clippy::too_many_arguments,
+    reason = "one input: who, why, where, how, and its bytes"
+)]
+pub fn untracked_robot(
     robot: &str,
+    why: Untracked,
     key: &str,
     decoder: &impl Decoder,
     payload: &[u8],
@@ -181,5 +186,5 @@ pub fn unknown_robot(
     sink: &mut impl Sink,
 ) {
     let stamp_s = decoder.stamp_hint(payload).unwrap_or_else(fallback_s);
-    pipeline::reject_unknown_robot(robot, key, stamp_s, sink);
+    pipeline::reject_untracked(robot, key, stamp_s, why, sink);
 }

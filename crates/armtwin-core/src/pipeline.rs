@@ -41,7 +41,7 @@ use std::sync::Arc;
 use nalgebra::IsometryMatrix3;
 
 pub use self::alarm::{AlarmConfig, Alarms};
-pub use self::directory::{Robot, RobotDirectory, RobotIndex, UnknownRobot};
+pub use self::directory::{Robot, RobotDirectory, RobotIndex, Untracked};
 pub use self::event::{Event, EventDetail, EventKind, Reason, RejectCause};
 pub use self::record::{AppliedModel, RestoreError, TwinRecord};
 pub use self::sink::Sink;
@@ -175,19 +175,29 @@ pub struct Pipeline {
     twins: Vec<Option<Box<Twin>>>,
 }
 
-/// Rejects an input of a robot that is neither configured nor covered by a default: one event
-/// (there is no twin to count it).
-pub fn reject_unknown_robot(robot: &str, key: &str, stamp_s: f64, sink: &mut impl Sink) {
+/// Rejects an input of a robot that may not be tracked (neither configured nor covered by a
+/// default, or the fleet is full): one event (there is no twin to count it).
+pub fn reject_untracked(
+    robot: &str,
+    key: &str,
+    stamp_s: f64,
+    why: Untracked,
+    sink: &mut impl Sink,
+) {
+    let (cause, reason) = match why {
+        Untracked::Unknown => (RejectCause::UnknownRobot, Reason::UnknownRobot),
+        Untracked::Full { max_robots } => {
+            (RejectCause::FleetFull, Reason::FleetFull { max_robots })
+        }
+    };
     sink.event(&Event {
         robot,
         index: None,
         stamp_s,
         kind: EventKind::Rejected,
         key: Some(key),
-        detail: EventDetail::Rejected {
-            cause: RejectCause::UnknownRobot,
-        },
-        reason: Reason::UnknownRobot,
+        detail: EventDetail::Rejected { cause },
+        reason,
     });
 }
 

@@ -122,6 +122,61 @@ fn a_clock_restart_starts_alignment_and_window_afresh() {
     assert_eq!(seqs, (0..25).collect::<Vec<u64>>());
 }
 
+/// A gateway that restarts counts `seq` from 0 again while its clock moves on: its samples are
+/// taken at once, with one `restart` event; a resend (same seq and stamp) and an older stamp are
+/// still refused.
+#[test]
+fn a_restarted_gateway_is_taken_at_once_and_a_resend_is_still_refused() {
+    let (mut pipeline, model, mut directory) = pipeline();
+    let r1 = robot(&mut directory, "r1");
+    let mut sink = Record::default();
+    let q = [0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
+    let with_seq = |seq| JointSample {
+        seq: Some(seq),
+        ..sample(&model, q, true)
+    };
+    let run = |pipeline: &mut Pipeline, sink: &mut Record, start_s: f64| {
+        for seq in 0..100_u32 {
+            let t = start_s + f64::from(seq) * 0.01;
+            pipeline.joints(&r1, "twin/joints/r1", t, &with_seq(u64::from(seq)), sink);
+        }
+    };
+    run(&mut pipeline, &mut sink, 100.0);
+    run(&mut pipeline, &mut sink, 101.0);
+    assert_eq!(sink.poses().count(), 200, "both runs' samples");
+    let restarts: Vec<EventDetail> = sink
+        .events()
+        .filter(|e| e.kind == EventKind::Restart)
+        .map(|e| e.detail)
+        .collect();
+    assert_eq!(
+        restarts,
+        [EventDetail::SeqRestart {
+            from_seq: 99,
+            to_seq: 0
+        }]
+    );
+    assert_eq!(sink.events().count(), 1, "no gap, no rejection");
+    let metrics = pipeline.state(r1.index()).expect("tracked").metrics;
+    assert_eq!(metrics.cumulative.n, 200, "cumulative metrics go on");
+    assert_eq!(metrics.rejected, 0);
+    // The next sample follows the new count: no gap, no event.
+    pipeline.joints(&r1, "twin/joints/r1", 102.0, &with_seq(100), &mut sink);
+    assert_eq!(sink.events().count(), 1);
+    // A resend of it (same seq, same stamp) and an older stamp are refused.
+    pipeline.joints(&r1, "twin/joints/r1", 102.0, &with_seq(100), &mut sink);
+    pipeline.joints(&r1, "twin/joints/r1", 101.5, &with_seq(3), &mut sink);
+    let causes: Vec<&str> = sink
+        .events()
+        .filter_map(|e| match e.detail {
+            EventDetail::Rejected { cause } => Some(cause.as_str()),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(causes, ["duplicate_stamp", "out_of_order"]);
+    assert_eq!(sink.poses().count(), 201);
+}
+
 #[test]
 fn finish_reports_waiting_measurements_and_sends_final_metrics() {
     let (mut pipeline, model, mut directory) = pipeline();

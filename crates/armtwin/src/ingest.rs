@@ -12,7 +12,7 @@ use std::sync::LazyLock;
 use zenoh::bytes::Encoding;
 
 pub use crate::codec::gateway::{
-    Codec, SourceCodec, joint_message, measured_message, unknown_robot,
+    Codec, SourceCodec, joint_message, measured_message, untracked_robot,
 };
 use crate::codec::zser;
 

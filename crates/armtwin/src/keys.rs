@@ -51,12 +51,16 @@ pub enum Stream {
     State,
     /// FK under the robot's model (queryable).
     Fk,
-    /// Resets the robot's metrics (queryable).
+    /// Resets the robot's metrics (queryable, a change: under `admin/`, which an ACL keeps
+    /// from those who only watch).
     Reset,
     /// IK under the robot's current model (queryable).
     Ik,
-    /// Applies, discards or reports the robot's self-calibration (queryable).
+    /// Reports the robot's self-calibration (queryable, read-only).
     Calibrate,
+    /// Applies or discards the robot's self-calibration estimate (queryable, a change: under
+    /// `admin/`).
+    ApplyCalibration,
     /// Present while armtwin tracks the robot (liveliness token).
     Alive,
 }
@@ -64,7 +68,7 @@ pub enum Stream {
 impl Stream {
     /// Every subtree, outputs first: a key expression reaching into several is named by the
     /// first it meets here, and feeding armtwin its own outputs is the worse mistake.
-    pub const ALL: [Self; 13] = [
+    pub const ALL: [Self; 14] = [
         Self::Pose,
         Self::Deviation,
         Self::Metrics,
@@ -77,6 +81,7 @@ impl Stream {
         Self::Reset,
         Self::Ik,
         Self::Calibrate,
+        Self::ApplyCalibration,
         Self::Alive,
     ];
 
@@ -93,9 +98,10 @@ impl Stream {
             Self::Measured => "measured",
             Self::State => "state",
             Self::Fk => "fk",
-            Self::Reset => "reset",
+            Self::Reset => "admin/reset",
             Self::Ik => "ik",
             Self::Calibrate => "calibrate",
+            Self::ApplyCalibration => "admin/calibrate",
             Self::Alive => "alive",
         }
     }
@@ -303,9 +309,10 @@ mod tests {
                 "measured",
                 "state",
                 "fk",
-                "reset",
+                "admin/reset",
                 "ik",
                 "calibrate",
+                "admin/calibrate",
                 "alive"
             ]
         );

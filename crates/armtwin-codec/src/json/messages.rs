@@ -185,6 +185,9 @@ impl EventMessage {
             EventDetail::StampGap { gap_s } => json!({ "gap_s": gap_s }),
             EventDetail::Restart { from_s, to_s } => json!({ "from_s": from_s, "to_s": to_s }),
             EventDetail::SeqGap { expected, got } => json!({ "expected": expected, "got": got }),
+            EventDetail::SeqRestart { from_seq, to_seq } => {
+                json!({ "from_seq": from_seq, "to_seq": to_seq })
+            }
             EventDetail::Unpaired { cause, measured_s } => {
                 json!({ "cause": cause, "measured_s": measured_s })
             }

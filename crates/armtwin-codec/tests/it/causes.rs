@@ -34,9 +34,9 @@ const WIRE_NAMES: [&str; 31] = [
     "joint_limits",
     "out_of_order",
     "duplicate_stamp",
-    "seq_not_increasing",
     "out_of_range",
     "unknown_robot",
+    "fleet_full",
     "cdr_header",
     "cdr_truncated",
     "cdr_malformed",
@@ -54,9 +54,9 @@ fn the_core_and_the_codecs_name_exactly_the_old_causes() {
         RejectCause::JointLimits,
         RejectCause::OutOfOrder,
         RejectCause::DuplicateStamp,
-        RejectCause::SeqNotIncreasing,
         RejectCause::OutOfRange,
         RejectCause::UnknownRobot,
+        RejectCause::FleetFull,
     ];
     let names: Vec<&str> = core
         .iter()

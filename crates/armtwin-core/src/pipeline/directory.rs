@@ -2,17 +2,21 @@
 //!
 //! A [`RobotDirectory`] gives every robot a [`Robot`] handle (id, settings and a dense
 //! [`RobotIndex`]) the first time it is asked for it: configured robots at construction, robots
-//! under the default settings when first seen. An entry never changes once made, so a caller
-//! may resolve and decode against it without holding the twins' state (the service resolves under
-//! a read lock of its own, decodes, and only then locks the pipeline).
+//! under the default settings when first seen, as long as the directory holds fewer than its
+//! limit. An entry never changes once made, so a caller may resolve and decode against it
+//! without holding the twins' state (the service resolves under a read lock of its own, decodes,
+//! and only then locks the pipeline). A robot admitted under the default may be forgotten (a
+//! service retires robots that stopped sending): its index is then free for the next robot
+//! admitted, so a fleet that churns keeps its per-robot vectors as long as its largest size.
 
 use std::collections::HashMap;
 use std::sync::Arc;
 
 use super::RobotSettings;
 
-/// A robot's place in its [`RobotDirectory`]: dense from 0 and stable for the directory's life,
-/// so the pipeline and sinks keep per-robot state in a `Vec` and never hash the id again.
+/// A robot's place in its [`RobotDirectory`]: dense from 0 and stable for as long as the robot is
+/// in the directory, so the pipeline and sinks keep per-robot state in a `Vec` and never hash the
+/// id again. The index of a forgotten robot is given to the next robot admitted.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct RobotIndex(usize);
 
@@ -58,16 +62,32 @@ impl Robot {
     }
 }
 
-/// Why a robot may not be tracked: it is neither configured nor covered by a default.
+/// Why a robot may not be tracked.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct UnknownRobot;
+pub enum Untracked {
+    /// It is neither configured nor covered by a default.
+    Unknown,
+    /// The directory holds as many robots as it may ([`RobotDirectory::limit_to`]).
+    Full {
+        /// The limit.
+        max_robots: usize,
+    },
+}
 
-/// Robots with settings, by id; grows only (by robots under the default settings).
+/// Robots with settings, by id: the configured ones for good, robots under the default settings
+/// from their admission until they are forgotten.
 #[derive(Debug)]
 pub struct RobotDirectory {
     default_settings: Option<Arc<RobotSettings>>,
     index_of: HashMap<Arc<str>, RobotIndex>,
-    robots: Vec<Robot>,
+    /// By index; `None` where a forgotten robot was.
+    robots: Vec<Option<Robot>>,
+    /// Indices of forgotten robots, reused first.
+    free: Vec<RobotIndex>,
+    /// The configured robots are the first `configured` indices, never forgotten.
+    configured: usize,
+    /// Most robots held; configured robots always fit.
+    max_robots: usize,
 }
 
 impl RobotDirectory {
@@ -84,6 +104,9 @@ impl RobotDirectory {
             default_settings: default_settings.map(Arc::new),
             index_of: HashMap::with_capacity(configured.len()),
             robots: Vec::with_capacity(configured.len()),
+            free: Vec::new(),
+            configured: configured.len(),
+            max_robots: usize::MAX,
         };
         for (id, settings) in configured {
             directory.insert(&id, Arc::new(settings));
@@ -91,11 +114,24 @@ impl RobotDirectory {
         directory
     }
 
+    /// Admits robots under the default settings only while fewer than `max_robots` robots are
+    /// held (configured ones included, which always fit).
+    #[must_use]
+    pub fn limit_to(mut self, max_robots: usize) -> Self {
+        self.max_robots = max_robots;
+        self
+    }
+
     fn insert(&mut self, id: &str, settings: Arc<RobotSettings>) -> RobotIndex {
-        let index = RobotIndex(self.robots.len());
         let id: Arc<str> = Arc::from(id);
+        let index = if let Some(index) = self.free.pop() {
+            index
+        } else {
+            self.robots.push(None);
+            RobotIndex(self.robots.len() - 1)
+        };
         self.index_of.insert(Arc::clone(&id), index);
-        self.robots.push(Robot {
+        self.robots[index.0] = Some(Robot {
             index,
             id,
             settings,
@@ -108,24 +144,86 @@ impl RobotDirectory {
     #[must_use]
     pub fn find(&self, id: &str) -> Option<&Robot> {
         let index = self.index_of.get(id)?;
-        self.robots.get(index.0)
+        self.robots.get(index.0)?.as_ref()
     }
 
-    /// The robot `id`, admitted under the default settings if it is not yet in the directory.
-    pub fn admit(&mut self, id: &str) -> Result<&Robot, UnknownRobot> {
+    /// The robot `id`, admitted under the default settings if it is not yet in the directory and
+    /// the directory is not full. A refused id allocates nothing.
+    pub fn admit(&mut self, id: &str) -> Result<&Robot, Untracked> {
         let index = if let Some(&index) = self.index_of.get(id) {
             index
         } else {
-            let settings = self.default_settings.clone().ok_or(UnknownRobot)?;
+            self.admission()?;
+            let settings = self.default_settings.clone().ok_or(Untracked::Unknown)?;
             self.insert(id, settings)
         };
-        self.robots.get(index.0).ok_or(UnknownRobot)
+        self.robots
+            .get(index.0)
+            .and_then(Option::as_ref)
+            .ok_or(Untracked::Unknown)
     }
 
-    /// Whether robots that are not listed are admitted (under the default settings).
+    /// Whether a robot not in the directory would be admitted now, or why not; admits nothing
+    /// (a caller checks under a read lock before taking a write lock to admit).
+    pub fn admission(&self) -> Result<(), Untracked> {
+        if self.default_settings.is_none() {
+            Err(Untracked::Unknown)
+        } else if self.is_full() {
+            Err(Untracked::Full {
+                max_robots: self.max_robots,
+            })
+        } else {
+            Ok(())
+        }
+    }
+
+    /// Whether no further robot may be admitted.
+    fn is_full(&self) -> bool {
+        self.index_of.len() >= self.max_robots
+    }
+
+    /// The most robots held.
     #[must_use]
-    pub fn admits_unlisted(&self) -> bool {
-        self.default_settings.is_some()
+    pub fn max_robots(&self) -> usize {
+        self.max_robots
+    }
+
+    /// Robots held (configured and admitted).
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.index_of.len()
+    }
+
+    /// Whether no robot is held.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.index_of.is_empty()
+    }
+
+    /// Whether `robot` is one of the configured robots (never forgotten).
+    #[must_use]
+    pub fn is_configured(&self, robot: &Robot) -> bool {
+        robot.index.0 < self.configured
+    }
+
+    /// Forgets `robot` if it is this directory's entry for its id and was admitted under the
+    /// default: its id no longer resolves and its index goes to the next robot admitted. A
+    /// configured robot, or a handle of an entry already forgotten, is left alone (`false`).
+    pub fn forget(&mut self, robot: &Robot) -> bool {
+        let current = self.robots.get(robot.index.0).and_then(Option::as_ref);
+        if self.is_configured(robot)
+            || !current.is_some_and(|entry| Arc::ptr_eq(&entry.id, &robot.id))
+        {
+            return false;
+        }
+        self.index_of.remove(robot.id());
+        self.robots[robot.index.0] = None;
+        self.free.push(robot.index);
+        // After a flood of ids has come and gone, give the table's memory back.
+        if self.index_of.capacity() > 64 && self.index_of.len() * 4 < self.index_of.capacity() {
+            self.index_of.shrink_to_fit();
+        }
+        true
     }
 
     /// The settings robot `id` has or would get, without admitting it.
@@ -135,5 +233,96 @@ impl RobotDirectory {
             .map(|robot| &robot.settings)
             .or(self.default_settings.as_ref())
             .map(Arc::as_ref)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(
+        clippy::expect_used,
+        reason = "a test that fails an expectation fails the test"
+    )]
+
+    use super::*;
+    use crate::model::RobotModel;
+    use crate::pipeline::AlarmConfig;
+
+    fn settings() -> RobotSettings {
+        RobotSettings {
+            model: Arc::new(RobotModel::nominal("ur10e").expect("catalog")),
+            alarm: AlarmConfig::default(),
+            sensors: Vec::new(),
+            self_calibration: None,
+        }
+    }
+
+    fn directory(max_robots: usize) -> RobotDirectory {
+        let configured = HashMap::from([
+            ("cell/a".to_owned(), settings()),
+            ("cell/b".to_owned(), settings()),
+        ]);
+        RobotDirectory::new(Some(settings()), configured).limit_to(max_robots)
+    }
+
+    #[test]
+    fn a_full_directory_refuses_new_ids_and_keeps_admitting_known_ones() {
+        let mut robots = directory(3);
+        assert!(robots.admit("new/1").is_ok());
+        assert_eq!(
+            robots.admit("new/2").map(Robot::index),
+            Err(Untracked::Full { max_robots: 3 })
+        );
+        assert!(robots.admit("new/1").is_ok(), "a robot held is found");
+        assert!(
+            robots.admit("cell/a").is_ok(),
+            "configured robots always fit"
+        );
+        assert_eq!(robots.len(), 3);
+        // Configured robots beyond the limit are held, and nothing else is admitted.
+        let mut over = directory(1);
+        assert_eq!(over.len(), 2);
+        assert!(matches!(over.admit("new/1"), Err(Untracked::Full { .. })));
+        let mut unknown = RobotDirectory::new(None, HashMap::new());
+        assert_eq!(
+            unknown.admit("x").map(Robot::index),
+            Err(Untracked::Unknown)
+        );
+    }
+
+    #[test]
+    fn a_forgotten_robot_frees_its_index_for_the_next_one_and_configured_ones_stay() {
+        let mut robots = directory(3);
+        let first = robots.admit("new/1").expect("admitted").clone();
+        assert!(!robots.forget(&robots.find("cell/a").expect("configured").clone()));
+        assert!(robots.forget(&first));
+        assert!(!robots.forget(&first), "forgotten once");
+        assert!(robots.find("new/1").is_none());
+        let second = robots.admit("new/2").expect("room again").clone();
+        assert_eq!(second.index(), first.index(), "the index is reused");
+        assert!(
+            !robots.forget(&first),
+            "a stale handle does not forget its index's new robot"
+        );
+        assert_eq!(robots.find("new/2").map(Robot::index), Some(second.index()));
+        let again = robots.admit("new/1");
+        assert!(matches!(again, Err(Untracked::Full { .. })), "full again");
+    }
+
+    #[test]
+    fn forgetting_a_flood_of_ids_gives_the_table_back() {
+        let mut robots = directory(100_000);
+        let handles: Vec<Robot> = (0..10_000)
+            .map(|i| robots.admit(&format!("flood/{i}")).expect("room").clone())
+            .collect();
+        let capacity = robots.index_of.capacity();
+        for robot in &handles {
+            assert!(robots.forget(robot));
+        }
+        assert_eq!(robots.len(), 2);
+        assert!(
+            robots.index_of.capacity() * 16 < capacity,
+            "{} of {capacity}",
+            robots.index_of.capacity()
+        );
     }
 }

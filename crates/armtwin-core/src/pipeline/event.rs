@@ -25,8 +25,9 @@ pub enum EventKind {
     Gap,
     /// A measured pose that could not be paired with the twin.
     Unpaired,
-    /// The gateway's clock went back by more than `restart_s`: alignment and the metrics window
-    /// started afresh.
+    /// The gateway restarted: its clock went back by more than `restart_s` (alignment and the
+    /// metrics window started afresh), or its `seq` went back while its stamps moved on (it
+    /// counts afresh).
     Restart,
     /// The robot's model was replaced (a calibration applied): a new metrics epoch began.
     Epoch,
@@ -71,12 +72,12 @@ pub enum RejectCause {
     OutOfOrder,
     /// A stamp equal to its stream's previous one.
     DuplicateStamp,
-    /// A gateway `seq` that does not increase.
-    SeqNotIncreasing,
     /// A measured pose too far from the twin to be one of this robot.
     OutOfRange,
     /// The robot is neither configured nor covered by a default.
     UnknownRobot,
+    /// The robot is new and the fleet holds as many robots as it may.
+    FleetFull,
     /// A decoder refused the payload: its stable `snake_case` class name, one of a fixed set
     /// its codec declares (the core knows none of them).
     Decode(&'static str),
@@ -93,9 +94,9 @@ impl RejectCause {
             Self::JointLimits => "joint_limits",
             Self::OutOfOrder => "out_of_order",
             Self::DuplicateStamp => "duplicate_stamp",
-            Self::SeqNotIncreasing => "seq_not_increasing",
             Self::OutOfRange => "out_of_range",
             Self::UnknownRobot => "unknown_robot",
+            Self::FleetFull => "fleet_full",
             Self::Decode(kind) => kind,
         }
     }
@@ -169,6 +170,13 @@ pub enum EventDetail {
         /// The new stamp (s).
         to_s: f64,
     },
+    /// The gateway's `seq` went back while its stamps moved on.
+    SeqRestart {
+        /// The previous sequence number.
+        from_seq: u64,
+        /// The new one.
+        to_seq: u64,
+    },
     /// A measured pose left unpaired.
     Unpaired {
         /// The cause, e.g. `joint_gap`, `wait_expired`.
@@ -201,13 +209,6 @@ pub enum Reason<'a> {
         /// The previous stamp (s).
         last_s: f64,
     },
-    /// The gateway `seq` does not follow the previous one.
-    Seq {
-        /// The one received.
-        seq: u64,
-        /// The previous one.
-        last: u64,
-    },
     /// A measured pose too far from the twin.
     OutOfRange {
         /// Its position (m, output frame).
@@ -217,6 +218,11 @@ pub enum Reason<'a> {
     },
     /// The robot may not be tracked.
     UnknownRobot,
+    /// The robot is new and the fleet is full.
+    FleetFull {
+        /// The most robots the fleet holds.
+        max_robots: usize,
+    },
     /// An alarm or its recovery.
     Alarm {
         /// The metric's unit (`m`, `rad`).
@@ -231,6 +237,8 @@ pub enum Reason<'a> {
     },
     /// Gateway sequence numbers skipped: the detail says it all.
     SeqGap,
+    /// The gateway's `seq` went back while its stamps moved on: the detail says it all.
+    SeqRestart,
     /// A stream's clock went back.
     Restart {
         /// `joint` or `measured`.
@@ -291,9 +299,6 @@ impl fmt::Display for Event<'_> {
                     "{stream} stamp {stamp_s} s is {relation} the previous one ({last_s} s)"
                 )
             }
-            (Reason::Seq { seq, last }, _) => {
-                write!(f, "seq {seq} does not follow the previous seq {last}")
-            }
             (
                 Reason::OutOfRange {
                     position_m,
@@ -307,6 +312,11 @@ impl fmt::Display for Event<'_> {
             (Reason::UnknownRobot, _) => write!(
                 f,
                 "robot '{}' is not configured and unknown robots are rejected",
+                self.robot
+            ),
+            (Reason::FleetFull { max_robots }, _) => write!(
+                f,
+                "robot '{}' is new and the fleet already holds {max_robots} robots (max_robots)",
                 self.robot
             ),
             (
@@ -343,6 +353,11 @@ impl fmt::Display for Event<'_> {
                      taken as a gateway clock restart; alignment and the metrics window start afresh"
                 )
             }
+            (Reason::SeqRestart, EventDetail::SeqRestart { from_seq, to_seq }) => write!(
+                f,
+                "gateway seq went back from {from_seq} to {to_seq} while its stamps moved on: \
+                 taken as a gateway restart; its count starts afresh, the metrics continue"
+            ),
             (Reason::Unpaired { reason, align }, EventDetail::Unpaired { measured_s, .. }) => {
                 write!(
                     f,
@@ -430,11 +445,16 @@ mod tests {
             ),
             (
                 event(
-                    EventKind::Rejected,
-                    rejected(RejectCause::SeqNotIncreasing),
-                    Reason::Seq { seq: 4, last: 7 },
+                    EventKind::Restart,
+                    EventDetail::SeqRestart {
+                        from_seq: 99,
+                        to_seq: 0,
+                    },
+                    Reason::SeqRestart,
                 ),
-                "seq 4 does not follow the previous seq 7".to_owned(),
+                "gateway seq went back from 99 to 0 while its stamps moved on: taken as a gateway \
+                 restart; its count starts afresh, the metrics continue"
+                    .to_owned(),
             ),
             (
                 event(
@@ -455,6 +475,14 @@ mod tests {
                     Reason::UnknownRobot,
                 ),
                 "robot 'r1' is not configured and unknown robots are rejected".to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Rejected,
+                    rejected(RejectCause::FleetFull),
+                    Reason::FleetFull { max_robots: 1000 },
+                ),
+                "robot 'r1' is new and the fleet already holds 1000 robots (max_robots)".to_owned(),
             ),
             (
                 event(

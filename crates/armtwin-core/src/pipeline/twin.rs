@@ -36,7 +36,7 @@ const MAX_DEVIATION: f64 = 100.0;
 enum Refusal {
     /// Its joints are invalid (count, finiteness, limits).
     Joints,
-    /// Its stamp or gateway seq does not follow the previous sample's.
+    /// Its stamp does not follow the previous sample's.
     Order,
 }
 
@@ -460,11 +460,22 @@ impl Twin {
         if let Some(seq) = sample.seq {
             if let Some(last) = self.last_gateway_seq {
                 if seq <= last {
-                    let reason = Reason::Seq { seq, last };
-                    self.count_rejection(key, stamp_s, RejectCause::SeqNotIncreasing, reason, sink);
-                    return Err(Refusal::Order);
-                }
-                if seq != last + 1 {
+                    // The stamp moved on (an older or equal one was refused above), so this is
+                    // not a resend but a gateway that counts afresh: refusing it would lock the
+                    // robot out until the new count passes the old one.
+                    let detail = EventDetail::SeqRestart {
+                        from_seq: last,
+                        to_seq: seq,
+                    };
+                    let event = self.event(
+                        stamp_s,
+                        EventKind::Restart,
+                        Some(key),
+                        detail,
+                        Reason::SeqRestart,
+                    );
+                    sink.event(&event);
+                } else if seq != last + 1 {
                     let detail = EventDetail::SeqGap {
                         expected: last + 1,
                         got: seq,

@@ -72,6 +72,16 @@ impl Default for SelfCalibrationSection {
     }
 }
 
+/// `[service] max_robots` unless set: the fleet a 2-core machine holds with room to spare
+/// (BENCHMARKS.md: a few kilobytes per quiet robot, tens per streaming one), and far more robots
+/// than one site has.
+pub(super) const DEFAULT_MAX_ROBOTS: usize = 20_000;
+
+/// `[service] forget_after_s` unless set: a week. Longer than a weekend or a maintenance stop, so
+/// a robot that comes back keeps its cumulative metrics; short enough that the ids of robots
+/// replaced, renamed or made up do not hold `max_robots` places for good.
+pub(super) const DEFAULT_FORGET_AFTER_S: f64 = 7.0 * 24.0 * 3600.0;
+
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub(super) struct ServiceSection {
@@ -87,6 +97,8 @@ pub(super) struct ServiceSection {
     pub(super) robots: String,
     pub(super) state_dir: Option<PathBuf>,
     pub(super) snapshot_period_s: f64,
+    pub(super) max_robots: usize,
+    pub(super) forget_after_s: f64,
 }
 
 impl Default for ServiceSection {
@@ -105,6 +117,8 @@ impl Default for ServiceSection {
             robots: "**".to_owned(),
             state_dir: None,
             snapshot_period_s: 10.0,
+            max_robots: DEFAULT_MAX_ROBOTS,
+            forget_after_s: DEFAULT_FORGET_AFTER_S,
         }
     }
 }

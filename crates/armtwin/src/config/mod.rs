@@ -167,6 +167,11 @@ pub struct ServiceConfig {
     pub event_budget: EventBudget,
     /// Reject robots that are not configured (else they get `[robots.default]`).
     pub reject_unknown: bool,
+    /// `[service] max_robots`: the most robots tracked; configured robots always fit.
+    pub max_robots: usize,
+    /// `[service] forget_after_s`: how long a robot admitted under the default may send nothing
+    /// before it is retired; `None` (0 in the file): never.
+    pub forget_after: Option<Duration>,
     /// The pipeline's shared settings.
     pub pipeline: PipelineConfig,
     /// `[robots.default]`, unless unknown robots are rejected.
@@ -272,6 +277,9 @@ impl ServiceConfig {
                 burst: service.events_burst,
             },
             reject_unknown: service.reject_unknown,
+            max_robots: service.max_robots,
+            forget_after: (service.forget_after_s > 0.0)
+                .then(|| Duration::from_secs_f64(service.forget_after_s)),
             pipeline: PipelineConfig {
                 window_s: service.window_s,
                 window_max_samples: service.window_max_samples,
@@ -467,6 +475,25 @@ fn check_service_and_align(
             return Err(invalid(
                 "service.window_max_samples",
                 "must be at least 1".to_owned(),
+            ));
+        }
+        if service.max_robots == 0 {
+            return Err(invalid(
+                "service.max_robots",
+                "must be at least 1".to_owned(),
+            ));
+        }
+        // Up to a year: beyond it, `Duration` arithmetic on the service's clock is the limit,
+        // not the fleet.
+        if !(service.forget_after_s.is_finite()
+            && (0.0..=365.0 * 24.0 * 3600.0).contains(&service.forget_after_s))
+        {
+            return Err(invalid(
+                "service.forget_after_s",
+                format!(
+                    "{} must be 0 (never) or a number of seconds up to a year",
+                    service.forget_after_s
+                ),
             ));
         }
         Ok(AlignConfig {

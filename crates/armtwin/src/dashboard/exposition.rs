@@ -199,6 +199,21 @@ fn register_totals(registry: &mut Registry, totals: &ServiceTotals) {
             "Outputs Zenoh refused to send",
             totals.publish_errors,
         ),
+        (
+            "robots_refused",
+            "Samples of new robots refused because the fleet was full (service.max_robots)",
+            totals.robots_refused,
+        ),
+        (
+            "robots_retired",
+            "Robots retired after service.forget_after_s without input",
+            totals.robots_retired,
+        ),
+        (
+            "snapshot_failures",
+            "Snapshot writes that failed (tried again next period)",
+            totals.snapshot_failures,
+        ),
     ];
     for (name, help, value) in counters {
         let counter: Counter<u64, AtomicU64> = Counter::default();
@@ -208,6 +223,13 @@ fn register_totals(registry: &mut Registry, totals: &ServiceTotals) {
     let tracked: Gauge<f64, AtomicU64> = Gauge::default();
     tracked.set(totals.robots as f64);
     registry.register("robots_tracked", "Robots the twin tracks", tracked);
+    let max_robots: Gauge<f64, AtomicU64> = Gauge::default();
+    max_robots.set(totals.max_robots as f64);
+    registry.register(
+        "robots_max",
+        "The most robots the twin tracks (service.max_robots)",
+        max_robots,
+    );
     if let Some(age_s) = totals.snapshot_age_s {
         let age: Gauge<f64, AtomicU64> = Gauge::default();
         age.set(age_s);

@@ -369,6 +369,9 @@ struct TotalsJson {
     poses: u64,
     publish_errors: u64,
     robots: usize,
+    max_robots: usize,
+    robots_refused: u64,
+    robots_retired: u64,
 }
 
 impl From<&ServiceTotals> for TotalsJson {
@@ -378,6 +381,9 @@ impl From<&ServiceTotals> for TotalsJson {
             poses: totals.poses,
             publish_errors: totals.publish_errors,
             robots: totals.robots,
+            max_robots: totals.max_robots,
+            robots_refused: totals.robots_refused,
+            robots_retired: totals.robots_retired,
         }
     }
 }
@@ -808,6 +814,9 @@ mod tests {
             format!("armtwin_rejected_total{{{robot},cause=\"not_json\"}} 2"),
             format!("armtwin_alarm_active{{{robot},metric=\"position\"}} 1"),
             "armtwin_robots_tracked 0".to_owned(),
+            "armtwin_robots_refused_total 0".to_owned(),
+            "armtwin_robots_retired_total 0".to_owned(),
+            "armtwin_snapshot_failures_total 0".to_owned(),
         ] {
             assert!(text.contains(&line), "{line} not in\n{text}");
         }

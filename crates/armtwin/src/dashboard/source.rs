@@ -47,8 +47,16 @@ pub struct ServiceTotals {
     pub publish_errors: u64,
     /// Robots tracked.
     pub robots: usize,
+    /// `[service] max_robots`.
+    pub max_robots: usize,
+    /// Samples of new robots refused because the fleet was full.
+    pub robots_refused: u64,
+    /// Robots retired after `[service] forget_after_s` without input.
+    pub robots_retired: u64,
     /// Seconds since the snapshot was last written, once it has been (with `state_dir`).
     pub snapshot_age_s: Option<f64>,
+    /// Snapshot writes that failed (a full or read-only disk); each is tried again next period.
+    pub snapshot_failures: u64,
 }
 
 /// One robot as its page reads it.

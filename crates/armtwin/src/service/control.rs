@@ -11,12 +11,14 @@ use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, channel};
 use std::time::{Duration, Instant};
 
 use tracing::{debug, info, warn};
+use zenoh::liveliness::LivelinessToken;
 
-use super::fleet::Fleet;
-use super::publish::RobotPublishers;
+use super::fleet::{Fleet, Retired, RobotState};
+use super::memory::give_back_freed_memory;
+use super::publish::{Outputs, RobotPublishers};
 use super::self_calibration::{FitJob, fitting_thread, schedule_fits};
 use super::sink::ZenohSink;
-use super::snapshot::save_snapshot;
+use super::snapshot::{save_final_snapshot, save_snapshot};
 use super::{ServeReport, ServiceError};
 use crate::codec::json;
 use crate::config::SelfCalibrationConfig;
@@ -53,6 +55,77 @@ fn publish_due_metrics(fleet: &Fleet) {
 /// mostly quiet robots holds route caches only for the few that stream.
 pub(super) const ROUTE_CACHE_AFTER_POSES: u64 = 64;
 
+/// Retires the robots idle for `forget_after` ([`Fleet::retire_idle`]), then, without any lock,
+/// finishes each (its final metrics and unpaired measurements go out) and undeclares its
+/// publishers, input keys and liveliness token.
+fn retire_idle(fleet: &Fleet, forget_after: Duration) {
+    let retired = fleet.retire_idle(forget_after);
+    if retired.is_empty() {
+        return;
+    }
+    let count = retired.len();
+    let mut declarations = Declarations::default();
+    for Retired { robot, mut state } in retired {
+        declarations.finish(&fleet.outputs, robot.shared_id(), &mut state);
+        debug!(
+            robot = robot.id(),
+            "robot retired: nothing from it for service.forget_after_s"
+        );
+    }
+    declarations.undeclare(&fleet.outputs);
+    give_back_freed_memory();
+    info!(
+        robots = count,
+        forget_after_s = forget_after.as_secs_f64(),
+        "robots retired: nothing from them for service.forget_after_s"
+    );
+}
+
+/// The publishers and tokens of robots whose twins were finished, to undeclare together.
+#[derive(Default)]
+struct Declarations {
+    publishers: Vec<(Arc<str>, RobotPublishers)>,
+    tokens: Vec<(Arc<str>, LivelinessToken)>,
+}
+
+impl Declarations {
+    /// Finishes `state`'s twin, if it has one (its final metrics and unpaired measurements go
+    /// out), and takes its publishers and token; whether it had a twin.
+    fn finish(&mut self, outputs: &Outputs, id: &Arc<str>, state: &mut RobotState) -> bool {
+        let finished = state.twin.as_mut().map(|twin| {
+            twin.finish(&mut ZenohSink::of(outputs, &mut state.outputs));
+        });
+        if let Some(publishers) = state.outputs.declared.take() {
+            self.publishers.push((Arc::clone(id), publishers));
+        }
+        if let Some(token) = state.outputs.token.take() {
+            self.tokens.push((Arc::clone(id), token));
+        }
+        finished.is_some()
+    }
+
+    fn undeclare(self, outputs: &Outputs) {
+        outputs.undeclare_all(self.publishers, self.tokens);
+    }
+}
+
+/// The control thread's periods.
+#[derive(Clone, Copy)]
+pub(super) struct Periods {
+    /// `[service] metrics_period_ms`.
+    pub(super) metrics: Duration,
+    /// `[self_calibration]` (its refit period).
+    pub(super) self_calibration: SelfCalibrationConfig,
+    /// `[service] forget_after_s`, if robots are ever retired.
+    pub(super) forget_after: Option<Duration>,
+}
+
+/// How often idle robots are looked for: a quarter of `forget_after` (a robot is retired at
+/// most a quarter late), between 0.1 s and a minute.
+fn sweep_period(forget_after: Duration) -> Duration {
+    (forget_after / 4).clamp(Duration::from_millis(100), Duration::from_secs(60))
+}
+
 /// What the control thread is asked to do.
 pub(super) enum Control {
     /// Declare a newly tracked robot's liveliness token.
@@ -69,34 +142,44 @@ struct Schedule {
     metrics_period: Duration,
     refit_period: Duration,
     snapshot_period: Option<Duration>,
+    sweep_period: Option<Duration>,
     next_metrics: Instant,
     next_refit: Instant,
     next_snapshot: Option<Instant>,
+    next_sweep: Option<Instant>,
 }
 
 /// The duties due at one turn of the control loop.
+#[allow(
+    clippy::struct_excessive_bools,
+    reason = "independent duties, any combination due at once"
+)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct Due {
     metrics: bool,
     refit: bool,
     snapshot: bool,
+    /// Look for idle robots to retire.
+    sweep: bool,
 }
 
 impl Schedule {
-    /// Each duty first due one period after `now`; snapshots only with a period.
+    /// Each duty first due one period after `now`; snapshots and sweeps only with a period.
     fn new(
         now: Instant,
         metrics_period: Duration,
         refit_period: Duration,
-        snapshot_period: Option<Duration>,
+        (snapshot_period, sweep_period): (Option<Duration>, Option<Duration>),
     ) -> Self {
         Self {
             metrics_period,
             refit_period,
             snapshot_period,
+            sweep_period,
             next_metrics: now + metrics_period,
             next_refit: now + refit_period,
             next_snapshot: snapshot_period.map(|period| now + period),
+            next_sweep: sweep_period.map(|period| now + period),
         }
     }
 
@@ -107,9 +190,10 @@ impl Schedule {
         if declarations_waiting {
             return Duration::ZERO;
         }
-        let next = self.next_metrics.min(self.next_refit);
-        self.next_snapshot
-            .map_or(next, |snapshot| next.min(snapshot))
+        [self.next_snapshot, self.next_sweep]
+            .into_iter()
+            .flatten()
+            .fold(self.next_metrics.min(self.next_refit), Instant::min)
             .saturating_duration_since(now)
     }
 
@@ -128,12 +212,45 @@ impl Schedule {
         if snapshot {
             self.next_snapshot = self.snapshot_period.map(|period| now + period);
         }
+        let sweep = self.next_sweep.is_some_and(|due| now >= due);
+        if sweep {
+            self.next_sweep = self.sweep_period.map(|period| now + period);
+        }
         Due {
             metrics,
             refit,
             snapshot,
+            sweep,
         }
     }
+}
+
+/// What the control thread's duties work with.
+struct Duties<'a> {
+    /// The self-calibration thread's queue.
+    jobs: &'a Sender<FitJob>,
+    store: Option<&'a SnapshotStore>,
+    forget_after: Option<Duration>,
+}
+
+/// Gives `entity` (a token or publishers declared for `robot` without any lock) to the robot's
+/// cell with `install`, or back to the caller, to undeclare, when the robot was retired
+/// meanwhile.
+fn give_to_live_cell<T>(
+    fleet: &Fleet,
+    robot: &Robot,
+    entity: T,
+    install: impl FnOnce(&mut super::fleet::RobotState, T),
+) -> Option<T> {
+    let Some(cell) = fleet.live_cell(robot) else {
+        return Some(entity);
+    };
+    let mut guard = cell.lock();
+    if guard.is_retired() {
+        return Some(entity);
+    }
+    install(&mut guard, entity);
+    None
 }
 
 impl Control {
@@ -142,22 +259,30 @@ impl Control {
     pub(super) fn thread(
         fleet: Arc<Fleet>,
         rx: Receiver<Self>,
-        (metrics_period, self_calibration): (Duration, SelfCalibrationConfig),
+        periods: Periods,
         snapshots: Option<(SnapshotStore, Duration)>,
     ) -> Result<std::thread::JoinHandle<ServeReport>, ServiceError> {
         let (jobs_tx, jobs_rx) = channel::<FitJob>();
-        let fitting = fitting_thread(Arc::clone(&fleet), jobs_rx, self_calibration)?;
+        let fitting = fitting_thread(Arc::clone(&fleet), jobs_rx, periods.self_calibration)?;
         std::thread::Builder::new()
             .name("armtwin-control".to_owned())
             .spawn(move || {
                 let schedule = Schedule::new(
                     Instant::now(),
-                    metrics_period,
-                    self_calibration.refit_period,
-                    snapshots.as_ref().map(|(_, period)| *period),
+                    periods.metrics,
+                    periods.self_calibration.refit_period,
+                    (
+                        snapshots.as_ref().map(|(_, period)| *period),
+                        periods.forget_after.map(sweep_period),
+                    ),
                 );
                 let store = snapshots.as_ref().map(|(store, _)| store);
-                let report = Self::run(&fleet, &rx, schedule, &jobs_tx, store);
+                let duties = Duties {
+                    jobs: &jobs_tx,
+                    store,
+                    forget_after: periods.forget_after,
+                };
+                let report = Self::run(&fleet, &rx, schedule, &duties);
                 // Closing the queue ends the fitting thread after its current fit.
                 drop(jobs_tx);
                 if fitting.join().is_err() {
@@ -172,11 +297,9 @@ impl Control {
         fleet: &Fleet,
         rx: &Receiver<Self>,
         mut schedule: Schedule,
-        jobs: &Sender<FitJob>,
-        store: Option<&SnapshotStore>,
+        duties: &Duties<'_>,
     ) -> ServeReport {
         let outputs = &fleet.outputs;
-        let mut tokens = Vec::new();
         // Streaming robots whose route caches are asked for and not yet declared.
         let mut undeclared = VecDeque::new();
         loop {
@@ -191,7 +314,17 @@ impl Control {
                 Ok(Self::Track(robot)) => match outputs.declare_token(robot.id()) {
                     Ok(token) => {
                         info!(robot = robot.id(), "tracking robot");
-                        tokens.push((Arc::clone(robot.shared_id()), token));
+                        // A robot retired meanwhile: its token goes at once.
+                        if let Some(token) =
+                            give_to_live_cell(fleet, &robot, token, |state, token| {
+                                state.outputs.token = Some(token);
+                            })
+                        {
+                            outputs.undeclare_all(
+                                Vec::new(),
+                                vec![(Arc::clone(robot.shared_id()), token)],
+                            );
+                        }
                     }
                     Err(e) => {
                         warn!(robot = robot.id(), error = %e, "cannot declare the robot's liveliness token");
@@ -202,7 +335,19 @@ impl Control {
                     if let Some(robot) = undeclared.pop_front() {
                         match outputs.declare(robot.id()) {
                             Ok(publishers) => {
-                                fleet.cell(&robot).lock().outputs.declared = Some(publishers);
+                                if let Some(publishers) = give_to_live_cell(
+                                    fleet,
+                                    &robot,
+                                    publishers,
+                                    |state, publishers| {
+                                        state.outputs.declared = Some(publishers);
+                                    },
+                                ) {
+                                    outputs.undeclare_all(
+                                        vec![(Arc::clone(robot.shared_id()), publishers)],
+                                        Vec::new(),
+                                    );
+                                }
                             }
                             Err(e) => {
                                 warn!(robot = robot.id(), error = %e, "cannot declare the robot's publishers");
@@ -214,31 +359,31 @@ impl Control {
                     }
                 }
             }
+            fleet.tick();
             let due = schedule.take_due(Instant::now());
             if due.metrics {
                 publish_due_metrics(fleet);
             }
             if due.refit {
-                schedule_fits(fleet, jobs);
+                schedule_fits(fleet, duties.jobs);
             }
-            if let (true, Some(store)) = (due.snapshot, store) {
-                save_snapshot(fleet, store);
+            if let (true, Some(forget_after)) = (due.sweep, duties.forget_after) {
+                retire_idle(fleet, forget_after);
+            }
+            if let (true, Some(store)) = (due.snapshot, duties.store) {
+                // A failure is counted and logged there; the next period tries again.
+                let _written = save_snapshot(fleet, store);
             }
         }
         // Set before any twin is finished: an input that takes a robot's lock after the control
         // thread finished that robot's twin sees it and is ignored.
         fleet.stop();
         let mut robots = 0;
-        let mut declared: Vec<(Arc<str>, RobotPublishers)> = Vec::new();
+        let mut declarations = Declarations::default();
         for cell in fleet.cells() {
             let mut guard = cell.lock();
-            let state = &mut *guard;
-            if let Some(tracked) = &mut state.twin {
-                tracked.finish(&mut ZenohSink::of(outputs, &mut state.outputs));
+            if declarations.finish(outputs, cell.robot.shared_id(), &mut guard) {
                 robots += 1;
-            }
-            if let Some(publishers) = state.outputs.declared.take() {
-                declared.push((Arc::clone(cell.robot.shared_id()), publishers));
             }
         }
         let report = ServeReport {
@@ -247,11 +392,10 @@ impl Control {
             robots,
             publish_errors: outputs.publish_errors.load(Ordering::Relaxed),
         };
-        if let Some(store) = store {
-            save_snapshot(fleet, store);
-            info!(path = %store.path().display(), "final snapshot written");
+        if let Some(store) = duties.store {
+            save_final_snapshot(fleet, store);
         }
-        outputs.undeclare_all(declared, tokens);
+        declarations.undeclare(outputs);
         report
     }
 }
@@ -266,6 +410,7 @@ mod tests {
         metrics: false,
         refit: false,
         snapshot: false,
+        sweep: false,
     };
 
     fn ms(ms: u64) -> Duration {
@@ -275,20 +420,20 @@ mod tests {
     #[test]
     fn waits_for_the_earliest_duty_and_not_at_all_while_declarations_wait() {
         let start = Instant::now();
-        let schedule = Schedule::new(start, ms(1000), ms(5000), Some(ms(300)));
+        let schedule = Schedule::new(start, ms(1000), ms(5000), (Some(ms(300)), None));
         assert_eq!(schedule.wait(start, false), ms(300));
         assert_eq!(schedule.wait(start + ms(100), false), ms(200));
         assert_eq!(schedule.wait(start, true), Duration::ZERO);
         // Past a deadline the wait is zero, not negative.
         assert_eq!(schedule.wait(start + ms(400), false), Duration::ZERO);
-        let without_snapshots = Schedule::new(start, ms(1000), ms(5000), None);
+        let without_snapshots = Schedule::new(start, ms(1000), ms(5000), (None, None));
         assert_eq!(without_snapshots.wait(start, false), ms(1000));
     }
 
     #[test]
     fn each_duty_falls_due_at_its_period_and_is_rescheduled_from_the_turn() {
         let start = Instant::now();
-        let mut schedule = Schedule::new(start, ms(1000), ms(2500), Some(ms(1500)));
+        let mut schedule = Schedule::new(start, ms(1000), ms(2500), (Some(ms(1500)), None));
         assert_eq!(schedule.take_due(start + ms(999)), NONE_DUE);
         assert_eq!(
             schedule.take_due(start + ms(1000)),
@@ -312,6 +457,7 @@ mod tests {
                 metrics: true,
                 refit: true,
                 snapshot: true,
+                sweep: false,
             }
         );
         assert_eq!(schedule.take_due(start + ms(9999)), NONE_DUE);
@@ -319,9 +465,35 @@ mod tests {
     }
 
     #[test]
+    fn idle_robots_are_looked_for_a_quarter_of_forget_after_apart_within_bounds() {
+        assert_eq!(super::sweep_period(ms(2000)), ms(500));
+        assert_eq!(
+            super::sweep_period(ms(100)),
+            ms(100),
+            "at most ten times a second"
+        );
+        assert_eq!(
+            super::sweep_period(Duration::from_secs(7 * 24 * 3600)),
+            Duration::from_secs(60),
+            "at least once a minute"
+        );
+        let start = Instant::now();
+        let mut schedule = Schedule::new(start, ms(1000), ms(5000), (None, Some(ms(500))));
+        assert_eq!(schedule.wait(start, false), ms(500));
+        assert_eq!(
+            schedule.take_due(start + ms(500)),
+            Due {
+                sweep: true,
+                ..NONE_DUE
+            }
+        );
+        assert_eq!(schedule.take_due(start + ms(900)), NONE_DUE);
+    }
+
+    #[test]
     fn without_a_snapshot_period_no_snapshot_is_ever_due() {
         let start = Instant::now();
-        let mut schedule = Schedule::new(start, ms(10), ms(10), None);
+        let mut schedule = Schedule::new(start, ms(10), ms(10), (None, None));
         for turn in 1..100 {
             assert!(!schedule.take_due(start + ms(turn * 7)).snapshot);
         }

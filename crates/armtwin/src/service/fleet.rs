@@ -4,10 +4,11 @@
 //! Must not publish, decode or declare anything itself: it hands out robots' cells, and the
 //! callers step, answer and publish with a cell's lock alone.
 
+#[cfg(debug_assertions)]
 use std::cell::Cell;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, RwLock, RwLockReadGuard};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use zenoh::key_expr::KeyExpr;
 
@@ -16,7 +17,7 @@ use super::self_calibration::CalibrationSlot;
 use super::sink::{RobotOutputState, ZenohSink};
 use crate::config::ServiceConfig;
 use crate::model::RobotModel;
-use crate::pipeline::{PipelineConfig, Robot, RobotDirectory, Sink, Twin};
+use crate::pipeline::{PipelineConfig, Robot, RobotDirectory, Sink, Twin, Untracked};
 use crate::ros2::PublisherSeq;
 
 /// Every robot the service tracks, shared by Zenoh's callbacks, the control and self-calibration
@@ -29,11 +30,18 @@ use crate::ros2::PublisherSeq;
 /// its link is not read.
 ///
 /// A sample finds its robot in `robots` under a read lock (one hash of the id; a robot under the
-/// default settings is admitted, under the write lock, on its first input), then the robot's
-/// cell in `cells` under that vector's read lock (added, under its write lock, on the robot's
-/// first input), and clones the cell's `Arc` out: no shared lock is held while it decodes
-/// against the cell's robot and steps the twin under the cell's own lock. Samples of different
-/// robots never wait on each other's processing; samples of one robot take turns on its lock.
+/// default settings is admitted, under the write lock, on its first input, while the fleet has
+/// room), then, still under it, the robot's cell in `cells` under that vector's read lock (added,
+/// under its write lock, on the robot's first input), and clones the cell's `Arc` out: no shared
+/// lock is held while it decodes against the cell's robot and steps the twin under the cell's own
+/// lock. Samples of different robots never wait on each other's processing; samples of one robot
+/// take turns on its lock.
+///
+/// **Retirement.** A robot admitted under the default that sent nothing for `forget_after` is
+/// retired by the control thread ([`Fleet::retire_idle`]): under both shared write locks its
+/// directory entry and cell slot go and its state is taken out of its cell, which is marked
+/// retired. A sample that found the cell just before sees the mark under the cell's lock and
+/// looks its robot up again, which admits it afresh: no sample is lost to a retirement.
 ///
 /// **Lock order**, held by this module: `robots`, then `cells`, then one robot's cell. Both
 /// shared locks are private here and no guard of them leaves this module, so only the functions
@@ -61,6 +69,23 @@ pub(super) struct Fleet {
     stopped: AtomicBool,
     /// When the snapshot was last written (with `state_dir`). A leaf lock.
     snapshot_written: Mutex<Option<Instant>>,
+    /// Samples of new robots refused because the fleet was full.
+    pub(super) refused_full: AtomicU64,
+    /// Robots retired for sending nothing for `forget_after`.
+    pub(super) retired: AtomicU64,
+    /// Snapshot writes that failed.
+    pub(super) snapshot_failures: AtomicU64,
+    /// Snapshot writes failed since the last one that succeeded: the first is logged as a
+    /// warning, the recovery as news, those between only counted.
+    pub(super) snapshot_failing: AtomicU64,
+    /// When a refusal for a full fleet was last logged (ms on [`Fleet::clock_ms`]), so a flood of
+    /// new ids logs once a minute, not once a sample.
+    full_logged_ms: AtomicU64,
+    /// The fleet's coarse clock: milliseconds since it was made, as of the control thread's last
+    /// turn ([`Fleet::tick`]). A sample stamps its robot's last input with it: one relaxed load,
+    /// where reading the system clock per sample would cost more than it tells.
+    clock_ms: AtomicU64,
+    started: Instant,
 }
 
 /// Where an input's robot id leads.
@@ -69,8 +94,9 @@ pub(super) enum Lookup {
     Found(Arc<RobotCell>),
     /// A robot of another instance (outside `[service] robots`): not this one's to take.
     Foreign,
-    /// A robot this instance may not track (not configured, and unknown robots are refused).
-    Refused,
+    /// A robot this instance may not track: not configured while unknown robots are refused,
+    /// or new while the fleet is full.
+    Refused(Untracked),
 }
 
 /// One robot's place in the fleet: its handle, readable without a lock, beside the lock of
@@ -91,6 +117,11 @@ pub(super) struct RobotState {
     /// By `[[sources]]` index: how a ROS source's `rmw_zenoh` sequence numbers become gateway
     /// `seq`s (a robot has one or two sources at most: a short list beats a map).
     pub(super) publisher_seqs: Vec<(usize, PublisherSeq)>,
+    /// The robot's last input, on the fleet's clock ([`Fleet::clock_ms`]).
+    last_input_ms: u64,
+    /// The robot was retired: this cell is no longer the fleet's, and an input that finds it
+    /// looks the robot up again.
+    retired: bool,
 }
 
 #[cfg(debug_assertions)]
@@ -158,6 +189,11 @@ pub(super) struct Stepping<'a> {
 }
 
 impl RobotState {
+    /// Whether the robot was retired: this state is no longer the fleet's.
+    pub(super) fn is_retired(&self) -> bool {
+        self.retired
+    }
+
     /// The robot's twin (created, and the robot announced, on its first input) and a sink of its
     /// outputs: the twin and the sink borrow separate parts of the entry.
     fn stepping<'a>(
@@ -179,27 +215,77 @@ impl RobotState {
     }
 }
 
+/// What a retirement took out of a robot's cell: what is left to finish and undeclare, without
+/// any lock.
+pub(super) struct Retired {
+    pub(super) robot: Robot,
+    pub(super) state: RobotState,
+}
+
+/// Robots retired under one hold of the shared write locks: a bound on how long samples of
+/// other robots wait while a large fleet retires at once.
+const RETIRE_BATCH: usize = 1024;
+
 impl Fleet {
     /// No robot tracked yet; outputs go out through `outputs`.
     pub(super) fn new(config: &ServiceConfig, outputs: Outputs) -> Self {
         Self {
             shard: config.shard.clone(),
             pipeline: config.pipeline,
-            robots: RwLock::new(RobotDirectory::new(
-                config.default_robot.clone(),
-                config.robots.clone(),
-            )),
+            robots: RwLock::new(
+                RobotDirectory::new(config.default_robot.clone(), config.robots.clone())
+                    .limit_to(config.max_robots),
+            ),
             cells: RwLock::new(Vec::new()),
             outputs,
             inputs: AtomicU64::new(0),
             stopped: AtomicBool::new(false),
             snapshot_written: Mutex::new(None),
+            refused_full: AtomicU64::new(0),
+            retired: AtomicU64::new(0),
+            snapshot_failures: AtomicU64::new(0),
+            snapshot_failing: AtomicU64::new(0),
+            full_logged_ms: AtomicU64::new(0),
+            clock_ms: AtomicU64::new(0),
+            started: Instant::now(),
         }
+    }
+
+    /// Advances the fleet's coarse clock to now (the control thread, at each turn).
+    pub(super) fn tick(&self) {
+        let now_ms = u64::try_from(self.started.elapsed().as_millis()).unwrap_or(u64::MAX);
+        self.clock_ms.store(now_ms, Ordering::Relaxed);
+    }
+
+    /// The fleet's coarse clock (ms since it was made, as of the last [`tick`](Self::tick)).
+    fn clock_ms(&self) -> u64 {
+        self.clock_ms.load(Ordering::Relaxed)
+    }
+
+    /// Counts a sample of a new robot refused for a full fleet; whether to log it (at most once
+    /// a minute).
+    pub(super) fn refuse_full(&self) -> bool {
+        let refused = self.refused_full.fetch_add(1, Ordering::Relaxed) + 1;
+        let now_ms = self.clock_ms();
+        let last_ms = self.full_logged_ms.load(Ordering::Relaxed);
+        if refused > 1 && now_ms.saturating_sub(last_ms) < 60_000 {
+            return false;
+        }
+        // One thread of those that see the minute pass logs.
+        self.full_logged_ms
+            .compare_exchange(last_ms, now_ms, Ordering::Relaxed, Ordering::Relaxed)
+            .is_ok()
+    }
+
+    /// Robots in the directory (configured and admitted) and the most it holds.
+    pub(super) fn occupancy(&self) -> (usize, usize) {
+        let robots = self.read_robots();
+        (robots.len(), robots.max_robots())
     }
 
     fn read_robots(&self) -> RwLockReadGuard<'_, RobotDirectory> {
         assert_no_cell_held("the robot directory");
-        // The directory only grows, one whole entry at a time: a panic cannot leave half of one.
+        // Entries are added and removed whole: a panic cannot leave half of one.
         self.robots.read().unwrap_or_else(PoisonError::into_inner)
     }
 
@@ -215,50 +301,67 @@ impl Fleet {
             .map(|settings| Arc::clone(&settings.model))
     }
 
-    /// Admits robot `id` under the default settings (or finds it configured); `None` if this
-    /// instance may not track it.
-    pub(super) fn admit(&self, id: &str) -> Option<Robot> {
+    /// Admits robot `id` under the default settings (or finds it configured or tracked), or
+    /// says why this instance may not track it.
+    pub(super) fn admit(&self, id: &str) -> Result<Robot, Untracked> {
         assert_no_cell_held("the robot directory");
         let mut robots = self.robots.write().unwrap_or_else(PoisonError::into_inner);
-        robots.admit(id).ok().cloned()
+        robots.admit(id).cloned()
     }
 
     /// Where an input of robot `id` goes: its cell (a robot under the default settings is
     /// admitted on its first input), or why it has none.
     pub(super) fn lookup(&self, id: &str) -> Lookup {
-        let admits_unlisted = {
+        let admission = {
             let robots = self.read_robots();
-            match robots.find(id) {
-                Some(robot) => return Lookup::Found(self.cell(robot)),
-                None => robots.admits_unlisted(),
+            if let Some(robot) = robots.find(id) {
+                // The cell is taken under the directory's lock: a retirement, which holds it for
+                // writing, cannot come between the two.
+                return Lookup::Found(self.cell(robot));
             }
+            robots.admission()
         };
         // Inputs of another instance's robots reach this one only through a `[[sources]]` key
         // that covers several shards: they are that instance's to take.
         if !crate::config::owns(&self.shard, id) {
             return Lookup::Foreign;
         }
-        // Made-up ids of a service that rejects unknown robots never take the write lock.
-        if !admits_unlisted {
-            return Lookup::Refused;
+        // Made-up ids of a service that rejects unknown robots, or of a full fleet, never take
+        // the write lock.
+        if let Err(why) = admission {
+            return Lookup::Refused(why);
         }
-        match self.admit(id) {
-            Some(robot) => Lookup::Found(self.cell(&robot)),
-            None => Lookup::Refused,
+        assert_no_cell_held("the robot directory");
+        let mut robots = self.robots.write().unwrap_or_else(PoisonError::into_inner);
+        match robots.admit(id) {
+            Ok(robot) => Lookup::Found(self.cell(robot)),
+            Err(why) => Lookup::Refused(why),
         }
     }
 
     /// Robot `id`'s cell, if it has one.
     pub(super) fn existing_cell_of(&self, id: &str) -> Option<Arc<RobotCell>> {
-        let index = self.read_robots().find(id)?.index();
+        let robots = self.read_robots();
+        let index = robots.find(id)?.index();
         assert_no_cell_held("the fleet's cells");
-        // Grows only, one whole cell at a time, like the directory.
         let cells = self.cells.read().unwrap_or_else(PoisonError::into_inner);
         cells.get(index.get())?.clone()
     }
 
-    /// `robot`'s cell, added on first use.
-    pub(super) fn cell(&self, robot: &Robot) -> Arc<RobotCell> {
+    /// `robot`'s cell while it is the fleet's: `None` once the robot was retired (its handle is
+    /// then stale, and its index may be another robot's).
+    pub(super) fn live_cell(&self, robot: &Robot) -> Option<Arc<RobotCell>> {
+        let robots = self.read_robots();
+        let current = robots.find(robot.id())?;
+        if !Arc::ptr_eq(current.shared_id(), robot.shared_id()) {
+            return None;
+        }
+        Some(self.cell(current))
+    }
+
+    /// `robot`'s cell, added on first use. The caller holds the directory's lock (read or
+    /// write) and found `robot` in it: only then is the robot's index its own.
+    fn cell(&self, robot: &Robot) -> Arc<RobotCell> {
         assert_no_cell_held("the fleet's cells");
         let index = robot.index().get();
         {
@@ -271,12 +374,58 @@ impl Fleet {
         if cells.len() <= index {
             cells.resize_with(index + 1, || None);
         }
+        let last_input_ms = self.clock_ms();
         Arc::clone(cells[index].get_or_insert_with(|| {
             Arc::new(RobotCell {
                 robot: robot.clone(),
-                state: Mutex::new(RobotState::default()),
+                state: Mutex::new(RobotState {
+                    last_input_ms,
+                    ..RobotState::default()
+                }),
             })
         }))
+    }
+
+    /// Retires every robot admitted under the default that has had no input for `idle`: each
+    /// leaves the directory and its cell slot, its state is taken out of its cell (marked
+    /// retired) and returned, so the caller finishes and undeclares it without any lock.
+    pub(super) fn retire_idle(&self, idle: Duration) -> Vec<Retired> {
+        let idle_ms = u64::try_from(idle.as_millis()).unwrap_or(u64::MAX);
+        let now_ms = self.clock_ms();
+        let is_idle = |state: &RobotState| now_ms.saturating_sub(state.last_input_ms) >= idle_ms;
+        // Found without the write locks (each cell's lock taken alone), checked again under them.
+        let mut candidates = self.cells();
+        {
+            let robots = self.read_robots();
+            candidates.retain(|cell| !robots.is_configured(&cell.robot));
+        }
+        candidates.retain(|cell| is_idle(&cell.lock()));
+        let mut retired = Vec::with_capacity(candidates.len());
+        for batch in candidates.chunks(RETIRE_BATCH) {
+            assert_no_cell_held("the robot directory");
+            let mut robots = self.robots.write().unwrap_or_else(PoisonError::into_inner);
+            let mut cells = self.cells.write().unwrap_or_else(PoisonError::into_inner);
+            for cell in batch {
+                let mut guard = cell.lock();
+                if guard.retired || !is_idle(&guard) || !robots.forget(&cell.robot) {
+                    continue;
+                }
+                if let Some(slot) = cells.get_mut(cell.robot.index().get()) {
+                    *slot = None;
+                }
+                let state = std::mem::take(&mut *guard);
+                guard.retired = true;
+                retired.push(Retired {
+                    robot: cell.robot.clone(),
+                    state,
+                });
+            }
+        }
+        self.retired.fetch_add(
+            u64::try_from(retired.len()).unwrap_or(u64::MAX),
+            Ordering::Relaxed,
+        );
+        retired
     }
 
     /// Every robot's cell, in index order: taken out so the robots can be locked one by one.
@@ -304,19 +453,21 @@ impl Fleet {
         (!self.is_stopped()).then_some(guard)
     }
 
-    /// `cell`'s state for one more input, unless the service stopped.
-    fn running<'c>(&self, cell: &'c RobotCell) -> Option<CellGuard<'c>> {
-        let guard = self.unless_stopped(cell)?;
-        self.inputs.fetch_add(1, Ordering::Relaxed);
-        Some(guard)
-    }
-
     /// Steps `cell`'s twin with one input under the robot's lock alone, unless the service
-    /// stopped.
-    pub(super) fn step(&self, cell: &RobotCell, input: impl FnOnce(Stepping<'_>)) {
-        if let Some(mut guard) = self.running(cell) {
-            input(guard.stepping(&cell.robot, &self.pipeline, &self.outputs));
+    /// stopped. `false` if the robot was retired since its cell was found: `input` did not run,
+    /// and the caller looks the robot up again.
+    #[must_use = "an input of a retired robot goes to its new cell"]
+    pub(super) fn step(&self, cell: &RobotCell, input: impl FnOnce(Stepping<'_>)) -> bool {
+        let Some(mut guard) = self.unless_stopped(cell) else {
+            return true;
+        };
+        if guard.retired {
+            return false;
         }
+        self.inputs.fetch_add(1, Ordering::Relaxed);
+        guard.last_input_ms = self.clock_ms();
+        input(guard.stepping(&cell.robot, &self.pipeline, &self.outputs));
+        true
     }
 
     /// Counts one input that reaches no robot's twin (a query, a refused robot's sample), unless
@@ -359,6 +510,7 @@ mod tests {
 
     use super::{Fleet, Lookup};
     use crate::config::{Overrides, ServiceConfig};
+    use crate::pipeline::Untracked;
     use crate::service::publish::Outputs;
 
     /// A fleet on a session that joins nothing: it listens nowhere, scouts nothing and connects
@@ -399,7 +551,10 @@ model = "ur5e"
             panic!("found again");
         };
         assert!(Arc::ptr_eq(&cell, &again));
-        assert!(matches!(fleet.lookup("lab/unknown"), Lookup::Refused));
+        assert!(matches!(
+            fleet.lookup("lab/unknown"),
+            Lookup::Refused(Untracked::Unknown)
+        ));
         assert!(matches!(fleet.lookup("plant/r1"), Lookup::Foreign));
         assert_eq!(fleet.cells().len(), 1);
     }
@@ -424,10 +579,13 @@ model = "ur5e"
         };
         assert!(fleet.count_input());
         let mut stepped = 0;
-        fleet.step(&cell, |_| stepped += 1);
+        assert!(fleet.step(&cell, |_| stepped += 1));
         assert_eq!(stepped, 1);
         fleet.stop();
-        fleet.step(&cell, |_| stepped += 1);
+        assert!(
+            fleet.step(&cell, |_| stepped += 1),
+            "done with, not retired"
+        );
         assert!(!fleet.count_input());
         assert_eq!(stepped, 1);
         assert_eq!(fleet.inputs.load(std::sync::atomic::Ordering::Relaxed), 2);

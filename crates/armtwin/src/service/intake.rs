@@ -4,6 +4,7 @@
 //! Must not block in a callback beyond the robot's own lock and its outputs' `put`.
 
 use std::sync::Arc;
+use std::sync::atomic::Ordering;
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use tracing::{debug, info, warn};
@@ -22,7 +23,7 @@ use crate::config::{ServiceConfig, SourceConfig, SourceRobot, SourceStream};
 use crate::ingest;
 use crate::keys::{KeySpace, Stream};
 use crate::mesh::{TEARDOWN_STEP, bounded};
-use crate::pipeline::{MeasuredStream, Robot};
+use crate::pipeline::{MeasuredStream, Robot, Untracked};
 use crate::ros2::{Attachment, KeyScheme, PublisherSeq};
 
 /// The subscribers and queryables that feed the twin.
@@ -49,6 +50,22 @@ impl Intake {
     }
 }
 
+/// The totals a shard claim answers with: robots tracked and the bound, refused, retired, and
+/// failed snapshot writes, as on `/metrics`.
+fn service_totals(fleet: &Arc<Fleet>) -> impl Fn() -> serde_json::Value + Send + Sync + 'static {
+    let fleet = Arc::clone(fleet);
+    move || {
+        let (robots, max_robots) = fleet.occupancy();
+        serde_json::json!({
+            "robots": robots,
+            "max_robots": max_robots,
+            "robots_refused": fleet.refused_full.load(Ordering::Relaxed),
+            "robots_retired": fleet.retired.load(Ordering::Relaxed),
+            "snapshot_failures": fleet.snapshot_failures.load(Ordering::Relaxed),
+        })
+    }
+}
+
 pub(super) async fn declare_intake(
     session: &Session,
     config: &ServiceConfig,
@@ -56,7 +73,8 @@ pub(super) async fn declare_intake(
 ) -> Result<Intake, ServiceError> {
     let keys = &config.keys;
     let mut subscribers = Vec::new();
-    let mut queryables = vec![claim_shard(session, keys, &config.shard).await?];
+    let mut queryables =
+        vec![claim_shard(session, keys, &config.shard, service_totals(fleet)).await?];
     let shard = config.shard.as_str();
     let router = Arc::new(Router {
         fleet: Arc::clone(fleet),
@@ -213,47 +231,95 @@ impl Router {
         clippy::too_many_arguments,
         reason = "one input: who, where, how, and its bytes"
     )]
-    fn intake<D: Decoder>(
+    fn intake<D: Decoder, T>(
         &self,
         id: &str,
         key: &str,
         stream: MeasuredStream,
         decoder: &D,
         payload: &[u8],
-        fallback_s: impl FnOnce() -> f64,
-        transport: impl FnOnce(&mut Stepping<'_>, &mut Decoded<D::Message, D::Error>),
-    ) {
-        match self.fleet.lookup(id) {
-            Lookup::Found(cell) => {
-                let arrival = Arrival { key, stream };
-                self.decode_and_step(&cell, arrival, decoder, payload, fallback_s, transport);
-            }
-            Lookup::Foreign => debug!(robot = id, %key, "robot of another instance: ignored"),
-            Lookup::Refused => {
-                if self.fleet.count_input() {
-                    let mut sink = ZenohSink::untracked(&self.fleet.outputs);
-                    gateway::unknown_robot(id, key, decoder, payload, fallback_s, &mut sink);
+        fallback_s: impl Fn() -> f64,
+        mut transport: T,
+    ) where
+        T: FnOnce(&mut Stepping<'_>, &mut Decoded<D::Message, D::Error>),
+    {
+        // A robot retired between its look-up and its lock is looked up again, which admits it
+        // afresh (a retired robot was idle for `forget_after`: the new one cannot be, so this
+        // goes round once at most).
+        loop {
+            match self.fleet.lookup(id) {
+                Lookup::Found(cell) => {
+                    let arrival = Arrival { key, stream };
+                    match self.decode_and_step(
+                        &cell,
+                        arrival,
+                        decoder,
+                        payload,
+                        &fallback_s,
+                        transport,
+                    ) {
+                        Some(unused) => transport = unused,
+                        None => return,
+                    }
+                }
+                Lookup::Foreign => {
+                    debug!(robot = id, %key, "robot of another instance: ignored");
+                    return;
+                }
+                Lookup::Refused(why) => {
+                    if self.fleet.count_input() {
+                        if let Untracked::Full { max_robots } = why
+                            && self.fleet.refuse_full()
+                        {
+                            warn!(
+                                robot = id,
+                                max_robots,
+                                refused = self.fleet.refused_full.load(Ordering::Relaxed),
+                                "the fleet is full (service.max_robots): samples of new robots are \
+                                 refused (logged at most once a minute; counted in \
+                                 armtwin_robots_refused_total)"
+                            );
+                        }
+                        let mut sink = ZenohSink::untracked(&self.fleet.outputs);
+                        gateway::untracked_robot(
+                            id,
+                            why,
+                            key,
+                            decoder,
+                            payload,
+                            &fallback_s,
+                            &mut sink,
+                        );
+                    }
+                    return;
                 }
             }
         }
     }
 
     /// Decodes an input against `cell`'s robot before taking its lock, then steps the twin with
-    /// it under that lock alone.
-    fn decode_and_step<D: Decoder>(
+    /// it under that lock alone; hands `transport` back if the robot was retired meanwhile.
+    fn decode_and_step<D: Decoder, T>(
         &self,
         cell: &RobotCell,
         arrival: Arrival<'_>,
         decoder: &D,
         payload: &[u8],
         fallback_s: impl FnOnce() -> f64,
-        transport: impl FnOnce(&mut Stepping<'_>, &mut Decoded<D::Message, D::Error>),
-    ) {
+        transport: T,
+    ) -> Option<T>
+    where
+        T: FnOnce(&mut Stepping<'_>, &mut Decoded<D::Message, D::Error>),
+    {
         let mut message = Decoded::decode(decoder, &cell.robot, payload, fallback_s);
-        self.fleet.step(cell, |mut locked| {
-            transport(&mut locked, &mut message);
+        let mut transport = Some(transport);
+        let stepped = self.fleet.step(cell, |mut locked| {
+            if let Some(transport) = transport.take() {
+                transport(&mut locked, &mut message);
+            }
             message.step(locked.twin, arrival, &mut locked.sink);
         });
+        if stepped { None } else { transport }
     }
 
     fn joints(&self, sample: &Sample) {
@@ -293,8 +359,11 @@ impl Router {
         let decoder = gateway::Pose(ingest::codec_of(sample.encoding()));
         let payload = sample.payload().to_bytes();
         let fallback_s = || transport_stamp_s(sample);
-        let cell = self.fleet.cell(robot);
-        self.decode_and_step(&cell, arrival, &decoder, &payload, fallback_s, |_, _| {});
+        // A configured robot: never retired, so its cell is always the fleet's.
+        let Some(cell) = self.fleet.live_cell(robot) else {
+            return;
+        };
+        let _ = self.decode_and_step(&cell, arrival, &decoder, &payload, fallback_s, |_, _| {});
     }
 
     /// A sample of a `[[sources]]` entry: its robot from the source (fixed, or the key's ROS

@@ -27,6 +27,7 @@ mod control;
 mod events;
 mod fleet;
 mod intake;
+mod memory;
 mod publish;
 mod queries;
 mod self_calibration;
@@ -42,7 +43,7 @@ use std::sync::mpsc::channel;
 use thiserror::Error;
 use tracing::{info, warn};
 
-use self::control::Control;
+use self::control::{Control, Periods};
 use self::fleet::Fleet;
 use self::intake::declare_intake;
 use self::publish::Outputs;
@@ -149,7 +150,11 @@ pub async fn serve(
     let control = Control::thread(
         fleet.clone(),
         control_rx,
-        (config.metrics_period, config.self_calibration),
+        Periods {
+            metrics: config.metrics_period,
+            self_calibration: config.self_calibration,
+            forget_after: config.forget_after,
+        },
         snapshots.clone(),
     )?;
     if let Some((store, _)) = &snapshots {

@@ -1,5 +1,7 @@
-//! The queryables: `state`, `reset`, `fk`, `ik` and `calibrate`, each answered from the robots
-//! it names, one cell at a time, replying once that cell's lock is released.
+//! The queryables: `state`, `fk`, `ik` and `calibrate` (reads), `admin/reset` and
+//! `admin/calibrate` (changes, on keys of their own so that an access control list can keep them
+//! from those who only watch), each answered from the robots it names, one cell at a time,
+//! replying once that cell's lock is released.
 //!
 //! Must not hold a robot's cell across a reply.
 
@@ -32,12 +34,13 @@ pub(super) struct Queries {
 
 impl Queries {
     /// The handlers, by the stream their queryable is declared on.
-    pub(super) const HANDLERS: [(Stream, QueryHandler); 5] = [
+    pub(super) const HANDLERS: [(Stream, QueryHandler); 6] = [
         (Stream::State, Self::state),
         (Stream::Fk, Self::fk),
         (Stream::Reset, Self::reset),
         (Stream::Ik, Self::ik),
         (Stream::Calibrate, Self::calibrate),
+        (Stream::ApplyCalibration, Self::apply_calibration),
     ];
 
     /// Answers `query` with `handler`, unless the service stopped.
@@ -100,7 +103,18 @@ impl Queries {
         }
     }
 
+    /// Whether `query` asks for a change of `stream` by name: its key expression lies within
+    /// `<prefix>/<stream>/**`. A wider one (`twin/**`, `twin/*/reset/**`) reaches the queryable
+    /// too, but asks to read everything, not to change anything: it gets no reply here.
+    fn asks_for(&self, query: &Query, stream: Stream) -> bool {
+        KeyExpr::try_from(self.keys.every_robot(stream))
+            .is_ok_and(|subtree| subtree.includes(query.key_expr()))
+    }
+
     fn reset(&self, query: &Query) {
+        if !self.asks_for(query, Stream::Reset) {
+            return;
+        }
         let mut replies = Vec::new();
         for (cell, key) in self.matching_robots(query, Stream::Reset) {
             let Some(mut guard) = self.fleet.unless_stopped(&cell) else {
@@ -219,15 +233,32 @@ impl Queries {
         }
     }
 
-    /// `<prefix>/calibrate/<robot>` with `apply`, `discard` or `status` (the default), as the
-    /// payload or the selector's `action` parameter.
+    /// `<prefix>/calibrate/<robot>`: the robot's self-calibration status (`status`, the
+    /// default, as the payload or the selector's `action` parameter). `apply` and `discard` are
+    /// changes: they are asked on `<prefix>/admin/calibrate/<robot>`.
     fn calibrate(&self, query: &Query) {
+        self.calibration_query(query, Stream::Calibrate);
+    }
+
+    /// `<prefix>/admin/calibrate/<robot>` with `apply` or `discard` (or `status`).
+    fn apply_calibration(&self, query: &Query) {
+        if self.asks_for(query, Stream::ApplyCalibration) {
+            self.calibration_query(query, Stream::ApplyCalibration);
+        }
+    }
+
+    /// A query on `stream` (`calibrate`, read-only, or `admin/calibrate`) about one robot's
+    /// self-calibration.
+    fn calibration_query(&self, query: &Query, stream: Stream) {
         let key = query.key_expr().as_str();
-        let Ok(id) = self.keys.robot_of(Stream::Calibrate, key) else {
-            Self::reply_err(
-                query,
-                "ask one robot: <prefix>/calibrate/<robot id> with apply, discard or status",
-            );
+        let Ok(id) = self.keys.robot_of(stream, key) else {
+            if stream == Stream::Calibrate {
+                Self::reply_err(
+                    query,
+                    "ask one robot: <prefix>/calibrate/<robot id> (status), or \
+                     <prefix>/admin/calibrate/<robot id> with apply or discard",
+                );
+            }
             return;
         };
         let payload = query
@@ -238,6 +269,16 @@ impl Queries {
             || String::from_utf8_lossy(&payload).trim().to_owned(),
             str::to_owned,
         );
+        if stream == Stream::Calibrate && matches!(action.as_str(), "apply" | "discard") {
+            Self::reply_err(
+                query,
+                &format!(
+                    "'{action}' changes the twin: ask {}",
+                    self.keys.key(Stream::ApplyCalibration, id)
+                ),
+            );
+            return;
+        }
         let Some(robot) = self.fleet.find(id) else {
             Self::reply_err(query, &format!("robot '{id}' is not tracked"));
             return;

@@ -152,7 +152,10 @@ pub(super) fn fitting_thread(
                 let payload = json::to_json_bytes(&message);
                 let (message_status, message_improvement) = (message.status, message.improvement);
                 {
-                    let cell = fleet.cell(&robot);
+                    // A robot retired meanwhile: its fit goes nowhere.
+                    let Some(cell) = fleet.live_cell(&robot) else {
+                        continue;
+                    };
                     let mut guard = cell.lock();
                     let state = &mut *guard;
                     // Judged against a model the twin no longer runs: fit again next period.

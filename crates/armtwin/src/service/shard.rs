@@ -21,21 +21,26 @@ const SHARD_CLAIM_WAIT: Duration = Duration::from_secs(2);
 /// Claims `[service] robots` on the mesh: a queryable `<prefix>/shards/<zid>` answers this
 /// instance's key expression, declared before asking the others' so that of two instances
 /// starting together at least the later one sees the earlier. Fails when another instance's
-/// key expression intersects this one's.
+/// key expression intersects this one's. Each answer carries `service()`, the instance's totals
+/// at the time.
 pub(super) async fn claim_shard(
     session: &Session,
     keys: &KeySpace,
     shard: &KeyExpr<'static>,
+    service: impl Fn() -> serde_json::Value + Send + Sync + 'static,
 ) -> Result<zenoh::query::Queryable<()>, ServiceError> {
     let zid = session.zid().to_string();
-    let claim = serde_json::json!({ "robots": shard.as_str(), "zid": zid }).to_string();
     let claim_key = KeyExpr::try_from(keys.shard_claim(&zid))?;
     let reply_key = claim_key.clone();
+    let shard_text = shard.as_str().to_owned();
     let queryable = session
         .declare_queryable(claim_key)
         .callback(move |query| {
+            let claim =
+                serde_json::json!({ "robots": shard_text, "zid": zid, "service": service() })
+                    .to_string();
             if let Err(e) = query
-                .reply(reply_key.clone(), claim.clone())
+                .reply(reply_key.clone(), claim)
                 .encoding(Encoding::APPLICATION_JSON)
                 .wait()
             {

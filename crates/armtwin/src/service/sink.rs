@@ -32,6 +32,8 @@ const RECENT_EVENTS: usize = 10;
 pub(super) struct RobotOutputState {
     /// Once the control thread has declared them.
     pub(super) declared: Option<RobotPublishers>,
+    /// The robot's liveliness token, once the control thread has declared it.
+    pub(super) token: Option<zenoh::liveliness::LivelinessToken>,
     /// From tracking on.
     event_bucket: Option<EventBucket>,
     /// From tracking on: the twin pose for ROS tools.

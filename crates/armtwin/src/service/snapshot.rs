@@ -3,12 +3,14 @@
 //!
 //! Must not hold more than one robot's cell at a time; the file format is [`crate::snapshot`]'s.
 
+use std::sync::atomic::Ordering;
+
 use tracing::{debug, info, warn};
 
 use super::fleet::Fleet;
 use super::sink::ZenohSink;
 use crate::config::ServiceConfig;
-use crate::pipeline::{RestoreError, Robot, Sink, Twin, TwinRecord};
+use crate::pipeline::{RestoreError, Robot, Sink, Twin, TwinRecord, Untracked};
 use crate::snapshot::{SnapshotError, SnapshotStore};
 
 /// Restores the twins of the snapshot in `store`, if there is one, before any input arrives.
@@ -50,13 +52,23 @@ pub(super) fn restore_snapshot(store: &SnapshotStore, fleet: &Fleet, config: &Se
             )));
             return;
         }
-        let Some(robot) = fleet.admit(id) else {
-            refuse(&foreign(format!(
-                "robot '{id}' is not configured and service.reject_unknown is true"
-            )));
-            return;
-        };
-        robots.push((robot, record));
+        match fleet.admit(id) {
+            Ok(robot) => robots.push((robot, record)),
+            Err(Untracked::Unknown) => {
+                refuse(&foreign(format!(
+                    "robot '{id}' is not configured and service.reject_unknown is true"
+                )));
+                return;
+            }
+            // The limit was lowered since the file was written: the robots beyond it start
+            // afresh when they send (refused while the fleet stays full), the others keep theirs.
+            Err(Untracked::Full { max_robots }) => {
+                warn!(
+                    robot = id,
+                    max_robots, "twin not restored: the fleet is full (service.max_robots)"
+                );
+            }
+        }
     }
     // Every twin is built before any is installed: one foreign record (or a robot recorded
     // twice) refuses the whole file, before any twin exists.
@@ -82,7 +94,9 @@ pub(super) fn restore_snapshot(store: &SnapshotStore, fleet: &Fleet, config: &Se
     }
     let count = restored.len();
     for restored in restored {
-        let cell = fleet.cell(restored.robot());
+        let Some(cell) = fleet.live_cell(restored.robot()) else {
+            continue;
+        };
         let mut guard = cell.lock();
         let state = &mut *guard;
         if state.twin.is_some() {
@@ -99,8 +113,8 @@ pub(super) fn restore_snapshot(store: &SnapshotStore, fleet: &Fleet, config: &Se
 }
 
 /// Writes the snapshot of every tracked twin: each robot's record taken under its own lock,
-/// one robot at a time, and the file written after.
-pub(super) fn save_snapshot(fleet: &Fleet, store: &SnapshotStore) {
+/// one robot at a time, and the file written after. Whether it was written.
+pub(super) fn save_snapshot(fleet: &Fleet, store: &SnapshotStore) -> bool {
     let records: Vec<TwinRecord> = fleet
         .cells()
         .iter()
@@ -109,8 +123,34 @@ pub(super) fn save_snapshot(fleet: &Fleet, store: &SnapshotStore) {
     match store.save(&records) {
         Ok(()) => {
             fleet.snapshot_written();
+            let failed = fleet.snapshot_failing.swap(0, Ordering::Relaxed);
+            if failed > 0 {
+                info!(
+                    robots = records.len(),
+                    failed_periods = failed,
+                    "snapshot written again"
+                );
+            }
             debug!(robots = records.len(), "snapshot written");
+            true
         }
-        Err(e) => warn!(error = %e, "snapshot not written"),
+        Err(e) => {
+            fleet.snapshot_failures.fetch_add(1, Ordering::Relaxed);
+            if fleet.snapshot_failing.fetch_add(1, Ordering::Relaxed) == 0 {
+                warn!(error = %e, "snapshot not written: twinning goes on, tried again every period");
+            } else {
+                debug!(error = %e, "snapshot not written again");
+            }
+            false
+        }
+    }
+}
+
+/// Writes the snapshot once more as the service stops, saying whether it was.
+pub(super) fn save_final_snapshot(fleet: &Fleet, store: &SnapshotStore) {
+    if save_snapshot(fleet, store) {
+        info!(path = %store.path().display(), "final snapshot written");
+    } else {
+        warn!(path = %store.path().display(), "final snapshot not written");
     }
 }

@@ -48,7 +48,11 @@ impl FleetSource for FleetView {
             poses: fleet.outputs.poses.load(Ordering::Relaxed),
             publish_errors: fleet.outputs.publish_errors.load(Ordering::Relaxed),
             robots: rows.len(),
+            max_robots: fleet.occupancy().1,
+            robots_refused: fleet.refused_full.load(Ordering::Relaxed),
+            robots_retired: fleet.retired.load(Ordering::Relaxed),
             snapshot_age_s: fleet.snapshot_age_s(),
+            snapshot_failures: fleet.snapshot_failures.load(Ordering::Relaxed),
         };
         (totals, rows)
     }

@@ -19,7 +19,7 @@ use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::{Deviation, StatsSet};
 use crate::pipeline::{
     Event, EventDetail, EventKind, MetricsSnapshot, Pipeline, PipelineConfig, Robot,
-    RobotDirectory, RobotSettings, Sink,
+    RobotDirectory, RobotSettings, Sink, Untracked,
 };
 
 /// One recording row's outcome.
@@ -241,8 +241,9 @@ pub fn validate(
                     &mut collector,
                 );
             }
-            None => ingest::unknown_robot(
+            None => ingest::untracked_robot(
                 ROBOT_ID,
+                Untracked::Unknown,
                 &key,
                 &Joints(Codec::Json),
                 &payload,

@@ -347,20 +347,21 @@ async fn rmw_sequence_numbers_raise_gaps_refuse_repeats_and_survive_damage_and_r
         let mut h = start(ATTACHMENT_SOURCES, &[&joints_key, &poses_key]).await;
         let (joints, poses) = bag_messages();
         let (gid_a, gid_b) = ([1_u8; 16], [2_u8; 24]);
-        let plan: Vec<Option<Vec<u8>>> = vec![
-            Some(attachment(1, 5, &gid_a)),
-            Some(attachment(2, 5, &gid_a)),
-            Some(attachment(3, 5, &gid_a)),
-            Some(attachment(5, 5, &gid_a)), // 4 lost upstream: a gap
-            Some(attachment(5, 5, &gid_a)), // repeated: refused
-            Some(attachment(6, 5, &gid_a)[..20].to_vec()), // cut: rejected, the sample taken
-            Some(attachment(1, 5, &gid_b)), // the driver restarted: a 24-byte gid, from 1 again
-            Some(attachment(2, 5, &gid_b)),
-            Some(keyed_attachment(3, 5, &gid_b)),
-            None,
+        // (the bag's message, its attachment)
+        let plan: Vec<(usize, Option<Vec<u8>>)> = vec![
+            (0, Some(attachment(1, 5, &gid_a))),
+            (1, Some(attachment(2, 5, &gid_a))),
+            (2, Some(attachment(3, 5, &gid_a))),
+            (3, Some(attachment(5, 5, &gid_a))), // 4 lost upstream: a gap
+            (3, Some(attachment(5, 5, &gid_a))), // resent, same stamp: refused
+            (5, Some(attachment(6, 5, &gid_a)[..20].to_vec())), // cut: rejected, the sample taken
+            (6, Some(attachment(1, 5, &gid_b))), // the driver restarted: a 24-byte gid, from 1 again
+            (7, Some(attachment(2, 5, &gid_b))),
+            (8, Some(keyed_attachment(3, 5, &gid_b))),
+            (9, None),
         ];
-        for (joint, attachment) in joints.iter().zip(plan) {
-            h.put(&joints_key, joint, attachment).await;
+        for (index, attachment) in plan {
+            h.put(&joints_key, &joints[index], attachment).await;
         }
         // Damaged messages (written by rosbags, then cut or patched): each refused with its cause.
         let fixture = |name: &str| std::fs::read(data().join(name)).expect("fixture");
@@ -400,7 +401,7 @@ async fn rmw_sequence_numbers_raise_gaps_refuse_repeats_and_survive_damage_and_r
         assert_eq!(
             causes,
             [
-                "seq_not_increasing",
+                "duplicate_stamp",
                 "attachment",
                 "cdr_truncated",
                 "missing_joint",
@@ -418,6 +419,10 @@ async fn rmw_sequence_numbers_raise_gaps_refuse_repeats_and_survive_damage_and_r
             gaps,
             [&json!({"expected": 4, "got": 5})],
             "one gap; the restart is none"
+        );
+        assert!(
+            events.iter().all(|(kind, _)| kind != "restart"),
+            "a new publisher's numbers carry on from the previous one's: {events:?}"
         );
         let attachment_event = h
             .on("twin/events/r1")

@@ -266,7 +266,7 @@ async fn several_robots_poses_deviations_metrics_and_fleet_queries() {
         let bad_fk = h.get("twin/fk/r3", Some(json!({"q": [1, 2]}))).await;
         assert!(bad_fk[0].is_err(), "{bad_fk:?}");
         // Reset replies with the final snapshot, then counts start again.
-        let reset = h.get("twin/reset/plant-a/cell-1/r2", None).await;
+        let reset = h.get("twin/admin/reset/plant-a/cell-1/r2", None).await;
         let (_, last) = reset[0].as_ref().expect("reset reply");
         assert_eq!(number(last, &["paired"]), 50.0);
         let after = h.get("twin/state/plant-a/cell-1/r2", None).await;
@@ -912,7 +912,9 @@ async fn apply_then_fk_and_ik_answer_with_the_estimate(h: &mut Harness) {
     // model replaced (FK and IK answer with it).
     let q = [0.3, -1.2, 1.1, -1.4, -1.5, 0.2];
     let fk_before = h.get("twin/fk/lasttest", Some(json!({ "q": q }))).await;
-    let applied = h.get("twin/calibrate/lasttest?action=apply", None).await;
+    let applied = h
+        .get("twin/admin/calibrate/lasttest?action=apply", None)
+        .await;
     let [Ok((_, applied))] = applied.as_slice() else {
         panic!("apply answered: {applied:?}");
     };
@@ -930,7 +932,9 @@ async fn apply_then_fk_and_ik_answer_with_the_estimate(h: &mut Harness) {
         .find(|m| m["kind"] == "epoch")
         .expect("epoch");
     assert_eq!(event["detail"]["epoch"], 1);
-    let again = h.get("twin/calibrate/lasttest?action=apply", None).await;
+    let again = h
+        .get("twin/admin/calibrate/lasttest?action=apply", None)
+        .await;
     assert!(
         matches!(again.as_slice(), [Err(_)]),
         "nothing left to apply: {again:?}"

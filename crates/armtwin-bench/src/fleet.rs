@@ -65,6 +65,30 @@ pub fn service_config_with_state(
     )
 }
 
+/// The service configuration of a soak: no robot listed and unknown robots accepted as `ur10e`s
+/// (robots never seen before keep joining), `/metrics` and the dashboard on `http_listen`.
+/// `forget_after_s` retires a robot that has sent nothing that long and `max_robots` bounds the
+/// robots tracked; either is left out when `None` (the service's own default).
+#[must_use]
+pub fn soak_service_config(
+    encoding: &str,
+    http_listen: &str,
+    forget_after_s: Option<f64>,
+    max_robots: Option<usize>,
+) -> String {
+    let mut service = String::from("[service]\n");
+    if let Some(seconds) = forget_after_s {
+        let _ = writeln!(service, "forget_after_s = {seconds:?}");
+    }
+    if let Some(robots) = max_robots {
+        let _ = writeln!(service, "max_robots = {robots}");
+    }
+    let text = service_config_encoded(0, encoding)
+        .replacen("reject_unknown = true", "reject_unknown = false", 1)
+        .replacen("[service]\n", &service, 1);
+    format!("{text}\n[http]\nlisten = \"{http_listen}\"\n")
+}
+
 /// [`service_config`] parsed as `armtwin serve` parses it: the configuration the in-process
 /// benchmarks build their pipeline from.
 #[allow(

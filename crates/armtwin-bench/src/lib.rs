@@ -4,8 +4,9 @@
 //!
 //! Layout: [`fleet`] (robot ids, the service configuration), [`workload`] (the messages),
 //! [`fk_fixture`] and [`ingest_fixture`] (the in-process benches' inputs), [`net`] (keys, Zenoh
-//! peers), [`procfs`] (another process's memory and CPU time), [`echo`] (the baseline), [`load`]
-//! (the load generator), [`run`] (the orchestrator).
+//! peers), [`procfs`] (another process's memory and CPU time), [`http`] (a GET on loopback),
+//! [`echo`] (the baseline), [`load`] (the load generator), [`run`] (the orchestrator), [`soak`]
+//! (hours under load with churn).
 
 #![allow(
     clippy::cast_sign_loss,
@@ -19,9 +20,11 @@
 pub mod echo;
 pub mod fk_fixture;
 pub mod fleet;
+pub mod http;
 pub mod ingest_fixture;
 pub mod load;
 pub mod net;
 pub mod procfs;
 pub mod run;
+pub mod soak;
 pub mod workload;

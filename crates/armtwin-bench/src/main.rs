@@ -5,13 +5,15 @@
 //!   subprocesses and writes `bench.json`.
 //! - `echo`: the plain-Zenoh echo, the baseline.
 //! - `load`: the load generator.
+//! - `soak`: hours under load with churn, Prometheus and a dashboard client; writes `soak.json`
+//!   and `soak.svg`.
 #![allow(
     clippy::print_stdout,
     clippy::print_stderr,
     reason = "the command line's own output and error reports"
 )]
 
-use armtwin_bench::{echo, load, run};
+use armtwin_bench::{echo, load, run, soak};
 
 use std::process::ExitCode;
 
@@ -34,6 +36,8 @@ enum Command {
     Echo(echo::EchoArgs),
     /// The load generator (prints its report as JSON).
     Load(load::LoadArgs),
+    /// Hours under load with churn; writes soak.json and soak.svg.
+    Soak(soak::SoakArgs),
 }
 
 fn execute(cli: Cli) -> Result<()> {
@@ -42,6 +46,9 @@ fn execute(cli: Cli) -> Result<()> {
             run::run(&args)?;
         }
         Command::Echo(args) => echo::run(&args)?,
+        Command::Soak(args) => {
+            soak::run(&args)?;
+        }
         Command::Load(args) => {
             let report = load::run(args)?;
             println!("{}", serde_json::to_string(&report)?);

@@ -1,7 +1,8 @@
 //! Smoke test of the benchmark harness: `armtwin-bench run --quick` end to end with tiny numbers,
 //! real processes and real Zenoh sessions over loopback, in both encodings and over one and two
-//! gateway sessions. It checks the report's structure and that nothing was lost at a trivially
-//! low rate; it asserts no timing.
+//! gateway sessions, and a 30-second `armtwin-bench soak` with churn. It checks the reports'
+//! structure, that nothing was lost at a trivially low rate and that memory stayed far below a
+//! generous bound; it asserts no timing.
 #![allow(
     clippy::expect_used,
     clippy::unwrap_used,
@@ -222,4 +223,76 @@ fn a_quick_zenoh_serialized_run_loses_nothing_and_raises_no_event() {
         }
     }
     assert_eq!(comparison["armtwin"]["totals"]["events"], 0);
+}
+
+/// Far above what armtwin needs for a few robots: a bound that only a leak of megabytes per
+/// second crosses.
+const SOAK_RSS_BOUND_MIB: f64 = 200.0;
+
+/// Thirty seconds of the soak at a low rate, a third of the robots replaced by new ones every
+/// ten seconds and retired three seconds after they leave, `/metrics` scraped and the dashboard
+/// fetched every second: nothing lost, memory bounded, every interval reported with the robots
+/// tracked, the robots that left forgotten, the curves written.
+#[test]
+fn a_thirty_second_soak_with_churn_loses_nothing_and_stays_bounded() {
+    let bench = PathBuf::from(env!("CARGO_BIN_EXE_armtwin-bench"));
+    let armtwin = armtwin_binary(&bench);
+    let dir = tempfile::tempdir().expect("temporary directory");
+    let out = dir.path().join("soak.json");
+    let svg = dir.path().join("soak.svg");
+    let status = Command::new(&bench)
+        .arg("soak")
+        .args(["--robots", "6", "--hz", "20", "--gateways", "2"])
+        .args(["--duration", "30", "--interval", "5", "--warm-up", "10"])
+        .args(["--churn", "0.34", "--churn-period", "10"])
+        .args(["--scrape-interval", "1", "--dashboard-period", "1"])
+        .args(["--forget-after", "3"])
+        .arg("--armtwin")
+        .arg(&armtwin)
+        .arg("--out")
+        .arg(&out)
+        .arg("--svg")
+        .arg(&svg)
+        .status()
+        .expect("running armtwin-bench soak");
+    assert!(status.success(), "armtwin-bench soak failed: {status}");
+    let report: Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).expect("soak.json")).expect("JSON");
+
+    let summary = &report["summary"];
+    assert_eq!(summary["lost"], 0, "{summary:#}");
+    assert_eq!(summary["sent"], 6 * 20 * 30);
+    assert!(
+        number(summary, "/rss_max_mib") < SOAK_RSS_BOUND_MIB,
+        "{summary:#}"
+    );
+    assert_eq!(
+        report["load"]["churned"], 4,
+        "two robots replaced at 10 s and at 20 s"
+    );
+    assert_eq!(report["load"]["ids_used"], 10);
+
+    let rows = report["rows"].as_array().expect("rows");
+    assert_eq!(rows.len(), 6);
+    for row in rows {
+        assert!(number(row, "/robots_tracked") >= 1.0, "{row:#}");
+        assert!(number(row, "/rss_mib") > 0.0);
+        assert!(number(row, "/max_us") >= number(row, "/p50_us"));
+    }
+    let last = rows.last().expect("a last row");
+    assert!(
+        number(last, "/robots_tracked") < 10.0,
+        "the four robots that left 10 s and more before the end are retired: {last:#}"
+    );
+    let watchers = &report["watchers"];
+    assert!(number(watchers, "/scrapes") > 0.0, "{watchers:#}");
+    assert!(number(watchers, "/dashboard_fetches") > 0.0, "{watchers:#}");
+    assert_eq!(report["targets"].as_array().expect("targets").len(), 3);
+
+    let curves = std::fs::read_to_string(&svg).expect("soak.svg");
+    assert_eq!(
+        curves.matches(r#"class="series""#).count(),
+        4,
+        "RSS, p99, p50, tracked"
+    );
 }

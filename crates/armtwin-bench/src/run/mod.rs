@@ -20,14 +20,14 @@
 
 mod memory;
 mod report;
-mod system;
-mod trials;
+pub(crate) mod system;
+pub(crate) mod trials;
 
 pub use report::{
     Comparison, EchoMemory, FirstContact, Fleet, Host, LatencySummary, Report, TargetRow,
 };
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use anyhow::{Context, Result, bail};
@@ -256,14 +256,26 @@ impl Settings {
     }
 }
 
-fn unix_now_s() -> f64 {
+pub(crate) fn unix_now_s() -> f64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0.0, |d| d.as_secs_f64())
 }
 
-fn default_armtwin(bench: &Path) -> PathBuf {
-    bench.with_file_name(format!("armtwin{}", std::env::consts::EXE_SUFFIX))
+/// This `armtwin-bench` and the `armtwin` it runs: `given`, or the one beside it; an error
+/// when that is not a file.
+pub(crate) fn bench_and_armtwin(given: Option<&PathBuf>) -> Result<(PathBuf, PathBuf)> {
+    let bench = std::env::current_exe().context("locating armtwin-bench")?;
+    let armtwin = given.cloned().unwrap_or_else(|| {
+        bench.with_file_name(format!("armtwin{}", std::env::consts::EXE_SUFFIX))
+    });
+    if !armtwin.is_file() {
+        bail!(
+            "{} not found: build it (cargo build --release) or pass --armtwin",
+            armtwin.display()
+        );
+    }
+    Ok((bench, armtwin))
 }
 
 /// Runs the whole benchmark and writes the report.
@@ -275,17 +287,7 @@ fn default_armtwin(bench: &Path) -> PathBuf {
 pub fn run(args: &RunArgs) -> Result<Report> {
     let wall = Instant::now();
     let settings = Settings::of(args);
-    let bench = std::env::current_exe().context("locating armtwin-bench")?;
-    let armtwin = args
-        .armtwin
-        .clone()
-        .unwrap_or_else(|| default_armtwin(&bench));
-    if !armtwin.is_file() {
-        bail!(
-            "{} not found: build it (cargo build --release) or pass --armtwin",
-            armtwin.display()
-        );
-    }
+    let (bench, armtwin) = bench_and_armtwin(args.armtwin.as_ref())?;
     let work_dir = std::env::temp_dir().join(format!("armtwin-bench-{}", std::process::id()));
     std::fs::create_dir_all(&work_dir)?;
     let orchestrator = Orchestrator {

@@ -212,7 +212,7 @@ pub struct Host {
 }
 
 impl Host {
-    pub(super) fn probe() -> Self {
+    pub(crate) fn probe() -> Self {
         let cpu_model = std::fs::read_to_string("/proc/cpuinfo")
             .ok()
             .and_then(|info| {

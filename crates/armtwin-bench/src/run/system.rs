@@ -1,32 +1,55 @@
 //! A system under test: a subprocess on a loopback port, waited for until it listens and stopped
 //! (SIGTERM, then SIGKILL) when dropped.
 //!
-//! Owns the subprocess's lifetime; must not know which system it runs.
+//! Owns the subprocess's lifetime; must not know which system it runs, beyond how `armtwin serve`
+//! is started on a configuration.
 
 use std::net::{TcpListener, TcpStream};
-use std::process::{Child, Command};
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
 use super::{STARTUP_TIMEOUT, STOP_TIMEOUT};
+use crate::net;
 
 /// A subprocess under test, stopped (SIGTERM, then SIGKILL) when dropped.
-pub(super) struct SystemUnderTest {
-    pub(super) child: Child,
-    pub(super) endpoint: String,
+pub(crate) struct SystemUnderTest {
+    pub(crate) child: Child,
+    pub(crate) endpoint: String,
 }
 
 impl SystemUnderTest {
-    pub(super) fn pid(&self) -> u32 {
+    /// `armtwin serve -c <config>` (written with `text` first), listening on a free loopback
+    /// port, its own logs warnings and up only.
+    pub(crate) fn armtwin(armtwin: &Path, config: &Path, text: &str) -> Result<Self> {
+        let port = free_port()?;
+        let endpoint = net::loopback_endpoint(port);
+        std::fs::write(config, text).with_context(|| format!("writing {}", config.display()))?;
+        let mut child = Command::new(armtwin)
+            .arg("serve")
+            .arg("-c")
+            .arg(config)
+            .args(["-l", &endpoint])
+            .env("RUST_LOG", "armtwin=warn,zenoh=error")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .spawn()
+            .with_context(|| format!("starting {}", armtwin.display()))?;
+        wait_listening(port, &mut child)?;
+        Ok(Self { child, endpoint })
+    }
+
+    pub(crate) fn pid(&self) -> u32 {
         self.child.id()
     }
 
-    pub(super) fn stop(mut self) {
+    pub(crate) fn stop(mut self) {
         self.terminate();
     }
 
-    pub(super) fn terminate(&mut self) {
+    pub(crate) fn terminate(&mut self) {
         if matches!(self.child.try_wait(), Ok(Some(_))) {
             return;
         }
@@ -53,13 +76,13 @@ impl Drop for SystemUnderTest {
     }
 }
 
-pub(super) fn free_port() -> Result<u16> {
+pub(crate) fn free_port() -> Result<u16> {
     let listener = TcpListener::bind("127.0.0.1:0").context("finding a free port")?;
     Ok(listener.local_addr()?.port())
 }
 
 /// Waits until `port` accepts connections (the system under test is listening).
-pub(super) fn wait_listening(port: u16, child: &mut Child) -> Result<()> {
+pub(crate) fn wait_listening(port: u16, child: &mut Child) -> Result<()> {
     let deadline = Instant::now() + STARTUP_TIMEOUT;
     while Instant::now() < deadline {
         if TcpStream::connect(("127.0.0.1", port)).is_ok() {

@@ -5,7 +5,7 @@
 //! does) or format the report.
 
 use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
 use anyhow::{Context, Result, bail};
@@ -16,6 +16,34 @@ use super::system::{SystemUnderTest, free_port, wait_listening};
 use crate::fleet::service_config_encoded;
 use crate::load::{LoadReport, Target, Trial, WireEncoding};
 use crate::net;
+
+fn target_name(target: Target) -> &'static str {
+    match target {
+        Target::Echo => "echo",
+        Target::Armtwin => "armtwin",
+    }
+}
+
+/// `armtwin-bench load` against `sut`, its stamps counted from `clock_origin_s`, each robot's
+/// gateway `seq` kept in `seq_file`; the caller adds what the load runs.
+pub(crate) fn load_command(
+    bench: &Path,
+    sut: &SystemUnderTest,
+    target: Target,
+    encoding: WireEncoding,
+    clock_origin_s: f64,
+    seq_file: &Path,
+) -> Command {
+    let mut command = Command::new(bench);
+    command
+        .args(["load", "-e", &sut.endpoint, "--target", target_name(target)])
+        .args(["--sut-pid", &sut.pid().to_string()])
+        .args(["--encoding", encoding.as_str()])
+        .args(["--clock-origin", &clock_origin_s.to_string()])
+        .arg("--seq-file")
+        .arg(seq_file);
+    command
+}
 
 /// What every trial needs: the settings, the shared clock, the binaries and a scratch folder.
 pub(super) struct Orchestrator {
@@ -51,22 +79,7 @@ impl Orchestrator {
 
     /// `armtwin serve` with `config` (a file name in the work directory, written with `text`).
     pub(super) fn start_armtwin_with(&self, config: &str, text: &str) -> Result<SystemUnderTest> {
-        let port = free_port()?;
-        let endpoint = net::loopback_endpoint(port);
-        let config = self.work_dir.join(config);
-        std::fs::write(&config, text).with_context(|| format!("writing {}", config.display()))?;
-        let mut child = Command::new(&self.armtwin)
-            .arg("serve")
-            .arg("-c")
-            .arg(&config)
-            .args(["-l", &endpoint])
-            .env("RUST_LOG", "armtwin=warn,zenoh=error")
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .spawn()
-            .with_context(|| format!("starting {}", self.armtwin.display()))?;
-        wait_listening(port, &mut child)?;
-        Ok(SystemUnderTest { child, endpoint })
+        SystemUnderTest::armtwin(&self.armtwin, &self.work_dir.join(config), text)
     }
 
     pub(super) fn start_armtwin(
@@ -87,27 +100,25 @@ impl Orchestrator {
         encoding: WireEncoding,
         extra: &[String],
     ) -> Result<LoadReport> {
-        let target_name = match target {
-            Target::Echo => "echo",
-            Target::Armtwin => "armtwin",
-        };
+        let target_name = target_name(target);
         // One file per system under test: binary messages' gateway `seq` goes on from one load
         // process to the next.
         let seq_file = self
             .work_dir
             .join(format!("seq-{target_name}-{}.json", sut.pid()));
-        let output = Command::new(&self.bench)
-            .args(["load", "-e", &sut.endpoint, "--target", target_name])
-            .args(["--sut-pid", &sut.pid().to_string()])
-            .args(["--encoding", encoding.as_str()])
-            .args(["--clock-origin", &self.clock_origin_s.to_string()])
-            .arg("--seq-file")
-            .arg(&seq_file)
-            .args(extra)
-            .stdin(Stdio::null())
-            .stderr(Stdio::inherit())
-            .output()
-            .context("running the load generator")?;
+        let output = load_command(
+            &self.bench,
+            sut,
+            target,
+            encoding,
+            self.clock_origin_s,
+            &seq_file,
+        )
+        .args(extra)
+        .stdin(Stdio::null())
+        .stderr(Stdio::inherit())
+        .output()
+        .context("running the load generator")?;
         if !output.status.success() {
             bail!("the load generator failed: {}", output.status);
         }

@@ -29,8 +29,9 @@
 //! again before its rate counts as failed); a check at one fixed rate (`--check-embedded`: with
 //! embedded measured poses). Or, alone: the memory measurement of a system under test (which
 //! also times how long the system takes to declare the robots new to it); a first-contact trial
-//! (`--first-contact-rate`: full rate to robots the system has never seen, no warm-up); or the
-//! wait for a restarted armtwin's liveliness tokens (`--await-tokens`). Results go to standard
+//! (`--first-contact-rate`: full rate to robots the system has never seen, no warm-up); the
+//! wait for a restarted armtwin's liveliness tokens (`--await-tokens`); or a soak with churn
+//! (`--soak-duration`, in `churn`: a JSON line per interval as it goes). Results go to standard
 //! output as one JSON object; progress to standard error.
 #![allow(
     clippy::print_stdout,
@@ -40,7 +41,7 @@
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::{Arc, Mutex, OnceLock, PoisonError};
 use std::thread;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -58,6 +59,10 @@ use zenoh::pubsub::{Publisher, Subscriber};
 use zenoh::qos::CongestionControl;
 use zenoh::sample::Sample;
 use zenoh::session::Session;
+
+mod churn;
+
+pub use churn::{Soak, SoakInterval};
 
 use crate::net;
 use crate::procfs::{self, ProcError};
@@ -205,6 +210,24 @@ pub struct LoadArgs {
     /// after the kernel has buffered megabytes.
     #[arg(long)]
     pub slow_subscriber_ms: Option<u64>,
+    /// Instead of everything above: a soak of this many seconds, `--robots` robots each at
+    /// `--soak-hz`, reporting every `--soak-interval` seconds (a JSON line on standard output),
+    /// `--churn` of the robots leaving and as many never-seen ones joining every
+    /// `--churn-period` seconds.
+    #[arg(long)]
+    pub soak_duration: Option<f64>,
+    /// Soak: samples per second per robot.
+    #[arg(long, default_value_t = 100.0)]
+    pub soak_hz: f64,
+    /// Soak: seconds per reported interval.
+    #[arg(long, default_value_t = 10.0)]
+    pub soak_interval: f64,
+    /// Soak: the share of robots replaced by new ones every churn period (0: none).
+    #[arg(long, default_value_t = 0.0)]
+    pub churn: f64,
+    /// Soak: seconds between two churns.
+    #[arg(long, default_value_t = 60.0)]
+    pub churn_period: f64,
 }
 
 /// Why the load generator failed.
@@ -280,6 +303,8 @@ struct Replies {
     untimed_key: Option<String>,
     /// Poses the slow subscriber received.
     slow_poses: AtomicU64,
+    /// The soak's per-interval tally of poses, set when the soak starts.
+    soak: OnceLock<churn::Tally>,
 }
 
 /// What a subscriber does with a reply.
@@ -326,15 +351,23 @@ impl Replies {
             .untimed_key
             .as_deref()
             .is_none_or(|key| sample.key_expr().as_str() != key);
+        let recording = self.recording.load(Ordering::Relaxed);
+        let soak = self.soak.get();
         if timed
-            && self.recording.load(Ordering::Relaxed)
+            && (recording || soak.is_some())
             && let Some(stamp_s) = self.stamp_of(sample)
         {
             let latency_s = self.start_s + now_ns as f64 / 1e9 - stamp_s;
-            self.latencies_ns
-                .lock()
-                .unwrap_or_else(PoisonError::into_inner)
-                .push((latency_s * 1e9).max(0.0) as u64);
+            let latency_ns = (latency_s * 1e9).max(0.0) as u64;
+            if let Some(tally) = soak {
+                tally.record(stamp_s, latency_ns);
+            }
+            if recording {
+                self.latencies_ns
+                    .lock()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .push(latency_ns);
+            }
         }
         self.last_ns.fetch_max(now_ns, Ordering::AcqRel);
         self.poses.fetch_add(1, Ordering::Release);
@@ -454,19 +487,68 @@ pub struct LoadReport {
     /// Poses the slow subscriber received (`--slow-subscriber-ms`), of `totals.poses / robots`
     /// or so sent to it: the difference was dropped for it.
     pub slow_subscriber_poses: Option<u64>,
+    /// The soak (`--soak-duration`).
+    pub soak: Option<Soak>,
 }
 
 /// One robot's publishers and the reply keys it declared.
 struct RobotKeys {
     joints: Publisher<'static>,
     measured: Publisher<'static>,
-    _replies: Vec<KeyExpr<'static>>,
+    /// Undeclared when the robot leaves a soak (churn).
+    replies: Vec<KeyExpr<'static>>,
     /// Samples sent so far (which joint configuration comes next).
     next_seq: u64,
     /// The next gateway `seq` of a binary message.
     gateway_seq: u64,
     /// The last stamp sent (stamps increase strictly per robot).
     last_t_s: f64,
+}
+
+/// How a sample goes out: its payloads and their format.
+struct Outgoing<'a> {
+    workload: &'a Workload,
+    encoding: WireEncoding,
+    embedded: bool,
+}
+
+impl Outgoing<'_> {
+    /// Puts one sample of the robot of `keys`, stamped `now_s` (or just after its last stamp).
+    fn put(&self, keys: &mut RobotKeys, now_s: f64) -> Result<(), LoadError> {
+        let stamp_s = if now_s > keys.last_t_s {
+            now_s
+        } else {
+            keys.last_t_s + 1e-9
+        };
+        keys.last_t_s = stamp_s;
+        let seq = keys.next_seq;
+        keys.next_seq += 1;
+        if self.encoding == WireEncoding::ZenohSerialized {
+            let gateway_seq = keys.gateway_seq;
+            keys.gateway_seq += 1;
+            keys.joints
+                .put(
+                    self.workload
+                        .joints_zser(seq, stamp_s, gateway_seq, self.embedded),
+                )
+                .wait()?;
+            if !self.embedded {
+                keys.measured
+                    .put(self.workload.measured_zser(seq, stamp_s))
+                    .wait()?;
+            }
+        } else if self.embedded {
+            keys.joints
+                .put(self.workload.joints_with_measured(seq, stamp_s))
+                .wait()?;
+        } else {
+            keys.joints.put(self.workload.joints(seq, stamp_s)).wait()?;
+            keys.measured
+                .put(self.workload.measured(seq, stamp_s))
+                .wait()?;
+        }
+        Ok(())
+    }
 }
 
 struct Load {
@@ -509,6 +591,7 @@ pub fn run(args: LoadArgs) -> Result<LoadReport, LoadError> {
         gateways: load.args.gateways,
         totals: Counts::default(),
         slow_subscriber_poses: None,
+        soak: None,
     };
     if let Some(base_robots) = load.args.memory_base_robots {
         report.memory = Some(load.memory(base_robots.clamp(1, robots))?);
@@ -519,6 +602,8 @@ pub fn run(args: LoadArgs) -> Result<LoadReport, LoadError> {
                 .duration_since(UNIX_EPOCH)
                 .map_or(0.0, |d| d.as_secs_f64()),
         );
+    } else if let Some(duration_s) = load.args.soak_duration {
+        report.soak = Some(load.soak(duration_s)?);
     } else if let Some(rate) = load.args.first_contact_rate {
         load.declare_robots(robots)?;
         load.wait_for_subscriber()?;
@@ -600,6 +685,7 @@ impl Load {
                 .slow_subscriber_ms
                 .map(|_| net::key(net::POSE, &net::robot_id(0))),
             slow_poses: AtomicU64::new(0),
+            soak: OnceLock::new(),
         });
         let mut streams: Vec<(Stream, OnReply)> = vec![
             (net::POSE, Replies::pose),
@@ -700,51 +786,57 @@ impl Load {
     /// measurement declares no reply keys: it receives a few replies per robot, and the system
     /// under test should not hold our declarations for it.
     fn declare_robots(&mut self, count: usize) -> Result<(), LoadError> {
+        for index in self.robots.len()..count {
+            let keys = self.declare_robot(index)?;
+            self.robots.push(keys);
+        }
+        Ok(())
+    }
+
+    /// The publishers and reply keys of robot `index`, on gateway session `index % gateways`.
+    fn declare_robot(&self, index: usize) -> Result<RobotKeys, LoadError> {
         let reply_streams: &[Stream] = match (self.args.target, self.args.memory_base_robots) {
             (_, Some(_)) => &[],
             (Target::Echo, None) => &[net::POSE, net::DEVIATION],
             (Target::Armtwin, None) => &[net::POSE, net::DEVIATION, net::METRICS, net::EVENTS],
         };
-        for index in self.robots.len()..count {
-            let robot = net::robot_id(index);
-            let gateway = index % (self.senders.len() + 1);
-            let sender = match gateway {
-                0 => &self.session,
-                n => &self.senders[n - 1],
+        let robot = net::robot_id(index);
+        let gateway = index % (self.senders.len() + 1);
+        let sender = match gateway {
+            0 => &self.session,
+            n => &self.senders[n - 1],
+        };
+        let binary = self.args.encoding == WireEncoding::ZenohSerialized;
+        let publisher = |stream: Stream, schema: &str| {
+            let encoding = if binary {
+                Encoding::ZENOH_SERIALIZED.with_schema(schema)
+            } else {
+                Encoding::APPLICATION_JSON
             };
-            let binary = self.args.encoding == WireEncoding::ZenohSerialized;
-            let publisher = |stream: Stream, schema: &str| {
-                let encoding = if binary {
-                    Encoding::ZENOH_SERIALIZED.with_schema(schema)
-                } else {
-                    Encoding::APPLICATION_JSON
-                };
-                sender
-                    .declare_publisher(net::key(stream, &robot))
-                    .congestion_control(CongestionControl::Block)
-                    .encoding(encoding)
+            sender
+                .declare_publisher(net::key(stream, &robot))
+                .congestion_control(CongestionControl::Block)
+                .encoding(encoding)
+                .wait()
+        };
+        let joints = publisher(net::JOINTS, zser::JOINTS_SCHEMA)?;
+        let measured = publisher(net::MEASURED, zser::POSE_SCHEMA)?;
+        let replies = reply_streams
+            .iter()
+            .map(|&stream| {
+                self.session
+                    .declare_keyexpr(net::key(stream, &robot))
                     .wait()
-            };
-            let joints = publisher(net::JOINTS, zser::JOINTS_SCHEMA)?;
-            let measured = publisher(net::MEASURED, zser::POSE_SCHEMA)?;
-            let replies = reply_streams
-                .iter()
-                .map(|&stream| {
-                    self.session
-                        .declare_keyexpr(net::key(stream, &robot))
-                        .wait()
-                })
-                .collect::<Result<_, _>>()?;
-            self.robots.push(RobotKeys {
-                joints,
-                measured,
-                _replies: replies,
-                next_seq: 0,
-                gateway_seq: self.seq_start.get(index).copied().unwrap_or(0),
-                last_t_s: f64::NEG_INFINITY,
-            });
-        }
-        Ok(())
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(RobotKeys {
+            joints,
+            measured,
+            replies,
+            next_seq: 0,
+            gateway_seq: self.seq_start.get(index).copied().unwrap_or(0),
+            last_t_s: f64::NEG_INFINITY,
+        })
     }
 
     /// Waits until the system under test subscribes to both input streams, on every gateway's
@@ -779,41 +871,12 @@ impl Load {
     /// joint message with the measured pose embedded.
     fn send(&mut self, robot: usize) -> Result<(), LoadError> {
         let now_s = self.replies.now_s();
-        let keys = &mut self.robots[robot];
-        let stamp_s = if now_s > keys.last_t_s {
-            now_s
-        } else {
-            keys.last_t_s + 1e-9
+        let outgoing = Outgoing {
+            workload: &self.workload,
+            encoding: self.args.encoding,
+            embedded: self.embedded,
         };
-        keys.last_t_s = stamp_s;
-        let seq = keys.next_seq;
-        keys.next_seq += 1;
-        if self.args.encoding == WireEncoding::ZenohSerialized {
-            let gateway_seq = keys.gateway_seq;
-            keys.gateway_seq += 1;
-            let embedded = self.embedded;
-            keys.joints
-                .put(
-                    self.workload
-                        .joints_zser(seq, stamp_s, gateway_seq, embedded),
-                )
-                .wait()?;
-            if !embedded {
-                keys.measured
-                    .put(self.workload.measured_zser(seq, stamp_s))
-                    .wait()?;
-            }
-        } else if self.embedded {
-            keys.joints
-                .put(self.workload.joints_with_measured(seq, stamp_s))
-                .wait()?;
-        } else {
-            keys.joints.put(self.workload.joints(seq, stamp_s)).wait()?;
-            keys.measured
-                .put(self.workload.measured(seq, stamp_s))
-                .wait()?;
-        }
-        Ok(())
+        outgoing.put(&mut self.robots[robot], now_s)
     }
 
     /// Deviations expected per sample: one, except from the echo when the measured pose is

@@ -510,6 +510,7 @@ pub fn decode_joint_state(payload: &[u8], joints: &JointNames) -> Result<JointSa
         seq: None,
         q_rad,
         measured: None,
+        state: None,
     })
 }
 

@@ -309,6 +309,7 @@ pub fn read_joints(payload: &[u8], joint_count: usize) -> Result<DecodedJoints, 
             seq: Some(seq),
             q_rad,
             measured,
+            state: None,
         },
         measured_error,
     })

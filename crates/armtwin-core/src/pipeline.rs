@@ -51,7 +51,7 @@ use crate::align::AlignConfig;
 use crate::kinematics::PoseReadout;
 use crate::metrics::StatsSet;
 use crate::model::RobotModel;
-use crate::sample::JointSample;
+use crate::sample::{JointSample, JointState};
 use crate::self_calibration::{PairReservoir, ReservoirConfig};
 
 /// Another stream of measured poses for a robot (motion capture, a laser tracker, another
@@ -157,6 +157,9 @@ pub struct RobotState<'a> {
     pub model: &'a RobotModel,
     /// Last valid joint sample: stamp (s) and angles (rad).
     pub last_joints: Option<(f64, &'a [f64])>,
+    /// The latest of each part of the joint state reported beside the angles (velocities,
+    /// currents, temperatures, modes, payload), with the stamp of the last sample that had any.
+    pub last_state: Option<(f64, &'a JointState)>,
     /// Last twin pose: stamp (s) and pose.
     pub last_twin_pose: Option<(f64, &'a PoseReadout)>,
     /// Last measured pose (in the output frame): stamp (s) and pose.

@@ -61,6 +61,7 @@ fn sample(model: &RobotModel, q: [f64; 6], with_measured: bool) -> JointSample {
         seq: None,
         q_rad: q.to_vec(),
         measured: with_measured.then(|| model.pose(&q).expect("valid").readout()),
+        state: None,
     }
 }
 

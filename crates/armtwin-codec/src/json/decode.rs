@@ -555,6 +555,7 @@ impl MessageSlots {
                 seq,
                 q_rad,
                 measured,
+                state: None,
             },
             measured_error,
         })

@@ -377,6 +377,7 @@ pub fn joints(payload: &[u8], joint_count: usize) -> Option<DecodedJoints> {
             seq,
             q_rad,
             measured,
+            state: None,
         },
         measured_error: None,
     })

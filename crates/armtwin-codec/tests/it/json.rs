@@ -894,6 +894,7 @@ fn state_message_fields() {
             position: true,
             angle: false,
         },
+        last_state: None,
     };
     let json = parse(&to_json_bytes(&StateMessage::new(&state)));
     assert_eq!(

@@ -23,7 +23,7 @@ use crate::kinematics::{KinematicsError, OutputFrame, PoseReadout};
 use crate::metrics::{CumulativeStats, Deviation, WindowStats};
 use crate::model::{CalibrationForm, MountingDeltas, RobotModel};
 use crate::orientation;
-use crate::sample::JointSample;
+use crate::sample::{JointSample, JointState};
 use crate::self_calibration::PairReservoir;
 
 /// Largest deviation (m or rad) taken as a comparison (no arm reaches 100 m); beyond it a measured
@@ -82,6 +82,9 @@ pub struct Twin {
     last_gateway_seq: Option<u64>,
     last_joint_s: Option<f64>,
     last_joints: Vec<f64>,
+    /// The latest of each part of the joint state sources sent beside the angles, and the stamp
+    /// of the last joint sample that brought any.
+    last_state: Option<(f64, JointState)>,
     last_pose: Option<(f64, PoseReadout)>,
     /// Last accepted measured stamp per stream: index 0 the robot's own (controller) stream,
     /// `i + 1` sensor `i`.
@@ -118,6 +121,7 @@ impl Twin {
             last_gateway_seq: None,
             last_joint_s: None,
             last_joints: Vec::with_capacity(joint_count),
+            last_state: None,
             last_pose: None,
             last_measured_s: Vec::new(),
             last_measured: None,
@@ -331,6 +335,7 @@ impl Twin {
             last_joints: self
                 .last_joint_s
                 .map(|stamp_s| (stamp_s, self.last_joints.as_slice())),
+            last_state: self.last_state.as_ref().map(|(s, state)| (*s, state)),
             last_twin_pose: self.last_pose.as_ref().map(|(s, p)| (*s, p)),
             last_measured: self.last_measured.as_ref().map(|(s, p)| (*s, p)),
             metrics: self.snapshot(),
@@ -505,6 +510,15 @@ impl Twin {
         self.last_joint_s = Some(stamp_s);
         self.last_joints.clear();
         self.last_joints.extend_from_slice(&sample.q_rad);
+        if let Some(state) = sample.state.as_ref().filter(|state| !state.is_empty()) {
+            match &mut self.last_state {
+                Some((last_s, last)) => {
+                    *last_s = stamp_s;
+                    last.update_from(state);
+                }
+                None => self.last_state = Some((stamp_s, state.clone())),
+            }
+        }
         self.last_pose = Some((stamp_s, pose));
         Ok(pose)
     }
@@ -844,6 +858,7 @@ mod tests {
                 seq: Some(u64::from(i)),
                 q_rad: q_rad.clone(),
                 measured: (i % 3 == 0).then_some(off),
+                state: None,
             };
             if i % 7 == 0 {
                 inputs.push(Input::Joints(stamp_s, joints.clone()));
@@ -977,6 +992,7 @@ mod tests {
             seq: None,
             q_rad: q_rad.clone(),
             measured: None,
+            state: None,
         };
         let stats =
             |pipeline: &Pipeline| pipeline.twin(r1.index()).expect("tracked").stats.is_some();
@@ -1023,6 +1039,7 @@ mod tests {
                 seq: Some(u64::from(i)),
                 q_rad: q_rad.clone(),
                 measured: Some(off),
+                state: None,
             };
             first.joints(&r1, "j", f64::from(i) * 0.01, &joints, &mut Discard);
         }
@@ -1101,6 +1118,7 @@ mod tests {
             seq: None,
             q_rad: q_rad.to_vec(),
             measured: None,
+            state: None,
         };
         first.joints(&r1, "j", 0.0, &joints(), &mut Discard);
         assert_eq!(first.records()[0].applied, None, "the configured model");

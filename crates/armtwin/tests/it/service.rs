@@ -79,7 +79,13 @@ impl Harness {
     }
 
     async fn put_raw(&self, key: &str, payload: Vec<u8>) {
-        self.client.put(key, payload).await.expect("put");
+        // Blocking, not dropped under congestion: a large payload is fragmented, and on a loaded
+        // machine a dropped fragment would lose the message the test counts on.
+        self.client
+            .put(key, payload)
+            .congestion_control(zenoh::qos::CongestionControl::Block)
+            .await
+            .expect("put");
     }
 
     async fn receive_until(&mut self, what: &str, done: impl Fn(&[(String, Value)]) -> bool) {

@@ -234,8 +234,7 @@ type RigidTransform = (Matrix3<f64>, Vector3<f64>);
 /// `Rx(α) · Rz(qᵢ + θᵢ)` with the origin at `(a, 0, d)`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct JointGeometry {
-    cos_alpha: f64,
-    sin_alpha: f64,
+    twist: Twist,
     /// Joint i's origin in joint frame i−1 (m).
     origin_m: Vector3<f64>,
     theta_offset_rad: f64,
@@ -253,6 +252,91 @@ fn cos_sin(alpha_rad: f64) -> (f64, f64) {
     } else {
         let (sin, cos) = alpha_rad.sin_cos();
         (cos, sin)
+    }
+}
+
+/// A link twist `Rx(α)`. Every catalog arm's twists are 0 or ±π/2, where the rotation only
+/// swaps and negates components: naming those cases saves the recursion a third of its
+/// multiplications (the branch is the same on every call, so it predicts).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Twist {
+    Zero,
+    QuarterTurn,
+    MinusQuarterTurn,
+    Other { cos_alpha: f64, sin_alpha: f64 },
+}
+
+impl Twist {
+    #[allow(clippy::float_cmp, reason = "only exact 0 and ±π/2 take the shortcuts")]
+    fn from_alpha(alpha_rad: f64) -> Self {
+        use std::f64::consts::FRAC_PI_2;
+        if alpha_rad == 0.0 {
+            Self::Zero
+        } else if alpha_rad == FRAC_PI_2 {
+            Self::QuarterTurn
+        } else if alpha_rad == -FRAC_PI_2 {
+            Self::MinusQuarterTurn
+        } else {
+            let (sin_alpha, cos_alpha) = alpha_rad.sin_cos();
+            Self::Other {
+                cos_alpha,
+                sin_alpha,
+            }
+        }
+    }
+
+    /// `Rx(α) · v`.
+    #[inline]
+    fn rotate(self, v: &Vector3<f64>) -> Vector3<f64> {
+        match self {
+            Self::Zero => *v,
+            Self::QuarterTurn => Vector3::new(v.x, -v.z, v.y),
+            Self::MinusQuarterTurn => Vector3::new(v.x, v.z, -v.y),
+            Self::Other {
+                cos_alpha: c,
+                sin_alpha: s,
+            } => Vector3::new(v.x, c * v.y - s * v.z, s * v.y + c * v.z),
+        }
+    }
+
+    /// `Rx(α)ᵀ · v`.
+    #[inline]
+    fn rotate_back(self, v: &Vector3<f64>) -> Vector3<f64> {
+        match self {
+            Self::Zero => *v,
+            Self::QuarterTurn => Vector3::new(v.x, v.z, -v.y),
+            Self::MinusQuarterTurn => Vector3::new(v.x, -v.z, v.y),
+            Self::Other {
+                cos_alpha: c,
+                sin_alpha: s,
+            } => Vector3::new(v.x, c * v.y + s * v.z, c * v.z - s * v.y),
+        }
+    }
+}
+
+/// The rotation `parent_from_child = Rx(α) · Rz(q + θ)` of one joint at one state.
+#[derive(Debug, Clone, Copy)]
+struct JointRotation {
+    twist: Twist,
+    cos_q: f64,
+    sin_q: f64,
+}
+
+impl JointRotation {
+    /// `R · v`: a child-frame vector in the parent frame.
+    #[inline]
+    fn in_parent(&self, v: &Vector3<f64>) -> Vector3<f64> {
+        let (c, s) = (self.cos_q, self.sin_q);
+        self.twist
+            .rotate(&Vector3::new(c * v.x - s * v.y, s * v.x + c * v.y, v.z))
+    }
+
+    /// `Rᵀ · v`: a parent-frame vector in the child frame.
+    #[inline]
+    fn in_child(&self, v: &Vector3<f64>) -> Vector3<f64> {
+        let (c, s) = (self.cos_q, self.sin_q);
+        let u = self.twist.rotate_back(v);
+        Vector3::new(c * u.x + s * u.y, c * u.y - s * u.x, u.z)
     }
 }
 
@@ -548,8 +632,8 @@ impl<const N: usize> ArmDynamics<N> {
         for k in 0..N {
             let r = &rotations[k];
             let origin = &self.joints[k].origin_m;
-            let v = r.tr_mul(&(velocity + omega.cross(origin)));
-            let w_parent = r.tr_mul(&omega);
+            let v = r.in_child(&(velocity + omega.cross(origin)));
+            let w_parent = r.in_child(&omega);
             let w = w_parent + Vector3::z() * qd_rad_s[k];
             let body = &self.bodies[k];
             linear[k] = v * body.mass_kg + w.cross(&body.first_moment_kg_m);
@@ -566,9 +650,10 @@ impl<const N: usize> ArmDynamics<N> {
         for k in (0..N).rev() {
             if k + 1 < N {
                 let r = &rotations[k + 1];
-                let carried = r * subtree_linear;
-                subtree_angular =
-                    angular[k] + r * subtree_angular + self.joints[k + 1].origin_m.cross(&carried);
+                let carried = r.in_parent(&subtree_linear);
+                subtree_angular = angular[k]
+                    + r.in_parent(&subtree_angular)
+                    + self.joints[k + 1].origin_m.cross(&carried);
                 subtree_linear = linear[k] + carried;
             } else {
                 subtree_linear = linear[k];
@@ -590,13 +675,13 @@ impl<const N: usize> ArmDynamics<N> {
     /// Per joint, the rotation from joint frame i−1 (or the base) to joint frame i,
     /// `Rx(α) · Rz(qᵢ + θᵢ)`.
     #[inline]
-    fn joint_rotations(&self, q_rad: &[f64; N]) -> [Matrix3<f64>; N] {
+    fn joint_rotations(&self, q_rad: &[f64; N]) -> [JointRotation; N] {
         let angles: [f64; N] = std::array::from_fn(|k| q_rad[k] + self.joints[k].theta_offset_rad);
         let (sin, cos) = sin_cos(&angles);
-        std::array::from_fn(|k| {
-            let (ca, sa) = (self.joints[k].cos_alpha, self.joints[k].sin_alpha);
-            let (s, c) = (sin[k], cos[k]);
-            Matrix3::new(c, -s, 0.0, ca * s, ca * c, -sa, sa * s, sa * c, ca)
+        std::array::from_fn(|k| JointRotation {
+            twist: self.joints[k].twist,
+            cos_q: cos[k],
+            sin_q: sin[k],
         })
     }
 
@@ -605,7 +690,7 @@ impl<const N: usize> ArmDynamics<N> {
     #[inline]
     fn rnea(
         &self,
-        rotations: &[Matrix3<f64>; N],
+        rotations: &[JointRotation; N],
         qd_rad_s: &[f64; N],
         qdd_rad_s2: &[f64; N],
         base_acceleration_m_s2: Vector3<f64>,
@@ -619,13 +704,13 @@ impl<const N: usize> ArmDynamics<N> {
         for k in 0..N {
             let r = &rotations[k];
             let origin = &self.joints[k].origin_m;
-            let a = r.tr_mul(
+            let a = r.in_child(
                 &(acceleration + omega_dot.cross(origin) + omega.cross(&omega.cross(origin))),
             );
-            let w_parent = r.tr_mul(&omega);
+            let w_parent = r.in_child(&omega);
             let w = Vector3::new(w_parent.x, w_parent.y, w_parent.z + qd_rad_s[k]);
             // ω̇ = Rᵀω̇ₚ + (Rᵀωₚ) × z q̇ + z q̈, with (x, y, z) × ẑ = (y, −x, 0).
-            let wd_parent = r.tr_mul(&omega_dot);
+            let wd_parent = r.in_child(&omega_dot);
             let wd = Vector3::new(
                 wd_parent.x + w_parent.y * qd_rad_s[k],
                 wd_parent.y - w_parent.x * qd_rad_s[k],
@@ -646,8 +731,8 @@ impl<const N: usize> ArmDynamics<N> {
         for k in (0..N).rev() {
             if k + 1 < N {
                 let r = &rotations[k + 1];
-                let carried = r * f;
-                n = moment[k] + r * n + self.joints[k + 1].origin_m.cross(&carried);
+                let carried = r.in_parent(&f);
+                n = moment[k] + r.in_parent(&n) + self.joints[k + 1].origin_m.cross(&carried);
                 f = force[k] + carried;
             } else {
                 f = force[k];
@@ -705,10 +790,8 @@ fn compile_geometry<const N: usize>(
                 row.alpha_rad,
             ),
         };
-        let (cos_alpha, sin_alpha) = cos_sin(alpha_rad);
         JointGeometry {
-            cos_alpha,
-            sin_alpha,
+            twist: Twist::from_alpha(alpha_rad),
             origin_m: Vector3::new(a_m, 0.0, d_m),
             theta_offset_rad: row.theta_offset_rad,
         }

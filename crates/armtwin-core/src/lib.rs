@@ -13,7 +13,8 @@
 //! - [`trig`]: batched, vectorisable sine and cosine for the kinematics hot path.
 //! - [`kinematics`]: DH tables, tool and output frame, compiled chains, forward kinematics.
 //! - [`dynamics`]: inverse dynamics (recursive Newton–Euler), gravity torques, mass matrix and
-//!   generalized momentum; the published inertial parameters of the UR arms.
+//!   generalized momentum, the UR controller's torque model by mode, payload identification; the
+//!   published inertial parameters and drive data of the UR arms.
 //! - [`identify`]: a UR arm's `calibration.conf` deltas (and tool) fitted to its own paired
 //!   joint and pose samples.
 //! - [`ik`]: inverse kinematics of Universal Robots arms (closed form, Newton on calibrated

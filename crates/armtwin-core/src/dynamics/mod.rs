@@ -6,7 +6,8 @@
 //! reflected rotor inertia and friction of each joint, the gravity vector of the mounting, and
 //! the recursions over them. Must not: read files, keep caches, allocate per call, or know where
 //! the joint states come from (the service, a recording and the FMU hand them in alike). The
-//! published Universal Robots tables are in [`ur`].
+//! published Universal Robots tables and drive data are in [`ur`]; the payload's identification
+//! from torques in [`payload`].
 //!
 //! Frames. Link i's inertial parameters are given in the DH frame of link i in the arm's
 //! convention: standard DH (every catalog arm) puts it at the link's distal joint (frame 6 is the
@@ -24,6 +25,7 @@
 //! Robots' controller reports `target_moment` as this without friction, with gravity 9.82 m/s²
 //! and the payload as configured (`research/dynamics.md`).
 
+pub mod payload;
 pub mod ur;
 
 use nalgebra::{Matrix3, SMatrix, Vector3};
@@ -58,6 +60,32 @@ pub struct ArmInertials {
     /// Per joint: the drive's rotor inertia seen at the joint, `J_rotor · ratio²` (kg·m²); 0 where
     /// unknown.
     pub reflected_rotor_inertia_kg_m2: Vec<f64>,
+}
+
+/// What a Universal Robots controller's torque model (RTDE `target_moment`) contains.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ControllerMode {
+    /// A program moves the arm: the full inverse dynamics of the target state plus rotor inertia,
+    /// no friction.
+    Program,
+    /// Freedrive (teach button held, `target_qdd` ≡ 0): gravity only; velocity terms make the
+    /// comparison worse (`research/dynamics.md`).
+    Freedrive,
+}
+
+impl ControllerMode {
+    /// The bit of RTDE `robot_status_bits` set while the teach button is pressed.
+    pub const TEACH_BUTTON_BIT: u32 = 2;
+
+    /// The mode RTDE's `robot_status_bits` report.
+    #[must_use]
+    pub fn from_robot_status_bits(bits: u32) -> Self {
+        if bits & (1 << Self::TEACH_BUTTON_BIT) == 0 {
+            Self::Program
+        } else {
+            Self::Freedrive
+        }
+    }
 }
 
 /// A payload rigidly attached to the flange.
@@ -571,6 +599,64 @@ impl<const N: usize> ArmDynamics<N> {
                 + self.friction[k].torque_nm(qd_rad_s[k]);
         }
         tau_nm
+    }
+
+    /// The torques a Universal Robots controller reports as `target_moment` in `mode`, for the
+    /// target state: rigid body and rotor inertia in a program, gravity alone in freedrive;
+    /// friction never (the controller models it in its currents only).
+    #[must_use]
+    pub fn controller_moment_nm(
+        &self,
+        mode: ControllerMode,
+        q_rad: &[f64; N],
+        qd_rad_s: &[f64; N],
+        qdd_rad_s2: &[f64; N],
+    ) -> [f64; N] {
+        let rotations = self.joint_rotations(q_rad);
+        match mode {
+            ControllerMode::Program => {
+                let mut tau_nm =
+                    self.rnea(&rotations, qd_rad_s, qdd_rad_s2, -self.gravity_base_m_s2);
+                for k in 0..N {
+                    tau_nm[k] += self.reflected_rotor_inertia_kg_m2[k] * qdd_rad_s2[k];
+                }
+                tau_nm
+            }
+            ControllerMode::Freedrive => {
+                self.rnea(&rotations, &[0.0; N], &[0.0; N], -self.gravity_base_m_s2)
+            }
+        }
+    }
+
+    /// Per joint, the gravity torques (N·m) of a payload at rest per unit of its parameters
+    /// `[m, m·cx, m·cy, m·cz]` (kg, kg·m; `c` its centre of gravity in the flange frame): the
+    /// payload's gravity torques are this row times those parameters, whatever the arm carries.
+    #[must_use]
+    pub fn payload_gravity_regressor(&self, q_rad: &[f64; N]) -> [[f64; 4]; N] {
+        let rotations = self.joint_rotations(q_rad);
+        // At rest every link frame accelerates at −g; in the last joint's frame:
+        let mut acceleration = -self.gravity_base_m_s2;
+        for rotation in &rotations {
+            acceleration = rotation.in_child(&acceleration);
+        }
+        let (flange_rotation, flange_origin) = &self.last_joint_from_flange;
+        // Wrenches (force, moment about the last joint's origin) per unit parameter: a unit mass
+        // at the flange origin, then a unit first moment along each flange axis.
+        let mut wrenches = [(Vector3::zeros(), Vector3::zeros()); 4];
+        wrenches[0] = (acceleration, flange_origin.cross(&acceleration));
+        for axis in 0..3 {
+            wrenches[axis + 1].1 = flange_rotation.column(axis).cross(&acceleration);
+        }
+        let mut regressor = [[0.0; 4]; N];
+        for (column, (mut force, mut moment)) in wrenches.into_iter().enumerate() {
+            for k in (0..N).rev() {
+                regressor[k][column] = moment.z;
+                let rotation = &rotations[k];
+                force = rotation.in_parent(&force);
+                moment = rotation.in_parent(&moment) + self.joints[k].origin_m.cross(&force);
+            }
+        }
+        regressor
     }
 
     /// Gravity torques `g(q)` (N·m): what holds the arm still at `q_rad`.

@@ -351,3 +351,129 @@ fn a_custom_arm_with_the_catalog_table_and_parameters_gives_the_catalog_torques(
     let error = crate::model::custom::parse_arm(&wrong_inertia, "x.toml").unwrap_err();
     assert!(error.to_string().contains("inertia: 7 values"), "{error}");
 }
+
+#[test]
+fn the_payload_regressor_reproduces_the_payload_gravity_torques() {
+    let mut rng = Rng(0x5eed);
+    for (name, dynamics) in catalog_dynamics() {
+        let dynamics = dynamics.with_gravity_base_m_s2([1.0, -2.0, -9.5]).unwrap();
+        for _ in 0..20 {
+            let q = rng.joints(6.2);
+            let mass_kg = rng.uniform(0.0, 20.0);
+            let cog = [
+                rng.uniform(-0.2, 0.2),
+                rng.uniform(-0.2, 0.2),
+                rng.uniform(0.0, 0.3),
+            ];
+            let loaded = dynamics
+                .clone()
+                .with_payload(Payload::point_mass(mass_kg, cog))
+                .unwrap();
+            let expected: Vec<f64> = loaded
+                .gravity_nm(&q)
+                .iter()
+                .zip(dynamics.gravity_nm(&q))
+                .map(|(a, b)| a - b)
+                .collect();
+            let parameters = [
+                mass_kg,
+                mass_kg * cog[0],
+                mass_kg * cog[1],
+                mass_kg * cog[2],
+            ];
+            for (row, expected) in dynamics.payload_gravity_regressor(&q).iter().zip(expected) {
+                let got: f64 = row.iter().zip(parameters).map(|(y, p)| y * p).sum();
+                assert!(
+                    (got - expected).abs() < 1e-11,
+                    "{name}: {got} vs {expected}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn a_payload_is_identified_from_noisy_static_torques_within_its_stated_uncertainty() {
+    let mut rng = Rng(0xfeed);
+    let arm = ArmDynamics::<6>::from_arm(&catalog::arm("ur10e").unwrap()).unwrap();
+    let truth = Payload::point_mass(4.2, [0.02, -0.01, 0.11]);
+    let loaded = arm.clone().with_payload(truth).unwrap();
+    let mut within_two_std = 0;
+    let trials = 40;
+    for _ in 0..trials {
+        let mut identifier = payload::PayloadIdentifier::new();
+        assert!(identifier.estimate().is_none());
+        for _ in 0..100 {
+            let q = rng.joints(3.0);
+            // Measured: the loaded arm's gravity torques plus noise as currents show at rest
+            // (uniform ±0.5 N·m, σ ≈ 0.29 N·m).
+            let measured = loaded
+                .gravity_nm(&q)
+                .map(|tau| tau + rng.uniform(-0.5, 0.5));
+            let model = arm.gravity_nm(&q);
+            let beyond: [f64; 6] = std::array::from_fn(|k| measured[k] - model[k]);
+            identifier.add_static_sample(&arm, &q, &beyond);
+        }
+        let estimate = identifier.estimate().unwrap();
+        assert_eq!(estimate.samples, 100);
+        assert!(
+            estimate.mass_std_kg > 0.0 && estimate.mass_std_kg < 0.05,
+            "{estimate:?}"
+        );
+        let error = estimate.mass_kg - truth.mass_kg;
+        assert!(error.abs() < 5.0 * estimate.mass_std_kg, "{estimate:?}");
+        if error.abs() < 2.0 * estimate.mass_std_kg {
+            within_two_std += 1;
+        }
+        let cog = estimate.cog_flange_m.unwrap();
+        for (got, want) in cog.iter().zip(truth.cog_flange_m) {
+            assert!((got - want).abs() < 0.01, "{cog:?}");
+        }
+    }
+    // A stated σ that is honest puts ~95 % of estimates within 2σ.
+    assert!(
+        within_two_std >= trials * 8 / 10,
+        "{within_two_std} of {trials}"
+    );
+    // One pose repeated determines nothing.
+    let mut identifier = payload::PayloadIdentifier::new();
+    for _ in 0..10 {
+        identifier.add_static_sample(&arm, &[0.1; 6], &[1.0; 6]);
+    }
+    assert!(identifier.estimate().is_none());
+}
+
+#[test]
+fn the_controller_model_is_gravity_in_freedrive_and_never_friction() {
+    let friction = [JointFriction {
+        coulomb_nm: 3.0,
+        viscous_nm_s_rad: 0.5,
+    }; 6];
+    let dynamics = ArmDynamics::<6>::from_arm(&catalog::arm("ur5e").unwrap())
+        .unwrap()
+        .with_friction(friction)
+        .unwrap();
+    let (q, qd, qdd) = ([0.2, -1.1, 1.3, -0.4, 1.2, 0.3], [0.5; 6], [1.0; 6]);
+    assert_eq!(
+        ControllerMode::from_robot_status_bits(0b011),
+        ControllerMode::Program
+    );
+    assert_eq!(
+        ControllerMode::from_robot_status_bits(0b111),
+        ControllerMode::Freedrive
+    );
+    assert_eq!(
+        dynamics.controller_moment_nm(ControllerMode::Freedrive, &q, &qd, &qdd),
+        dynamics.gravity_nm(&q)
+    );
+    let program = dynamics.controller_moment_nm(ControllerMode::Program, &q, &qd, &qdd);
+    let full = dynamics.inverse_dynamics_nm(&q, &qd, &qdd);
+    let rubbing = dynamics.friction_nm(&qd);
+    for k in 0..6 {
+        assert!((program[k] + rubbing[k] - full[k]).abs() < 1e-12);
+    }
+    // Current to torque: a UR10e shoulder (size 4) 0.11968 N·m/A × 101.
+    let factors = ur::current_to_torque_nm_per_a("ur10e").unwrap();
+    assert!((factors[0] - 12.08768).abs() < 1e-9);
+    assert!(ur::current_to_torque_nm_per_a("ur20").is_none());
+}

@@ -28,6 +28,20 @@ pub const E_SERIES_GEAR_RATIO: f64 = 101.0;
 pub const E_SERIES_ROTOR_INERTIA_KG_M2: [f64; 5] =
     [7.0e-6, 2.0767e-5, 6.0e-5, 1.8774e-4, 5.90109e-4];
 
+/// Nominal torque constant (N·m/A, motor side) of e-Series joint sizes 0 to 4 (C). Each robot's
+/// own constants are measured at the factory and differ by about 1 %.
+pub const E_SERIES_TORQUE_CONSTANT_NM_PER_A: [f64; 5] =
+    [0.035685, 0.07695, 0.10756, 0.098322, 0.11968];
+
+/// Per joint, the nominal factor from motor current to joint torque, `K_τ · 101` (N·m/A), of an
+/// e-Series arm whose joint sizes are public (UR3e, UR5e, UR10e, UR16e); `None` otherwise. Joint
+/// torque ≈ current × this factor, friction and rotor inertia included in that torque.
+#[must_use]
+pub fn current_to_torque_nm_per_a(name: &str) -> Option<[f64; 6]> {
+    let sizes = table(name)?.joint_sizes?;
+    Some(sizes.map(|size| E_SERIES_TORQUE_CONSTANT_NM_PER_A[size] * E_SERIES_GEAR_RATIO))
+}
+
 /// One arm's table: per link mass (kg), centre of mass (m) and diagonal inertia about it
 /// (`[Ixx, Iyy, Izz]`, kg·m²), and the e-Series joint sizes where they are public.
 struct UrTable {
@@ -201,11 +215,9 @@ const UR30: UrTable = UrTable {
     joint_sizes: None,
 };
 
-/// The inertial parameters of catalog arm `name` (case-insensitive), `None` for a name the
-/// catalog does not hold.
-#[must_use]
-pub fn inertials(name: &str) -> Option<ArmInertials> {
-    let table = match name.to_ascii_lowercase().as_str() {
+/// The table of catalog arm `name` (case-insensitive).
+fn table(name: &str) -> Option<UrTable> {
+    Some(match name.to_ascii_lowercase().as_str() {
         "ur3" => UR3,
         "ur5" => UR5,
         "ur10" => UR10,
@@ -216,7 +228,14 @@ pub fn inertials(name: &str) -> Option<ArmInertials> {
         "ur20" => UR20,
         "ur30" => UR30,
         _ => return None,
-    };
+    })
+}
+
+/// The inertial parameters of catalog arm `name` (case-insensitive), `None` for a name the
+/// catalog does not hold.
+#[must_use]
+pub fn inertials(name: &str) -> Option<ArmInertials> {
+    let table = table(name)?;
     let links = (0..6)
         .map(|k| {
             let [ixx, iyy, izz] = table.inertia_diagonal_kg_m2[k];

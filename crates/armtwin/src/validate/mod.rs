@@ -6,6 +6,7 @@
 //! report can name the line of every rejection and plot every pair. This module owns the run and
 //! its result; [`report`] writes the files and [`svg`] draws the plots. It does no I/O itself.
 
+pub mod dynamics;
 pub mod report;
 pub mod svg;
 

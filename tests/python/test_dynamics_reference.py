@@ -342,6 +342,7 @@ def validate_dynamics(tmp_path, text, *extra):
     assert res.returncode == 0, res.stderr
     report = json.loads((out / "report.json").read_text())
     rows = (out / "dynamics.csv").read_text().splitlines()
+    assert "## Dynamics" in (out / "report.md").read_text()
     return report["dynamics"], rows, res.stderr
 
 

@@ -650,10 +650,86 @@ pub fn report_md(validation: &Validation, report: &ReportJson) -> String {
     }
     md.push_str("\n## Reading\n\n");
     md.push_str(&reading(validation, report));
+    if let Some(dynamics) = &report.dynamics {
+        md.push_str(&dynamics_md(dynamics));
+    }
     md.push_str("\n## Plots\n\n");
     for file in PLOT_FILES {
         let _ = writeln!(md, "![{file}]({file})");
     }
+    md
+}
+
+/// The `## Dynamics` section of `report.md`: the per-joint table and the payloads.
+fn dynamics_md(dynamics: &DynamicsJson) -> String {
+    let mut md = String::from("\n## Dynamics\n\n");
+    let modes: Vec<String> = dynamics
+        .modes
+        .iter()
+        .map(|(mode, rows)| format!("{rows} {mode}"))
+        .collect();
+    let _ = writeln!(
+        md,
+        "{} rows modelled on the {} state ({}; the model is the full dynamics in program mode and \
+         gravity in freedrive, as the controller's `target_moment`), {} lines without a state.\n",
+        dynamics.rows,
+        dynamics.state,
+        modes.join(", "),
+        dynamics.skipped
+    );
+    let _ = writeln!(
+        md,
+        "| Joint | model − target_moment RMS (N·m) | max (N·m) | currents − model RMS (N·m) | max (N·m) |\n|---|---:|---:|---:|---:|"
+    );
+    let cell = |stats: Option<&JointTorqueStatsJson>, k: usize, rms: bool| {
+        stats.map_or_else(
+            || "–".to_owned(),
+            |s| format!("{:.4}", if rms { s.rms_nm[k] } else { s.max_nm[k] }),
+        )
+    };
+    let (target, currents) = (
+        dynamics.model_vs_target_moment.as_ref(),
+        dynamics.model_vs_currents.as_ref(),
+    );
+    for k in 0..6 {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} |",
+            k + 1,
+            cell(target, k, true),
+            cell(target, k, false),
+            cell(currents, k, true),
+            cell(currents, k, false)
+        );
+    }
+    let describe = |p: &PayloadJson| {
+        let cog = p.cog_m.map_or_else(
+            || "no centre of gravity".to_owned(),
+            |c| {
+                format!(
+                    "centre of gravity ({:.4}, {:.4}, {:.4}) m",
+                    c[0], c[1], c[2]
+                )
+            },
+        );
+        match p.mass_std_kg {
+            Some(std) => format!("{:.3} ± {std:.3} kg, {cog} ({})", p.mass_kg, p.source),
+            None => format!("{:.3} kg, {cog} ({})", p.mass_kg, p.source),
+        }
+    };
+    let _ = writeln!(
+        md,
+        "\nPayload configured: {}. Identified: {}.",
+        dynamics
+            .payload
+            .configured
+            .as_ref()
+            .map_or_else(|| "none".to_owned(), describe),
+        dynamics.payload.identified.as_ref().map_or_else(
+            || "not determined (too few program-mode rows at rest, or poses too alike)".to_owned(),
+            describe
+        )
+    );
     md
 }
 

@@ -34,7 +34,8 @@ eval "$(bash scripts/test-tools.sh)"
 export ARMTWIN_CHROMIUM ARMTWIN_PROMETHEUS
 
 step "pytest tests/python"
-# The armtwin binary and the FMU library beside it, from the build `cargo test` just made: the
+# The armtwin binary, the FMU library beside it and the core's `examples/rnea_json` (the dynamics
+# reference test's route into the core), from the build `cargo test` just made: the
 # same targets with the same feature set (dev-dependencies included), so nothing is compiled
 # again; only the FMU's cdylib is copied up to target/debug/.
 cargo build --locked --workspace --lib --bins --tests

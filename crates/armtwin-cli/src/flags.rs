@@ -195,6 +195,21 @@ pub struct ValidateArgs {
     /// radians.
     #[arg(long, value_name = "RADIANS")]
     pub max_angle_error: Option<f64>,
+    /// Also compare the joint torques of a UR RTDE recording (`target_moment_*`,
+    /// `actual_current_*`) with the model's inverse dynamics: writes `dynamics.csv` and a
+    /// `dynamics` object in `report.json`.
+    #[arg(long)]
+    pub dynamics: bool,
+    /// With --dynamics, for a recording without `payload` and `payload_cog_*` columns: the
+    /// payload as mass (kg) and centre of gravity in the flange frame (m).
+    #[arg(
+        long,
+        value_name = "MASS,CX,CY,CZ",
+        value_delimiter = ',',
+        allow_negative_numbers = true,
+        requires = "dynamics"
+    )]
+    pub payload: Vec<f64>,
 }
 
 /// `armtwin serve` arguments.

@@ -454,6 +454,48 @@ fn mapped_layout(names: &[&str], map: &ColumnMap) -> Result<Layout, RecordingErr
     })
 }
 
+/// Named numeric columns of a recording's data lines (`armtwin validate --dynamics` reads a UR
+/// RTDE recording's currents, targets and payload this way, beside its joint rows).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ColumnTable {
+    /// Per name asked for, whether the header has it (compared case-insensitively).
+    pub found: Vec<bool>,
+    /// Per data line: its 1-based line number and, per name, the cell's number if it has one.
+    /// A line that does not split into the header's columns has no numbers.
+    pub rows: Vec<(u64, Vec<Option<f64>>)>,
+}
+
+/// Reads the columns `names` of every data line of `text`, with the separators and line numbers
+/// of [`read`].
+pub fn read_columns(text: &str, names: &[&str]) -> Result<ColumnTable, RecordingError> {
+    let mut lines = RecordLines::new(text);
+    lines.advance().ok_or(RecordingError::Empty)?;
+    let header: Vec<String> = lines.cells().iter().map(str::to_owned).collect();
+    let indices: Vec<Option<usize>> = names
+        .iter()
+        .map(|name| header.iter().position(|h| h.eq_ignore_ascii_case(name)))
+        .collect();
+    let mut rows = Vec::new();
+    while let Some(line) = lines.advance() {
+        let cells = lines.cells();
+        let whole = cells.len() == header.len();
+        let values = indices
+            .iter()
+            .map(|index| {
+                index
+                    .filter(|_| whole)
+                    .and_then(|i| cells.get(i))
+                    .and_then(|cell| cell.parse::<f64>().ok())
+            })
+            .collect();
+        rows.push((line.line, values));
+    }
+    Ok(ColumnTable {
+        found: indices.iter().map(Option::is_some).collect(),
+        rows,
+    })
+}
+
 /// Reads a recording whose layout is recognised from its header.
 pub fn read(text: &str) -> Result<Recording, RecordingError> {
     read_with(text, None)
@@ -647,6 +689,22 @@ mod tests {
         assert_eq!(message["measured"]["rx"], json!(0.1));
         let malformed = recording.entries[1].as_ref().expect_err("extra column");
         assert_eq!(malformed.line, 3);
+    }
+
+    #[test]
+    fn named_columns_are_read_with_the_rows_line_numbers() {
+        let text = "timestamp actual_current_0 payload robot_status_bits\n\n1.0 0.5 2.0 3\n1.002 x 2.0 7\n1.004 0.25 2.0\n";
+        let table = read_columns(text, &["payload", "ACTUAL_CURRENT_0", "target_moment_0"])
+            .expect("a header");
+        assert_eq!(table.found, [true, true, false]);
+        assert_eq!(
+            table.rows,
+            [
+                (3, vec![Some(2.0), Some(0.5), None]),
+                (4, vec![Some(2.0), None, None]),
+                (5, vec![None, None, None]),
+            ]
+        );
     }
 
     #[test]

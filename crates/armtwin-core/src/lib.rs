@@ -12,6 +12,9 @@
 //!   conversions, and the orientation error measures.
 //! - [`trig`]: batched, vectorisable sine and cosine for the kinematics hot path.
 //! - [`kinematics`]: DH tables, tool and output frame, compiled chains, forward kinematics.
+//! - [`dynamics`]: inverse dynamics (recursive Newton–Euler), gravity torques, mass matrix and
+//!   generalized momentum, the UR controller's torque model by mode, payload identification; the
+//!   published inertial parameters and drive data of the UR arms.
 //! - [`identify`]: a UR arm's `calibration.conf` deltas (and tool) fitted to its own paired
 //!   joint and pose samples.
 //! - [`ik`]: inverse kinematics of Universal Robots arms (closed form, Newton on calibrated
@@ -30,6 +33,7 @@
 //!   `armtwin fmu build` and the FMU library.
 
 pub mod align;
+pub mod dynamics;
 pub mod fmi;
 pub mod identify;
 pub mod ik;

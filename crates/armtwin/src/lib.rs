@@ -31,8 +31,8 @@
 
 pub use armtwin_codec as codec;
 pub use armtwin_core::{
-    align, fmi, identify, ik, kinematics, metrics, model, orientation, pipeline, pose_fields,
-    sample, self_calibration, trig,
+    align, dynamics, fmi, identify, ik, kinematics, metrics, model, orientation, pipeline,
+    pose_fields, sample, self_calibration, trig,
 };
 
 pub mod calibrate;

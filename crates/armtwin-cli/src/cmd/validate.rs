@@ -12,8 +12,13 @@ use armtwin::config::{Overrides, ServiceConfig};
 use armtwin::pipeline::RobotSettings;
 use armtwin::validate;
 
-use super::progress_bar;
+use super::{progress_bar, read_text};
 use crate::flags::ValidateArgs;
+use armtwin::codec::recording;
+use armtwin::dynamics::Payload;
+use armtwin::model::RobotModel;
+use armtwin::validate::dynamics::{self as validate_dynamics, DynamicsValidation};
+use armtwin::validate::report::DynamicsJson;
 
 /// Exit status of `validate` when a gate limit is exceeded.
 pub const EXIT_GATE_FAILED: u8 = 3;
@@ -34,6 +39,7 @@ pub(super) fn run(args: &ValidateArgs) -> Result<()> {
             bail!("{flag} must be a non-negative number, got {v}");
         }
     }
+    let payload = payload_flag(&args.payload)?;
     let model = args.robot.load()?;
     let config = ServiceConfig::load(args.config.as_deref(), &Overrides::default())?;
     let (recording, times) = args.input.load()?;
@@ -56,6 +62,11 @@ pub(super) fn run(args: &ValidateArgs) -> Result<()> {
         }
     });
     bar.finish_and_clear();
+    let dynamics = if args.dynamics {
+        Some(compare_dynamics(args, &model, payload)?)
+    } else {
+        None
+    };
     let out = args.out.clone().unwrap_or_else(|| {
         let stem = args
             .input
@@ -70,6 +81,7 @@ pub(super) fn run(args: &ValidateArgs) -> Result<()> {
         model: &model,
         max_position_error_m: args.max_position_error,
         max_angle_error_rad: args.max_angle_error,
+        dynamics: dynamics.as_ref(),
     };
     let (report, written) = validate::report::write_all(&out, &validation, &context)
         .with_context(|| format!("cannot write the report into {}", out.display()))?;
@@ -100,9 +112,83 @@ pub(super) fn run(args: &ValidateArgs) -> Result<()> {
             report.rejections.len()
         );
     }
+    if let Some(dynamics) = &report.dynamics {
+        summarise_dynamics(dynamics);
+    }
     eprintln!("wrote {} files into {}", written.len(), out.display());
     if !report.gate.passed {
         return Err(GateFailed(report.gate.failures.join("; ")).into());
     }
     Ok(())
+}
+
+/// `--dynamics`: the recording's torque columns read again beside its joint rows (a text
+/// recording; rosbag2 has no currents) and compared with the model.
+fn compare_dynamics(
+    args: &ValidateArgs,
+    model: &RobotModel,
+    payload: Option<Payload>,
+) -> Result<DynamicsValidation> {
+    let text = read_text(&args.input.recording)?;
+    let names = validate_dynamics::wanted_columns();
+    let names: Vec<&str> = names.iter().map(String::as_str).collect();
+    let table = recording::read_columns(&text, &names)?;
+    Ok(validate_dynamics::compare(&table, model.arm(), payload)?)
+}
+
+fn summarise_dynamics(dynamics: &DynamicsJson) {
+    let modes: Vec<String> = dynamics
+        .modes
+        .iter()
+        .map(|(mode, rows)| format!("{rows} {mode}"))
+        .collect();
+    eprintln!(
+        "dynamics: {} rows modelled on the {} state ({}), {} skipped",
+        dynamics.rows,
+        dynamics.state,
+        modes.join(", "),
+        dynamics.skipped
+    );
+    let rms = |stats: &validate::report::JointTorqueStatsJson| {
+        stats
+            .rms_nm
+            .iter()
+            .map(|v| format!("{v:.3}"))
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    if let Some(stats) = &dynamics.model_vs_target_moment {
+        eprintln!(
+            "  model − target_moment RMS per joint (N·m): {}",
+            rms(stats)
+        );
+    }
+    if let Some(stats) = &dynamics.model_vs_currents {
+        eprintln!("  currents − model RMS per joint (N·m): {}", rms(stats));
+    }
+    if let Some(identified) = &dynamics.payload.identified {
+        eprintln!(
+            "  payload identified from currents: {:.3} ± {:.3} kg ({} rows at rest)",
+            identified.mass_kg,
+            identified.mass_std_kg.unwrap_or(f64::NAN),
+            identified.samples.unwrap_or(0)
+        );
+    }
+}
+
+/// `--payload MASS,CX,CY,CZ`, checked.
+fn payload_flag(values: &[f64]) -> Result<Option<Payload>> {
+    Ok(match values[..] {
+        [] => None,
+        [mass_kg, x, y, z] => {
+            if !([mass_kg, x, y, z].iter().all(|v| v.is_finite()) && mass_kg >= 0.0) {
+                bail!("--payload needs a mass of at least 0 kg and a finite centre of gravity");
+            }
+            Some(Payload::point_mass(mass_kg, [x, y, z]))
+        }
+        _ => bail!(
+            "--payload takes MASS,CX,CY,CZ (4 values), got {}",
+            values.len()
+        ),
+    })
 }

@@ -12,6 +12,7 @@ mod reference;
 
 use thiserror::Error;
 
+use crate::dynamics::ArmInertials;
 use crate::kinematics::{
     Chain, DhConvention, DhParameters, KinematicsError, OutputFrame, Pose, TcpOffset,
 };
@@ -42,7 +43,8 @@ impl JointLimits {
     }
 }
 
-/// A nominal arm: a DH table with the limits of each joint.
+/// A nominal arm: a DH table with the limits of each joint, and its links' inertial parameters
+/// where known.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ArmDescription {
     /// Model name (`ur10e`, or a custom arm's own name).
@@ -53,6 +55,9 @@ pub struct ArmDescription {
     pub dh: Vec<DhParameters>,
     /// One entry per joint.
     pub joint_limits: Vec<JointLimits>,
+    /// Link masses, centres of mass and inertias in the DH link frames of `convention`, and rotor
+    /// inertias, for [`crate::dynamics`]; `None` when not published or not given.
+    pub inertials: Option<ArmInertials>,
 }
 
 /// Why a robot model cannot be built.

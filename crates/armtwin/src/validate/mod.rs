@@ -4,8 +4,10 @@
 //! message, a malformed line's raw text), which go through [`ingest::joint_message`] into a
 //! [`Pipeline`] configured like the service's. What comes out is collected per row, so the
 //! report can name the line of every rejection and plot every pair. This module owns the run and
-//! its result; [`report`] writes the files and [`svg`] draws the plots. It does no I/O itself.
+//! its result; [`report`] writes the files and [`svg`] draws the plots; [`dynamics`] compares a
+//! UR RTDE recording's joint torques with the model (`--dynamics`). It does no I/O itself.
 
+pub mod dynamics;
 pub mod report;
 pub mod svg;
 

@@ -11,10 +11,12 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
+use super::dynamics::{DynamicsValidation, PayloadSource, StateSource};
 use super::svg::{self, Series};
 use super::{EventCounts, Rejection, Validation};
 use crate::codec::PoseFields;
 use crate::codec::json::StatsSetJson;
+use crate::dynamics::ControllerMode;
 use crate::kinematics::PoseReadout;
 use crate::metrics::{Deviation, METRIC_NAMES};
 use crate::model::RobotModel;
@@ -30,6 +32,8 @@ pub struct Context<'a> {
     pub max_position_error_m: Option<f64>,
     /// Gate on the largest rotation angle (rad), if given.
     pub max_angle_error_rad: Option<f64>,
+    /// The recording's joint torques against the model (`--dynamics`), if asked for.
+    pub dynamics: Option<&'a DynamicsValidation>,
 }
 
 /// The robot description in the report.
@@ -142,8 +146,175 @@ pub struct ReportJson {
     pub mean_offset_m: [f64; 3],
     /// The gate.
     pub gate: GateJson,
+    /// The joint torques against the model, with `--dynamics`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dynamics: Option<DynamicsJson>,
     /// The armtwin version that computed this.
     pub armtwin_version: &'static str,
+}
+
+/// Per joint, the RMS and largest absolute value of a torque difference (N·m).
+#[derive(Debug, Clone, Serialize)]
+pub struct JointTorqueStatsJson {
+    /// Rows compared.
+    pub rows: usize,
+    /// Root mean square per joint (N·m).
+    pub rms_nm: [f64; 6],
+    /// Largest absolute value per joint (N·m).
+    pub max_nm: [f64; 6],
+}
+
+impl JointTorqueStatsJson {
+    fn of(differences: impl Iterator<Item = [f64; 6]>) -> Option<Self> {
+        let mut rows = 0;
+        let mut sum_squares = [0.0; 6];
+        let mut max_nm = [0.0_f64; 6];
+        for difference in differences {
+            rows += 1;
+            for k in 0..6 {
+                sum_squares[k] += difference[k] * difference[k];
+                max_nm[k] = max_nm[k].max(difference[k].abs());
+            }
+        }
+        (rows > 0).then(|| Self {
+            rows,
+            rms_nm: sum_squares.map(|s| (s / rows as f64).sqrt()),
+            max_nm,
+        })
+    }
+}
+
+/// A payload in the report: mass and centre of gravity in the flange frame.
+#[derive(Debug, Clone, Serialize)]
+pub struct PayloadJson {
+    /// Mass (kg).
+    pub mass_kg: f64,
+    /// Centre of gravity (m) in the flange frame; `null` when the identified mass is not positive.
+    pub cog_m: Option<[f64; 3]>,
+    /// Where it came from: `recording`, `command line`, or for an identified payload how.
+    pub source: &'static str,
+    /// For an identified payload: the standard deviation of its mass (kg).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mass_std_kg: Option<f64>,
+    /// For an identified payload: the rows it was identified from.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub samples: Option<usize>,
+}
+
+/// `payload`: what the controller was told, and what the currents say.
+#[derive(Debug, Clone, Serialize)]
+pub struct PayloadsJson {
+    /// The configured payload (of the first modelled row), if any.
+    pub configured: Option<PayloadJson>,
+    /// The payload identified from the currents, if the rows at rest determine it.
+    pub identified: Option<PayloadJson>,
+}
+
+/// `dynamics`: the recording's joint torques against the model.
+#[derive(Debug, Clone, Serialize)]
+pub struct DynamicsJson {
+    /// The state modelled: `target` (the controller's own) or `actual` (q̈ from differences).
+    pub state: &'static str,
+    /// Rows modelled.
+    pub rows: usize,
+    /// Data lines without a complete state.
+    pub skipped: usize,
+    /// Rows per controller mode: the model is the full dynamics in `program`, gravity in
+    /// `freedrive`, as the controller's `target_moment` is.
+    pub modes: BTreeMap<&'static str, usize>,
+    /// Model minus `target_moment`, where recorded.
+    pub model_vs_target_moment: Option<JointTorqueStatsJson>,
+    /// Torque from currents minus the model (the residual), for arms with public drive data.
+    pub model_vs_currents: Option<JointTorqueStatsJson>,
+    /// The payloads.
+    pub payload: PayloadsJson,
+}
+
+/// The `dynamics` object of `report.json`.
+#[must_use]
+pub fn dynamics_json(dynamics: &DynamicsValidation) -> DynamicsJson {
+    let mut modes = BTreeMap::from([("program", 0), ("freedrive", 0)]);
+    for row in &dynamics.rows {
+        *modes.entry(mode_name(row.mode)).or_insert(0) += 1;
+    }
+    let difference = |a: [f64; 6], b: [f64; 6]| std::array::from_fn(|k| a[k] - b[k]);
+    DynamicsJson {
+        state: match dynamics.state_source {
+            StateSource::Target => "target",
+            StateSource::Actual => "actual",
+        },
+        rows: dynamics.rows.len(),
+        skipped: dynamics.skipped_lines.len(),
+        modes,
+        model_vs_target_moment: JointTorqueStatsJson::of(dynamics.rows.iter().filter_map(|row| {
+            row.target_moment_nm
+                .map(|target| difference(row.tau_model_nm, target))
+        })),
+        model_vs_currents: JointTorqueStatsJson::of(dynamics.rows.iter().filter_map(|row| {
+            row.tau_measured_nm
+                .map(|measured| difference(measured, row.tau_model_nm))
+        })),
+        payload: PayloadsJson {
+            configured: dynamics.payload_configured.map(|p| PayloadJson {
+                mass_kg: p.mass_kg,
+                cog_m: Some(p.cog_flange_m),
+                source: match dynamics.payload_source {
+                    PayloadSource::Recording => "recording",
+                    PayloadSource::CommandLine => "command line",
+                    PayloadSource::None => "none",
+                },
+                mass_std_kg: None,
+                samples: None,
+            }),
+            identified: dynamics.payload_identified.map(|p| PayloadJson {
+                mass_kg: p.mass_kg,
+                cog_m: p.cog_flange_m,
+                source: "currents, program-mode rows at rest",
+                mass_std_kg: Some(p.mass_std_kg),
+                samples: Some(p.samples),
+            }),
+        },
+    }
+}
+
+fn mode_name(mode: ControllerMode) -> &'static str {
+    match mode {
+        ControllerMode::Program => "program",
+        ControllerMode::Freedrive => "freedrive",
+    }
+}
+
+/// `dynamics.csv`: per modelled row `t`, `line`, `mode`, then six each of `tau_model`,
+/// `tau_measured` (from currents), `residual` (measured − model) and `target_moment`; cells the
+/// recording cannot give are empty. Numbers in Rust's shortest round-trip form.
+pub fn write_dynamics_csv(dynamics: &DynamicsValidation, out: &mut impl Write) -> io::Result<()> {
+    let mut header = vec!["t".to_owned(), "line".to_owned(), "mode".to_owned()];
+    for group in ["tau_model", "tau_measured", "residual", "target_moment"] {
+        header.extend((0..6).map(|k| format!("{group}_{k}")));
+    }
+    writeln!(out, "{}", header.join(","))?;
+    let cells = |values: Option<[f64; 6]>| -> Vec<String> {
+        match values {
+            Some(values) => values.iter().map(|v| format!("{v:?}")).collect(),
+            None => vec![String::new(); 6],
+        }
+    };
+    for row in &dynamics.rows {
+        let residual = row
+            .tau_measured_nm
+            .map(|m| std::array::from_fn(|k| m[k] - row.tau_model_nm[k]));
+        let mut line = vec![
+            row.t_s.map(|t| format!("{t:?}")).unwrap_or_default(),
+            row.line.to_string(),
+            mode_name(row.mode).to_owned(),
+        ];
+        line.extend(cells(Some(row.tau_model_nm)));
+        line.extend(cells(row.tau_measured_nm));
+        line.extend(cells(residual));
+        line.extend(cells(row.target_moment_nm));
+        writeln!(out, "{}", line.join(","))?;
+    }
+    Ok(())
 }
 
 #[allow(
@@ -260,6 +431,7 @@ pub fn report_json(validation: &Validation, context: &Context<'_>) -> ReportJson
         cumulative: StatsSetJson::from(&validation.metrics.cumulative),
         mean_offset_m,
         gate: gate(validation, context),
+        dynamics: context.dynamics.map(dynamics_json),
         armtwin_version: env!("CARGO_PKG_VERSION"),
     }
 }
@@ -478,10 +650,86 @@ pub fn report_md(validation: &Validation, report: &ReportJson) -> String {
     }
     md.push_str("\n## Reading\n\n");
     md.push_str(&reading(validation, report));
+    if let Some(dynamics) = &report.dynamics {
+        md.push_str(&dynamics_md(dynamics));
+    }
     md.push_str("\n## Plots\n\n");
     for file in PLOT_FILES {
         let _ = writeln!(md, "![{file}]({file})");
     }
+    md
+}
+
+/// The `## Dynamics` section of `report.md`: the per-joint table and the payloads.
+fn dynamics_md(dynamics: &DynamicsJson) -> String {
+    let mut md = String::from("\n## Dynamics\n\n");
+    let modes: Vec<String> = dynamics
+        .modes
+        .iter()
+        .map(|(mode, rows)| format!("{rows} {mode}"))
+        .collect();
+    let _ = writeln!(
+        md,
+        "{} rows modelled on the {} state ({}; the model is the full dynamics in program mode and \
+         gravity in freedrive, as the controller's `target_moment`), {} lines without a state.\n",
+        dynamics.rows,
+        dynamics.state,
+        modes.join(", "),
+        dynamics.skipped
+    );
+    let _ = writeln!(
+        md,
+        "| Joint | model − target_moment RMS (N·m) | max (N·m) | currents − model RMS (N·m) | max (N·m) |\n|---|---:|---:|---:|---:|"
+    );
+    let cell = |stats: Option<&JointTorqueStatsJson>, k: usize, rms: bool| {
+        stats.map_or_else(
+            || "–".to_owned(),
+            |s| format!("{:.4}", if rms { s.rms_nm[k] } else { s.max_nm[k] }),
+        )
+    };
+    let (target, currents) = (
+        dynamics.model_vs_target_moment.as_ref(),
+        dynamics.model_vs_currents.as_ref(),
+    );
+    for k in 0..6 {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} |",
+            k + 1,
+            cell(target, k, true),
+            cell(target, k, false),
+            cell(currents, k, true),
+            cell(currents, k, false)
+        );
+    }
+    let describe = |p: &PayloadJson| {
+        let cog = p.cog_m.map_or_else(
+            || "no centre of gravity".to_owned(),
+            |c| {
+                format!(
+                    "centre of gravity ({:.4}, {:.4}, {:.4}) m",
+                    c[0], c[1], c[2]
+                )
+            },
+        );
+        match p.mass_std_kg {
+            Some(std) => format!("{:.3} ± {std:.3} kg, {cog} ({})", p.mass_kg, p.source),
+            None => format!("{:.3} kg, {cog} ({})", p.mass_kg, p.source),
+        }
+    };
+    let _ = writeln!(
+        md,
+        "\nPayload configured: {}. Identified: {}.",
+        dynamics
+            .payload
+            .configured
+            .as_ref()
+            .map_or_else(|| "none".to_owned(), describe),
+        dynamics.payload.identified.as_ref().map_or_else(
+            || "not determined (too few program-mode rows at rest, or poses too alike)".to_owned(),
+            describe
+        )
+    );
     md
 }
 
@@ -602,6 +850,11 @@ pub fn write_all(
         ("report.md", report_md(validation, &report).into_bytes()),
         ("rows.csv", csv),
     ];
+    if let Some(dynamics) = context.dynamics {
+        let mut csv = Vec::new();
+        write_dynamics_csv(dynamics, &mut csv)?;
+        files.push(("dynamics.csv", csv));
+    }
     files.extend(
         plots(validation)
             .into_iter()

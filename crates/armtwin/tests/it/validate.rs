@@ -187,6 +187,7 @@ fn report_files_carry_the_services_metrics_shape_and_every_row() {
         model: &model,
         max_position_error_m: Some(0.001),
         max_angle_error_rad: None,
+        dynamics: None,
     };
     let (json, written) = report::write_all(dir.path(), &v, &context).expect("written");
     assert_eq!(written.len(), 3 + PLOT_FILES.len());
@@ -237,6 +238,7 @@ fn joints_only_recordings_yield_poses_and_no_gate_can_pass_without_pairs() {
         model: &model,
         max_position_error_m: None,
         max_angle_error_rad: None,
+        dynamics: None,
     };
     let (json, _) = report::write_all(dir.path(), &v, &context).expect("written");
     assert!(json.gate.passed);

@@ -1,0 +1,68 @@
+//! Inverse dynamics cost: one six-joint recursive Newton–Euler call (what a torque residual needs
+//! per sample), gravity torques, the mass matrix and the momentum terms an observer needs, with
+//! the nominal FK of the same arm as an in-run baseline (`BENCHMARKS.md` has its history).
+//!
+//! `cargo bench -p armtwin-core --bench dynamics`.
+#![allow(
+    clippy::expect_used,
+    reason = "a measuring binary whose fixtures are the checkout's own constants"
+)]
+use std::hint::black_box;
+
+use armtwin_core::dynamics::{ArmDynamics, JointFriction, Payload};
+use armtwin_core::model::{RobotModel, catalog};
+use criterion::{Criterion, criterion_group, criterion_main};
+
+const Q_RAD: [f64; 6] = [0.31, -1.22, 1.43, -0.87, 1.52, 0.64];
+const QD_RAD_S: [f64; 6] = [0.4, -0.3, 0.5, 0.8, -0.6, 1.1];
+const QDD_RAD_S2: [f64; 6] = [1.5, -2.0, 2.5, 3.0, -1.0, 4.0];
+
+fn dynamics(c: &mut Criterion) {
+    let ur10e = ArmDynamics::<6>::from_arm(&catalog::arm("ur10e").expect("catalog model"))
+        .expect("published parameters")
+        .with_payload(Payload::point_mass(5.0, [0.01, 0.0, 0.08]))
+        .expect("valid payload");
+    c.bench_function("rnea/ur10e", |b| {
+        b.iter(|| {
+            ur10e.inverse_dynamics_nm(
+                black_box(&Q_RAD),
+                black_box(&QD_RAD_S),
+                black_box(&QDD_RAD_S2),
+            )
+        });
+    });
+    let rubbing = ur10e
+        .clone()
+        .with_friction(
+            [JointFriction {
+                coulomb_nm: 4.0,
+                viscous_nm_s_rad: 0.9,
+            }; 6],
+        )
+        .expect("valid friction");
+    c.bench_function("rnea/ur10e_friction", |b| {
+        b.iter(|| {
+            rubbing.inverse_dynamics_nm(
+                black_box(&Q_RAD),
+                black_box(&QD_RAD_S),
+                black_box(&QDD_RAD_S2),
+            )
+        });
+    });
+    c.bench_function("gravity/ur10e", |b| {
+        b.iter(|| ur10e.gravity_nm(black_box(&Q_RAD)));
+    });
+    c.bench_function("mass_matrix/ur10e", |b| {
+        b.iter(|| ur10e.mass_matrix_kg_m2(black_box(&Q_RAD)));
+    });
+    c.bench_function("momentum/ur10e", |b| {
+        b.iter(|| ur10e.momentum(black_box(&Q_RAD), black_box(&QD_RAD_S)));
+    });
+    let model = RobotModel::nominal("ur10e").expect("catalog model");
+    c.bench_function("baseline/fk_pose_only_ur10e", |b| {
+        b.iter(|| model.chain().pose_unchecked(black_box(&Q_RAD)));
+    });
+}
+
+criterion_group!(benches, dynamics);
+criterion_main!(benches);

@@ -261,7 +261,12 @@ def test_a_recording_through_the_gateway_twins_every_row_as_validate_does(
             continue
         for stat in ("mae", "rmse", "max"):
             got, want = metrics["cumulative"][name][stat], stats[stat]
-            assert got == pytest.approx(want, rel=1e-12, abs=1e-15), (name, stat, got, want)
+            if name in ("position", "x", "y", "z"):
+                assert got == want, (name, stat, got, want)
+            else:
+                # The joint message carries a quaternion, normalised again when decoded; validate
+                # turns the rotation vector into one directly: the last bits may differ.
+                assert got == pytest.approx(want, rel=1e-12), (name, stat, got, want)
     assert "streaming" in gateway.logs()
     # The stand-in has nothing but these columns: the others are dropped with one warning.
     assert gateway.logs().count("does not have these variables") == 1, gateway.logs()
@@ -270,3 +275,105 @@ def test_a_recording_through_the_gateway_twins_every_row_as_validate_does(
     assert gateway.stop() == 0, gateway.logs()
     assert recorded.read_text().splitlines()[0] == ",".join(rtde_recording.HEADER)
     assert validate_cumulative(recorded, tmp_path)["cumulative"] == expected
+
+
+def gaps(service) -> list[dict]:
+    return [e for e in service.events if e.get("kind") == "gap" and e.get("robot") == ROBOT]
+
+
+def test_a_dropped_link_is_reconnected_and_the_missed_time_is_a_gap(tmp_path, lasttest_rows, service, started):
+    rows = lasttest_rows[:4000]
+    # The link drops after 1500 rows; the controller's clock runs on 250 rows (0.5 s) meanwhile.
+    _, gateway = started(recording(tmp_path, rows), ["--fast", "--drop-after", 1500, "--skip-on-drop", 250])
+    metrics = metrics_when(service, ROBOT, paired_at_least(len(rows) - 250))
+    assert metrics.get("paired") == len(rows) - 250, (metrics, gateway.logs())
+    assert metrics.get("rejected") == 0, metrics
+    assert wait_until(lambda: gaps(service), 5.0), service.events
+    gap = gaps(service)[0]["detail"]
+    assert gap["gap_s"] == pytest.approx(251 * 0.002, abs=1e-6), gap
+    logs = gateway.logs()
+    assert "link to the controller ended; reconnecting" in logs and logs.count("streaming") >= 2, logs
+
+
+def test_a_controller_restart_continues_the_stamps_without_lockout(tmp_path, lasttest_rows, service, started):
+    rows = lasttest_rows[:4000]
+    _, gateway = started(recording(tmp_path, rows), ["--fast", "--restart-after", 2000])
+    metrics = metrics_when(service, ROBOT, paired_at_least(len(rows)))
+    assert metrics.get("paired") == len(rows), (metrics, gateway.logs())
+    assert metrics.get("rejected") == 0, (metrics, service.events)
+    assert "the controller's clock went back: it restarted" in gateway.logs()
+    assert not [e for e in service.events if e.get("kind") == "rejected"], service.events
+
+
+def test_a_controller_without_the_tcp_pose_streams_joints_only(tmp_path, lasttest_rows, service, started):
+    rows = [row[:7] for row in lasttest_rows[:1000]]
+    poses = []
+    subscriber = service.session.declare_subscriber(f"twin/pose/{ROBOT}", poses.append)
+    try:
+        _, gateway = started(recording(tmp_path, rows, header=rtde_recording.HEADER[:7]), ["--fast"])
+        assert wait_until(lambda: len(poses) >= len(rows), 30.0), (len(poses), gateway.logs())
+    finally:
+        subscriber.undeclare()
+    metrics = metrics_when(service, ROBOT, lambda m: True)
+    assert metrics.get("paired") == 0 and metrics.get("rejected") == 0, metrics
+    assert len(poses) == len(rows)
+    assert "actual_TCP_pose" in gateway.logs()
+
+
+def test_a_controller_without_joint_angles_is_retried_and_never_ends_the_gateway(
+    tmp_path, lasttest_rows, service, started
+):
+    header = ["timestamp"] + rtde_recording.HEADER[7:]
+    rows = [[row[0], *row[7:]] for row in lasttest_rows[:100]]
+    _, gateway = started(recording(tmp_path, rows, header=header), ["--fast"])
+    assert wait_until(lambda: gateway.logs().count("does not know 'actual_q'") >= 2, 10.0), gateway.logs()
+    assert gateway.proc.poll() is None
+
+
+@pytest.mark.parametrize(
+    ("damage", "said"),
+    [
+        ("size", "DATA_PACKAGE payload of"),
+        ("recipe", "data package of recipe 2, expected recipe 1"),
+        ("header", "frame size 1 is smaller than the 3-byte header"),
+        ("type", "unexpected package 'Z'"),
+        ("garbage", "error="),
+    ],
+)
+def test_damaged_frames_end_the_link_not_the_gateway(tmp_path, lasttest_rows, service, started, damage, said):
+    rows = lasttest_rows[:3000]
+    _, gateway = started(recording(tmp_path, rows), ["--rate-hz", 2000, "--damage", damage, "--damage-after", 500])
+    # The stream goes on after the reconnection: rows from the end of the recording arrive.
+    last_t = None
+
+    def reached_end():
+        nonlocal last_t
+        metrics = (state(service, ROBOT) or {}).get("metrics") or {}
+        last_t = metrics.get("paired", 0)
+        return last_t >= 2000
+
+    assert wait_until(reached_end, 30.0, interval=0.1), (last_t, gateway.logs())
+    ended = [line for line in gateway.logs().splitlines() if "reconnecting" in line]
+    assert ended and said in ended[0], gateway.logs()
+    assert gateway.proc.poll() is None
+    metrics = metrics_when(service, ROBOT, lambda m: True)
+    assert metrics.get("rejected") == 0, metrics
+
+
+def test_twenty_controllers_from_one_gateway(tmp_path, lasttest_rows, service, started):
+    rows = lasttest_rows[:500]
+    robots = [f"plant/cell-{k}/ur10e" for k in range(20)]
+
+    def fleet(ports):
+        path = tmp_path / "gateways.toml"
+        path.write_text("".join(
+            f'[[controllers]]\nrobot = "{robot}"\nhost = "127.0.0.1"\nport = {port}\n\n'
+            for robot, port in zip(robots, ports, strict=True)
+        ))
+        return path
+
+    _, gateway = started(recording(tmp_path, rows), ["--fast"], ports=20, fleet=fleet)
+    for robot in robots:
+        metrics = metrics_when(service, robot, paired_at_least(len(rows)))
+        assert metrics.get("paired") == len(rows), (robot, metrics, gateway.logs()[-3000:])
+    assert gateway.logs().count("gateway rtde started") == 1

@@ -92,6 +92,10 @@ impl StampClock {
 }
 
 #[cfg(test)]
+#[allow(
+    clippy::float_cmp,
+    reason = "stamps of these tests are sums exact in binary: equality is what is meant"
+)]
 mod tests {
     use super::*;
 

@@ -190,7 +190,7 @@ impl Robot {
                 }
             }
             Err(error) => {
-                warn!(robot = %self.settings.robot, %error, "cannot declare the gateway's liveliness token")
+                warn!(robot = %self.settings.robot, %error, "cannot declare the gateway's liveliness token");
             }
         }
     }

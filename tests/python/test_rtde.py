@@ -377,3 +377,29 @@ def test_twenty_controllers_from_one_gateway(tmp_path, lasttest_rows, service, s
         metrics = metrics_when(service, robot, paired_at_least(len(rows)))
         assert metrics.get("paired") == len(rows), (robot, metrics, gateway.logs()[-3000:])
     assert gateway.logs().count("gateway rtde started") == 1
+
+
+def test_a_controller_that_comes_up_late_is_streamed_once_it_does(
+    armtwin_bin, tmp_path, lasttest_rows, service
+):
+    from armtwin_service import free_port
+
+    port = free_port()
+    gateway = Gateway(armtwin_bin, tmp_path, service.endpoint, "--host", "127.0.0.1", "--port", port,
+                      "--robot", ROBOT)
+    stand_in = None
+    try:
+        # Refused, retried with a growing wait, never given up.
+        assert wait_until(lambda: gateway.logs().count("cannot connect") >= 3, 10.0), gateway.logs()
+        waits = [float(word.split("=")[1]) for line in gateway.logs().splitlines() if "cannot connect" in line
+                 for word in line.split() if word.startswith("retry_in_s=")]
+        assert waits[:3] == [0.1, 0.2, 0.4], waits
+        stand_in = StandIn(recording(tmp_path, lasttest_rows[:500]), "--port", port, "--fast", workdir=tmp_path,
+                           ports=0)
+        metrics = metrics_when(service, ROBOT, paired_at_least(500), timeout=20.0)
+        assert metrics.get("paired") == 500, (metrics, gateway.logs())
+        assert gateway.stop() == 0, gateway.logs()
+    finally:
+        gateway.stop()
+        if stand_in is not None:
+            stand_in.stop()

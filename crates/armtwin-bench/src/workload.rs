@@ -127,17 +127,12 @@ impl Workload {
     #[must_use]
     pub fn joints_zser(&self, sample: u64, stamp_s: f64, seq: u64, embedded: bool) -> Vec<u8> {
         let configuration = self.configuration(sample);
-        let mut bytes = Vec::with_capacity(8 + 1 + 8 * 6 + 8 + 1 + 8 * 7);
-        bytes.extend_from_slice(&stamp_s.to_le_bytes());
-        push_f64s(&mut bytes, &configuration.q_rad);
-        bytes.extend_from_slice(&seq.to_le_bytes());
-        let measured: &[f64] = if embedded {
-            &configuration.measured_values
-        } else {
-            &[]
-        };
-        push_f64s(&mut bytes, measured);
-        bytes
+        armtwin::codec::zser::joints_bytes(
+            stamp_s,
+            &configuration.q_rad,
+            seq,
+            embedded.then_some(&configuration.measured_values),
+        )
     }
 
     /// The measured pose in Zenoh's serialization (`armtwin/pose/v1`): `(t, pose)`.

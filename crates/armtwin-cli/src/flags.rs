@@ -41,6 +41,55 @@ pub enum Command {
     /// Identify the robot's kinematics (calibration.conf deltas, optionally the tool) from a
     /// recording with measured poses; writes calibration.conf, report.json, report.md and a plot.
     Calibrate(CalibrateArgs),
+    /// Stream robot controllers into the mesh as a gateway: `gateway rtde` for Universal Robots.
+    Gateway(GatewayArgs),
+}
+
+/// `armtwin gateway` arguments.
+#[derive(Debug, Args)]
+pub struct GatewayArgs {
+    /// Which controllers.
+    #[command(subcommand)]
+    pub command: GatewayCommand,
+}
+
+/// `armtwin gateway` commands.
+#[derive(Debug, Subcommand)]
+pub enum GatewayCommand {
+    /// Universal Robots controllers over RTDE (port 30004): joint angles and the controller's TCP
+    /// pose, published as binary joint messages; reconnects by itself.
+    Rtde(RtdeArgs),
+}
+
+/// `armtwin gateway rtde` arguments.
+#[derive(Debug, Args)]
+pub struct RtdeArgs {
+    /// The controller's address (one robot; or -c for a fleet).
+    #[arg(long, required_unless_present = "config", conflicts_with = "config")]
+    pub host: Option<String>,
+    /// The controller's RTDE port.
+    #[arg(long, default_value_t = armtwin::codec::rtde::DEFAULT_PORT)]
+    pub port: u16,
+    /// Robot id to publish as (may span several key chunks, e.g. plant-a/cell-3/ur10e-07).
+    #[arg(long, required_unless_present = "config", conflicts_with = "config")]
+    pub robot: Option<String>,
+    /// Output frequency to ask the controller for (Hz; e-Series up to 500, CB3 up to 125).
+    #[arg(long, value_name = "HZ", default_value_t = armtwin::gateway::DEFAULT_FREQUENCY_HZ)]
+    pub frequency: f64,
+    /// Also write every data package to this CSV (`ur_rtde`'s form: `armtwin validate` reads it).
+    #[arg(long, value_name = "FILE", conflicts_with = "config")]
+    pub record: Option<PathBuf>,
+    /// A fleet file: `[[controllers]]` with `robot`, `host`, optional `port`, `frequency`,
+    /// `record`; one connection each, one Zenoh session.
+    #[arg(short = 'c', long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Key prefix of the service.
+    #[arg(long, default_value = armtwin::keys::DEFAULT_PREFIX)]
+    pub prefix: String,
+    /// How to join the mesh; without flags, as `armtwin replay` (a peer connecting to where a
+    /// default `armtwin serve` listens).
+    #[command(flatten)]
+    pub zenoh: ZenohArgs,
 }
 
 /// `armtwin fmu` arguments.

@@ -13,6 +13,8 @@
 //!   steps its robot's twin; [`decoded::CodecError`], the rejection cause each codec's error has.
 //! - [`ik`]: IK requests and answers as JSON.
 //! - [`joint_csv`], [`recording`]: joint-angle CSV and recordings as people have them.
+//! - [`rtde`]: Universal Robots' RTDE protocol (client side), frames to samples, and its CSV
+//!   recordings.
 
 pub mod cdr;
 pub mod decoded;
@@ -22,6 +24,7 @@ pub mod joint_csv;
 pub mod json;
 pub mod recording;
 pub mod ros2_attachment;
+pub mod rtde;
 pub mod zser;
 
 pub use armtwin_core::pose_fields::PoseFields;

@@ -358,6 +358,29 @@ fn pose_of(
     })
 }
 
+/// Bytes of an `armtwin/joints/v1` message, as a gateway sends it: `t` (s), the joint angles
+/// (rad), the gateway's `seq`, and the measured pose read in the same packet (`x, y, z` in m and
+/// the quaternion `qx, qy, qz, qw`, [`MEASURED_NAMES`] order) or nothing. At most 127 joints.
+///
+/// ```
+/// use armtwin_codec::zser::{joints_bytes, read_joints};
+/// let pose = [0.1, 0.2, 0.3, 0.0, 0.0, 0.0, 1.0];
+/// let bytes = joints_bytes(2.5, &[0.5, -1.0], 7, Some(&pose));
+/// let decoded = read_joints(&bytes, 2)?;
+/// assert_eq!((decoded.sample.stamp_s, decoded.sample.seq), (Some(2.5), Some(7)));
+/// assert_eq!(decoded.sample.measured.map(|pose| pose.position_m), Some([0.1, 0.2, 0.3]));
+/// # Ok::<(), armtwin_codec::json::Undecodable>(())
+/// ```
+#[must_use]
+pub fn joints_bytes(stamp_s: f64, q_rad: &[f64], seq: u64, measured: Option<&[f64; 7]>) -> Vec<u8> {
+    let mut bytes = Vec::with_capacity(8 + 1 + 8 * q_rad.len() + 8 + 1 + 8 * 7);
+    bytes.extend_from_slice(&stamp_s.to_le_bytes());
+    push_f64s(&mut bytes, q_rad);
+    bytes.extend_from_slice(&seq.to_le_bytes());
+    push_f64s(&mut bytes, measured.map_or(&[], |pose| &pose[..]));
+    bytes
+}
+
 /// Bytes of an `armtwin/twin-pose/v1` message: `t` (s), the twin's pose `seq`, then the pose's
 /// 10 values in [`PoseFields::NAMES`] order (97 bytes).
 ///

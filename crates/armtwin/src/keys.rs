@@ -63,12 +63,18 @@ pub enum Stream {
     ApplyCalibration,
     /// Present while armtwin tracks the robot (liveliness token).
     Alive,
+    /// Present while a gateway (`armtwin gateway rtde`) streams the robot from its controller
+    /// (liveliness token).
+    GatewayStreaming,
+    /// Present while a gateway for the robot is connecting or waiting to reconnect (liveliness
+    /// token).
+    GatewayWaiting,
 }
 
 impl Stream {
     /// Every subtree, outputs first: a key expression reaching into several is named by the
     /// first it meets here, and feeding armtwin its own outputs is the worse mistake.
-    pub const ALL: [Self; 14] = [
+    pub const ALL: [Self; 16] = [
         Self::Pose,
         Self::Deviation,
         Self::Metrics,
@@ -83,6 +89,8 @@ impl Stream {
         Self::Calibrate,
         Self::ApplyCalibration,
         Self::Alive,
+        Self::GatewayStreaming,
+        Self::GatewayWaiting,
     ];
 
     /// The chunk after the prefix (`pose`, `joints`, …).
@@ -103,6 +111,8 @@ impl Stream {
             Self::Calibrate => "calibrate",
             Self::ApplyCalibration => "admin/calibrate",
             Self::Alive => "alive",
+            Self::GatewayStreaming => "gateway/streaming",
+            Self::GatewayWaiting => "gateway/waiting",
         }
     }
 }
@@ -313,7 +323,9 @@ mod tests {
                 "ik",
                 "calibrate",
                 "admin/calibrate",
-                "alive"
+                "alive",
+                "gateway/streaming",
+                "gateway/waiting"
             ]
         );
     }

@@ -22,6 +22,7 @@
 //! - [`snapshot`]: the service's snapshot file, each twin's cumulative state across restarts.
 //! - [`dashboard`]: the service's HTTP side: fleet and robot pages, live streams, `/metrics`.
 //! - [`replay`]: `armtwin replay`, a recording published as a gateway would.
+//! - [`gateway`]: `armtwin gateway rtde`, Universal Robots controllers streamed over RTDE.
 //! - [`validate`]: `armtwin validate`, a recording through the pipeline offline, with its report
 //!   and plots.
 //! - [`calibrate`]: `armtwin calibrate`, a recording's kinematics identified, with its report.
@@ -39,6 +40,7 @@ pub mod calibrate;
 pub mod config;
 pub mod dashboard;
 pub mod fmu_package;
+pub mod gateway;
 pub mod ingest;
 pub mod keys;
 pub mod mesh;

@@ -12,6 +12,7 @@
 mod calibrate;
 mod fk;
 mod fmu;
+mod gateway;
 mod ik;
 mod models;
 mod replay;
@@ -30,7 +31,8 @@ use armtwin::rosbag::{self, BagOptions, BagTopics};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::flags::{
-    Cli, Command, FmuArgs, FmuCommand, PoseFormArg, RecordingArgs, RobotArgs, TimeUnit,
+    Cli, Command, FmuArgs, FmuCommand, GatewayArgs, GatewayCommand, PoseFormArg, RecordingArgs,
+    RobotArgs, TimeUnit,
 };
 
 /// Runs one parsed command line.
@@ -46,6 +48,9 @@ pub fn run(cli: Cli) -> Result<()> {
         }) => fmu::build(&args),
         Command::Ik(args) => ik::run(&args),
         Command::Calibrate(args) => calibrate::run(&args),
+        Command::Gateway(GatewayArgs {
+            command: GatewayCommand::Rtde(args),
+        }) => gateway::rtde(&args),
     }
 }
 

@@ -1,0 +1,341 @@
+//! One controller's link: connect, run the RTDE exchange ([`crate::codec::rtde::Handshake`]),
+//! publish each data package as a joint message with the measured pose embedded, and after any
+//! fault the controller can cause (a refused connection, a dropped link, silence, damaged data)
+//! wait and connect again, with a backoff from 0.1 s doubling to 5 s. Says each state change in
+//! the log and in the robot's gateway liveliness tokens.
+//!
+//! Owns the socket, the timeouts, the backoff and the per-robot `seq`; must not parse bytes (the
+//! codec's `rtde` module does) nor decide stamps ([`super::clock`]).
+
+use std::io::Write as _;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use nalgebra::Vector3;
+use thiserror::Error;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+use tokio::sync::watch;
+use tokio::time::timeout;
+use tracing::{debug, info, warn};
+use zenoh::Session;
+use zenoh::bytes::Encoding;
+use zenoh::liveliness::LivelinessToken;
+use zenoh::pubsub::Publisher;
+use zenoh::qos::CongestionControl;
+
+use super::ControllerSettings;
+use super::clock::{OffsetChange, StampClock};
+use crate::codec::rtde::handshake::{Progress, Started, TextMessage};
+use crate::codec::rtde::{FrameSplitter, Handshake, RtdeError, RtdeSample, record};
+use crate::codec::zser;
+use crate::keys::{KeySpace, Stream};
+use crate::orientation;
+
+/// The first wait before connecting again, and after a link that streamed.
+const FIRST_BACKOFF: Duration = Duration::from_millis(100);
+/// The longest wait between attempts.
+const MAX_BACKOFF: Duration = Duration::from_secs(5);
+/// How long a connection may take to open.
+const CONNECT_TIMEOUT: Duration = Duration::from_secs(2);
+/// How long the controller may take to answer a request of the exchange.
+const ANSWER_TIMEOUT: Duration = Duration::from_secs(2);
+/// How long a streaming controller may stay silent: it sends at 125 or 500 Hz.
+const SILENCE_TIMEOUT: Duration = Duration::from_secs(1);
+
+/// Why a link ended.
+#[derive(Debug, Error)]
+enum LinkError {
+    #[error("cannot connect: {0}")]
+    Connect(std::io::Error),
+    #[error("no answer within {0:?}")]
+    Silent(Duration),
+    #[error("the controller closed the link")]
+    Closed,
+    #[error("link: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("RTDE: {0}")]
+    Protocol(#[from] RtdeError),
+    #[error("zenoh: {0}")]
+    Zenoh(zenoh::Error),
+}
+
+/// The gateway side of one robot, kept across its connections.
+struct Robot {
+    settings: ControllerSettings,
+    publisher: Publisher<'static>,
+    session: Session,
+    keys: KeySpace,
+    /// The joint messages' `seq`, continuous across connections.
+    seq: u64,
+    clock: StampClock,
+    /// The liveliness token of the current state and whether it is the streaming one.
+    token: Option<(bool, LivelinessToken)>,
+    dropped_said: bool,
+    recorder: Option<Recorder>,
+    /// Samples of the current connection.
+    streamed: u64,
+}
+
+/// `--record`: the CSV of every data package, under the first connection's recipe.
+struct Recorder {
+    file: std::io::BufWriter<std::fs::File>,
+    recipe: Option<crate::codec::rtde::Recipe>,
+    line: String,
+}
+
+/// Runs one controller's link until `shutdown` says stop.
+pub(super) async fn run(
+    session: Session,
+    keys: KeySpace,
+    settings: ControllerSettings,
+    mut shutdown: watch::Receiver<bool>,
+) {
+    let key = keys.key(Stream::Joints, &settings.robot);
+    let publisher = match session
+        .declare_publisher(key.clone())
+        .encoding(Encoding::ZENOH_SERIALIZED.with_schema(zser::JOINTS_SCHEMA))
+        .congestion_control(CongestionControl::Block)
+        .await
+    {
+        Ok(publisher) => publisher,
+        Err(error) => {
+            warn!(robot = %settings.robot, %key, %error, "cannot declare the joints publisher: robot not streamed");
+            return;
+        }
+    };
+    let recorder = match settings
+        .record
+        .as_deref()
+        .map(std::fs::File::create)
+        .transpose()
+    {
+        Ok(file) => file.map(|file| Recorder {
+            file: std::io::BufWriter::new(file),
+            recipe: None,
+            line: String::new(),
+        }),
+        Err(error) => {
+            warn!(robot = %settings.robot, %error, "cannot create the recording: not recording");
+            None
+        }
+    };
+    let mut robot = Robot {
+        clock: StampClock::new(1.0 / settings.frequency_hz),
+        settings,
+        publisher,
+        session,
+        keys,
+        seq: 0,
+        token: None,
+        dropped_said: false,
+        recorder,
+        streamed: 0,
+    };
+    let mut backoff = FIRST_BACKOFF;
+    loop {
+        robot.say(false).await;
+        robot.streamed = 0;
+        robot.clock.reconnected();
+        info!(robot = %robot.settings.robot, host = %robot.settings.host, port = robot.settings.port, "connecting to the controller");
+        let ended = tokio::select! {
+            ended = robot.stream() => ended,
+            _ = shutdown.changed() => break,
+        };
+        robot.flush_recording();
+        if robot.streamed > 0 {
+            backoff = FIRST_BACKOFF;
+        }
+        warn!(
+            robot = %robot.settings.robot,
+            error = %ended,
+            samples = robot.streamed,
+            retry_in_s = backoff.as_secs_f64(),
+            "link to the controller ended; reconnecting"
+        );
+        robot.say(false).await;
+        tokio::select! {
+            () = tokio::time::sleep(backoff) => {}
+            _ = shutdown.changed() => break,
+        }
+        backoff = (backoff * 2).min(MAX_BACKOFF);
+    }
+    robot.flush_recording();
+    if let Some((_, token)) = robot.token.take() {
+        let _ = token.undeclare().await;
+    }
+    let _ = robot.publisher.undeclare().await;
+    info!(robot = %robot.settings.robot, "gateway link stopped");
+}
+
+impl Robot {
+    /// Declares the token of the state (streaming or waiting), undeclaring the other.
+    async fn say(&mut self, streaming: bool) {
+        if self.token.as_ref().is_some_and(|(is, _)| *is == streaming) {
+            return;
+        }
+        let stream = if streaming {
+            Stream::GatewayStreaming
+        } else {
+            Stream::GatewayWaiting
+        };
+        match self
+            .session
+            .liveliness()
+            .declare_token(self.keys.key(stream, &self.settings.robot))
+            .await
+        {
+            Ok(token) => {
+                if let Some((_, old)) = self.token.replace((streaming, token)) {
+                    let _ = old.undeclare().await;
+                }
+            }
+            Err(error) => {
+                warn!(robot = %self.settings.robot, %error, "cannot declare the gateway's liveliness token");
+            }
+        }
+    }
+
+    /// One connection, until it ends: the reason it ended.
+    async fn stream(&mut self) -> LinkError {
+        match self.stream_inner().await {
+            Ok(never) => match never {},
+            Err(error) => error,
+        }
+    }
+
+    async fn stream_inner(&mut self) -> Result<std::convert::Infallible, LinkError> {
+        let address = (self.settings.host.as_str(), self.settings.port);
+        let mut socket = match timeout(CONNECT_TIMEOUT, TcpStream::connect(address)).await {
+            Ok(Ok(socket)) => socket,
+            Ok(Err(error)) => return Err(LinkError::Connect(error)),
+            Err(_) => return Err(LinkError::Silent(CONNECT_TIMEOUT)),
+        };
+        socket.set_nodelay(true)?;
+        let (mut handshake, first) = Handshake::new(self.settings.frequency_hz)?;
+        socket.write_all(&first).await?;
+        let mut splitter = FrameSplitter::new();
+        let mut buffer = vec![0_u8; 16 * 1024];
+        loop {
+            let limit = if handshake.is_streaming() {
+                SILENCE_TIMEOUT
+            } else {
+                ANSWER_TIMEOUT
+            };
+            let read = match timeout(limit, socket.read(&mut buffer)).await {
+                Ok(read) => read?,
+                Err(_) => return Err(LinkError::Silent(limit)),
+            };
+            if read == 0 {
+                return Err(LinkError::Closed);
+            }
+            splitter.extend(&buffer[..read])?;
+            while let Some(frame) = splitter.next_frame()? {
+                match handshake.on_frame(frame)? {
+                    Progress::Send(bytes) => socket.write_all(&bytes).await?,
+                    Progress::Started(started) => self.started(started).await,
+                    Progress::Sample(sample) => self.publish(&sample).await?,
+                    Progress::Text(text) => self.text(&text),
+                }
+            }
+        }
+    }
+
+    async fn started(&mut self, started: Started) {
+        let controller = started.controller;
+        info!(
+            robot = %self.settings.robot,
+            controller = %format_args!("{}.{}.{}.{}", controller.major, controller.minor, controller.bugfix, controller.build),
+            protocol = started.version.number(),
+            variables = started.recipe.variables.len(),
+            "streaming"
+        );
+        if !started.dropped.is_empty() && !self.dropped_said {
+            self.dropped_said = true;
+            warn!(
+                robot = %self.settings.robot,
+                variables = %started.dropped.join(","),
+                "the controller does not have these variables: streaming without them"
+            );
+        }
+        if let Some(recorder) = &mut self.recorder
+            && recorder.recipe.is_none()
+        {
+            let header = record::header(&started.recipe);
+            if let Err(error) = writeln!(recorder.file, "{header}") {
+                warn!(robot = %self.settings.robot, %error, "cannot write the recording");
+            }
+            recorder.recipe = Some(started.recipe);
+        }
+        self.say(true).await;
+    }
+
+    async fn publish(&mut self, sample: &RtdeSample) -> Result<(), LinkError> {
+        let wall_s = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0.0, |since| since.as_secs_f64());
+        let (stamp_s, change) = self.clock.stamp(sample.timestamp_s, wall_s);
+        match change {
+            Some(OffsetChange::Restarted {
+                from_s,
+                to_s,
+                offset_s,
+            }) => warn!(
+                robot = %self.settings.robot,
+                from_s,
+                to_s,
+                offset_s,
+                "the controller's clock went back: it restarted; stamps continue from the last one"
+            ),
+            Some(OffsetChange::Fixed { offset_s }) => {
+                debug!(robot = %self.settings.robot, offset_s, "stamp offset to wall time fixed");
+            }
+            None => {}
+        }
+        let measured = sample.actual_tcp_pose.map(|[x, y, z, rx, ry, rz]| {
+            let q = orientation::quaternion_from_rotation_vector(&Vector3::new(rx, ry, rz));
+            let [qx, qy, qz, qw] = orientation::quaternion_to_xyzw(&q);
+            [x, y, z, qx, qy, qz, qw]
+        });
+        let payload =
+            zser::joints_bytes(stamp_s, &sample.actual_q_rad, self.seq, measured.as_ref());
+        self.publisher
+            .put(payload)
+            .await
+            .map_err(LinkError::Zenoh)?;
+        self.seq += 1;
+        self.streamed += 1;
+        if let Some(Recorder {
+            file,
+            recipe: Some(recipe),
+            line,
+        }) = &mut self.recorder
+        {
+            line.clear();
+            record::write_row(recipe, sample, line);
+            line.push('\n');
+            if let Err(error) = file.write_all(line.as_bytes()) {
+                warn!(robot = %self.settings.robot, %error, "cannot write the recording: stopped recording");
+                self.recorder = None;
+            }
+        }
+        Ok(())
+    }
+
+    fn text(&self, text: &TextMessage) {
+        let robot = &self.settings.robot;
+        let (message, source) = (&text.message, &text.source);
+        match text.level {
+            0 | 1 => warn!(%robot, %message, %source, "controller error message"),
+            2 => warn!(%robot, %message, %source, "controller warning"),
+            _ => info!(%robot, %message, %source, "controller message"),
+        }
+    }
+
+    fn flush_recording(&mut self) {
+        if let Some(recorder) = &mut self.recorder
+            && let Err(error) = recorder.file.flush()
+        {
+            warn!(robot = %self.settings.robot, %error, "cannot write the recording");
+        }
+    }
+}

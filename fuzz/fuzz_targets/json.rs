@@ -18,6 +18,7 @@ const KINDS: &[&str] = &[
     "wrong_type",
     "non_finite",
     "joint_count",
+    "joint_state",
     "ambiguous_fields",
     "duplicate_field",
     "unit",

@@ -1,4 +1,4 @@
-//! armtwin's Zenoh-serialized gateway messages (`armtwin/joints/v1`, `armtwin/pose/v1`): a decoded
+//! armtwin's Zenoh-serialized gateway messages (`armtwin/joints/v1` and `v2`, `armtwin/pose/v1`): a decoded
 //! message written back in the same format must decode to the same sample, and every refusal
 //! must carry a known cause.
 #![no_main]
@@ -18,12 +18,14 @@ const KINDS: &[&str] = &[
     "trailing_bytes",
     "malformed_length",
     "sequence_length",
+    "joint_state",
 ];
 
 fuzz_target!(|payload: &[u8]| {
     assert_stamp(zser::stamp_hint(payload));
     for joint_count in [6, 2] {
         joints(payload, joint_count);
+        joints_with_state(payload, joint_count);
     }
     measured(payload);
 });
@@ -40,6 +42,7 @@ fn joints(payload: &[u8], joint_count: usize) {
     let DecodedJoints {
         sample,
         measured_error,
+        ..
     } = &decoded;
     assert_eq!(sample.q_rad.len(), joint_count);
     assert!(sample.q_rad.iter().all(|q| q.is_finite()), "{sample:?}");
@@ -93,6 +96,43 @@ fn push_f64s(bytes: &mut Vec<u8>, values: &[f64]) {
     for value in values {
         bytes.extend_from_slice(&value.to_le_bytes());
     }
+}
+
+/// `armtwin/joints/v2`: the joints as in v1; a state decoded and written back decodes to the
+/// same state, bit for bit.
+fn joints_with_state(payload: &[u8], joint_count: usize) {
+    let decoded = match zser::read_joints_with_state(payload, joint_count) {
+        Ok(decoded) => decoded,
+        Err(refused) => {
+            assert_kind(refused.error.kind(), KINDS);
+            assert_eq!(refused.stamp_s, zser::stamp_hint(payload));
+            return;
+        }
+    };
+    let sample = &decoded.sample;
+    assert_eq!(sample.q_rad.len(), joint_count);
+    if let Some(error) = &decoded.state_error {
+        assert_kind(error.kind(), KINDS);
+        assert!(sample.state.is_none());
+    }
+    let Some(state) = &sample.state else {
+        return;
+    };
+    assert!(!state.is_empty());
+    for (_, values) in state.quantities() {
+        assert_eq!(values.len(), joint_count);
+        assert!(values.iter().all(|value| value.is_finite()));
+    }
+    let measured = sample.measured.as_ref().map(pose_values);
+    let bytes = zser::joints_state_bytes(
+        sample.stamp_s.expect("a binary message's t"),
+        &sample.q_rad,
+        sample.seq.expect("a binary message's seq"),
+        measured.as_ref(),
+        state,
+    );
+    let again = zser::read_joints_with_state(&bytes, joint_count).expect("a re-encoded message");
+    assert_eq!(again.sample.state.as_ref(), Some(state));
 }
 
 fn pose_values(pose: &PoseReadout) -> [f64; 7] {

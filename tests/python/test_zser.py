@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from zenoh.ext import UInt64, z_deserialize, z_serialize
+from zenoh.ext import Int32, UInt32, UInt64, z_deserialize, z_serialize
 
 from armtwin_service import PREFIX, ArmtwinProcess, Collector, TwinClient, wait_until
 from test_service import (
@@ -326,4 +326,74 @@ def test_readme_gateway_example_run_twice_gets_all_its_poses(twin, tmp_path):
     final = metrics_when(c, robot, lambda m: m.get("paired") == 200, timeout=10)
     checks.true(final is not None, f"200 pairs, cumulative (last metrics {c.last('metrics', robot)})")
     checks.equal((final or {}).get("rejected"), 0, "nothing rejected")
+    checks.done(proc.logs())
+
+
+JOINTS_STATE_ENCODING = zenoh.Encoding.ZENOH_SERIALIZED.with_schema("armtwin/joints/v2")
+STATE_QUANTITIES = (
+    "qd", "target_q", "target_qd", "target_qdd", "current_a", "target_current_a",
+    "torque_nm", "target_torque_nm", "temperature_c",
+)
+
+
+def binary_joints_state(t, q, seq, state, status=None, payload=()):
+    """``armtwin/joints/v2`` by eclipse-zenoh's serializer: v1's fields, one list per joint
+    quantity (empty when absent), the status as a list of 0 or 1 (i32, i32, u32, f64) and the
+    payload's 0, 4 or 10 values."""
+    status_items = [] if status is None else [(Int32(status[0]), Int32(status[1]), UInt32(status[2]), float(status[3]))]
+    return z_serialize(
+        (float(t), [float(v) for v in q], UInt64(seq), [])
+        + tuple([float(v) for v in state.get(name, ())] for name in STATE_QUANTITIES)
+        + (status_items, [float(v) for v in payload])
+    )
+
+
+def test_joint_state_beside_the_angles_reaches_the_state_answer(twin):
+    """The joint state in both forms (binary v2 by eclipse-zenoh's serializer, JSON `state`):
+    the state answer keeps the latest of each part; a bad part is one rejection and the joints
+    still yield their pose."""
+    proc, client = twin
+    checks = Checks()
+    q = [0.1, -1.2, 1.1, -1.4, -1.5, 0.2]
+    temps = [30.5, 31.25, 29.0, 35.5, 36.0, 34.75]
+    currents = [0.1, -2.5, -1.25, 0.3, 0.05, -0.01]
+    robot = "state-bin"
+    pub = client.joints(robot)
+    pub.put(
+        binary_joints_state(1.0, q, 0, {"temperature_c": temps, "current_a": currents}, (7, 1, 3, 0.5), (2.5, 0.0, 0.01, 0.05)),
+        encoding=JOINTS_STATE_ENCODING,
+    )
+    # Later, only velocities: temperatures and currents stay the latest known.
+    pub.put(binary_joints_state(1.1, q, 1, {"qd": [0.5] * 6}), encoding=JOINTS_STATE_ENCODING)
+    # A non-finite temperature: the state is refused, the joints are not.
+    pub.put(binary_joints_state(1.2, q, 2, {"temperature_c": [math.nan] * 6}), encoding=JOINTS_STATE_ENCODING)
+    jrobot = "state-json"
+    jpub = client.joints(jrobot)
+    client.put_json(jpub, {"t": 1.0, "q": q, "state": {"temperature_c": temps, "robot_mode": 7, "safety_mode": 1,
+                                                      "status_bits": 5, "speed_scaling": 1.0,
+                                                      "payload": {"mass_kg": 1.5, "cog_m": [0, 0, 0.02]}}})
+    client.put_json(jpub, {"t": 1.1, "q": q, "state": {"current_a": [1, 2, 3]}})
+    assert wait_until(
+        lambda: len(client.collector.items("pose", robot)) == 3 and len(client.collector.items("pose", jrobot)) == 2, 10.0
+    ), "every pose"
+
+    def state_of(r):
+        replies = [json.loads(x.ok.payload.to_string()) for x in client.get(f"{PREFIX}/state/{r}") if x.ok is not None]
+        return replies[0]
+
+    s = state_of(robot)["joint_state"]
+    checks.equal(s["temperature_c"], temps, "binary temperatures, bit for bit")
+    checks.equal(s["current_a"], currents, "binary currents")
+    checks.equal(s["qd"], [0.5] * 6, "binary velocities from the later message")
+    checks.equal((s["robot_mode"], s["safety_mode"], s["status_bits"], s["speed_scaling"]), (7, 1, 3, 0.5), "status")
+    checks.equal((s["power_on"], s["program_running"], s["freedrive"]), (True, True, False), "status bits by name")
+    checks.equal(s["payload"], {"mass_kg": 2.5, "cog_m": [0.0, 0.01, 0.05], "inertia_kg_m2": None}, "payload")
+    checks.equal(s["t"], 1.1, "stamp of the last sample with a state")
+    j = state_of(jrobot)
+    checks.equal(j["joint_state"]["temperature_c"], temps, "JSON temperatures")
+    checks.equal(j["joint_state"]["freedrive"], True, "JSON teach bit")
+    checks.equal("current_a" in j["joint_state"], False, "a current array of the wrong length is not kept")
+    events = [e for e in client.collector.items("events", robot) + client.collector.items("events", jrobot)]
+    causes = sorted(json.loads(e.payload)["detail"]["cause"] for e in events if json.loads(e.payload)["kind"] == "rejected")
+    checks.equal(causes, ["joint_state", "non_finite"], "one rejection per bad state")
     checks.done(proc.logs())

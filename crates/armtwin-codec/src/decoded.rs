@@ -39,7 +39,7 @@ pub trait CodecError: Error + 'static {
 /// Every class name the codecs of this crate refuse a payload for beyond the core's own causes:
 /// the fixed set [`RejectCause::Decode`] takes from them. A count by cause therefore holds at
 /// most these and the core's causes.
-pub const DECODE_CAUSES: [&str; 23] = [
+pub const DECODE_CAUSES: [&str; 24] = [
     "too_large",
     "not_utf8",
     "not_json",
@@ -63,6 +63,7 @@ pub const DECODE_CAUSES: [&str; 23] = [
     "duplicate_joint",
     "frame_id",
     "attachment",
+    "joint_state",
 ];
 
 /// A payload a decoder refused: why, and the stamp it still offers, so that its rejection is
@@ -214,7 +215,10 @@ impl Message for DecodedJoints {
     }
 
     fn step(&self, twin: &mut Twin, arrival: Arrival<'_>, stamp_s: f64, sink: &mut impl Sink) {
-        if let Some(error) = &self.measured_error {
+        for error in [&self.measured_error, &self.state_error]
+            .into_iter()
+            .flatten()
+        {
             reject(twin, arrival.key, stamp_s, error, sink);
         }
         twin.joints(arrival.key, stamp_s, &self.sample, sink);

@@ -107,6 +107,9 @@ impl Decoder for Joints {
             Codec::ZenohSerialized(Some(zser::Schema::Joints)) => {
                 zser::read_joints(payload, joint_count)
             }
+            Codec::ZenohSerialized(Some(zser::Schema::JointsState)) => {
+                zser::read_joints_with_state(payload, joint_count)
+            }
             Codec::ZenohSerialized(_) => Err(self.0.wrong_schema(payload, zser::Schema::Joints)),
         }
     }

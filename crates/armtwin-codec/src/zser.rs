@@ -27,10 +27,15 @@ use std::fmt;
 use crate::PoseFields;
 use crate::json::{self, DecodedJoints, MAX_PAYLOAD_BYTES, Undecodable, WireError};
 use armtwin_core::metrics::Deviation;
-use armtwin_core::sample::{JointSample, MeasuredSample};
+use armtwin_core::sample::{
+    ControllerStatus, JointQuantity, JointSample, JointState, MeasuredSample, Payload,
+};
 
 /// The schema of a joint message (`twin/joints/<robot>`).
 pub const JOINTS_SCHEMA: &str = "armtwin/joints/v1";
+/// The schema of a joint message with the joint state beside the angles
+/// (`twin/joints/<robot>`): `armtwin/joints/v1`'s fields, then the state's.
+pub const JOINTS_STATE_SCHEMA: &str = "armtwin/joints/v2";
 /// The schema of a measured-pose message (`twin/measured/<robot>`).
 pub const POSE_SCHEMA: &str = "armtwin/pose/v1";
 /// The schema of the twin pose (`twin/pose/<robot>`).
@@ -59,6 +64,8 @@ pub const DEVIATION_NAMES: [&str; 9] = [
 pub enum Schema {
     /// [`JOINTS_SCHEMA`].
     Joints,
+    /// [`JOINTS_STATE_SCHEMA`].
+    JointsState,
     /// [`POSE_SCHEMA`].
     Pose,
 }
@@ -69,6 +76,7 @@ impl Schema {
     pub fn as_str(self) -> &'static str {
         match self {
             Self::Joints => JOINTS_SCHEMA,
+            Self::JointsState => JOINTS_STATE_SCHEMA,
             Self::Pose => POSE_SCHEMA,
         }
     }
@@ -78,6 +86,7 @@ impl Schema {
     pub fn from_name(name: &str) -> Option<Self> {
         match name {
             JOINTS_SCHEMA => Some(Self::Joints),
+            JOINTS_STATE_SCHEMA => Some(Self::JointsState),
             POSE_SCHEMA => Some(Self::Pose),
             _ => None,
         }
@@ -148,6 +157,19 @@ impl<'a> Reader<'a> {
     #[inline]
     fn u64(&mut self, field: Field) -> Result<u64, WireError> {
         self.array(field).map(u64::from_le_bytes)
+    }
+
+    fn i32(&mut self, field: Field) -> Result<i32, WireError> {
+        self.array(field).map(i32::from_le_bytes)
+    }
+
+    fn u32(&mut self, field: Field) -> Result<u32, WireError> {
+        self.array(field).map(u32::from_le_bytes)
+    }
+
+    /// An `f64` whatever its value, for a part whose non-finite values refuse only the part.
+    fn any_f64(&mut self, field: Field) -> Result<f64, WireError> {
+        self.array(field).map(f64::from_le_bytes)
     }
 
     /// A finite `f64`.
@@ -249,6 +271,27 @@ pub fn stamp_hint(payload: &[u8]) -> Option<f64> {
 /// # Ok::<(), armtwin_codec::json::Undecodable>(())
 /// ```
 pub fn read_joints(payload: &[u8], joint_count: usize) -> Result<DecodedJoints, Undecodable> {
+    read_joints_of(payload, joint_count, Schema::Joints)
+}
+
+/// Decodes an `armtwin/joints/v2` message: [`read_joints`]'s fields, then the joint state
+/// (see [`JOINTS_STATE_SCHEMA`] in `docs/protocol.md`). A state part that is well framed but
+/// holds a non-finite value or a bad payload length is reported in
+/// [`DecodedJoints::state_error`], and the joints stay valid; a per-joint sequence of another
+/// length than the arm's joint count (or 0) refuses the whole message.
+pub fn read_joints_with_state(
+    payload: &[u8],
+    joint_count: usize,
+) -> Result<DecodedJoints, Undecodable> {
+    read_joints_of(payload, joint_count, Schema::JointsState)
+}
+
+fn read_joints_of(
+    payload: &[u8],
+    joint_count: usize,
+    schema: Schema,
+) -> Result<DecodedJoints, Undecodable> {
+    let with_state = schema == Schema::JointsState;
     let refused = |error| Undecodable {
         error,
         stamp_s: stamp_hint(payload),
@@ -292,15 +335,27 @@ pub fn read_joints(payload: &[u8], joint_count: usize) -> Result<DecodedJoints, 
                 expected: "0 or 7",
                 got,
             };
-            // `measured` is the last field: when exactly its values follow, only the part is
-            // bad; any other length also breaks the framing, and the whole message is refused.
+            // In v1 `measured` is the last field: when exactly its values follow, only the part
+            // is bad; any other length (or any in v2) breaks the framing, and the whole message
+            // is refused.
             let left = payload.len() - reader.at;
-            if got.checked_mul(8) != Some(left as u64) {
+            if with_state || got.checked_mul(8) != Some(left as u64) {
                 return Err(refused(error));
             }
             reader.at = payload.len();
             (None, Some(error))
         }
+    };
+    let (state, state_error) = if with_state {
+        match read_state(&mut reader, joint_count).map_err(refused)? {
+            Ok(state) => (
+                Some(Box::new(state)).filter(|state| !state.is_empty()),
+                None,
+            ),
+            Err(error) => (None, Some(error)),
+        }
+    } else {
+        (None, None)
     };
     reader.end().map_err(refused)?;
     Ok(DecodedJoints {
@@ -309,9 +364,125 @@ pub fn read_joints(payload: &[u8], joint_count: usize) -> Result<DecodedJoints, 
             seq: Some(seq),
             q_rad,
             measured,
-            state: None,
+            state,
         },
         measured_error,
+        state_error,
+    })
+}
+
+/// The joint state of an `armtwin/joints/v2` message, after `measured`: the outer error breaks
+/// the framing (the whole message is refused), the inner one only the state.
+fn read_state(
+    reader: &mut Reader<'_>,
+    joint_count: usize,
+) -> Result<Result<JointState, WireError>, WireError> {
+    let mut state = JointState::new(joint_count);
+    let mut part_error = None;
+    let mut values = vec![0.0; joint_count];
+    for quantity in JointQuantity::ALL {
+        let name = quantity.name();
+        match reader.length(name)? {
+            0 => {}
+            count if count == joint_count as u64 => {
+                for (index, value) in values.iter_mut().enumerate() {
+                    *value = reader.any_f64(Field::At(name, index))?;
+                }
+                match values.iter().position(|value| !value.is_finite()) {
+                    None => {
+                        state.set(quantity, &values);
+                    }
+                    Some(index) => {
+                        part_error.get_or_insert(WireError::NonFinite {
+                            field: Field::At(name, index).to_string(),
+                        });
+                    }
+                }
+            }
+            got => {
+                return Err(WireError::SequenceLength {
+                    field: name.to_owned(),
+                    expected: "0 or the joint count",
+                    got,
+                });
+            }
+        }
+    }
+    match reader.length("status")? {
+        0 => {}
+        1 => {
+            let status = ControllerStatus {
+                robot_mode: reader.i32(Field::Plain("status.robot_mode"))?,
+                safety_mode: reader.i32(Field::Plain("status.safety_mode"))?,
+                status_bits: reader.u32(Field::Plain("status.status_bits"))?,
+                speed_scaling: reader.any_f64(Field::Plain("status.speed_scaling"))?,
+            };
+            if status.speed_scaling.is_finite() {
+                state.status = Some(status);
+            } else {
+                part_error.get_or_insert(WireError::NonFinite {
+                    field: "status.speed_scaling".to_owned(),
+                });
+            }
+        }
+        got => {
+            return Err(WireError::SequenceLength {
+                field: "status".to_owned(),
+                expected: "0 or 1",
+                got,
+            });
+        }
+    }
+    let payload_count = reader.length("payload")?;
+    let mut payload = [0.0; 10];
+    match payload_count {
+        0 => {}
+        4 | 10 => {
+            let values = &mut payload[..payload_count as usize];
+            for (index, value) in values.iter_mut().enumerate() {
+                *value = reader.any_f64(Field::At("payload", index))?;
+            }
+            match payload_of(values) {
+                Ok(payload) => state.payload = Some(payload),
+                Err(error) => {
+                    part_error.get_or_insert(error);
+                }
+            }
+        }
+        got => {
+            return Err(WireError::SequenceLength {
+                field: "payload".to_owned(),
+                expected: "0, 4 or 10",
+                got,
+            });
+        }
+    }
+    Ok(match part_error {
+        None => Ok(state),
+        Some(error) => Err(error),
+    })
+}
+
+/// A payload of `mass, cx, cy, cz` and optionally `Ixx, Iyy, Izz, Ixy, Ixz, Iyz`: finite, the mass
+/// not negative.
+fn payload_of(values: &[f64]) -> Result<Payload, WireError> {
+    if let Some(index) = values.iter().position(|value| !value.is_finite()) {
+        return Err(WireError::NonFinite {
+            field: Field::At("payload", index).to_string(),
+        });
+    }
+    if values[0] < 0.0 {
+        return Err(WireError::JointState {
+            field: "payload[0]".to_owned(),
+            detail: format!("a mass of {} kg: a mass is not negative", values[0]),
+        });
+    }
+    Ok(Payload {
+        mass_kg: values[0],
+        cog_m: [values[1], values[2], values[3]],
+        inertia_kg_m2: values
+            .get(4..10)
+            .map(|inertia| std::array::from_fn(|index| inertia[index])),
     })
 }
 
@@ -378,6 +549,61 @@ pub fn joints_bytes(stamp_s: f64, q_rad: &[f64], seq: u64, measured: Option<&[f6
     push_f64s(&mut bytes, q_rad);
     bytes.extend_from_slice(&seq.to_le_bytes());
     push_f64s(&mut bytes, measured.map_or(&[], |pose| &pose[..]));
+    bytes
+}
+
+/// Bytes of an `armtwin/joints/v2` message: [`joints_bytes`]'s fields, then `state`'s (each
+/// per-joint quantity in [`JointQuantity::ALL`] order, empty when absent; the status; the
+/// payload). At most 127 joints.
+///
+/// ```
+/// use armtwin_codec::zser::{joints_state_bytes, read_joints_with_state};
+/// use armtwin_core::sample::{JointQuantity, JointState};
+/// let mut state = JointState::new(2);
+/// state.set(JointQuantity::Temperature, &[31.5, 32.0]);
+/// let bytes = joints_state_bytes(2.5, &[0.5, -1.0], 7, None, &state);
+/// let decoded = read_joints_with_state(&bytes, 2)?;
+/// assert_eq!(decoded.sample.state.as_deref(), Some(&state));
+/// # Ok::<(), armtwin_codec::json::Undecodable>(())
+/// ```
+#[must_use]
+pub fn joints_state_bytes(
+    stamp_s: f64,
+    q_rad: &[f64],
+    seq: u64,
+    measured: Option<&[f64; 7]>,
+    state: &JointState,
+) -> Vec<u8> {
+    let mut bytes = joints_bytes(stamp_s, q_rad, seq, measured);
+    for quantity in JointQuantity::ALL {
+        push_f64s(&mut bytes, state.get(quantity).unwrap_or(&[]));
+    }
+    match &state.status {
+        None => bytes.push(0),
+        Some(status) => {
+            bytes.push(1);
+            bytes.extend_from_slice(&status.robot_mode.to_le_bytes());
+            bytes.extend_from_slice(&status.safety_mode.to_le_bytes());
+            bytes.extend_from_slice(&status.status_bits.to_le_bytes());
+            bytes.extend_from_slice(&status.speed_scaling.to_le_bytes());
+        }
+    }
+    match &state.payload {
+        None => bytes.push(0),
+        Some(payload) => {
+            let mut values = [0.0; 10];
+            values[0] = payload.mass_kg;
+            values[1..4].copy_from_slice(&payload.cog_m);
+            let count = match payload.inertia_kg_m2 {
+                Some(inertia) => {
+                    values[4..].copy_from_slice(&inertia);
+                    10
+                }
+                None => 4,
+            };
+            push_f64s(&mut bytes, &values[..count]);
+        }
+    }
     bytes
 }
 

@@ -16,8 +16,9 @@ pub struct JointSample {
     /// stamp is the joint sample's.
     pub measured: Option<PoseReadout>,
     /// What else the source read of the joints in the same packet (velocities, currents,
-    /// temperatures, modes, payload), if anything.
-    pub state: Option<JointState>,
+    /// temperatures, modes, payload), if anything. Boxed: most sources send none, and a sample
+    /// stays small on the path every message takes.
+    pub state: Option<Box<JointState>>,
 }
 
 /// One measured TCP pose of one robot, in the frame its source reports (the robot's `base` frame
@@ -87,7 +88,9 @@ impl JointQuantity {
     /// The quantity named `name` on the wire.
     #[must_use]
     pub fn from_name(name: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|quantity| quantity.name() == name)
+        Self::ALL
+            .into_iter()
+            .find(|quantity| quantity.name() == name)
     }
 
     fn bit(self) -> u16 {

@@ -19,6 +19,9 @@ use crate::codec::zser;
 /// `zenoh/serialized;armtwin/joints/v1`, built once: comparing with it needs no allocation.
 static JOINTS_ENCODING: LazyLock<Encoding> =
     LazyLock::new(|| Encoding::ZENOH_SERIALIZED.with_schema(zser::JOINTS_SCHEMA));
+/// `zenoh/serialized;armtwin/joints/v2`.
+static JOINTS_STATE_ENCODING: LazyLock<Encoding> =
+    LazyLock::new(|| Encoding::ZENOH_SERIALIZED.with_schema(zser::JOINTS_STATE_SCHEMA));
 /// `zenoh/serialized;armtwin/pose/v1`.
 static POSE_ENCODING: LazyLock<Encoding> =
     LazyLock::new(|| Encoding::ZENOH_SERIALIZED.with_schema(zser::POSE_SCHEMA));
@@ -31,6 +34,9 @@ static POSE_ENCODING: LazyLock<Encoding> =
 pub fn codec_of(encoding: &Encoding) -> Codec {
     if *encoding == *JOINTS_ENCODING {
         return Codec::ZenohSerialized(Some(zser::Schema::Joints));
+    }
+    if *encoding == *JOINTS_STATE_ENCODING {
+        return Codec::ZenohSerialized(Some(zser::Schema::JointsState));
     }
     if *encoding == *POSE_ENCODING {
         return Codec::ZenohSerialized(Some(zser::Schema::Pose));
@@ -54,6 +60,10 @@ mod tests {
             (
                 serialized("armtwin/joints/v1"),
                 Codec::ZenohSerialized(Some(Schema::Joints)),
+            ),
+            (
+                serialized("armtwin/joints/v2"),
+                Codec::ZenohSerialized(Some(Schema::JointsState)),
             ),
             (
                 serialized("armtwin/pose/v1"),

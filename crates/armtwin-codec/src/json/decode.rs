@@ -10,10 +10,12 @@ use std::fmt::{self, Write as _};
 
 use armtwin_core::kinematics::PoseReadout;
 use armtwin_core::orientation::{self, Rpy};
-use armtwin_core::sample::{JointSample, MeasuredSample};
+use armtwin_core::sample::{
+    ControllerStatus, JointQuantity, JointSample, JointState, MeasuredSample, Payload,
+};
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::de::{self, DeserializeSeed, Deserializer, IgnoredAny, MapAccess, SeqAccess, Visitor};
-use serde_json::Number;
+use serde_json::{Number, Value};
 
 use super::{MAX_PAYLOAD_BYTES, Undecodable, WireError, fast};
 
@@ -30,6 +32,8 @@ pub struct DecodedJoints {
     pub sample: JointSample,
     /// Why the embedded `measured` part was refused, if it was.
     pub measured_error: Option<WireError>,
+    /// Why the joint state beside the angles was refused, if it was (the sample then has none).
+    pub state_error: Option<WireError>,
 }
 
 /// The stamp (`t` or `time`) of a message, if it has a usable one, read without knowing what
@@ -108,6 +112,154 @@ pub fn general_measured(payload: &[u8]) -> Result<MeasuredSample, Undecodable> {
     slots
         .into_measured()
         .map_err(|error| Undecodable { error, stamp_s })
+}
+
+/// The joint state of a joint message's `state` object: per-joint arrays named by
+/// [`JointQuantity::name`], `robot_mode`, `safety_mode`, `status_bits` and `speed_scaling`
+/// (together or none), and `payload` (`mass_kg`, `cog_m`, optional `inertia_kg_m2`). Fields it does
+/// not know are skipped, as at the top level; `null` counts as absent.
+fn joint_state(value: &Value, joint_count: usize) -> Result<JointState, WireError> {
+    let bad = |field: &str, detail: String| WireError::JointState {
+        field: format!("state.{field}"),
+        detail,
+    };
+    let Value::Object(fields) = value else {
+        return Err(bad(
+            "",
+            format!("expected an object, got {}", json_type(value)),
+        ));
+    };
+    let number = |field: &str, value: &Value| -> Result<f64, WireError> {
+        value.as_f64().ok_or_else(|| {
+            bad(
+                field,
+                format!("expected a number, got {}", json_type(value)),
+            )
+        })
+    };
+    let numbers = |field: &str, value: &Value, count: usize| -> Result<Vec<f64>, WireError> {
+        let Value::Array(items) = value else {
+            return Err(bad(
+                field,
+                format!("expected an array, got {}", json_type(value)),
+            ));
+        };
+        if items.len() != count {
+            return Err(bad(
+                field,
+                format!("expected {count} values, got {}", items.len()),
+            ));
+        }
+        items
+            .iter()
+            .enumerate()
+            .map(|(index, item)| number(&format!("{field}[{index}]"), item))
+            .collect()
+    };
+    let mut state = JointState::new(joint_count);
+    for quantity in JointQuantity::ALL {
+        if let Some(value) = fields.get(quantity.name()).filter(|value| !value.is_null()) {
+            state.set(quantity, &numbers(quantity.name(), value, joint_count)?);
+        }
+    }
+    let status_fields = ["robot_mode", "safety_mode", "status_bits", "speed_scaling"]
+        .map(|name| (name, fields.get(name).filter(|value| !value.is_null())));
+    if status_fields.iter().any(|(_, value)| value.is_some()) {
+        let [robot_mode, safety_mode, status_bits, speed_scaling] =
+            status_fields.map(|(name, value)| {
+                value.ok_or_else(|| {
+                    bad(
+                        name,
+                        "missing: robot_mode, safety_mode, status_bits and speed_scaling come together"
+                            .to_owned(),
+                    )
+                })
+            });
+        let int = |name: &str, value: &Value| -> Result<i32, WireError> {
+            value
+                .as_i64()
+                .and_then(|value| i32::try_from(value).ok())
+                .ok_or_else(|| bad(name, format!("expected a 32-bit integer, got {value}")))
+        };
+        state.status = Some(ControllerStatus {
+            robot_mode: int("robot_mode", robot_mode?)?,
+            safety_mode: int("safety_mode", safety_mode?)?,
+            status_bits: status_bits?
+                .as_u64()
+                .and_then(|value| u32::try_from(value).ok())
+                .ok_or_else(|| {
+                    bad(
+                        "status_bits",
+                        "expected a 32-bit unsigned integer".to_owned(),
+                    )
+                })?,
+            speed_scaling: number("speed_scaling", speed_scaling?)?,
+        });
+    }
+    if let Some(value) = fields.get("payload").filter(|value| !value.is_null()) {
+        state.payload = Some(payload_json(value)?);
+    }
+    Ok(state)
+}
+
+/// The `payload` of a `state` object: `mass_kg` (not negative), `cog_m` and optionally
+/// `inertia_kg_m2`.
+fn payload_json(value: &Value) -> Result<Payload, WireError> {
+    let bad = |field: &str, detail: String| WireError::JointState {
+        field: format!("state.payload.{field}"),
+        detail,
+    };
+    let Value::Object(payload) = value else {
+        return Err(bad(
+            "",
+            format!("expected an object, got {}", json_type(value)),
+        ));
+    };
+    let numbers = |field: &str, count: usize| -> Result<Option<Vec<f64>>, WireError> {
+        let Some(value) = payload.get(field).filter(|value| !value.is_null()) else {
+            return Ok(None);
+        };
+        let values = match value {
+            Value::Array(items) if items.len() == count => items
+                .iter()
+                .map(Value::as_f64)
+                .collect::<Option<Vec<f64>>>(),
+            _ => None,
+        };
+        values
+            .map(Some)
+            .ok_or_else(|| bad(field, format!("expected {count} numbers, got {value}")))
+    };
+    let mass_kg = match payload.get("mass_kg") {
+        Some(value) => value
+            .as_f64()
+            .ok_or_else(|| bad("mass_kg", format!("expected a number, got {value}")))?,
+        None => return Err(bad("mass_kg", "missing".to_owned())),
+    };
+    if mass_kg < 0.0 {
+        return Err(bad(
+            "mass_kg",
+            format!("a mass of {mass_kg} kg: a mass is not negative"),
+        ));
+    }
+    let cog = numbers("cog_m", 3)?.ok_or_else(|| bad("cog_m", "missing".to_owned()))?;
+    let inertia = numbers("inertia_kg_m2", 6)?;
+    Ok(Payload {
+        mass_kg,
+        cog_m: [cog[0], cog[1], cog[2]],
+        inertia_kg_m2: inertia.map(|values| std::array::from_fn(|index| values[index])),
+    })
+}
+
+fn json_type(value: &Value) -> &'static str {
+    match value {
+        Value::Null => "null",
+        Value::Bool(_) => "a boolean",
+        Value::Number(_) => "a number",
+        Value::String(_) => "a string",
+        Value::Array(_) => "an array",
+        Value::Object(_) => "an object",
+    }
 }
 
 /// The `n` in a flat joint field `qn` (`q1`, `q2`, …; no sign, no leading zero).
@@ -293,6 +445,8 @@ enum MessageKey {
     /// `q<n>`.
     Joint(usize),
     Measured,
+    /// `state`: the joint state beside the angles.
+    State,
     /// A pose field of a measured-pose message, as an index into [`POSE_KEYS`].
     Pose(usize),
     /// A field the message does not use.
@@ -308,6 +462,7 @@ impl MessageKey {
             (Schema::Joints { .. }, "unit") => Self::Unit,
             (Schema::Joints { .. }, "q") => Self::Q,
             (Schema::Joints { .. }, "measured") => Self::Measured,
+            (Schema::Joints { .. }, "state") => Self::State,
             (Schema::Joints { .. }, other) => joint_index(other).map_or(Self::Other, Self::Joint),
             (Schema::Measured, other) => pose_key(other).map_or(Self::Other, Self::Pose),
             (Schema::Stamp, _) => Self::Other,
@@ -484,6 +639,8 @@ struct MessageSlots {
     measured_pose: PoseSlots,
     /// The pose fields of a measured-pose message.
     pose: PoseSlots,
+    /// `state`, read whole: it is rarer than the angles, and read again field by field.
+    state: Option<Value>,
 }
 
 impl MessageSlots {
@@ -543,6 +700,16 @@ impl MessageSlots {
                 Some(wrong_type("measured".to_owned(), "an object", other)),
             ),
         };
+        let (state, state_error) = match self.state.as_ref().filter(|value| !value.is_null()) {
+            None => (None, None),
+            Some(value) => match joint_state(value, joint_count) {
+                Ok(state) => (
+                    Some(Box::new(state)).filter(|state| !state.is_empty()),
+                    None,
+                ),
+                Err(error) => (None, Some(error)),
+            },
+        };
         let mut q_rad = self.joint_angles(joint_count)?;
         if degrees {
             for angle in &mut q_rad {
@@ -555,9 +722,10 @@ impl MessageSlots {
                 seq,
                 q_rad,
                 measured,
-                state: None,
+                state,
             },
             measured_error,
+            state_error,
         })
     }
 
@@ -975,6 +1143,16 @@ fn read_members<'de, A: MapAccess<'de>>(
                     segment: Segment::Joint(n),
                 };
                 keep(map, slot, repeated, Target::Value, &path, trace)?;
+                continue;
+            }
+            MessageKey::State => {
+                if slots.state.is_some() {
+                    trace.note_repeated(&Path {
+                        parent: None,
+                        segment: Segment::Key("state"),
+                    });
+                }
+                slots.state = Some(map.next_value::<Value>()?);
                 continue;
             }
             MessageKey::Other => {

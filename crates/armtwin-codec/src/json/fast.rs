@@ -358,6 +358,8 @@ pub fn joints(payload: &[u8], joint_count: usize) -> Option<DecodedJoints> {
             {
                 None
             }
+            // The joint state is the general decoder's: it names every field it refuses.
+            b"state" => None,
             _ => scanner.skip_value(0),
         })
     })?;
@@ -380,6 +382,7 @@ pub fn joints(payload: &[u8], joint_count: usize) -> Option<DecodedJoints> {
             state: None,
         },
         measured_error: None,
+        state_error: None,
     })
 }
 

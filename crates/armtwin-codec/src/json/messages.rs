@@ -6,6 +6,7 @@ use armtwin_core::identify::{Identification, PoseErrors};
 use armtwin_core::kinematics::PoseReadout;
 use armtwin_core::metrics::{Deviation, METRIC_NAMES, Stats, StatsSet};
 use armtwin_core::pipeline::{Alarms, Event, EventDetail, MetricsSnapshot, RobotState};
+use armtwin_core::sample::JointState;
 use armtwin_core::self_calibration::{CalibrationBatch, Estimate, FitError};
 use serde::Serialize;
 use serde_json::{Value, json};
@@ -415,6 +416,9 @@ pub struct StateMessage {
     pub frame: &'static str,
     /// Last valid joint sample.
     pub joints: Option<StampedJointsJson>,
+    /// The latest of each part of the joint state sent beside the angles (`t` the stamp of the
+    /// last sample that brought any), or `null` when none came.
+    pub joint_state: Option<Value>,
     /// Last twin pose.
     pub twin: Option<StampedPoseJson>,
     /// Last measured pose, in the output frame.
@@ -446,12 +450,48 @@ impl StateMessage {
             joints: state
                 .last_joints
                 .map(|(t, q)| StampedJointsJson { t, q: q.to_vec() }),
+            joint_state: state
+                .last_state
+                .map(|(t, joint_state)| joint_state_json(t, joint_state)),
             twin: state.last_twin_pose.as_ref().map(stamped),
             measured: state.last_measured.as_ref().map(stamped),
             alarms: AlarmsJson { position, angle },
             metrics: MetricsMessage::new(&state.metrics),
         }
     }
+}
+
+/// A joint state as the state answer shows it: its wire fields, and the status bits by name.
+#[must_use]
+pub fn joint_state_json(stamp_s: f64, state: &JointState) -> Value {
+    let mut fields = serde_json::Map::new();
+    fields.insert("t".to_owned(), json!(stamp_s));
+    for (quantity, values) in state.quantities() {
+        fields.insert(quantity.name().to_owned(), json!(values));
+    }
+    if let Some(status) = &state.status {
+        fields.insert("robot_mode".to_owned(), json!(status.robot_mode));
+        fields.insert("safety_mode".to_owned(), json!(status.safety_mode));
+        fields.insert("status_bits".to_owned(), json!(status.status_bits));
+        fields.insert("speed_scaling".to_owned(), json!(status.speed_scaling));
+        fields.insert("power_on".to_owned(), json!(status.power_on()));
+        fields.insert(
+            "program_running".to_owned(),
+            json!(status.program_running()),
+        );
+        fields.insert("freedrive".to_owned(), json!(status.freedrive()));
+    }
+    if let Some(payload) = &state.payload {
+        fields.insert(
+            "payload".to_owned(),
+            json!({
+                "mass_kg": payload.mass_kg,
+                "cog_m": payload.cog_m,
+                "inertia_kg_m2": payload.inertia_kg_m2,
+            }),
+        );
+    }
+    Value::Object(fields)
 }
 
 /// Error figures as written in the report (mm and mrad).

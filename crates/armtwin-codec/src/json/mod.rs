@@ -44,7 +44,7 @@ pub use encode::to_json_bytes;
 pub use messages::{
     AlarmsJson, DeviationMessage, ErrorsJson, EstimateMessage, EventMessage, MetricsMessage,
     ParameterJson, PoseMessage, StampedJointsJson, StampedPoseJson, StateMessage, StatsJson,
-    StatsSetJson, WindowJson, not_identifiable, parameters_json,
+    StatsSetJson, WindowJson, joint_state_json, not_identifiable, parameters_json,
 };
 
 /// Largest accepted payload (bytes); larger ones are rejected before parsing.
@@ -185,6 +185,15 @@ pub enum WireError {
         /// The length the message gives (not allocated: the values need not be there).
         got: u64,
     },
+    /// The joint state beside the angles is not what its fields allow (a value of the wrong
+    /// type or count, a negative payload mass).
+    #[error("joint state field '{field}': {detail}")]
+    JointState {
+        /// The field (`state.temperature_c`, `payload[0]`).
+        field: String,
+        /// What is wrong with it.
+        detail: String,
+    },
     /// A `zenoh/serialized` message without the schema its key expects.
     #[error(
         "encoding zenoh/serialized without the schema '{expected}' this key takes: tag the sample with it"
@@ -218,6 +227,7 @@ impl WireError {
             Self::TrailingBytes { .. } => RejectCause::Decode("trailing_bytes"),
             Self::MalformedLength { .. } => RejectCause::Decode("malformed_length"),
             Self::SequenceLength { .. } => RejectCause::Decode("sequence_length"),
+            Self::JointState { .. } => RejectCause::Decode("joint_state"),
             Self::Schema { .. } => RejectCause::Decode("schema"),
         }
     }

@@ -6,6 +6,7 @@ use std::fmt;
 
 use super::frame::PackageType;
 use super::{ProtocolVersion, RtdeError};
+use armtwin_core::sample::{ControllerStatus, JointQuantity, JointState, Payload};
 
 /// An RTDE variable type, as the output setup answer names it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -225,6 +226,57 @@ pub struct RtdeSample {
     pub payload_kg: Option<f64>,
     /// The payload's centre of gravity (m, tool flange frame).
     pub payload_cog_m: Option<[f64; 3]>,
+}
+
+impl RtdeSample {
+    /// What of the package the joint message carries beside the angles
+    /// (`armtwin/joints/v2`): velocities, the target state, currents, the controller's model
+    /// torques, temperatures, modes and the configured payload, each when the recipe has it.
+    #[must_use]
+    pub fn joint_state(&self) -> JointState {
+        let mut state = JointState::new(self.actual_q_rad.len());
+        let quantities = [
+            (JointQuantity::Velocity, &self.actual_qd_rad_s),
+            (JointQuantity::TargetPosition, &self.target_q_rad),
+            (JointQuantity::TargetVelocity, &self.target_qd_rad_s),
+            (JointQuantity::TargetAcceleration, &self.target_qdd_rad_s2),
+            (JointQuantity::Current, &self.actual_current_a),
+            (JointQuantity::TargetCurrent, &self.target_current_a),
+            (JointQuantity::TargetTorque, &self.target_moment_nm),
+            (JointQuantity::Temperature, &self.joint_temperatures_c),
+        ];
+        for (quantity, values) in quantities {
+            // A controller's non-finite value would refuse the whole state downstream: left out.
+            if let Some(values) = values.filter(|values| values.iter().all(|v| v.is_finite())) {
+                state.set(quantity, &values);
+            }
+        }
+        if let (Some(robot_mode), Some(safety_mode), Some(status_bits), Some(speed_scaling)) = (
+            self.robot_mode,
+            self.safety_mode,
+            self.robot_status_bits,
+            self.speed_scaling.filter(|value| value.is_finite()),
+        ) {
+            state.status = Some(ControllerStatus {
+                robot_mode,
+                safety_mode,
+                status_bits,
+                speed_scaling,
+            });
+        }
+        if let (Some(mass_kg), Some(cog_m)) = (self.payload_kg, self.payload_cog_m)
+            && mass_kg.is_finite()
+            && mass_kg >= 0.0
+            && cog_m.iter().all(|value| value.is_finite())
+        {
+            state.payload = Some(Payload {
+                mass_kg,
+                cog_m,
+                inertia_kg_m2: None,
+            });
+        }
+        state
+    }
 }
 
 /// The output recipe the controller agreed to: an id (protocol 2) and the variables of each data

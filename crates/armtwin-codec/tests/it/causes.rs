@@ -12,7 +12,7 @@ use armtwin_core::pipeline::RejectCause;
 
 /// Every cause name the events, reports and `/metrics` carry, written out here on their own so that
 /// a cause renamed or dropped by either the core or a codec fails this test.
-const WIRE_NAMES: [&str; 31] = [
+const WIRE_NAMES: [&str; 32] = [
     "too_large",
     "not_utf8",
     "not_json",
@@ -44,6 +44,7 @@ const WIRE_NAMES: [&str; 31] = [
     "duplicate_joint",
     "frame_id",
     "attachment",
+    "joint_state",
 ];
 
 #[test]
@@ -85,6 +86,10 @@ fn each_codec_error_has_a_known_cause() {
             got: 5,
         },
         WireError::Schema { expected: "s" },
+        WireError::JointState {
+            field: field(),
+            detail: field(),
+        },
     ];
     let cdr = [
         CdrError::NoHeader { bytes: 2 },

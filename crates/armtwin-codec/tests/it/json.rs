@@ -906,6 +906,7 @@ fn state_message_fields() {
             "tool",
             "frame",
             "joints",
+            "joint_state",
             "twin",
             "measured",
             "alarms",

@@ -427,3 +427,83 @@ proptest! {
         let _ = zser::read_measured(&bytes);
     }
 }
+
+#[test]
+fn joint_state_round_trips_and_its_bad_parts_refuse_only_the_state() {
+    use armtwin_core::sample::{ControllerStatus, JointQuantity, JointState, Payload};
+    let mut state = JointState::new(2);
+    state.set(JointQuantity::Current, &[0.25, -1.5]);
+    state.set(JointQuantity::Velocity, &[0.5, 0.0]);
+    state.set(JointQuantity::Temperature, &[31.0, 33.5]);
+    state.status = Some(ControllerStatus {
+        robot_mode: 7,
+        safety_mode: 1,
+        status_bits: 5,
+        speed_scaling: 0.75,
+    });
+    state.payload = Some(Payload {
+        mass_kg: 2.5,
+        cog_m: [0.0, 0.01, 0.05],
+        inertia_kg_m2: Some([0.1, 0.2, 0.3, 0.0, 0.0, 0.01]),
+    });
+    let bytes = zser::joints_state_bytes(3.0, &[0.1, 0.2], 4, Some(&MEASURED), &state);
+    let decoded = zser::read_joints_with_state(&bytes, 2).unwrap();
+    assert_eq!(decoded.sample.state.as_deref(), Some(&state));
+    assert!(decoded.sample.measured.is_some());
+    // v1 of the same bytes: the state is trailing bytes.
+    assert_eq!(
+        zser::read_joints(&bytes, 2).unwrap_err().error.kind(),
+        "trailing_bytes"
+    );
+    // A non-finite temperature refuses the state only.
+    let mut hot = JointState::new(2);
+    hot.set(JointQuantity::Temperature, &[f64::NAN, 30.0]);
+    let bytes = zser::joints_state_bytes(3.0, &[0.1, 0.2], 4, None, &hot);
+    let decoded = zser::read_joints_with_state(&bytes, 2).unwrap();
+    assert_eq!(decoded.sample.state, None);
+    assert_eq!(decoded.sample.q_rad, vec![0.1, 0.2]);
+    let error = decoded.state_error.unwrap();
+    assert_eq!(error.kind(), "non_finite");
+    assert!(error.to_string().contains("temperature_c[0]"), "{error}");
+    // A per-joint sequence of another length breaks the framing.
+    let mut bytes = zser::joints_state_bytes(3.0, &[0.1, 0.2], 4, None, &JointState::new(2));
+    let at = bytes.len() - 2 - 9; // the first of the nine empty per-joint sequences
+    bytes[at] = 1;
+    bytes.splice((at + 1)..=at, 0.5_f64.to_le_bytes());
+    let refused = zser::read_joints_with_state(&bytes, 2).unwrap_err();
+    assert_eq!(refused.error.kind(), "sequence_length");
+    assert_eq!(refused.stamp_s, Some(3.0));
+}
+
+#[test]
+fn json_state_is_read_by_the_general_decoder_and_its_bad_parts_refuse_only_the_state() {
+    use armtwin_codec::json::read_joints;
+    use armtwin_core::sample::JointQuantity;
+    let decoded = read_joints(
+        br#"{"t": 1, "q": [0, 0], "state": {"current_a": [1.5, -2], "robot_mode": 7, "safety_mode": 1, "status_bits": 4, "speed_scaling": 1, "payload": {"mass_kg": 1, "cog_m": [0, 0, 0.1]}, "future": 1}}"#,
+        2,
+    )
+    .unwrap();
+    let state = decoded.sample.state.unwrap();
+    assert_eq!(state.get(JointQuantity::Current), Some(&[1.5, -2.0][..]));
+    assert!(state.status.unwrap().freedrive());
+    assert_eq!(state.payload.unwrap().cog_m, [0.0, 0.0, 0.1]);
+    for (bad, field) in [
+        (r#"{"qd": [1]}"#, "state.qd"),
+        (r#"{"temperature_c": [1, "x"]}"#, "state.temperature_c[1]"),
+        (r#"{"robot_mode": 7}"#, "state.safety_mode"),
+        (
+            r#"{"payload": {"mass_kg": -1, "cog_m": [0, 0, 0]}}"#,
+            "state.payload.mass_kg",
+        ),
+        ("[1]", "state."),
+    ] {
+        let payload = format!(r#"{{"t": 1, "q": [0, 0], "state": {bad}}}"#);
+        let decoded = read_joints(payload.as_bytes(), 2).unwrap();
+        assert_eq!(decoded.sample.state, None, "{bad}");
+        assert_eq!(decoded.sample.q_rad, vec![0.0, 0.0]);
+        let error = decoded.state_error.unwrap();
+        assert_eq!(error.kind(), "joint_state", "{bad}");
+        assert!(error.to_string().contains(field), "{bad}: {error}");
+    }
+}

@@ -516,7 +516,7 @@ impl Twin {
                     *last_s = stamp_s;
                     last.update_from(state);
                 }
-                None => self.last_state = Some((stamp_s, state.clone())),
+                None => self.last_state = Some((stamp_s, JointState::clone(state))),
             }
         }
         self.last_pose = Some((stamp_s, pose));

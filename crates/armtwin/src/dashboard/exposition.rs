@@ -11,6 +11,7 @@ use std::sync::atomic::AtomicU64;
 
 use super::{FleetRow, ServiceTotals};
 use crate::metrics::{Metric, Stats, StatsSet};
+use crate::sample::JointQuantity;
 
 /// A series' labels: a few pairs, the robot's first.
 type Labels = Vec<(&'static str, String)>;
@@ -65,6 +66,9 @@ struct RobotFamilies {
     rejected: Counters,
     alarm: Gauges,
     epoch: Gauges,
+    joint_temperature: Gauges,
+    joint_current: Gauges,
+    joint_torque: Gauges,
 }
 
 impl RobotFamilies {
@@ -87,6 +91,9 @@ impl RobotFamilies {
             rejected: Counters::default(),
             alarm: Gauges::default(),
             epoch: Gauges::default(),
+            joint_temperature: Gauges::default(),
+            joint_current: Gauges::default(),
+            joint_torque: Gauges::default(),
         };
         let gauges = [
             (
@@ -103,6 +110,21 @@ impl RobotFamilies {
                 "metrics_epoch",
                 "Times the robot's model was replaced (an applied self-calibration)",
                 &families.epoch,
+            ),
+            (
+                "joint_temperature_celsius",
+                "The robot's joint temperature as its source last reported it",
+                &families.joint_temperature,
+            ),
+            (
+                "joint_current_amperes",
+                "The robot's joint motor current as its source last reported it",
+                &families.joint_current,
+            ),
+            (
+                "joint_torque_newton_metres",
+                "The robot's measured joint torque as its source last reported it",
+                &families.joint_torque,
             ),
         ];
         for (name, help, family) in gauges {
@@ -178,6 +200,22 @@ impl RobotFamilies {
         self.epoch
             .get_or_create(&robot_labels())
             .set(row.metrics.epoch as f64);
+        if let Some(state) = &row.joint_state {
+            let per_joint = [
+                (JointQuantity::Temperature, &self.joint_temperature),
+                (JointQuantity::Current, &self.joint_current),
+                (JointQuantity::Torque, &self.joint_torque),
+            ];
+            for (quantity, family) in per_joint {
+                for (joint, value) in state.get(quantity).unwrap_or(&[]).iter().enumerate() {
+                    let labels = vec![
+                        ("robot", robot.to_owned()),
+                        ("joint", (joint + 1).to_string()),
+                    ];
+                    family.get_or_create(&labels).set(*value);
+                }
+            }
+        }
     }
 }
 

@@ -724,6 +724,7 @@ mod tests {
                 angle: false,
             },
             counts: RobotCounts::default(),
+            joint_state: None,
         }
     }
 

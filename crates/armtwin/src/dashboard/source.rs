@@ -11,6 +11,7 @@ use std::time::Instant;
 use crate::codec::json;
 use crate::model::RobotModel;
 use crate::pipeline::{Alarms, MetricsSnapshot, RejectCause};
+use crate::sample::JointState;
 
 /// Read access to a running fleet: each call copies what it needs out and holds nothing
 /// afterwards, so the dashboard keeps no second copy of the state that could drift from it.
@@ -32,6 +33,8 @@ pub struct FleetRow {
     pub metrics: MetricsSnapshot,
     /// Position and angle alarms.
     pub alarms_active: Alarms,
+    /// The latest joint state sent beside the angles, if any (temperatures, currents, modes).
+    pub joint_state: Option<JointState>,
     /// Its totals over the service's life (no recent events: the fleet does not show them).
     pub counts: RobotCounts,
 }

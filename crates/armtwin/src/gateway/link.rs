@@ -93,7 +93,7 @@ pub(super) async fn run(
     let key = keys.key(Stream::Joints, &settings.robot);
     let publisher = match session
         .declare_publisher(key.clone())
-        .encoding(Encoding::ZENOH_SERIALIZED.with_schema(zser::JOINTS_SCHEMA))
+        .encoding(Encoding::ZENOH_SERIALIZED.with_schema(zser::JOINTS_STATE_SCHEMA))
         .congestion_control(CongestionControl::Block)
         .await
     {
@@ -296,8 +296,13 @@ impl Robot {
             let [qx, qy, qz, qw] = orientation::quaternion_to_xyzw(&q);
             [x, y, z, qx, qy, qz, qw]
         });
-        let payload =
-            zser::joints_bytes(stamp_s, &sample.actual_q_rad, self.seq, measured.as_ref());
+        let payload = zser::joints_state_bytes(
+            stamp_s,
+            &sample.actual_q_rad,
+            self.seq,
+            measured.as_ref(),
+            &sample.joint_state(),
+        );
         self.publisher
             .put(payload)
             .await

@@ -1,6 +1,6 @@
 //! `armtwin gateway rtde`: Universal Robots controllers streamed into the mesh over RTDE, one TCP
 //! connection per controller and one Zenoh session for all of them. Each data package becomes
-//! a joint message (`armtwin/joints/v1`) on the robot's joints key, with the controller's
+//! a joint message (`armtwin/joints/v2`) on the robot's joints key, with the controller's
 //! `actual_TCP_pose` embedded as its measured pose.
 //!
 //! - [`clock`]: stamps from the controller's clock, offset to wall time once per connection.

@@ -35,6 +35,7 @@ impl FleetSource for FleetView {
                     id: Arc::clone(cell.robot.shared_id()),
                     metrics: state.metrics,
                     alarms_active: state.alarms_active,
+                    joint_state: state.last_state.map(|(_, joint_state)| joint_state.clone()),
                     counts: RobotCounts {
                         recent_events: VecDeque::new(),
                         ..guard.outputs.counts.clone()

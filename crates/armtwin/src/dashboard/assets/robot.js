@@ -217,7 +217,7 @@ function update(message) {
   alarm.className = active.length ? "alarm" : "";
   const tool = state.tool.map((v) => v.toFixed(4)).join(", ");
   document.getElementById("model").textContent =
-    `model        ${state.model}\ncalibration  ${state.calibration ?? "none (nominal)"}\ntool         [${tool}] (m, rotation vector rad)\nframe        ${state.frame}\njoints (rad) ${state.joints ? state.joints.q.map((q) => q.toFixed(4)).join(", ") : "–"}`;
+    `model        ${state.model}\ncalibration  ${state.calibration ?? "none (nominal)"}\ntool         [${tool}] (m, rotation vector rad)\nframe        ${state.frame}\njoints (rad) ${state.joints ? state.joints.q.map((q) => q.toFixed(4)).join(", ") : "–"}${jointStateText(state.joint_state)}`;
   const list = document.getElementById("events");
   list.replaceChildren(...message.events.slice().reverse().map((event) => {
     const li = document.createElement("li");
@@ -225,6 +225,22 @@ function update(message) {
     return li;
   }));
   document.getElementById("status").textContent = "live";
+}
+
+// The joint state the robot's source reports beside its angles, when it reports any.
+function jointStateText(js) {
+  if (!js) return "";
+  const row = (label, values, digits) =>
+    values ? `\n${label.padEnd(13)}${values.map((v) => v.toFixed(digits)).join(", ")}` : "";
+  let text = row("temp (°C)", js.temperature_c, 1) + row("current (A)", js.current_a, 3) +
+    row("torque (Nm)", js.torque_nm, 2) + row("model (Nm)", js.target_torque_nm, 2) + row("qd (rad/s)", js.qd, 4);
+  if (js.robot_mode !== undefined) {
+    const bits = [js.power_on ? "power on" : "power off", js.program_running ? "program running" : "",
+      js.freedrive ? "freedrive" : ""].filter(Boolean).join(", ");
+    text += `\nmode         robot ${js.robot_mode}, safety ${js.safety_mode}, ${bits}, speed ${(js.speed_scaling * 100).toFixed(0)} %`;
+  }
+  if (js.payload) text += `\npayload      ${js.payload.mass_kg} kg at [${js.payload.cog_m.join(", ")}] m`;
+  return text;
 }
 
 const source = new EventSource("/api/robot/stream?id=" + encodeURIComponent(id));

@@ -27,7 +27,7 @@ N_STATES = 200
 UR_GRAVITY_M_S2 = 9.82
 
 # --------------------------------------------------------------------------
-# inertial parameters, typed in again from the sources (research/dynamics.md): masses (kg), centres
+# inertial parameters, typed in again from the sources named in crates/armtwin-core/src/dynamics/ur.rs: masses (kg), centres
 # of mass (m) and diagonal inertias about them (kg·m²) in the standard-DH link frames, and the
 # e-Series joint sizes
 # --------------------------------------------------------------------------

@@ -23,7 +23,7 @@
 //! recursion, `J_r` the reflected rotor inertia (rotor inertia × gear ratio², a diagonal constant
 //! that [`ArmDynamics::mass_matrix_kg_m2`] includes), `τ_f` Coulomb plus viscous friction. Universal
 //! Robots' controller reports `target_moment` as this without friction, with gravity 9.82 m/s²
-//! and the payload as configured (`research/dynamics.md`).
+//! and the payload as configured.
 
 pub mod payload;
 pub mod ur;
@@ -69,7 +69,7 @@ pub enum ControllerMode {
     /// no friction.
     Program,
     /// Freedrive (teach button held, `target_qdd` ≡ 0): gravity only; velocity terms make the
-    /// comparison worse (`research/dynamics.md`).
+    /// comparison worse.
     Freedrive,
 }
 

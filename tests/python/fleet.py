@@ -191,6 +191,13 @@ def wait_queryable(session: zenoh.Session, key: str, timeout: float = 20.0) -> b
     return True
 
 
+def paired_of(session: zenoh.Session, robot: str) -> int | None:
+    """The robot's paired count from its state answer; ``None`` while it is not tracked (no reply),
+    so that a wait polls on instead of failing on an empty answer."""
+    answers = get_json(session, f"twin/state/{robot}")
+    return answers[0][1]["metrics"]["paired"] if answers else None
+
+
 def get_json(session: zenoh.Session, selector: str, timeout: float = 10.0) -> list[tuple[str, dict]]:
     replies = session.get(selector, timeout=timeout, consolidation=zenoh.ConsolidationMode.NONE)
     out = []

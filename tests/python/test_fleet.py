@@ -12,7 +12,7 @@ import time
 import urllib.request
 
 from armtwin_service import wait_until
-from fleet import Armtwin, Gateway, Poses, Router, get_json, open_client, wait_matched, wait_queryable
+from fleet import Armtwin, Gateway, Poses, Router, get_json, open_client, paired_of, wait_matched, wait_queryable
 
 TWIN_CONFIG = """
 [service]
@@ -191,8 +191,7 @@ def test_sigkill_restores_metrics_seq_and_alarms_from_the_snapshot(
     for _ in range(300):
         gateway.send_one()
         time.sleep(0.002)
-    assert wait_until(lambda: (get_json(client, "twin/state/r1") or [(0, {"metrics": {"paired": 0}})])[0][1]
-                      ["metrics"]["paired"] == 300, 15)
+    assert wait_until(lambda: paired_of(client, "r1") == 300, 15)
     [(_, before)] = get_json(client, "twin/state/r1")
     assert before["alarms"]["position"], "the alarm is armed before the kill"
     time.sleep(1.2)  # at least two snapshot periods with the 300 samples in
@@ -214,7 +213,7 @@ def test_sigkill_restores_metrics_seq_and_alarms_from_the_snapshot(
     gateway.send_one()
     assert wait_until(lambda: poses.items, 10)
     assert poses.seqs()[0] == 300, "the pose seq goes on from the snapshot"
-    assert wait_until(lambda: (get_json(client, "twin/state/r1")[0][1]["metrics"]["paired"] == 301), 10)
+    assert wait_until(lambda: paired_of(client, "r1") == 301, 10)
 
 
 def test_a_corrupt_snapshot_is_set_aside_and_the_service_starts_fresh(

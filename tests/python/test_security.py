@@ -15,7 +15,7 @@ import pytest
 import zenoh
 
 from armtwin_service import wait_until
-from fleet import Armtwin, Gateway, Router, get_json, router_path, wait_queryable
+from fleet import Armtwin, Gateway, Router, get_json, paired_of, router_path, wait_queryable
 
 REPO = Path(__file__).resolve().parents[2]
 ROUTER_CONFIG = REPO / "config" / "router-tls-acl.json5"
@@ -181,7 +181,7 @@ def test_a_dashboard_reads_a_twin_but_cannot_change_it_and_an_operator_can(tmp_p
         for _ in range(20):
             gateway.send_one()
             time.sleep(0.005)
-        assert wait_until(lambda: get_json(dashboard, "twin/state/r1")[0][1]["metrics"]["paired"] == 20, 15)
+        assert wait_until(lambda: paired_of(dashboard, "r1") == 20, 15)
 
         # The dashboard reads, and every change it asks for is dropped at the router or refused.
         for selector in ("twin/admin/reset/r1", "twin/admin/calibrate/r1?action=apply",

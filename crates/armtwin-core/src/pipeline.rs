@@ -48,6 +48,7 @@ pub use self::sink::Sink;
 pub use self::sinks::Discard;
 pub use self::twin::Twin;
 use crate::align::AlignConfig;
+use crate::dynamics::monitor::{EffortConfig, EffortSummary};
 use crate::kinematics::PoseReadout;
 use crate::metrics::StatsSet;
 use crate::model::RobotModel;
@@ -75,6 +76,9 @@ pub struct RobotSettings {
     pub sensors: Vec<SensorStream>,
     /// Keep a reservoir of the robot's pairs for self-calibration ([`crate::self_calibration`]).
     pub self_calibration: Option<ReservoirConfig>,
+    /// Watch the robot's effort ([`crate::dynamics::monitor`]): its arm must have inertial
+    /// parameters and six joints.
+    pub effort: Option<EffortConfig>,
 }
 
 /// Settings shared by every robot.
@@ -129,6 +133,8 @@ pub struct MetricsSnapshot {
     /// The metrics epoch: 0 from the start, one more each time the robot's model was replaced
     /// ([`Pipeline::replace_model`]); the counters and statistics cover this epoch only.
     pub epoch: u64,
+    /// Its effort, when watched (boxed: most robots have none).
+    pub effort: Option<Box<EffortSummary>>,
 }
 
 /// Why a robot's model was not replaced.
@@ -168,6 +174,8 @@ pub struct RobotState<'a> {
     pub metrics: MetricsSnapshot,
     /// Which alarms are active.
     pub alarms_active: Alarms,
+    /// Its effort, when watched.
+    pub effort: Option<EffortSummary>,
 }
 
 /// The multi-robot twin core: one twin per robot that has had input, by [`RobotIndex`].

@@ -27,6 +27,7 @@ fn pipeline() -> (Pipeline, Arc<RobotModel>, RobotDirectory) {
         alarm: AlarmConfig::default(),
         sensors: Vec::new(),
         self_calibration: None,
+        effort: None,
     };
     (
         Pipeline::new(PipelineConfig::default()),
@@ -369,6 +370,7 @@ fn a_replaced_model_starts_a_new_epoch_and_self_calibration_keeps_only_accepted_
             min_spacing_s: 0.0,
             ..ReservoirConfig::default()
         }),
+        effort: None,
     };
     let mut directory = RobotDirectory::new(Some(settings), HashMap::new());
     let mut pipeline = Pipeline::new(PipelineConfig::default());

@@ -25,6 +25,7 @@
 //! Robots' controller reports `target_moment` as this without friction, with gravity 9.82 m/s²
 //! and the payload as configured.
 
+pub mod monitor;
 pub mod payload;
 pub mod ur;
 

@@ -12,6 +12,15 @@ use nalgebra::{Matrix4, Vector4};
 
 use super::ArmDynamics;
 
+/// Joint speed (rad/s) below which every joint must be for a sample to count as at rest: at
+/// rest a position-controlled arm's torques are gravity's alone.
+pub const AT_REST_RAD_S: f64 = 0.01;
+
+/// Joint acceleration (rad/s²) below which every joint must be, where the source gives one, for
+/// a sample to count as at rest: a motion starting or stopping passes through zero speed with
+/// its full acceleration, whose inertial torques are no payload's gravity.
+pub const AT_REST_RAD_S2: f64 = 0.1;
+
 /// Accumulates `Yᵀ Y` and `Yᵀ τ` of the gravity regressor
 /// ([`ArmDynamics::payload_gravity_regressor`]) over samples.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -19,7 +28,8 @@ pub struct PayloadIdentifier {
     normal: Matrix4<f64>,
     projected: Vector4<f64>,
     torque_sum_squares: f64,
-    equations: usize,
+    /// Equations taken, each weighted by what forgetting left of it.
+    equations: f64,
     samples: usize,
 }
 
@@ -50,7 +60,7 @@ impl PayloadIdentifier {
             normal: Matrix4::zeros(),
             projected: Vector4::zeros(),
             torque_sum_squares: 0.0,
-            equations: 0,
+            equations: 0.0,
             samples: 0,
         }
     }
@@ -71,15 +81,24 @@ impl PayloadIdentifier {
             self.projected += row * *tau;
             self.torque_sum_squares += tau * tau;
         }
-        self.equations += N;
+        self.equations += N as f64;
         self.samples += 1;
+    }
+
+    /// Scales everything taken so far by `keep` (in `(0, 1]`): exponential forgetting, so that a
+    /// live estimate follows a payload that changed. `samples` still counts every sample.
+    pub fn forget(&mut self, keep: f64) {
+        self.normal *= keep;
+        self.projected *= keep;
+        self.torque_sum_squares *= keep;
+        self.equations *= keep;
     }
 
     /// The least-squares payload, or `None` while the poses do not determine it (too few, or all
     /// alike: the normal equations are singular).
     #[must_use]
     pub fn estimate(&self) -> Option<PayloadEstimate> {
-        if self.equations <= 4 {
+        if self.equations <= 4.0 {
             return None;
         }
         // Poses that leave a parameter undetermined (all alike, or a joint never turned) make the
@@ -91,7 +110,7 @@ impl PayloadIdentifier {
         let inverse = self.normal.try_inverse()?;
         let x = inverse * self.projected;
         let residual_sum_squares = (self.torque_sum_squares - x.dot(&self.projected)).max(0.0);
-        let variance = residual_sum_squares / (self.equations - 4) as f64;
+        let variance = residual_sum_squares / (self.equations - 4.0);
         let mass_kg = x[0];
         let cog_flange_m =
             (mass_kg > 0.0).then(|| [x[1] / mass_kg, x[2] / mass_kg, x[3] / mass_kg]);

@@ -33,6 +33,22 @@ pub const E_SERIES_ROTOR_INERTIA_KG_M2: [f64; 5] =
 pub const E_SERIES_TORQUE_CONSTANT_NM_PER_A: [f64; 5] =
     [0.035685, 0.07695, 0.10756, 0.098322, 0.11968];
 
+/// Largest joint torque (N·m) of e-Series joint sizes 0 to 4 (C).
+pub const E_SERIES_MAX_TORQUE_NM: [f64; 5] = [9.0, 28.0, 54.0, 150.0, 330.0];
+
+/// Share of a joint's largest torque that a collision must reach unless configured otherwise:
+/// above the model errors that are left once friction is learned (payload mismatches of a kilo
+/// or two, the ~1 % spread of torque constants), below the force of a real impact.
+pub const DEFAULT_COLLISION_SHARE: f64 = 0.1;
+
+/// Per joint, the default collision threshold (N·m) of an e-Series arm whose joint sizes are
+/// public ([`DEFAULT_COLLISION_SHARE`] of each joint's largest torque); `None` otherwise.
+#[must_use]
+pub fn default_collision_threshold_nm(name: &str) -> Option<[f64; 6]> {
+    let sizes = table(name)?.joint_sizes?;
+    Some(sizes.map(|size| E_SERIES_MAX_TORQUE_NM[size] * DEFAULT_COLLISION_SHARE))
+}
+
 /// Per joint, the nominal factor from motor current to joint torque, `K_τ · 101` (N·m/A), of an
 /// e-Series arm whose joint sizes are public (UR3e, UR5e, UR10e, UR16e); `None` otherwise. Joint
 /// torque ≈ current × this factor, friction and rotor inertia included in that torque.

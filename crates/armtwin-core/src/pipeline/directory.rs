@@ -253,6 +253,7 @@ mod tests {
             alarm: AlarmConfig::default(),
             sensors: Vec::new(),
             self_calibration: None,
+            effort: None,
         }
     }
 

@@ -189,6 +189,26 @@ pub enum EventDetail {
         /// Its number (0 is the start).
         epoch: u64,
     },
+    /// A collision alarm (the momentum observer on a joint), or its end.
+    Collision {
+        /// The joint, from 1.
+        joint: usize,
+        /// The observer's output less its baseline (N·m).
+        value_nm: f64,
+        /// The threshold (N·m); the alarm ends below half of it.
+        threshold_nm: f64,
+    },
+    /// A payload mismatch alarm, or its end.
+    Payload {
+        /// The identified mass (kg).
+        estimated_kg: f64,
+        /// Its standard deviation (kg).
+        std_kg: f64,
+        /// The mass the model uses (kg).
+        modelled_kg: f64,
+        /// The tolerance (kg).
+        tolerance_kg: f64,
+    },
 }
 
 /// What an event's sentence says beyond its [`EventDetail`]: the settings and values that
@@ -253,6 +273,8 @@ pub enum Reason<'a> {
         /// The alignment limits the reason refers to.
         align: AlignConfig,
     },
+    /// An effort alarm or its end: the detail says it all.
+    Effort,
     /// The robot's model was replaced.
     ModelReplaced {
         /// The calibration's source name (a file, `self-calibration`).
@@ -277,6 +299,44 @@ pub struct Event<'a> {
     pub detail: EventDetail,
     /// What the sentence for people is made of beyond `detail` (written by [`fmt::Display`]).
     pub reason: Reason<'a>,
+}
+
+impl Event<'_> {
+    /// The sentence of an effort alarm or its end.
+    fn effort_sentence(&self, f: &mut fmt::Formatter<'_>, detail: EventDetail) -> fmt::Result {
+        let ended = self.kind == EventKind::Recovered;
+        match detail {
+            EventDetail::Collision {
+                joint,
+                value_nm,
+                threshold_nm,
+            } if ended => write!(
+                f,
+                "joint {joint} effort back within half its collision threshold of {threshold_nm} N·m ({value_nm:.3} N·m from its baseline)"
+            ),
+            EventDetail::Collision {
+                joint,
+                value_nm,
+                threshold_nm,
+            } => write!(
+                f,
+                "collision on joint {joint}: the drives spend {value_nm:.3} N·m beyond the model's baseline (threshold {threshold_nm} N·m)"
+            ),
+            EventDetail::Payload {
+                estimated_kg,
+                std_kg,
+                modelled_kg,
+                tolerance_kg,
+            } => {
+                let relation = if ended { "within" } else { "further than" };
+                write!(
+                    f,
+                    "payload identified at rest {estimated_kg:.3} ± {std_kg:.3} kg, {relation} {tolerance_kg} kg of the {modelled_kg} kg modelled"
+                )
+            }
+            _ => f.write_str(self.kind.as_str()),
+        }
+    }
 }
 
 impl fmt::Display for Event<'_> {
@@ -370,6 +430,7 @@ impl fmt::Display for Event<'_> {
                 "model replaced by the calibration from {source}: metrics epoch {epoch} begins, \
                  counters and statistics start afresh"
             ),
+            (Reason::Effort, detail) => self.effort_sentence(f, detail),
             // A reason made for another kind of detail: the kind at least.
             (_, EventDetail::Rejected { cause }) => write!(f, "rejected: {cause}"),
             _ => f.write_str(self.kind.as_str()),

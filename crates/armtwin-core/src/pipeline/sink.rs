@@ -6,6 +6,7 @@
 //! result edits this trait and the sinks that want it, not every sink.
 
 use super::{Event, MetricsSnapshot, Robot};
+use crate::dynamics::monitor::EffortReadout;
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
 
@@ -59,6 +60,11 @@ pub trait Sink {
     /// An event (its sentence, if the sink wants one, is its `Display`).
     fn event(&mut self, event: &Event<'_>) {
         let _ = event;
+    }
+
+    /// The effort of a joint sample of a robot whose effort is watched.
+    fn effort(&mut self, robot: &Robot, readout: &EffortReadout) {
+        let _ = (robot, readout);
     }
 
     /// A metrics snapshot of `robot`.

@@ -19,6 +19,8 @@ use super::{
     Reason, RejectCause, ReplaceModelError, RestoreError, Robot, RobotState, Sink, TwinRecord,
 };
 use crate::align::{self, Aligner, Bracket, Pending, UnpairedReason};
+use crate::dynamics::Payload;
+use crate::dynamics::monitor::{EffortAlarm, EffortMonitor};
 use crate::kinematics::{KinematicsError, OutputFrame, PoseReadout};
 use crate::metrics::{CumulativeStats, Deviation, WindowStats};
 use crate::model::{CalibrationForm, MountingDeltas, RobotModel};
@@ -92,6 +94,8 @@ pub struct Twin {
     last_measured: Option<(f64, PoseReadout)>,
     newest_s: f64,
     alarms: AlarmStates,
+    /// Its effort monitor, when the robot's settings ask for one.
+    effort: Option<Box<EffortMonitor>>,
     /// New results since the last periodic metrics.
     dirty: bool,
     scratch_q: Vec<f64>,
@@ -127,6 +131,7 @@ impl Twin {
             last_measured: None,
             newest_s: f64::NEG_INFINITY,
             alarms: AlarmStates::default(),
+            effort: effort_monitor(&robot, config),
             dirty: false,
             scratch_q: Vec::with_capacity(joint_count),
             robot,
@@ -340,6 +345,7 @@ impl Twin {
             last_measured: self.last_measured.as_ref().map(|(s, p)| (*s, p)),
             metrics: self.snapshot(),
             alarms_active: self.alarms.active(),
+            effort: self.effort.as_ref().map(|monitor| monitor.summary()),
         }
     }
 
@@ -419,6 +425,9 @@ impl Twin {
         if let Some(stats) = &mut self.stats {
             stats.cumulative.reset();
             stats.window.reset();
+        }
+        if let Some(monitor) = &mut self.effort {
+            monitor.reset_statistics();
         }
         self.paired = 0;
         self.unpaired = 0;
@@ -520,7 +529,84 @@ impl Twin {
             }
         }
         self.last_pose = Some((stamp_s, pose));
+        self.step_effort(key, stamp_s, sample, sink);
         Ok(pose)
+    }
+
+    /// Steps the effort monitor, if the robot has one: its readout to the sink, its alarms as
+    /// events.
+    fn step_effort(&mut self, key: &str, stamp_s: f64, sample: &JointSample, sink: &mut impl Sink) {
+        let Some(monitor) = &mut self.effort else {
+            return;
+        };
+        let empty = JointState::default();
+        let state = sample.state.as_deref().unwrap_or(&empty);
+        // At most one change per joint and one of the payload per sample.
+        let mut alarms = [None; 8];
+        let mut count = 0;
+        let readout = monitor.step(stamp_s, &sample.q_rad, state, |alarm| {
+            if let Some(slot) = alarms.get_mut(count) {
+                *slot = Some(alarm);
+                count += 1;
+            }
+        });
+        if let Some(readout) = readout {
+            sink.effort(&self.robot, &readout);
+        }
+        for alarm in alarms.into_iter().flatten() {
+            let (kind, detail) = match alarm {
+                EffortAlarm::Collision {
+                    joint,
+                    value_nm,
+                    threshold_nm,
+                    on,
+                } => (
+                    on,
+                    EventDetail::Collision {
+                        joint: joint + 1,
+                        value_nm,
+                        threshold_nm,
+                    },
+                ),
+                EffortAlarm::Payload {
+                    estimated_kg,
+                    std_kg,
+                    modelled_kg,
+                    tolerance_kg,
+                    on,
+                } => (
+                    on,
+                    EventDetail::Payload {
+                        estimated_kg,
+                        std_kg,
+                        modelled_kg,
+                        tolerance_kg,
+                    },
+                ),
+            };
+            let kind = if kind {
+                EventKind::Alarm
+            } else {
+                EventKind::Recovered
+            };
+            sink.event(&self.event(stamp_s, kind, Some(key), detail, Reason::Effort));
+        }
+    }
+
+    /// Applies the identified payload to its effort model; `None` without an effort monitor or
+    /// an estimate.
+    pub fn apply_payload_estimate(&mut self) -> Option<Payload> {
+        self.dirty = true;
+        self.effort.as_mut()?.apply_estimate()
+    }
+
+    /// Drops an applied payload; `false` without an effort monitor.
+    pub fn discard_applied_payload(&mut self) -> bool {
+        self.dirty = true;
+        self.effort
+            .as_mut()
+            .map(|monitor| monitor.discard_applied())
+            .is_some()
     }
 
     /// Measured stamps must increase strictly; rejects (and returns false) otherwise.
@@ -545,6 +631,9 @@ impl Twin {
         self.aligner = Aligner::new(config);
         if let Some(stats) = &mut self.stats {
             stats.window.reset();
+        }
+        if let Some(monitor) = &mut self.effort {
+            monitor.restart_clock();
         }
         self.last_joint_s = None;
         self.last_measured_s.clear();
@@ -793,6 +882,10 @@ impl Twin {
                 .unwrap_or_default(),
             window_s: self.window_s,
             epoch: self.epoch,
+            effort: self
+                .effort
+                .as_ref()
+                .map(|monitor| Box::new(monitor.summary())),
         }
     }
 }
@@ -824,6 +917,16 @@ fn transform(target_from_source: &IsometryMatrix3<f64>, pose: &PoseReadout) -> P
     let quaternion =
         orientation::quaternion_from_matrix(Rotation3::from_matrix_unchecked(rotation).matrix());
     PoseReadout::from_position_quaternion(position.coords.into(), &quaternion)
+}
+
+/// The effort monitor `robot`'s settings ask for. The configuration checked the arm when it was
+/// loaded; an arm that still cannot be watched (a model replaced by one of another size) is
+/// watched by none.
+fn effort_monitor(robot: &Robot, config: &PipelineConfig) -> Option<Box<EffortMonitor>> {
+    let effort = robot.settings().effort.as_ref()?;
+    EffortMonitor::new(robot.settings().model.arm(), effort, config.window_s)
+        .ok()
+        .map(Box::new)
 }
 
 #[cfg(test)]
@@ -885,6 +988,7 @@ mod tests {
             alarm,
             sensors: Vec::new(),
             self_calibration: None,
+            effort: None,
         };
         let mut robots = RobotDirectory::new(Some(settings), HashMap::new());
         let r1 = robots.admit("r1").expect("default settings").clone();
@@ -1099,6 +1203,7 @@ mod tests {
                 alarm: AlarmConfig::default(),
                 sensors: Vec::new(),
                 self_calibration: None,
+                effort: None,
             }),
             HashMap::new(),
         );

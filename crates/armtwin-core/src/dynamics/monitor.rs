@@ -1,0 +1,1157 @@
+//! One arm's effort, live: the model's joint torques beside the measured ones, a momentum
+//! observer for collisions, the payload identified while the arm rests, and each joint's friction
+//! followed against temperature.
+//!
+//! Owns the per-sample step and the state it keeps (observer, payload identifier, friction fits,
+//! residual statistics, alarm states). Must not allocate per sample, know where samples come
+//! from, or publish: [`EffortMonitor::step`] returns a readout and hands alarm changes to a
+//! callback; the twin turns them into events.
+//!
+//! Sign convention: every torque here is one the drives apply. `measured − model` is what the
+//! drives spend beyond the model (friction, a payload heavier than configured, a contact); the
+//! observer estimates the same quantity without differentiating anything. With `p = M(q) q̇`,
+//! `ṗ = τ_drives − τ_f(q̇) − τ_e + C(q, q̇)ᵀ q̇ − g(q)` where `τ_e` is what the drives spend
+//! beyond the model, so `r = K (p − ∫ (τ_drives − τ_f + Cᵀq̇ − g − r) dt)` settles on `−τ_e`
+//! with time constant `1/K`; the readout gives `−r`, in the residual's sign.
+
+use super::payload::{AT_REST_RAD_S, AT_REST_RAD_S2, PayloadEstimate, PayloadIdentifier};
+use super::{ArmDynamics, ControllerMode, DynamicsError, Payload, ur};
+use crate::model::ArmDescription;
+use crate::sample::{self, JointQuantity, JointState};
+
+/// The joints an effort monitor handles (every arm whose dynamics the catalog publishes).
+pub const EFFORT_JOINTS: usize = 6;
+const J: usize = EFFORT_JOINTS;
+
+/// Longest step (s) the observer integrates across: a longer silence starts it afresh.
+const MAX_STEP_S: f64 = 0.1;
+/// Observer time constants (`1/K`) of steady program-mode input before its alarms are armed:
+/// it starts from zero and needs a few to settle.
+const ARMING_TIME_CONSTANTS: f64 = 5.0;
+/// Joint speed (rad/s) above which a sample tells the joint's friction apart from its sign.
+const MOVING_RAD_S: f64 = 0.05;
+/// Moving samples (weighted by forgetting) a joint's friction fit needs before it is used.
+const MIN_FRICTION_WEIGHT: f64 = 200.0;
+/// Temperature bins (°C) of the friction baselines: `[0, 5)`, `[5, 10)`, … `[95, 100)`, and one
+/// for samples with no temperature.
+const TEMPERATURE_BIN_C: f64 = 5.0;
+const TEMPERATURE_BINS: usize = 20;
+/// Rest samples between two payload estimates (an estimate solves a 4×4 eigenproblem).
+const PAYLOAD_ESTIMATE_EVERY: u32 = 50;
+/// Blocks the residual window is kept in: its statistics cover the window to one block.
+const WINDOW_BLOCKS: usize = 8;
+
+/// How a robot's effort is watched.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EffortConfig {
+    /// The momentum observer's gain `K` (1/s): its time constant is `1/K`.
+    pub observer_gain_per_s: f64,
+    /// Per joint, the observer output (N·m) beyond which a collision is reported; `None` for the
+    /// arm's default ([`ur::default_collision_threshold_nm`]).
+    pub collision_threshold_nm: Option<[f64; J]>,
+    /// Identified minus modelled payload mass (kg) beyond which a mismatch is reported.
+    pub payload_tolerance_kg: f64,
+    /// Time constant (s) of the payload identifier's forgetting.
+    pub payload_window_s: f64,
+    /// Time constant (s) of the friction fits' forgetting.
+    pub friction_window_s: f64,
+    /// Time constant (s) of each joint's observer baseline: a collision is the observer leaving
+    /// its baseline, so that what changes slowly (a payload heavier than modelled, friction not
+    /// yet learned) raises none while an impact, over in milliseconds, does.
+    pub collision_baseline_s: f64,
+    /// The payload modelled while the robot's own messages name none.
+    pub payload: Option<Payload>,
+}
+
+impl Default for EffortConfig {
+    fn default() -> Self {
+        Self {
+            observer_gain_per_s: 50.0,
+            collision_threshold_nm: None,
+            payload_tolerance_kg: 0.5,
+            payload_window_s: 300.0,
+            friction_window_s: 600.0,
+            collision_baseline_s: 1.0,
+            payload: None,
+        }
+    }
+}
+
+/// Why an arm's effort cannot be watched.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum EffortError {
+    /// Its dynamics cannot be built.
+    #[error(transparent)]
+    Dynamics(#[from] DynamicsError),
+    /// No collision thresholds are configured and the arm has no default.
+    #[error(
+        "arm '{model}' has no default collision thresholds (its joint sizes are not public): \
+         set collision_threshold_nm"
+    )]
+    NoThresholds {
+        /// The arm.
+        model: String,
+    },
+    /// A setting is out of range.
+    #[error("{field} = {value} must be a positive number")]
+    Setting {
+        /// The setting.
+        field: &'static str,
+        /// Its value.
+        value: f64,
+    },
+}
+
+/// Which state the model's torques are computed for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StateSource {
+    /// The controller's target state (q, q̇, q̈), as its own torque model uses.
+    Target,
+    /// The actual state, q̈ (and q̇ when absent) from differences.
+    Actual,
+}
+
+impl StateSource {
+    /// The wire name.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Target => "target",
+            Self::Actual => "actual",
+        }
+    }
+}
+
+/// Where the modelled payload comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PayloadSource {
+    /// None is known: no payload.
+    None,
+    /// The robot's configuration.
+    Config,
+    /// The controller's own, sent with the joint state.
+    Controller,
+    /// An identified payload an operator applied.
+    Applied,
+}
+
+impl PayloadSource {
+    /// The wire name.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Config => "config",
+            Self::Controller => "controller",
+            Self::Applied => "applied",
+        }
+    }
+}
+
+/// One joint sample's effort.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EffortReadout {
+    /// The sample's stamp (s).
+    pub stamp_s: f64,
+    /// What the controller's torque model contains now.
+    pub mode: ControllerMode,
+    /// The state the model ran on.
+    pub state_source: StateSource,
+    /// The model's torques (N·m): like the controller's own (rigid body and rotor inertia in a
+    /// program, gravity in freedrive), with the payload in use.
+    pub model_nm: [f64; J],
+    /// The drives' torques (N·m): reported torques, else currents times the arm's torque factors.
+    pub measured_nm: Option<[f64; J]>,
+    /// `measured − model − friction` (N·m), friction as fitted so far.
+    pub residual_nm: Option<[f64; J]>,
+    /// The momentum observer's estimate of the same (N·m), low-passed by `1/K`; `None` until it
+    /// has a measured torque and a velocity.
+    pub observer_nm: Option<[f64; J]>,
+}
+
+/// Residual statistics per joint.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ResidualStats {
+    /// Samples counted.
+    pub n: u64,
+    /// Root mean square (N·m).
+    pub rms_nm: [f64; J],
+    /// Largest magnitude (N·m).
+    pub max_nm: [f64; J],
+}
+
+/// One joint's friction as fitted.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrictionReadout {
+    /// Coulomb friction (N·m).
+    pub coulomb_nm: f64,
+    /// Viscous friction (N·m·s/rad).
+    pub viscous_nm_s_rad: f64,
+    /// The joint's latest temperature (°C).
+    pub temperature_c: Option<f64>,
+    /// The Coulomb friction first fitted at this temperature (N·m): the wear signal's reference.
+    pub baseline_coulomb_nm: Option<f64>,
+    /// `coulomb_nm − baseline_coulomb_nm`: friction grown at the same temperature.
+    pub drift_nm: Option<f64>,
+}
+
+/// The payload: configured, identified, applied, in use.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PayloadReadout {
+    /// What the controller or the configuration says, and which.
+    pub configured: Option<(Payload, PayloadSource)>,
+    /// The latest identification.
+    pub estimate: Option<PayloadEstimate>,
+    /// An identified payload an operator applied.
+    pub applied: Option<Payload>,
+    /// The one the model uses, and where it comes from.
+    pub in_use: (Payload, PayloadSource),
+}
+
+/// Everything the monitor shows of a robot.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EffortSummary {
+    /// The latest sample's readout.
+    pub latest: Option<EffortReadout>,
+    /// Residuals (program mode) since the start or the last reset.
+    pub cumulative: ResidualStats,
+    /// Residuals over the last window.
+    pub window: ResidualStats,
+    /// The window's length (s).
+    pub window_s: f64,
+    /// Per joint, its friction once fitted.
+    pub friction: [Option<FrictionReadout>; J],
+    /// The payload.
+    pub payload: PayloadReadout,
+    /// Per joint, the collision threshold (N·m).
+    pub collision_threshold_nm: [f64; J],
+    /// Per joint, whether a collision alarm is on.
+    pub collision: [bool; J],
+    /// Collisions reported since the start.
+    pub collisions: u64,
+    /// Whether a payload mismatch is reported.
+    pub payload_mismatch: bool,
+}
+
+/// A change of an effort alarm.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum EffortAlarm {
+    /// A joint's observer output left its baseline by more than its threshold (`on`), or came
+    /// back within half of it.
+    Collision {
+        /// The joint, from 0.
+        joint: usize,
+        /// The observer's output less its baseline (N·m).
+        value_nm: f64,
+        /// The threshold (N·m).
+        threshold_nm: f64,
+        /// Raised or cleared.
+        on: bool,
+    },
+    /// The identified payload left the modelled one by more than the tolerance (`on`), or came
+    /// back within it.
+    Payload {
+        /// Identified mass (kg).
+        estimated_kg: f64,
+        /// Its standard deviation (kg).
+        std_kg: f64,
+        /// The mass the model uses (kg).
+        modelled_kg: f64,
+        /// The tolerance (kg).
+        tolerance_kg: f64,
+        /// Raised or cleared.
+        on: bool,
+    },
+}
+
+/// A joint's friction fit `y = coulomb · sign(q̇) + viscous · q̇`, with forgetting.
+#[derive(Debug, Clone, Copy, Default)]
+struct FrictionFit {
+    /// Normal equations: Σ s², Σ s·q̇, Σ q̇², Σ s·y, Σ q̇·y (s = sign(q̇)); weight Σ 1.
+    ss: f64,
+    sv: f64,
+    vv: f64,
+    sy: f64,
+    vy: f64,
+    weight: f64,
+}
+
+impl FrictionFit {
+    fn forget(&mut self, keep: f64) {
+        self.ss *= keep;
+        self.sv *= keep;
+        self.vv *= keep;
+        self.sy *= keep;
+        self.vy *= keep;
+        self.weight *= keep;
+    }
+
+    fn add(&mut self, qd_rad_s: f64, torque_nm: f64) {
+        let sign = qd_rad_s.signum();
+        self.ss += 1.0;
+        self.sv += sign * qd_rad_s;
+        self.vv += qd_rad_s * qd_rad_s;
+        self.sy += sign * torque_nm;
+        self.vy += qd_rad_s * torque_nm;
+        self.weight += 1.0;
+    }
+
+    /// `(coulomb, viscous)`, once enough motion in both directions and at several speeds is in.
+    fn estimate(&self) -> Option<(f64, f64)> {
+        if self.weight < MIN_FRICTION_WEIGHT {
+            return None;
+        }
+        let det = self.ss * self.vv - self.sv * self.sv;
+        if det <= 1e-9 * self.ss * self.vv {
+            return None;
+        }
+        let coulomb = (self.vv * self.sy - self.sv * self.vy) / det;
+        let viscous = (self.ss * self.vy - self.sv * self.sy) / det;
+        Some((coulomb, viscous))
+    }
+}
+
+/// One block of the residual window.
+#[derive(Debug, Clone, Copy, Default)]
+struct Block {
+    start_s: f64,
+    n: u64,
+    sum_squares: [f64; J],
+    max_nm: [f64; J],
+}
+
+impl Block {
+    fn add(&mut self, residual_nm: &[f64; J]) {
+        self.n += 1;
+        for ((sum, max), residual) in self
+            .sum_squares
+            .iter_mut()
+            .zip(&mut self.max_nm)
+            .zip(residual_nm)
+        {
+            *sum += residual * residual;
+            *max = max.max(residual.abs());
+        }
+    }
+
+    fn merge(&mut self, other: &Self) {
+        self.n += other.n;
+        for k in 0..J {
+            self.sum_squares[k] += other.sum_squares[k];
+            self.max_nm[k] = self.max_nm[k].max(other.max_nm[k]);
+        }
+    }
+
+    #[allow(
+        clippy::cast_precision_loss,
+        reason = "counts below 2⁵³ are exact in f64"
+    )]
+    fn stats(&self) -> ResidualStats {
+        let n = self.n.max(1) as f64;
+        ResidualStats {
+            n: self.n,
+            rms_nm: std::array::from_fn(|k| (self.sum_squares[k] / n).sqrt()),
+            max_nm: self.max_nm,
+        }
+    }
+}
+
+/// The previous sample, for differences.
+#[derive(Debug, Clone, Copy)]
+struct Previous {
+    stamp_s: f64,
+    q_rad: [f64; J],
+    qd_rad_s: [f64; J],
+}
+
+/// The momentum observer's state.
+#[derive(Debug, Clone, Copy, Default)]
+struct Observer {
+    /// `p(0) + ∫ (…) dt`: what the momentum would be without external torques.
+    expected_nms: [f64; J],
+    /// Its output `r`.
+    r_nm: [f64; J],
+    /// Per joint, the output low-passed by `collision_baseline_s`, held while the joint's
+    /// collision alarm is on (in the readout's sign).
+    baseline_nm: [f64; J],
+    /// Stamp of the last step.
+    last_s: Option<f64>,
+    /// Alarms are armed from this stamp on.
+    armed_from_s: f64,
+}
+
+/// One robot's effort monitor (6 joints).
+#[derive(Debug, Clone)]
+pub struct EffortMonitor {
+    config: EffortConfig,
+    model_name: String,
+    arm_only: ArmDynamics<J>,
+    loaded: ArmDynamics<J>,
+    in_use: (Payload, PayloadSource),
+    controller_payload: Option<Payload>,
+    applied: Option<Payload>,
+    thresholds_nm: [f64; J],
+    current_to_torque: Option<[f64; J]>,
+    previous: Option<Previous>,
+    observer: Observer,
+    identifier: PayloadIdentifier,
+    rest_since_estimate: u32,
+    estimate: Option<PayloadEstimate>,
+    friction: [FrictionFit; J],
+    /// Per joint and temperature bin (the last: no temperature), the friction first fitted there.
+    baselines: [[Option<f64>; TEMPERATURE_BINS + 1]; J],
+    temperature_c: [Option<f64>; J],
+    cumulative: Block,
+    window: [Block; WINDOW_BLOCKS],
+    window_s: f64,
+    latest: Option<EffortReadout>,
+    collision: [bool; J],
+    collisions: u64,
+    payload_mismatch: bool,
+}
+
+impl EffortMonitor {
+    /// The monitor of `arm` (a 6-joint arm with inertial parameters), its residual window
+    /// `window_s` long.
+    pub fn new(
+        arm: &ArmDescription,
+        config: &EffortConfig,
+        window_s: f64,
+    ) -> Result<Self, EffortError> {
+        for (field, value) in [
+            ("observer_gain_per_s", config.observer_gain_per_s),
+            ("payload_tolerance_kg", config.payload_tolerance_kg),
+            ("payload_window_s", config.payload_window_s),
+            ("friction_window_s", config.friction_window_s),
+            ("collision_baseline_s", config.collision_baseline_s),
+            ("window_s", window_s),
+        ] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(EffortError::Setting { field, value });
+            }
+        }
+        let thresholds_nm = config
+            .collision_threshold_nm
+            .or_else(|| ur::default_collision_threshold_nm(&arm.name))
+            .ok_or_else(|| EffortError::NoThresholds {
+                model: arm.name.clone(),
+            })?;
+        for value in thresholds_nm {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(EffortError::Setting {
+                    field: "collision_threshold_nm",
+                    value,
+                });
+            }
+        }
+        let arm_only = ArmDynamics::<J>::from_arm(arm)?;
+        let in_use = match config.payload {
+            Some(payload) => (payload, PayloadSource::Config),
+            None => (Payload::NONE, PayloadSource::None),
+        };
+        let loaded = arm_only.clone().with_payload(in_use.0)?;
+        Ok(Self {
+            config: *config,
+            model_name: arm.name.clone(),
+            arm_only,
+            loaded,
+            in_use,
+            controller_payload: None,
+            applied: None,
+            thresholds_nm,
+            current_to_torque: ur::current_to_torque_nm_per_a(&arm.name),
+            previous: None,
+            observer: Observer::default(),
+            identifier: PayloadIdentifier::new(),
+            rest_since_estimate: 0,
+            estimate: None,
+            friction: [FrictionFit::default(); J],
+            baselines: [[None; TEMPERATURE_BINS + 1]; J],
+            temperature_c: [None; J],
+            cumulative: Block::default(),
+            window: [Block::default(); WINDOW_BLOCKS],
+            window_s,
+            latest: None,
+            collision: [false; J],
+            collisions: 0,
+            payload_mismatch: false,
+        })
+    }
+
+    /// The arm's name.
+    #[must_use]
+    pub fn model_name(&self) -> &str {
+        &self.model_name
+    }
+
+    /// Steps the monitor with a joint sample: `q_rad` the actual joint angles, `state` what came
+    /// beside them. Alarm changes go to `on_alarm`. `None` when the sample has no velocity and
+    /// none can be differenced yet.
+    pub fn step(
+        &mut self,
+        stamp_s: f64,
+        q_rad: &[f64],
+        state: &JointState,
+        mut on_alarm: impl FnMut(EffortAlarm),
+    ) -> Option<EffortReadout> {
+        let q: [f64; J] = q_rad.try_into().ok()?;
+        let get = |quantity: JointQuantity| joint_values(state, quantity);
+        let step_s = self
+            .previous
+            .map(|previous| stamp_s - previous.stamp_s)
+            .filter(|dt| *dt > 0.0 && *dt <= MAX_STEP_S);
+        let qd = match (get(JointQuantity::Velocity), step_s, self.previous) {
+            (Some(qd), _, _) => qd,
+            (None, Some(dt), Some(previous)) => {
+                std::array::from_fn(|k| (q[k] - previous.q_rad[k]) / dt)
+            }
+            _ => {
+                self.previous = Some(Previous {
+                    stamp_s,
+                    q_rad: q,
+                    qd_rad_s: [0.0; J],
+                });
+                return None;
+            }
+        };
+        if let Some(payload) = state.payload {
+            self.controller_payload = Some(Payload {
+                mass_kg: payload.mass_kg,
+                cog_flange_m: payload.cog_m,
+                inertia_cog_kg_m2: payload.inertia_kg_m2.unwrap_or([0.0; 6]),
+            });
+            self.update_payload_in_use();
+        }
+        let mode = state.status.map_or(ControllerMode::Program, mode_of);
+        let (state_source, model_q, model_qd, model_qdd) = self.model_state(state, &q, &qd, step_s);
+        let model_nm = self
+            .loaded
+            .controller_moment_nm(mode, &model_q, &model_qd, &model_qdd);
+        // Reported torques, else currents through the arm's torque factors.
+        let measured_nm = get(JointQuantity::Torque).or_else(|| {
+            let (factors, current) = (self.current_to_torque?, get(JointQuantity::Current)?);
+            Some(std::array::from_fn(|k| current[k] * factors[k]))
+        });
+        if let Some(temperatures) = get(JointQuantity::Temperature) {
+            self.temperature_c = temperatures.map(Some);
+        }
+        let keep = |window_s: f64| step_s.map_or(1.0, |dt| (-dt / window_s).exp());
+
+        let program = mode == ControllerMode::Program;
+        if let Some(measured) = measured_nm {
+            self.learn_friction(
+                keep(self.config.friction_window_s),
+                program,
+                &qd,
+                &measured,
+                &model_nm,
+            );
+        }
+        let friction_nm: [f64; J] = std::array::from_fn(|k| {
+            self.friction[k]
+                .estimate()
+                .map_or(0.0, |(coulomb, viscous)| {
+                    coulomb * sign(qd[k]) + viscous * qd[k]
+                })
+        });
+        let residual_nm = measured_nm
+            .map(|measured| std::array::from_fn(|k| measured[k] - model_nm[k] - friction_nm[k]));
+        if let (Some(residual), true) = (residual_nm, program) {
+            self.add_residual(stamp_s, &residual);
+        }
+
+        // Payload: identified from program-mode samples at rest (in freedrive the currents follow
+        // the configured payload and tell nothing).
+        self.identifier.forget(keep(self.config.payload_window_s));
+        let at_rest = qd.iter().all(|v| v.abs() < AT_REST_RAD_S)
+            && model_qd.iter().all(|v| v.abs() < AT_REST_RAD_S)
+            && model_qdd.iter().all(|v| v.abs() < AT_REST_RAD_S2);
+        if let (Some(measured), true, true) = (measured_nm, program, at_rest) {
+            self.identify_at_rest(&q, &measured, &mut on_alarm);
+        }
+
+        let observer_nm = measured_nm.map(|measured| {
+            self.observe(
+                stamp_s,
+                step_s,
+                mode,
+                &q,
+                &qd,
+                &measured,
+                &friction_nm,
+                &mut on_alarm,
+            )
+        });
+        self.previous = Some(Previous {
+            stamp_s,
+            q_rad: q,
+            qd_rad_s: qd,
+        });
+        let readout = EffortReadout {
+            stamp_s,
+            mode,
+            state_source,
+            model_nm,
+            measured_nm,
+            residual_nm,
+            observer_nm,
+        };
+        self.latest = Some(readout);
+        Some(readout)
+    }
+
+    /// One observer step; returns its output in the residual's sign.
+    #[allow(clippy::too_many_arguments, reason = "one sample's parts, named")]
+    fn observe(
+        &mut self,
+        stamp_s: f64,
+        step_s: Option<f64>,
+        mode: ControllerMode,
+        q: &[f64; J],
+        qd: &[f64; J],
+        measured_nm: &[f64; J],
+        friction_nm: &[f64; J],
+        on_alarm: &mut impl FnMut(EffortAlarm),
+    ) -> [f64; J] {
+        let gain = self.config.observer_gain_per_s;
+        let terms = self.loaded.momentum(q, qd);
+        let observer = &mut self.observer;
+        let continues = observer.last_s.is_some() && step_s.is_some();
+        if continues && let Some(dt) = step_s {
+            let gravity_nm = self.loaded.gravity_nm(q);
+            for k in 0..J {
+                let drive = measured_nm[k] - friction_nm[k];
+                let partial = observer.expected_nms[k]
+                    + (drive + terms.coriolis_transpose_qd_nm[k] - gravity_nm[k]) * dt;
+                // Implicit in r: stable for any K·dt.
+                let r = gain * (terms.momentum_nms[k] - partial) / (1.0 + gain * dt);
+                observer.expected_nms[k] = partial + r * dt;
+                observer.r_nm[k] = r;
+            }
+        } else {
+            observer.expected_nms = terms.momentum_nms;
+            observer.r_nm = [0.0; J];
+            observer.baseline_nm = [0.0; J];
+            observer.armed_from_s = stamp_s + ARMING_TIME_CONSTANTS / gain;
+        }
+        observer.last_s = Some(stamp_s);
+        if mode == ControllerMode::Freedrive {
+            // A person moves the arm: that is the point, not a collision.
+            observer.armed_from_s = stamp_s + ARMING_TIME_CONSTANTS / gain;
+        }
+        let output: [f64; J] = observer.r_nm.map(|r| -r);
+        let armed = stamp_s >= observer.armed_from_s;
+        let follow = step_s.map_or(1.0, |dt| {
+            1.0 - (-dt / self.config.collision_baseline_s).exp()
+        });
+        for (k, output_nm) in output.iter().enumerate() {
+            let value_nm = output_nm - observer.baseline_nm[k];
+            if !self.collision[k] {
+                observer.baseline_nm[k] += follow * (output_nm - observer.baseline_nm[k]);
+            }
+            let threshold_nm = self.thresholds_nm[k];
+            let on = if self.collision[k] {
+                value_nm.abs() > threshold_nm / 2.0
+            } else {
+                armed && value_nm.abs() > threshold_nm
+            };
+            if on != self.collision[k] {
+                self.collision[k] = on;
+                if on {
+                    self.collisions += 1;
+                }
+                on_alarm(EffortAlarm::Collision {
+                    joint: k,
+                    value_nm,
+                    threshold_nm,
+                    on,
+                });
+            }
+        }
+        output
+    }
+
+    /// The state the model runs on: the controller's target when it sends one whole, else the
+    /// actual state with q̈ from differences of q̇.
+    fn model_state(
+        &self,
+        state: &JointState,
+        q: &[f64; J],
+        qd: &[f64; J],
+        step_s: Option<f64>,
+    ) -> (StateSource, [f64; J], [f64; J], [f64; J]) {
+        if let (Some(tq), Some(tqd), Some(tqdd)) = (
+            joint_values(state, JointQuantity::TargetPosition),
+            joint_values(state, JointQuantity::TargetVelocity),
+            joint_values(state, JointQuantity::TargetAcceleration),
+        ) {
+            return (StateSource::Target, tq, tqd, tqdd);
+        }
+        let qdd = match (step_s, self.previous) {
+            (Some(dt), Some(previous)) => {
+                std::array::from_fn(|k| (qd[k] - previous.qd_rad_s[k]) / dt)
+            }
+            _ => [0.0; J],
+        };
+        (StateSource::Actual, *q, *qd, qdd)
+    }
+
+    /// Friction: fitted on moving program-mode samples (`measured − model`), used by the
+    /// residual and the observer; `keep` is what forgetting leaves of the past.
+    fn learn_friction(
+        &mut self,
+        keep: f64,
+        program: bool,
+        qd: &[f64; J],
+        measured_nm: &[f64; J],
+        model_nm: &[f64; J],
+    ) {
+        for (k, fit) in self.friction.iter_mut().enumerate() {
+            fit.forget(keep);
+            if program && qd[k].abs() > MOVING_RAD_S {
+                fit.add(qd[k], measured_nm[k] - model_nm[k]);
+            }
+        }
+        self.update_baselines();
+    }
+
+    /// Adds a program-mode sample at rest to the payload identification; estimates every
+    /// [`PAYLOAD_ESTIMATE_EVERY`] of them.
+    fn identify_at_rest(
+        &mut self,
+        q: &[f64; J],
+        measured_nm: &[f64; J],
+        on_alarm: &mut impl FnMut(EffortAlarm),
+    ) {
+        let arm_nm = self.arm_only.gravity_nm(q);
+        let beyond: [f64; J] = std::array::from_fn(|k| measured_nm[k] - arm_nm[k]);
+        self.identifier
+            .add_static_sample(&self.arm_only, q, &beyond);
+        self.rest_since_estimate += 1;
+        if self.rest_since_estimate >= PAYLOAD_ESTIMATE_EVERY {
+            self.rest_since_estimate = 0;
+            self.estimate = self.identifier.estimate();
+            self.check_payload(on_alarm);
+        }
+    }
+
+    /// The payload the model uses: applied, else the controller's, else the configured one.
+    fn update_payload_in_use(&mut self) {
+        let wanted = if let Some(applied) = self.applied {
+            (applied, PayloadSource::Applied)
+        } else if let Some(controller) = self.controller_payload {
+            (controller, PayloadSource::Controller)
+        } else if let Some(config) = self.config.payload {
+            (config, PayloadSource::Config)
+        } else {
+            (Payload::NONE, PayloadSource::None)
+        };
+        if wanted == self.in_use {
+            return;
+        }
+        // A payload the dynamics refuse (a negative mass from a gateway) is modelled as none.
+        self.loaded = self
+            .arm_only
+            .clone()
+            .with_payload(wanted.0)
+            .unwrap_or_else(|_| self.arm_only.clone());
+        self.in_use = wanted;
+    }
+
+    fn check_payload(&mut self, on_alarm: &mut impl FnMut(EffortAlarm)) {
+        let Some(estimate) = self.estimate else {
+            return;
+        };
+        let modelled_kg = self.in_use.0.mass_kg;
+        let tolerance_kg = self.config.payload_tolerance_kg;
+        let difference = (estimate.mass_kg - modelled_kg).abs();
+        let on = if self.payload_mismatch {
+            difference > tolerance_kg
+        } else {
+            difference > tolerance_kg + 3.0 * estimate.mass_std_kg
+        };
+        if on != self.payload_mismatch {
+            self.payload_mismatch = on;
+            on_alarm(EffortAlarm::Payload {
+                estimated_kg: estimate.mass_kg,
+                std_kg: estimate.mass_std_kg,
+                modelled_kg,
+                tolerance_kg,
+                on,
+            });
+        }
+    }
+
+    /// Applies the latest identified payload to the model; returns it, or `None` when there is
+    /// none (or it has no centre of gravity). The alarm is cleared at the next estimate.
+    pub fn apply_estimate(&mut self) -> Option<Payload> {
+        let estimate = self.estimate?;
+        let payload = Payload::point_mass(estimate.mass_kg, estimate.cog_flange_m?);
+        self.applied = Some(payload);
+        self.update_payload_in_use();
+        Some(payload)
+    }
+
+    /// Returns to the controller's (or configured) payload.
+    pub fn discard_applied(&mut self) {
+        self.applied = None;
+        self.update_payload_in_use();
+    }
+
+    /// The stamp went back (a restarted clock): differences and the observer start afresh.
+    pub fn restart_clock(&mut self) {
+        self.previous = None;
+        self.observer.last_s = None;
+        self.window = [Block::default(); WINDOW_BLOCKS];
+    }
+
+    /// Residual statistics start afresh (a reset); fits and alarms stay.
+    pub fn reset_statistics(&mut self) {
+        self.cumulative = Block::default();
+        self.window = [Block::default(); WINDOW_BLOCKS];
+    }
+
+    fn add_residual(&mut self, stamp_s: f64, residual_nm: &[f64; J]) {
+        self.cumulative.add(residual_nm);
+        #[allow(clippy::cast_precision_loss, reason = "a handful of blocks")]
+        let block_s = self.window_s / WINDOW_BLOCKS as f64;
+        let newest = self
+            .window
+            .iter()
+            .enumerate()
+            .filter(|(_, block)| block.n > 0)
+            .max_by(|a, b| a.1.start_s.total_cmp(&b.1.start_s))
+            .map(|(index, block)| (index, block.start_s));
+        let index = match newest {
+            Some((index, start_s)) if stamp_s < start_s + block_s && stamp_s >= start_s => index,
+            Some((index, _)) => {
+                let next = (index + 1) % WINDOW_BLOCKS;
+                self.window[next] = Block {
+                    start_s: stamp_s,
+                    ..Block::default()
+                };
+                next
+            }
+            None => {
+                self.window[0] = Block {
+                    start_s: stamp_s,
+                    ..Block::default()
+                };
+                0
+            }
+        };
+        self.window[index].add(residual_nm);
+    }
+
+    /// Keeps, per joint, the first friction fitted in each temperature bin.
+    fn update_baselines(&mut self) {
+        for k in 0..J {
+            let Some((coulomb, _)) = self.friction[k].estimate() else {
+                continue;
+            };
+            let bin = temperature_bin(self.temperature_c[k]);
+            let baseline = &mut self.baselines[k][bin];
+            if baseline.is_none() {
+                *baseline = Some(coulomb);
+            }
+        }
+    }
+
+    /// What the monitor shows now.
+    #[must_use]
+    pub fn summary(&self) -> EffortSummary {
+        let newest_s = self
+            .latest
+            .map_or(f64::NEG_INFINITY, |latest| latest.stamp_s);
+        let mut window = Block::default();
+        for block in &self.window {
+            if block.n > 0 && block.start_s > newest_s - self.window_s {
+                window.merge(block);
+            }
+        }
+        let friction = std::array::from_fn(|k| {
+            let (coulomb_nm, viscous_nm_s_rad) = self.friction[k].estimate()?;
+            let temperature_c = self.temperature_c[k];
+            let baseline_coulomb_nm = self.baselines[k][temperature_bin(temperature_c)];
+            Some(FrictionReadout {
+                coulomb_nm,
+                viscous_nm_s_rad,
+                temperature_c,
+                baseline_coulomb_nm,
+                drift_nm: baseline_coulomb_nm.map(|baseline| coulomb_nm - baseline),
+            })
+        });
+        let configured = self
+            .controller_payload
+            .map(|payload| (payload, PayloadSource::Controller))
+            .or_else(|| {
+                self.config
+                    .payload
+                    .map(|payload| (payload, PayloadSource::Config))
+            });
+        EffortSummary {
+            latest: self.latest,
+            cumulative: self.cumulative.stats(),
+            window: window.stats(),
+            window_s: self.window_s,
+            friction,
+            payload: PayloadReadout {
+                configured,
+                estimate: self.estimate,
+                applied: self.applied,
+                in_use: self.in_use,
+            },
+            collision_threshold_nm: self.thresholds_nm,
+            collision: self.collision,
+            collisions: self.collisions,
+            payload_mismatch: self.payload_mismatch,
+        }
+    }
+}
+
+/// What a controller's status says its torque model contains.
+fn mode_of(status: sample::ControllerStatus) -> ControllerMode {
+    ControllerMode::from_robot_status_bits(status.status_bits)
+}
+
+/// One value per joint of `quantity`, if `state` has it for six joints.
+fn joint_values(state: &JointState, quantity: JointQuantity) -> Option<[f64; J]> {
+    state
+        .get(quantity)
+        .and_then(|values| values.try_into().ok())
+}
+
+fn sign(value: f64) -> f64 {
+    if value > 0.0 {
+        1.0
+    } else if value < 0.0 {
+        -1.0
+    } else {
+        0.0
+    }
+}
+
+#[allow(
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    reason = "clamped to the bins first"
+)]
+fn temperature_bin(temperature_c: Option<f64>) -> usize {
+    match temperature_c {
+        Some(t) if t.is_finite() => {
+            ((t / TEMPERATURE_BIN_C)
+                .floor()
+                .clamp(0.0, (TEMPERATURE_BINS - 1) as f64)) as usize
+        }
+        _ => TEMPERATURE_BINS,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dynamics::JointFriction;
+    use crate::model::catalog;
+    use crate::sample::ControllerStatus;
+
+    const DT_S: f64 = 0.002;
+    const COULOMB_NM: [f64; J] = [6.0, 6.0, 4.0, 1.5, 1.5, 1.5];
+    const VISCOUS_NM_S_RAD: [f64; J] = [3.0, 3.0, 2.0, 0.5, 0.5, 0.5];
+
+    /// A contact: onset (s), joint, torque the drives must add (N·m), duration (s).
+    type Contact = (f64, usize, f64, f64);
+
+    /// A UR10e run: motion with rests every 4 s, friction, a carried payload; the drives'
+    /// torques as the controller's currents would give them. Returns the alarms and the last
+    /// summary.
+    fn run(
+        seconds: f64,
+        configured_kg: f64,
+        carried_kg: f64,
+        contacts: &[Contact],
+    ) -> (Vec<(f64, EffortAlarm)>, EffortMonitor) {
+        let arm = catalog::arm("ur10e").expect("catalog arm");
+        let cog = [0.0, 0.0, 0.05];
+        let config = EffortConfig {
+            payload: Some(Payload::point_mass(configured_kg, cog)),
+            payload_window_s: 30.0,
+            ..EffortConfig::default()
+        };
+        let mut monitor = EffortMonitor::new(&arm, &config, 10.0).expect("monitor");
+        let truth = ArmDynamics::<J>::from_arm(&arm)
+            .and_then(|d| d.with_payload(Payload::point_mass(carried_kg, cog)))
+            .and_then(|d| {
+                d.with_friction(std::array::from_fn(|k| JointFriction {
+                    coulomb_nm: COULOMB_NM[k],
+                    viscous_nm_s_rad: VISCOUS_NM_S_RAD[k],
+                }))
+            })
+            .expect("dynamics");
+        let centre = [0.0, -1.2, 1.3, -1.6, -1.5, 0.0];
+        let omega = [1.1, 0.7, 0.9, 1.3, 1.7, 2.1];
+        let mut alarms = Vec::new();
+        let mut rest_q = centre;
+        #[allow(
+            clippy::cast_possible_truncation,
+            clippy::cast_sign_loss,
+            reason = "a test's sample count"
+        )]
+        let samples = (seconds / DT_S) as usize;
+        for i in 0..samples {
+            #[allow(clippy::cast_precision_loss, reason = "a test's sample index")]
+            let t = i as f64 * DT_S;
+            // Every 4 s: 3 s of motion, then 1 s at rest where the motion stopped.
+            let phase = t % 4.0;
+            let (q, qd, qdd) = if phase < 3.0 {
+                let s = |k: usize| (omega[k] * t).sin();
+                let c = |k: usize| (omega[k] * t).cos();
+                // Smooth start and stop: the amplitude envelope sin²(π·phase/3).
+                let e = (std::f64::consts::PI * phase / 3.0).sin().powi(2);
+                let de =
+                    std::f64::consts::PI / 3.0 * (2.0 * std::f64::consts::PI * phase / 3.0).sin();
+                let dde = 2.0
+                    * (std::f64::consts::PI / 3.0).powi(2)
+                    * (2.0 * std::f64::consts::PI * phase / 3.0).cos();
+                let q: [f64; J] = std::array::from_fn(|k| rest_q[k] + 0.6 * e * s(k));
+                let qd: [f64; J] = std::array::from_fn(|k| 0.6 * (de * s(k) + e * omega[k] * c(k)));
+                let qdd: [f64; J] = std::array::from_fn(|k| {
+                    0.6 * (dde * s(k) + 2.0 * de * omega[k] * c(k) - e * omega[k] * omega[k] * s(k))
+                });
+                (q, qd, qdd)
+            } else {
+                if phase - DT_S < 3.0 {
+                    // A new rest pose for the next motion to start from.
+                    let k = (t / 4.0).floor();
+                    rest_q = std::array::from_fn(|j| {
+                        centre[j] + 0.8 * ((k + 1.0) * (j as f64 + 1.3)).sin()
+                    });
+                }
+                (rest_q, [0.0; J], [0.0; J])
+            };
+            let mut tau = truth.inverse_dynamics_nm(&q, &qd, &qdd);
+            for &(onset, joint, torque, duration) in contacts {
+                if t >= onset && t < onset + duration {
+                    tau[joint] += torque * ((t - onset) / 0.01).min(1.0);
+                }
+            }
+            let mut state = JointState::new(J);
+            state.set(JointQuantity::Velocity, &qd);
+            state.set(JointQuantity::TargetPosition, &q);
+            state.set(JointQuantity::TargetVelocity, &qd);
+            state.set(JointQuantity::TargetAcceleration, &qdd);
+            state.set(JointQuantity::Torque, &tau);
+            state.status = Some(ControllerStatus {
+                robot_mode: 7,
+                safety_mode: 1,
+                status_bits: 3,
+                speed_scaling: 1.0,
+            });
+            monitor.step(t, &q, &state, |alarm| alarms.push((t, alarm)));
+        }
+        (alarms, monitor)
+    }
+
+    #[test]
+    fn a_clean_run_raises_nothing_and_learns_friction() {
+        let (alarms, monitor) = run(60.0, 2.0, 2.0, &[]);
+        let summary = monitor.summary();
+        assert!(alarms.is_empty(), "{alarms:?}");
+        for k in 0..J {
+            let friction = summary.friction[k].expect("fitted");
+            assert!(
+                (friction.coulomb_nm - COULOMB_NM[k]).abs() < 0.05,
+                "{k}: {friction:?}"
+            );
+            assert!(
+                (friction.viscous_nm_s_rad - VISCOUS_NM_S_RAD[k]).abs() < 0.05,
+                "{k}: {friction:?}"
+            );
+        }
+        let estimate = summary.payload.estimate.expect("identified");
+        // Not exact: the first samples of each motion are slow enough to pass for rest.
+        assert!((estimate.mass_kg - 2.0).abs() < 1e-3, "{estimate:?}");
+    }
+
+    #[test]
+    fn contacts_raise_collisions_on_their_joint_within_milliseconds() {
+        let contacts = [
+            (21.0, 1, 60.0, 0.3),
+            (25.5, 2, -30.0, 0.2),
+            (30.2, 4, 12.0, 0.2),
+        ];
+        let (alarms, monitor) = run(40.0, 2.0, 2.0, &contacts);
+        let summary = monitor.summary();
+        let raised: Vec<_> = alarms
+            .iter()
+            .filter_map(|(t, alarm)| match alarm {
+                EffortAlarm::Collision {
+                    joint, on: true, ..
+                } => Some((*t, *joint)),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(raised.len(), contacts.len(), "{alarms:?}");
+        for ((t, joint), (onset, contact_joint, ..)) in raised.iter().zip(contacts) {
+            assert_eq!(*joint, contact_joint);
+            let latency_s = t - onset;
+            assert!((0.0..0.03).contains(&latency_s), "latency {latency_s} s");
+        }
+        assert_eq!(summary.collisions, 3);
+        assert_eq!(summary.collision, [false; J]);
+    }
+
+    #[test]
+    fn a_heavier_payload_is_identified_reported_and_applied() {
+        let (alarms, mut monitor) = run(40.0, 2.0, 3.5, &[]);
+        let summary = monitor.summary();
+        let payload = alarms.iter().find_map(|(_, alarm)| match alarm {
+            EffortAlarm::Payload {
+                estimated_kg,
+                on: true,
+                ..
+            } => Some(*estimated_kg),
+            _ => None,
+        });
+        // Raised on the first estimate, from the first few rests.
+        let estimated = payload.expect("a payload alarm");
+        assert!((estimated - 3.5).abs() < 0.1, "{estimated}");
+        assert!(summary.payload_mismatch);
+        assert!(
+            !alarms
+                .iter()
+                .any(|(_, a)| matches!(a, EffortAlarm::Collision { .. })),
+            "{alarms:?}"
+        );
+        let estimate = summary.payload.estimate.expect("estimate");
+        assert!((estimate.mass_kg - 3.5).abs() < 1e-3, "{estimate:?}");
+        let cog = estimate.cog_flange_m.expect("cog");
+        assert!((cog[2] - 0.05).abs() < 1e-3, "{cog:?}");
+        let applied = monitor.apply_estimate().expect("applied");
+        assert_eq!(applied.mass_kg.to_bits(), estimate.mass_kg.to_bits());
+        let payload = monitor.summary().payload;
+        assert_eq!(payload.in_use, (applied, PayloadSource::Applied));
+        monitor.discard_applied();
+        assert_eq!(monitor.summary().payload.in_use.1, PayloadSource::Config);
+    }
+
+    #[test]
+    fn bad_settings_are_refused() {
+        let arm = catalog::arm("ur10e").expect("catalog arm");
+        let config = EffortConfig {
+            observer_gain_per_s: 0.0,
+            ..EffortConfig::default()
+        };
+        assert!(matches!(
+            EffortMonitor::new(&arm, &config, 10.0),
+            Err(EffortError::Setting {
+                field: "observer_gain_per_s",
+                ..
+            })
+        ));
+        let ur20 = catalog::arm("ur20").expect("catalog arm");
+        assert!(matches!(
+            EffortMonitor::new(&ur20, &EffortConfig::default(), 10.0),
+            Err(EffortError::NoThresholds { .. })
+        ));
+    }
+}

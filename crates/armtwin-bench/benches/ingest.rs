@@ -194,6 +194,7 @@ fn metrics_message(robot: &str) -> json::MetricsMessage {
             seconds: 10.0,
             stats: set(1000, 0.7),
         },
+        effort: None,
     }
 }
 

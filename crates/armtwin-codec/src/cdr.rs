@@ -20,7 +20,7 @@ use crate::json::{self, MAX_PAYLOAD_BYTES, WireError};
 use armtwin_core::kinematics::{OutputFrame, PoseReadout};
 use armtwin_core::model::catalog::UR_JOINT_NAMES;
 use armtwin_core::pipeline::{RejectCause, Robot};
-use armtwin_core::sample::{JointSample, MeasuredSample};
+use armtwin_core::sample::{JointQuantity, JointSample, JointState, MeasuredSample};
 
 /// Most names (and values per array) a `JointState` may carry; more is a damaged message.
 pub const MAX_JOINT_STATE_ENTRIES: usize = 256;
@@ -430,7 +430,8 @@ const POSITION: &str = "JointState.position";
 /// Decodes a `sensor_msgs/msg/JointState` into a joint sample of the arm named by `joints`.
 ///
 /// Angles (rad) come in the arm's joint order whatever the message's order; names the arm does
-/// not have are skipped; velocity and effort are checked for bounds only (and may be empty).
+/// not have are skipped; velocity and effort, when they hold one finite value per name, become
+/// the sample's joint state (velocity, and effort as joint torque in N·m), else are skipped.
 /// `stamp_s` is `header.stamp` (sec + nanosec · 1e-9), `None` when the stamp is unset (0).
 pub fn decode_joint_state(payload: &[u8], joints: &JointNames) -> Result<JointSample, CdrError> {
     let mut reader = Reader::new(payload)?;
@@ -501,16 +502,42 @@ pub fn decode_joint_state(payload: &[u8], joints: &JointNames) -> Result<JointSa
         }
         q_rad.push(value);
     }
-    for name in ["JointState.velocity", "JointState.effort"] {
+    let mut state: Option<Box<JointState>> = None;
+    for (name, quantity) in [
+        ("JointState.velocity", JointQuantity::Velocity),
+        ("JointState.effort", JointQuantity::Torque),
+    ] {
         let count = reader.count(Field::plain(name), 8, MAX_JOINT_STATE_ENTRIES)?;
-        reader.take(8 * count, 8, Field::plain(name))?;
+        let values = reader.take(8 * count, 8, Field::plain(name))?;
+        // Empty (the driver has none) or of another length than the names (not per joint) is
+        // not carried; nor is one with a value that is not finite (drivers send NaN for unknown).
+        if count != name_count {
+            continue;
+        }
+        let mut picked = [0.0; MAX_ARM_JOINTS];
+        let mut finite = true;
+        for (slot, &index) in picked.iter_mut().zip(&index_of[..wanted.len()]) {
+            let mut bytes = [0; 8];
+            bytes.copy_from_slice(&values[8 * index..8 * index + 8]);
+            *slot = if big_endian {
+                f64::from_be_bytes(bytes)
+            } else {
+                f64::from_le_bytes(bytes)
+            };
+            finite &= slot.is_finite();
+        }
+        if finite {
+            state
+                .get_or_insert_with(|| Box::new(JointState::new(wanted.len())))
+                .set(quantity, &picked[..wanted.len()]);
+        }
     }
     Ok(JointSample {
         stamp_s,
         seq: None,
         q_rad,
         measured: None,
-        state: None,
+        state,
     })
 }
 

@@ -43,6 +43,11 @@ pub enum Stream {
     Events,
     /// Self-calibration estimates (out).
     Calibration,
+    /// Joint torques, model and measured, per joint sample of a robot whose effort is watched
+    /// (out).
+    Effort,
+    /// The identified payload, each metrics period of a robot whose effort is watched (out).
+    Payload,
     /// Joint samples (in).
     Joints,
     /// Measured TCP poses in the robot's `base` frame (in).
@@ -61,6 +66,8 @@ pub enum Stream {
     /// Applies or discards the robot's self-calibration estimate (queryable, a change: under
     /// `admin/`).
     ApplyCalibration,
+    /// Applies or discards the robot's identified payload (queryable, a change: under `admin/`).
+    ApplyPayload,
     /// Present while armtwin tracks the robot (liveliness token).
     Alive,
     /// Present while a gateway (`armtwin gateway rtde`) streams the robot from its controller
@@ -74,12 +81,14 @@ pub enum Stream {
 impl Stream {
     /// Every subtree, outputs first: a key expression reaching into several is named by the
     /// first it meets here, and feeding armtwin its own outputs is the worse mistake.
-    pub const ALL: [Self; 16] = [
+    pub const ALL: [Self; 19] = [
         Self::Pose,
         Self::Deviation,
         Self::Metrics,
         Self::Events,
         Self::Calibration,
+        Self::Effort,
+        Self::Payload,
         Self::Joints,
         Self::Measured,
         Self::State,
@@ -88,6 +97,7 @@ impl Stream {
         Self::Ik,
         Self::Calibrate,
         Self::ApplyCalibration,
+        Self::ApplyPayload,
         Self::Alive,
         Self::GatewayStreaming,
         Self::GatewayWaiting,
@@ -102,6 +112,8 @@ impl Stream {
             Self::Metrics => "metrics",
             Self::Events => "events",
             Self::Calibration => "calibration",
+            Self::Effort => "effort",
+            Self::Payload => "payload",
             Self::Joints => "joints",
             Self::Measured => "measured",
             Self::State => "state",
@@ -110,6 +122,7 @@ impl Stream {
             Self::Ik => "ik",
             Self::Calibrate => "calibrate",
             Self::ApplyCalibration => "admin/calibrate",
+            Self::ApplyPayload => "admin/payload",
             Self::Alive => "alive",
             Self::GatewayStreaming => "gateway/streaming",
             Self::GatewayWaiting => "gateway/waiting",
@@ -315,6 +328,8 @@ mod tests {
                 "metrics",
                 "events",
                 "calibration",
+                "effort",
+                "payload",
                 "joints",
                 "measured",
                 "state",
@@ -323,6 +338,7 @@ mod tests {
                 "ik",
                 "calibrate",
                 "admin/calibrate",
+                "admin/payload",
                 "alive",
                 "gateway/streaming",
                 "gateway/waiting"

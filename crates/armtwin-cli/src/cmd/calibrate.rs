@@ -36,6 +36,7 @@ pub(super) fn run(args: &CalibrateArgs) -> Result<()> {
         alarm: armtwin::pipeline::AlarmConfig::default(),
         sensors: Vec::new(),
         self_calibration: None,
+        effort: None,
     };
     let validation = validate::validate(&recording, &times, config.pipeline, settings, |_| {});
     let (samples, lines) = armtwin::calibrate::paired_samples(&recording, &validation);

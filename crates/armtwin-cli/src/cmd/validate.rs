@@ -54,6 +54,7 @@ pub(super) fn run(args: &ValidateArgs) -> Result<()> {
         alarm,
         sensors: Vec::new(),
         self_calibration: None,
+        effort: None,
     };
     let bar = progress_bar(recording.entries.len(), "validate");
     let validation = validate::validate(&recording, &times, config.pipeline, settings, |done| {

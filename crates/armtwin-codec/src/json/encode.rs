@@ -90,6 +90,13 @@ impl FlatObject {
             .extend_from_slice(buffer.format(value).as_bytes());
     }
 
+    /// A field of any JSON value, written by `serde_json`.
+    pub(crate) fn value(&mut self, key: &'static str, value: &serde_json::Value) {
+        self.key(key);
+        // Writing to a `Vec` cannot fail, nor can serialising a `Value`.
+        let _ = serde_json::to_writer(&mut self.bytes, value);
+    }
+
     /// Opens an object field: the following fields are its members until [`Self::close`].
     pub(crate) fn open(&mut self, key: &'static str) {
         self.key(key);

@@ -154,7 +154,8 @@ pub struct EventMessage {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub key: Option<String>,
     /// Details for machines (omitted when `null`): `rejected` → `{cause}`; `alarm` and
-    /// `recovered` → `{metric, value, threshold}`; `gap` → `{gap_s}` or `{expected, got}`;
+    /// `recovered` → `{metric, value, threshold}` (`collision` adds `joint`, `payload`
+    /// `mass_std_kg` and `configured_kg`); `gap` → `{gap_s}` or `{expected, got}`;
     /// `unpaired` → `{cause, measured_s}`.
     #[serde(skip_serializing_if = "Value::is_null")]
     pub detail: Value,
@@ -193,6 +194,22 @@ impl EventMessage {
                 json!({ "cause": cause, "measured_s": measured_s })
             }
             EventDetail::Epoch { epoch } => json!({ "epoch": epoch }),
+            EventDetail::Collision {
+                joint,
+                value_nm,
+                threshold_nm,
+            } => json!({
+                "metric": "collision", "joint": joint, "value": value_nm, "threshold": threshold_nm
+            }),
+            EventDetail::Payload {
+                estimated_kg,
+                std_kg,
+                modelled_kg,
+                tolerance_kg,
+            } => json!({
+                "metric": "payload", "value": estimated_kg, "threshold": tolerance_kg,
+                "mass_std_kg": std_kg, "configured_kg": modelled_kg
+            }),
         };
         Self {
             robot: event.robot.to_owned(),
@@ -329,6 +346,10 @@ pub struct MetricsMessage {
     pub cumulative: StatsSetJson,
     /// Over the sliding window.
     pub window: WindowJson,
+    /// The robot's effort ([`super::effort_summary_json`]), when it is watched; absent
+    /// otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub effort: Option<Value>,
 }
 
 impl MetricsMessage {
@@ -347,6 +368,10 @@ impl MetricsMessage {
                 seconds: snapshot.window_s,
                 stats: StatsSetJson::from(&snapshot.window),
             },
+            effort: snapshot
+                .effort
+                .as_deref()
+                .map(|summary| super::effort_summary_json(&snapshot.robot, summary)),
         }
     }
 
@@ -368,6 +393,9 @@ impl MetricsMessage {
         object.number("seconds", self.window.seconds);
         self.window.stats.write_members(&mut object);
         object.close();
+        if let Some(effort) = &self.effort {
+            object.value("effort", effort);
+        }
         object.finish()
     }
 }
@@ -425,8 +453,12 @@ pub struct StateMessage {
     pub measured: Option<StampedPoseJson>,
     /// Alarm states.
     pub alarms: AlarmsJson,
-    /// Current metrics.
+    /// Current metrics (without the effort, which is beside them).
     pub metrics: MetricsMessage,
+    /// The robot's effort ([`super::effort_summary_json`]), when it is watched; absent
+    /// otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub effort: Option<Value>,
 }
 
 impl StateMessage {
@@ -456,7 +488,14 @@ impl StateMessage {
             twin: state.last_twin_pose.as_ref().map(stamped),
             measured: state.last_measured.as_ref().map(stamped),
             alarms: AlarmsJson { position, angle },
-            metrics: MetricsMessage::new(&state.metrics),
+            metrics: MetricsMessage {
+                effort: None,
+                ..MetricsMessage::new(&state.metrics)
+            },
+            effort: state
+                .effort
+                .as_ref()
+                .map(|summary| super::effort_summary_json(state.robot, summary)),
         }
     }
 }

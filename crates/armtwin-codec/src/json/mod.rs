@@ -32,6 +32,7 @@ use thiserror::Error;
 use crate::decoded::{CodecError, Refused};
 
 mod decode;
+mod effort;
 mod encode;
 mod fast;
 mod messages;
@@ -39,6 +40,10 @@ mod messages;
 pub(crate) use decode::pose_from_quaternion;
 pub use decode::{
     DecodedJoints, decode_joints, decode_measured, read_joints, read_measured, stamp_hint,
+};
+pub use effort::{
+    effort_readout_bytes, effort_readout_json, effort_summary_json, payload_message_bytes,
+    payload_readout_json,
 };
 pub use encode::to_json_bytes;
 pub use messages::{

@@ -642,6 +642,7 @@ fn snapshot() -> MetricsSnapshot {
         window: stats_set(4, 100.0),
         window_s: 5.0,
         epoch: 0,
+        effort: None,
     }
 }
 
@@ -895,6 +896,7 @@ fn state_message_fields() {
             angle: false,
         },
         last_state: None,
+        effort: None,
     };
     let json = parse(&to_json_bytes(&StateMessage::new(&state)));
     assert_eq!(
@@ -1016,6 +1018,9 @@ mod fixed_layout {
                 epoch,
                 cumulative,
                 window: WindowJson { seconds, stats: window },
+                // Both with and without a watched robot's effort object.
+                effort: (paired % 2 == 0)
+                    .then(|| serde_json::json!({ "n": unpaired, "rms_nm": [t, seconds] })),
             };
             let fixed = message.to_json_bytes();
             let serde = to_json_bytes(&message);

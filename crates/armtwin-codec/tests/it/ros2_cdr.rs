@@ -13,6 +13,7 @@ use armtwin_codec::cdr::{self, CdrError, JointNames};
 use armtwin_codec::json;
 use armtwin_core::kinematics::{OutputFrame, PoseReadout};
 use armtwin_core::orientation::Rpy;
+use armtwin_core::sample::JointQuantity;
 use proptest::prelude::*;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
@@ -266,11 +267,32 @@ proptest! {
             message.name.push(format!("gripper_{name}"));
             message.position.push(value);
         }
-        message.velocity = vec![0.5; velocity_len * message.name.len()];
-        message.effort = message.velocity.clone();
+        // Velocity and effort per name (distinct values), or none.
+        let count = velocity_len * message.name.len();
+        message.velocity = (0..count).map(|i| 0.5 + i as f64).collect();
+        message.effort = (0..count).map(|i| -10.0 * (i as f64 + 1.0)).collect();
         let bytes = oracle_bytes(&message, little_endian);
         let sample = cdr::decode_joint_state(&bytes, &names).expect("valid");
-        prop_assert_eq!(sample.q_rad, q.to_vec());
+        prop_assert_eq!(&sample.q_rad, &q.to_vec());
+        // Carried into the joint state in the arm's joint order.
+        let arm_order = |values: &[f64]| -> Vec<f64> {
+            (0..6)
+                .map(|j| values[order.iter().position(|&o| o == j).expect("every joint")])
+                .collect()
+        };
+        if let Some(state) = &sample.state {
+            prop_assert_eq!(velocity_len, 1);
+            prop_assert_eq!(
+                state.get(JointQuantity::Velocity).map(<[f64]>::to_vec),
+                Some(arm_order(&message.velocity))
+            );
+            prop_assert_eq!(
+                state.get(JointQuantity::Torque).map(<[f64]>::to_vec),
+                Some(arm_order(&message.effort))
+            );
+        } else {
+            prop_assert_eq!(velocity_len, 0);
+        }
         let stamp = (sec != 0 || nanosec != 0)
             .then(|| f64::from(sec) + f64::from(nanosec) * 1e-9);
         prop_assert_eq!(sample.stamp_s, stamp);

@@ -298,6 +298,7 @@ fn binary_messages_step_the_pipeline_and_a_wrong_schema_is_rejected_at_its_stamp
         alarm: AlarmConfig::default(),
         sensors: Vec::new(),
         self_calibration: None,
+        effort: None,
     };
     let mut robots = RobotDirectory::new(Some(settings), HashMap::new());
     let mut pipeline = Pipeline::new(PipelineConfig::default());

@@ -10,6 +10,7 @@ use serde::Deserialize;
 
 use super::{Congestion, EventBudget, OutputEncoding, SourceStream, ZenohSection};
 use crate::align::AlignConfig;
+use crate::dynamics::monitor::EffortConfig;
 use crate::identify::IdentifyOptions;
 use crate::ingest::SourceCodec;
 use crate::pipeline::PipelineConfig;
@@ -27,6 +28,8 @@ pub(super) struct File {
     pub(super) align: AlignSection,
     #[serde(default)]
     pub(super) self_calibration: SelfCalibrationSection,
+    #[serde(default)]
+    pub(super) effort: EffortSection,
     #[serde(default)]
     pub(super) robots: HashMap<String, RobotSection>,
     #[serde(default)]
@@ -68,6 +71,44 @@ impl Default for SelfCalibrationSection {
             min_spacing_s: reservoir.min_spacing_s,
             fit_tool: false,
             orientation_weight_m_per_rad: IdentifyOptions::default().orientation_weight_m_per_rad,
+        }
+    }
+}
+
+/// `[effort]`: how robots with `effort = true` are watched.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub(super) struct EffortSection {
+    pub(super) observer_gain_per_s: f64,
+    pub(super) payload_tolerance_kg: f64,
+    pub(super) payload_window_s: f64,
+    pub(super) friction_window_s: f64,
+    pub(super) collision_baseline_s: f64,
+}
+
+impl Default for EffortSection {
+    fn default() -> Self {
+        let defaults = EffortConfig::default();
+        Self {
+            observer_gain_per_s: defaults.observer_gain_per_s,
+            payload_tolerance_kg: defaults.payload_tolerance_kg,
+            payload_window_s: defaults.payload_window_s,
+            friction_window_s: defaults.friction_window_s,
+            collision_baseline_s: defaults.collision_baseline_s,
+        }
+    }
+}
+
+impl EffortSection {
+    /// The settings every watched robot starts from (checked with each robot's arm).
+    pub(super) fn config(&self) -> EffortConfig {
+        EffortConfig {
+            observer_gain_per_s: self.observer_gain_per_s,
+            payload_tolerance_kg: self.payload_tolerance_kg,
+            payload_window_s: self.payload_window_s,
+            friction_window_s: self.friction_window_s,
+            collision_baseline_s: self.collision_baseline_s,
+            ..EffortConfig::default()
         }
     }
 }
@@ -159,6 +200,10 @@ pub(super) struct RobotSection {
     pub(super) alarm_angle_rad: Option<f64>,
     pub(super) alarm_hold_s: Option<f64>,
     pub(super) self_calibrate: Option<bool>,
+    pub(super) effort: Option<bool>,
+    pub(super) collision_threshold_nm: Option<[f64; 6]>,
+    pub(super) payload_kg: Option<f64>,
+    pub(super) payload_cog_m: Option<[f64; 3]>,
     #[serde(default)]
     pub(super) sensors: Vec<SensorSection>,
     pub(super) ros2_pose: Option<Ros2PoseSection>,

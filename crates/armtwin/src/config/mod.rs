@@ -22,7 +22,7 @@ use serde::Deserialize;
 use thiserror::Error;
 
 use self::file::{AlignSection, File, SelfCalibrationSection, ServiceSection};
-use self::robots::{load_pose_outputs, load_robots};
+use self::robots::{SharedSettings, load_pose_outputs, load_robots};
 pub use self::sources::{Ros2Source, SourceConfig, SourceRobot, SourceStream};
 use self::sources::{SourceContext, load_sources};
 pub use self::zenoh_section::{
@@ -241,7 +241,11 @@ impl ServiceConfig {
         let (default_robot, robots) = load_robots(
             &file.robots,
             (source_name, base_dir),
-            self_calibration.reservoir,
+            &SharedSettings {
+                reservoir: self_calibration.reservoir,
+                effort: file.effort.config(),
+                window_s: service.window_s,
+            },
         )?;
         let ros2_pose = load_pose_outputs(&file.robots, source_name, &keys)?;
         let (shard, snapshots) = check_deployment(&service, &robots, (source_name, base_dir))?;

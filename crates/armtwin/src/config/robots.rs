@@ -16,6 +16,8 @@ use zenoh::key_expr::KeyExpr;
 use super::ConfigError;
 use super::file::{RobotSection, Ros2PoseSection};
 use super::zenoh_section::without_source_location;
+use crate::dynamics::Payload;
+use crate::dynamics::monitor::{EffortConfig, EffortMonitor};
 use crate::keys::{self, KeySpace};
 use crate::kinematics::{OutputFrame, TcpOffset};
 use crate::model::{Calibration, ModelError, ModelRef, RobotModel, catalog, custom};
@@ -24,11 +26,21 @@ use crate::pipeline::{AlarmConfig, RobotSettings, SensorStream};
 use crate::ros2::{self, PoseOutput, PoseOutputs};
 use crate::self_calibration::ReservoirConfig;
 
+/// What every robot's settings start from: the sections shared by all robots.
+pub(super) struct SharedSettings {
+    /// `[self_calibration]`'s reservoir, for robots with `self_calibrate = true`.
+    pub(super) reservoir: ReservoirConfig,
+    /// `[effort]`, for robots with `effort = true`.
+    pub(super) effort: EffortConfig,
+    /// `[service] window_s`: the effort monitor's residual window.
+    pub(super) window_s: f64,
+}
+
 /// `[robots.default]` (built in when absent: the `ur10e`, no tool) and every robot's own section.
 pub(super) fn load_robots(
     sections: &HashMap<String, RobotSection>,
     (source_name, base_dir): (&str, &Path),
-    reservoir: ReservoirConfig,
+    shared: &SharedSettings,
 ) -> Result<(RobotSettings, HashMap<String, RobotSettings>), ConfigError> {
     let default_section = sections.get("default");
     let mut default_robot = None;
@@ -40,7 +52,7 @@ pub(super) fn load_robots(
             section,
             default_section,
             (source_name, base_dir),
-            reservoir,
+            shared,
             &mut models,
         )?;
         if id == "default" {
@@ -66,7 +78,7 @@ pub(super) fn load_robots(
             &RobotSection::default(),
             None,
             (source_name, base_dir),
-            reservoir,
+            shared,
             &mut models,
         )?,
     };
@@ -160,6 +172,46 @@ impl RobotSource<'_> {
         })
     }
 
+    /// The effort settings of a robot with `effort = true` (its thresholds and payload over
+    /// `[effort]`'s), checked against its arm: one that cannot be watched is refused here, not
+    /// at its first sample.
+    fn effort(
+        &self,
+        model: &RobotModel,
+        shared: &SharedSettings,
+    ) -> Result<Option<EffortConfig>, ConfigError> {
+        if !self.pick(|s| s.effort).unwrap_or(false) {
+            return Ok(None);
+        }
+        let mut config = shared.effort;
+        if let Some(thresholds) = self.pick(|s| s.collision_threshold_nm) {
+            config.collision_threshold_nm = Some(thresholds);
+        }
+        match (self.pick(|s| s.payload_kg), self.pick(|s| s.payload_cog_m)) {
+            (Some(mass_kg), cog) => {
+                config.payload = Some(Payload::point_mass(mass_kg, cog.unwrap_or([0.0; 3])));
+            }
+            (None, Some(_)) => {
+                return Err(self.invalid("payload_cog_m", "is set without payload_kg".to_owned()));
+            }
+            (None, None) => {}
+        }
+        if let Some(payload) = config.payload
+            && !(payload.mass_kg.is_finite()
+                && payload.mass_kg >= 0.0
+                && payload.cog_flange_m.iter().all(|v| v.is_finite()))
+        {
+            return Err(self.invalid(
+                "payload_kg",
+                "the payload's mass must be a non-negative number and its centre of gravity finite"
+                    .to_owned(),
+            ));
+        }
+        EffortMonitor::new(model.arm(), &config, shared.window_s)
+            .map_err(|e| self.invalid("effort", e.to_string()))?;
+        Ok(Some(config))
+    }
+
     fn sensors(&self) -> Result<Vec<SensorStream>, ConfigError> {
         self.section
             .sensors
@@ -214,7 +266,7 @@ fn robot_settings(
     section: &RobotSection,
     default_section: Option<&RobotSection>,
     (source_name, base_dir): (&str, &Path),
-    reservoir: ReservoirConfig,
+    shared: &SharedSettings,
     models: &mut HashMap<ModelSource, Arc<RobotModel>>,
 ) -> Result<RobotSettings, ConfigError> {
     let source = RobotSource {
@@ -243,6 +295,7 @@ fn robot_settings(
         models.insert(model_source, Arc::clone(&model));
         model
     };
+    let effort = source.effort(&model, shared)?;
     Ok(RobotSettings {
         model,
         alarm: source.alarm()?,
@@ -250,7 +303,8 @@ fn robot_settings(
         self_calibration: source
             .pick(|s| s.self_calibrate)
             .unwrap_or(false)
-            .then_some(reservoir),
+            .then_some(shared.reservoir),
+        effort,
     })
 }
 

@@ -10,6 +10,7 @@ use prometheus_client::registry::{Registry, Unit};
 use std::sync::atomic::AtomicU64;
 
 use super::{FleetRow, ServiceTotals};
+use crate::dynamics::monitor::EffortSummary;
 use crate::metrics::{Metric, Stats, StatsSet};
 use crate::sample::JointQuantity;
 
@@ -69,6 +70,13 @@ struct RobotFamilies {
     joint_temperature: Gauges,
     joint_current: Gauges,
     joint_torque: Gauges,
+    joint_model_torque: Gauges,
+    joint_residual: Gauges,
+    joint_observer: Gauges,
+    joint_friction: Gauges,
+    payload: Gauges,
+    collision_active: Gauges,
+    collisions: Counters,
 }
 
 impl RobotFamilies {
@@ -94,6 +102,13 @@ impl RobotFamilies {
             joint_temperature: Gauges::default(),
             joint_current: Gauges::default(),
             joint_torque: Gauges::default(),
+            joint_model_torque: Gauges::default(),
+            joint_residual: Gauges::default(),
+            joint_observer: Gauges::default(),
+            joint_friction: Gauges::default(),
+            payload: Gauges::default(),
+            collision_active: Gauges::default(),
+            collisions: Counters::default(),
         };
         let gauges = [
             (
@@ -130,6 +145,7 @@ impl RobotFamilies {
         for (name, help, family) in gauges {
             registry.register(name, help, family.clone());
         }
+        families.register_effort(registry);
         let counters = [
             (
                 "poses",
@@ -150,6 +166,11 @@ impl RobotFamilies {
                 "rejected",
                 "Inputs of the robot rejected, by cause",
                 &families.rejected,
+            ),
+            (
+                "collisions",
+                "Collision alarms raised on the robot",
+                &families.collisions,
             ),
         ];
         for (name, help, family) in counters {
@@ -200,6 +221,9 @@ impl RobotFamilies {
         self.epoch
             .get_or_create(&robot_labels())
             .set(row.metrics.epoch as f64);
+        if let Some(effort) = &row.metrics.effort {
+            self.add_effort(robot, effort);
+        }
         if let Some(state) = &row.joint_state {
             let per_joint = [
                 (JointQuantity::Temperature, &self.joint_temperature),
@@ -216,6 +240,117 @@ impl RobotFamilies {
                 }
             }
         }
+    }
+}
+
+impl RobotFamilies {
+    /// Registers the effort gauges (robots with `effort = true`).
+    fn register_effort(&self, registry: &mut Registry) {
+        let gauges = [
+            (
+                "joint_model_torque_newton_metres",
+                "The effort model's joint torque for the robot's latest sample (effort = true)",
+                &self.joint_model_torque,
+            ),
+            (
+                "joint_torque_residual_rms_newton_metres",
+                "RMS of measured minus model minus friction torque, by scope (cumulative, window)",
+                &self.joint_residual,
+            ),
+            (
+                "joint_observer_newton_metres",
+                "The momentum observer's estimate of the torque the drives spend beyond the model",
+                &self.joint_observer,
+            ),
+            (
+                "joint_friction_newton_metres",
+                "The joint's fitted Coulomb friction, and its drift from the first fit at the same temperature",
+                &self.joint_friction,
+            ),
+            (
+                "payload_kilograms",
+                "The payload mass the effort model uses (in_use) and the one identified at rest (estimated)",
+                &self.payload,
+            ),
+            (
+                "collision_active",
+                "1 while a joint's collision alarm is on",
+                &self.collision_active,
+            ),
+        ];
+        for (name, help, family) in gauges {
+            registry.register(name, help, family.clone());
+        }
+    }
+
+    /// A watched robot's effort gauges.
+    fn add_effort(&self, robot: &str, effort: &EffortSummary) {
+        let joint_labels = |joint: usize, extra: Option<(&'static str, &'static str)>| {
+            let mut labels = vec![
+                ("robot", robot.to_owned()),
+                ("joint", (joint + 1).to_string()),
+            ];
+            if let Some((name, value)) = extra {
+                labels.push((name, value.to_owned()));
+            }
+            labels
+        };
+        if let Some(latest) = &effort.latest {
+            for (joint, value) in latest.model_nm.iter().enumerate() {
+                self.joint_model_torque
+                    .get_or_create(&joint_labels(joint, None))
+                    .set(*value);
+            }
+            for (joint, value) in latest.observer_nm.iter().flatten().enumerate() {
+                self.joint_observer
+                    .get_or_create(&joint_labels(joint, None))
+                    .set(*value);
+            }
+        }
+        for (scope, stats) in [
+            ("cumulative", &effort.cumulative),
+            ("window", &effort.window),
+        ] {
+            if stats.n == 0 {
+                continue;
+            }
+            for (joint, value) in stats.rms_nm.iter().enumerate() {
+                self.joint_residual
+                    .get_or_create(&joint_labels(joint, Some(("scope", scope))))
+                    .set(*value);
+            }
+        }
+        for (joint, friction) in effort.friction.iter().enumerate() {
+            let Some(friction) = friction else {
+                continue;
+            };
+            self.joint_friction
+                .get_or_create(&joint_labels(joint, Some(("kind", "coulomb"))))
+                .set(friction.coulomb_nm);
+            if let Some(drift) = friction.drift_nm {
+                self.joint_friction
+                    .get_or_create(&joint_labels(joint, Some(("kind", "drift"))))
+                    .set(drift);
+            }
+        }
+        let payload_labels =
+            |kind: &'static str| vec![("robot", robot.to_owned()), ("kind", kind.to_owned())];
+        self.payload
+            .get_or_create(&payload_labels("in_use"))
+            .set(effort.payload.in_use.0.mass_kg);
+        if let Some(estimate) = &effort.payload.estimate {
+            self.payload
+                .get_or_create(&payload_labels("estimated"))
+                .set(estimate.mass_kg);
+        }
+        for (joint, active) in effort.collision.iter().enumerate() {
+            self.collision_active
+                .get_or_create(&joint_labels(joint, None))
+                .set(f64::from(u8::from(*active)));
+        }
+        self.collisions
+            .get_or_create(&vec![("robot", robot.to_owned())])
+            .inc_by(effort.collisions);
     }
 }
 

@@ -718,6 +718,7 @@ mod tests {
                 window,
                 window_s: 10.0,
                 epoch: 0,
+                effort: None,
             },
             alarms_active: Alarms {
                 position: alarm,

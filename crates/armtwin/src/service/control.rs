@@ -26,9 +26,10 @@ use crate::keys::Stream;
 use crate::pipeline::{Robot, Twin};
 use crate::snapshot::SnapshotStore;
 
-/// Publishes the metrics of every robot with new results: each robot's snapshot taken under
-/// its own lock, then encoded and sent after it is released, so a robot's samples wait at most
-/// for its own snapshot, never for a metrics message's encoding and sending.
+/// Publishes the metrics of every robot with new results (and, for a robot whose effort is
+/// watched, its payload message): each robot's snapshot taken under its own lock, then encoded
+/// and sent after it is released, so a robot's samples wait at most for its own snapshot, never
+/// for a metrics message's encoding and sending.
 fn publish_due_metrics(fleet: &Fleet) {
     for cell in fleet.cells() {
         let snapshot = {
@@ -40,6 +41,12 @@ fn publish_due_metrics(fleet: &Fleet) {
             state.outputs.counts.last_active = Some(Instant::now());
             snapshot
         };
+        if let Some(effort) = &snapshot.effort {
+            let payload = json::payload_message_bytes(&snapshot.robot, effort);
+            fleet
+                .outputs
+                .publish(None, &snapshot.robot, Stream::Payload, payload);
+        }
         let payload = json::MetricsMessage::new(&snapshot).to_json_bytes();
         fleet
             .outputs

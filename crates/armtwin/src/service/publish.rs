@@ -106,11 +106,12 @@ impl Outputs {
     }
 
     /// The congestion control and encoding of `stream`: poses and deviations as configured,
-    /// metrics and events blocking JSON.
+    /// effort as poses but always JSON, metrics and events blocking JSON.
     fn qos(&self, stream: Stream) -> (CongestionControl, Encoding) {
         match stream {
             Stream::Pose => (self.pose_congestion, self.pose_encoding.clone()),
             Stream::Deviation => (self.pose_congestion, self.deviation_encoding.clone()),
+            Stream::Effort => (self.pose_congestion, Encoding::APPLICATION_JSON),
             _ => (CongestionControl::Block, Encoding::APPLICATION_JSON),
         }
     }

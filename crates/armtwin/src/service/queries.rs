@@ -1,5 +1,5 @@
-//! The queryables: `state`, `fk`, `ik` and `calibrate` (reads), `admin/reset` and
-//! `admin/calibrate` (changes, on keys of their own so that an access control list can keep them
+//! The queryables: `state`, `fk`, `ik` and `calibrate` (reads), `admin/reset`,
+//! `admin/calibrate` and `admin/payload` (changes, on keys of their own so that an access control list can keep them
 //! from those who only watch), each answered from the robots it names, one cell at a time,
 //! replying once that cell's lock is released.
 //!
@@ -34,13 +34,14 @@ pub(super) struct Queries {
 
 impl Queries {
     /// The handlers, by the stream their queryable is declared on.
-    pub(super) const HANDLERS: [(Stream, QueryHandler); 6] = [
+    pub(super) const HANDLERS: [(Stream, QueryHandler); 7] = [
         (Stream::State, Self::state),
         (Stream::Fk, Self::fk),
         (Stream::Reset, Self::reset),
         (Stream::Ik, Self::ik),
         (Stream::Calibrate, Self::calibrate),
         (Stream::ApplyCalibration, Self::apply_calibration),
+        (Stream::ApplyPayload, Self::apply_payload),
     ];
 
     /// Answers `query` with `handler`, unless the service stopped.
@@ -323,6 +324,86 @@ impl Queries {
                 }
             }
             other => Self::reply_err(query, &format!("'{other}' is not apply, discard or status")),
+        }
+    }
+
+    /// `<prefix>/admin/payload/<robot>` with `apply` (the identified payload into the robot's
+    /// effort model), `discard` (back to the controller's or configured payload) or `status`.
+    fn apply_payload(&self, query: &Query) {
+        if !self.asks_for(query, Stream::ApplyPayload) {
+            return;
+        }
+        let key = query.key_expr().as_str();
+        let Ok(id) = self.keys.robot_of(Stream::ApplyPayload, key) else {
+            Self::reply_err(query, "ask one robot: <prefix>/admin/payload/<robot id>");
+            return;
+        };
+        let payload = query
+            .payload()
+            .map(|p| p.to_bytes().into_owned())
+            .unwrap_or_default();
+        let action = query.parameters().get("action").map_or_else(
+            || String::from_utf8_lossy(&payload).trim().to_owned(),
+            str::to_owned,
+        );
+        let Some(robot) = self.fleet.find(id) else {
+            Self::reply_err(query, &format!("robot '{id}' is not tracked"));
+            return;
+        };
+        if robot.settings().effort.is_none() {
+            Self::reply_err(
+                query,
+                &format!("robot '{id}' has no effort monitor (effort = true in its section)"),
+            );
+            return;
+        }
+        let Ok(reply_key) = KeyExpr::try_from(key.to_owned()) else {
+            return;
+        };
+        let Some(cell) = self.fleet.existing_cell_of(id) else {
+            Self::reply_err(query, &format!("robot '{id}' has sent nothing yet"));
+            return;
+        };
+        let Some(mut guard) = self.fleet.unless_stopped(&cell) else {
+            return;
+        };
+        let Some(twin) = guard.twin.as_mut() else {
+            drop(guard);
+            Self::reply_err(query, &format!("robot '{id}' has sent nothing yet"));
+            return;
+        };
+        let outcome = match action.as_str() {
+            "" | "status" => Ok(()),
+            "apply" => twin
+                .apply_payload_estimate()
+                .map(|applied| {
+                    info!(robot = id, mass_kg = applied.mass_kg, cog_m = ?applied.cog_flange_m, "identified payload applied");
+                })
+                .ok_or_else(|| format!("robot '{id}' has no identified payload to apply")),
+            "discard" => {
+                twin.discard_applied_payload();
+                info!(robot = id, "applied payload discarded");
+                Ok(())
+            }
+            other => Err(format!("'{other}' is not apply, discard or status")),
+        };
+        let summary = twin.state().effort;
+        drop(guard);
+        match (outcome, summary) {
+            (Ok(()), Some(summary)) => {
+                let mut body = json::payload_readout_json(&summary.payload);
+                body["robot"] = serde_json::json!(id);
+                body["action"] = serde_json::json!(if action.is_empty() {
+                    "status"
+                } else {
+                    action.as_str()
+                });
+                Self::reply(query, &reply_key, json::to_json_bytes(&body));
+            }
+            (Err(message), _) => Self::reply_err(query, &message),
+            (Ok(()), None) => {
+                Self::reply_err(query, &format!("robot '{id}' has no effort monitor"));
+            }
         }
     }
 

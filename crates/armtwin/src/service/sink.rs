@@ -18,6 +18,7 @@ use super::publish::{Outputs, RobotPublishers};
 use crate::codec::{PoseFields, cdr, json, zser};
 use crate::config::OutputEncoding;
 use crate::dashboard::RobotCounts;
+use crate::dynamics::monitor::EffortReadout;
 use crate::keys::Stream;
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
@@ -274,6 +275,14 @@ impl Sink for ZenohSink<'_> {
                 debug!(robot, kind, cause, key, reason, "event");
             }
         }
+    }
+
+    fn effort(&mut self, robot: &Robot, readout: &EffortReadout) {
+        self.put(
+            robot.id(),
+            Stream::Effort,
+            json::effort_readout_bytes(robot.id(), readout),
+        );
     }
 
     fn metrics(&mut self, robot: &Robot, snapshot: &MetricsSnapshot) {

@@ -18,9 +18,7 @@ use crate::dynamics::payload::{PayloadEstimate, PayloadIdentifier};
 use crate::dynamics::{ArmDynamics, ControllerMode, DynamicsError, Payload, ur};
 use crate::model::ArmDescription;
 
-/// Joint velocity (rad/s) below which, on every joint, a program-mode row counts as at rest for
-/// payload identification (the drives then hold the arm against gravity and friction is small).
-pub const AT_REST_RAD_S: f64 = 0.01;
+pub use crate::dynamics::payload::AT_REST_RAD_S;
 
 /// Why the dynamics of a recording cannot be compared.
 #[derive(Debug, Error)]

@@ -276,6 +276,7 @@ pub fn validate(
         window: StatsSet::default(),
         window_s: config.window_s,
         epoch: 0,
+        effort: None,
     });
     Validation {
         format: recording.format,

@@ -27,6 +27,7 @@ fn pairs(file: &str, spacing_s: Option<f64>) -> Vec<PairedSample> {
         alarm: AlarmConfig::default(),
         sensors: Vec::new(),
         self_calibration: None,
+        effort: None,
     };
     let validation = validate(
         &recording,

@@ -21,6 +21,7 @@ fn run(recording: &Recording) -> Validation {
         alarm: AlarmConfig::default(),
         sensors: Vec::new(),
         self_calibration: None,
+        effort: None,
     };
     let times = recording::source_times(recording, None);
     validate(

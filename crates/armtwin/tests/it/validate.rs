@@ -21,6 +21,7 @@ fn settings() -> RobotSettings {
         alarm: AlarmConfig::default(),
         sensors: Vec::new(),
         self_calibration: None,
+        effort: None,
     }
 }
 

@@ -217,7 +217,7 @@ function update(message) {
   alarm.className = active.length ? "alarm" : "";
   const tool = state.tool.map((v) => v.toFixed(4)).join(", ");
   document.getElementById("model").textContent =
-    `model        ${state.model}\ncalibration  ${state.calibration ?? "none (nominal)"}\ntool         [${tool}] (m, rotation vector rad)\nframe        ${state.frame}\njoints (rad) ${state.joints ? state.joints.q.map((q) => q.toFixed(4)).join(", ") : "–"}${jointStateText(state.joint_state)}`;
+    `model        ${state.model}\ncalibration  ${state.calibration ?? "none (nominal)"}\ntool         [${tool}] (m, rotation vector rad)\nframe        ${state.frame}\njoints (rad) ${state.joints ? state.joints.q.map((q) => q.toFixed(4)).join(", ") : "–"}${jointStateText(state.joint_state)}${effortText(state.effort)}`;
   const list = document.getElementById("events");
   list.replaceChildren(...message.events.slice().reverse().map((event) => {
     const li = document.createElement("li");
@@ -240,6 +240,34 @@ function jointStateText(js) {
     text += `\nmode         robot ${js.robot_mode}, safety ${js.safety_mode}, ${bits}, speed ${(js.speed_scaling * 100).toFixed(0)} %`;
   }
   if (js.payload) text += `\npayload      ${js.payload.mass_kg} kg at [${js.payload.cog_m.join(", ")}] m`;
+  return text;
+}
+
+// The effort of a robot with effort = true: model against measured torque, residual, observer,
+// friction and payload.
+function effortText(effort) {
+  if (!effort) return "";
+  const row = (label, values, digits) =>
+    values ? `\n${label.padEnd(13)}${values.map((v) => (v === null ? "–" : v.toFixed(digits))).join(", ")}` : "";
+  const latest = effort.latest;
+  let text = "";
+  if (latest) {
+    text += `\neffort       ${latest.mode}, model on the ${latest.state} state`;
+    text += row("τ model (Nm)", latest.model_nm, 2) + row("τ meas. (Nm)", latest.measured_nm, 2) +
+      row("residual (Nm)", latest.residual_nm, 2) + row("observer (Nm)", latest.observer_nm, 2);
+  }
+  const window = effort.residual.window;
+  if (window.stats.n) text += row(`rms ${window.seconds} s`, window.stats.rms_nm, 2);
+  text += row("friction (Nm)", effort.friction.map((f) => (f ? f.coulomb_nm : null)), 2);
+  if (effort.friction.some((f) => f && f.drift_nm !== null))
+    text += row("drift (Nm)", effort.friction.map((f) => (f ? f.drift_nm : null)), 2);
+  const payload = effort.payload;
+  text += `\npayload used ${payload.in_use.mass_kg.toFixed(3)} kg (${payload.in_use.source})`;
+  if (payload.estimate)
+    text += `, identified ${payload.estimate.mass_kg.toFixed(3)} ± ${payload.estimate.mass_std_kg.toFixed(3)} kg`;
+  if (effort.payload_mismatch) text += " MISMATCH";
+  const active = effort.collision.active.map((on, k) => (on ? `joint ${k + 1}` : "")).filter(Boolean);
+  text += `\ncollisions   ${effort.collision.count}${active.length ? " · NOW: " + active.join(", ") : ""}`;
   return text;
 }
 

@@ -33,6 +33,10 @@ from test_fk_reference import check_poses, csv_input, parse_csv_output
 STEP_S = 0.1
 OUTPUTS = ["x", "y", "z", "roll", "pitch", "yaw", "qx", "qy", "qz", "qw"]
 JOINTS = [f"q{i}" for i in range(1, 7)]
+VELOCITIES = [f"qd{i}" for i in range(1, 7)]
+ACCELERATIONS = [f"qdd{i}" for i in range(1, 7)]
+TORQUES = [f"tau{i}" for i in range(1, 7)]
+PAYLOAD = ["payload_mass", "payload_cog_x", "payload_cog_y", "payload_cog_z"]
 CALIBRATION = REPO_ROOT / "config" / "examples" / "calibration.conf"
 TCP = [0.012, -0.034, 0.156, 0.11, -0.22, 1.3]
 # The calibrated robot, as `armtwin fmu build` and `armtwin fk` options.
@@ -138,9 +142,20 @@ def test_interface_is_the_reports_with_units_and_tool_parameters(calibrated_fmu)
         assert (v.valueReference, v.causality, v.variability) == (vr, "parameter", "tunable")
         assert float(v.start) == value
     assert [variables[n].unit for n in OUTPUTS] == ["m"] * 3 + ["rad"] * 3 + [None] * 4
-    # ModelStructure: 1-based ScalarVariable indices (x is the 7th variable).
-    assert [u.variable.name for u in md.outputs] == OUTPUTS
-    assert all([d.name for d in u.dependencies] == JOINTS for u in md.outputs)
+    for vr, name in enumerate(VELOCITIES + ACCELERATIONS, start=22):
+        v = variables[name]
+        assert (v.valueReference, v.causality, v.unit) == (vr, "input", "rad/s" if vr < 28 else "rad/s2")
+    for vr, name in enumerate(TORQUES, start=34):
+        v = variables[name]
+        assert (v.valueReference, v.causality, v.unit) == (vr, "output", "N.m")
+    for vr, name in enumerate(PAYLOAD, start=40):
+        v = variables[name]
+        assert (v.valueReference, v.causality, v.variability, float(v.start)) == (vr, "parameter", "tunable", 0.0)
+    # ModelStructure: 1-based ScalarVariable indices (x is the 7th variable); the pose depends on
+    # the angles, the torques on the angles, velocities and accelerations.
+    assert [u.variable.name for u in md.outputs] == OUTPUTS + TORQUES
+    assert all([d.name for d in u.dependencies] == JOINTS for u in md.outputs[:10])
+    assert all([d.name for d in u.dependencies] == JOINTS + VELOCITIES + ACCELERATIONS for u in md.outputs[10:])
     with zipfile.ZipFile(calibrated_fmu) as archive:
         names = set(archive.namelist())
         assert f"binaries/linux64/{md.coSimulation.modelIdentifier}.so" in names
@@ -170,6 +185,51 @@ def test_calibrated_fmu_equals_calibrated_fk(calibrated_fmu):
     assert np.abs(fk - nominal).max() > 1e-3, "the calibration and tool must matter"
     print(f"\ncalibrated UR10e: max |FMU - armtwin fk| = {difference:.3e}; vs numpy: "
           f"{numpy_differences(outputs_of(result)[1:], reference)}")
+
+
+def test_torques_equal_pinocchio_with_a_payload_in_fmpy(nominal_fmu):
+    """The torque outputs over a simulation, with the payload parameters set, against Pinocchio's
+    rnea of the same UR10e (an independent implementation)."""
+    import pinocchio as pin
+
+    from test_dynamics_reference import (GEAR_RATIO, PARAMETERS, ROTOR_INERTIA_KG_M2, TOLERANCE_NM,
+                                         UR_GRAVITY_M_S2, pinocchio_arm, with_payload)
+
+    masses, coms, diagonals, sizes = PARAMETERS["ur10e"]
+    links = [(masses[k], coms[k], [*diagonals[k], 0.0, 0.0, 0.0]) for k in range(6)]
+    rotor = [ROTOR_INERTIA_KG_M2[s] * GEAR_RATIO**2 for s in sizes]
+    dh = ur.dh_table("ur10e")
+    model, flange = pinocchio_arm("standard", dh.a, dh.alpha, dh.d, dh.theta_offset, links, rotor)
+    payload = (3.5, [0.01, -0.02, 0.09])
+    loaded = with_payload(model, flange, (payload[0], payload[1], [0.0] * 6))
+    loaded.gravity.linear = np.array([0.0, 0.0, -UR_GRAVITY_M_S2])
+    data = loaded.createData()
+
+    rng = np.random.default_rng(9)
+    rows = 40
+    q = rng.uniform(-3.0, 3.0, (rows, 6))
+    qd = rng.uniform(-2.0, 2.0, (rows, 6))
+    qdd = rng.uniform(-5.0, 5.0, (rows, 6))
+    names = JOINTS + VELOCITIES + ACCELERATIONS
+    signal = np.zeros(rows, dtype=[("time", float)] + [(name, float) for name in names])
+    signal["time"] = np.arange(rows) * STEP_S
+    for i, column in enumerate(np.hstack([q, qd, qdd]).T):
+        signal[names[i]] = column
+    result = simulate_fmu(
+        str(nominal_fmu),
+        start_time=0.0,
+        stop_time=rows * STEP_S,
+        step_size=STEP_S,
+        output_interval=STEP_S,
+        input=signal,
+        output=TORQUES,
+        start_values=dict(zip(PAYLOAD, [payload[0], *payload[1]])),
+    )
+    torques = np.stack([result[name] for name in TORQUES], axis=1)[1:]
+    expected = np.array([pin.rnea(loaded, data, q[k], qd[k], qdd[k]).copy() for k in range(rows)])
+    worst = float(np.abs(torques - expected).max())
+    print(f"FMU tau vs Pinocchio rnea over {rows} states with a 3.5 kg payload: max {worst:.2e} N·m")
+    assert worst <= TOLERANCE_NM
 
 
 def slave(unzipped: str, name: str) -> FMU2Slave:

@@ -25,8 +25,16 @@ pub const OUTPUT_COUNT: usize = PoseFields::NAMES.len();
 /// Number of tool parameters `tcp_x..tcp_rz`.
 pub const TOOL_COUNT: usize = 6;
 
+/// Number of payload parameters: `payload_mass` and `payload_cog_x..z`.
+pub const PAYLOAD_COUNT: usize = 4;
+
 const FIRST_OUTPUT_VR: u32 = JOINT_COUNT as u32;
 const FIRST_TOOL_VR: u32 = FIRST_OUTPUT_VR + OUTPUT_COUNT as u32;
+const FIRST_VELOCITY_VR: u32 = FIRST_TOOL_VR + TOOL_COUNT as u32;
+const FIRST_ACCELERATION_VR: u32 = FIRST_VELOCITY_VR + JOINT_COUNT as u32;
+const FIRST_TORQUE_VR: u32 = FIRST_ACCELERATION_VR + JOINT_COUNT as u32;
+const FIRST_PAYLOAD_VR: u32 = FIRST_TORQUE_VR + JOINT_COUNT as u32;
+const VARIABLE_COUNT: u32 = FIRST_PAYLOAD_VR + PAYLOAD_COUNT as u32;
 
 /// What a value reference addresses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -38,6 +46,16 @@ pub enum Variable {
     /// Tool offset component `index` of `[x, y, z, rx, ry, rz]`: a tunable parameter, value
     /// references 16–21.
     Tool(usize),
+    /// Joint velocity `qd{index + 1}` (rad/s): an input, value references 22–27.
+    Velocity(usize),
+    /// Joint acceleration `qdd{index + 1}` (rad/s²): an input, value references 28–33.
+    Acceleration(usize),
+    /// Joint torque `tau{index + 1}` (N·m) of the inverse dynamics: an output, value references
+    /// 34–39.
+    Torque(usize),
+    /// Payload parameter `index` of `[mass, cog x, cog y, cog z]` (kg, m in the flange frame):
+    /// a tunable parameter, value references 40–43.
+    Payload(usize),
 }
 
 impl Variable {
@@ -48,7 +66,11 @@ impl Variable {
         match value_reference {
             vr if vr < FIRST_OUTPUT_VR => Some(Self::Joint(index(0))),
             vr if vr < FIRST_TOOL_VR => Some(Self::Output(index(FIRST_OUTPUT_VR))),
-            vr if vr < FIRST_TOOL_VR + TOOL_COUNT as u32 => Some(Self::Tool(index(FIRST_TOOL_VR))),
+            vr if vr < FIRST_VELOCITY_VR => Some(Self::Tool(index(FIRST_TOOL_VR))),
+            vr if vr < FIRST_ACCELERATION_VR => Some(Self::Velocity(index(FIRST_VELOCITY_VR))),
+            vr if vr < FIRST_TORQUE_VR => Some(Self::Acceleration(index(FIRST_ACCELERATION_VR))),
+            vr if vr < FIRST_PAYLOAD_VR => Some(Self::Torque(index(FIRST_TORQUE_VR))),
+            vr if vr < VARIABLE_COUNT => Some(Self::Payload(index(FIRST_PAYLOAD_VR))),
             _ => None,
         }
     }
@@ -60,6 +82,10 @@ impl Variable {
             Self::Joint(index) => index as u32,
             Self::Output(index) => FIRST_OUTPUT_VR + index as u32,
             Self::Tool(index) => FIRST_TOOL_VR + index as u32,
+            Self::Velocity(index) => FIRST_VELOCITY_VR + index as u32,
+            Self::Acceleration(index) => FIRST_ACCELERATION_VR + index as u32,
+            Self::Torque(index) => FIRST_TORQUE_VR + index as u32,
+            Self::Payload(index) => FIRST_PAYLOAD_VR + index as u32,
         }
     }
 
@@ -67,9 +93,9 @@ impl Variable {
     #[must_use]
     pub fn causality(self) -> &'static str {
         match self {
-            Self::Joint(_) => "input",
-            Self::Output(_) => "output",
-            Self::Tool(_) => "parameter",
+            Self::Joint(_) | Self::Velocity(_) | Self::Acceleration(_) => "input",
+            Self::Output(_) | Self::Torque(_) => "output",
+            Self::Tool(_) | Self::Payload(_) => "parameter",
         }
     }
 }
@@ -81,15 +107,50 @@ pub enum Unit {
     Metre,
     /// Radian.
     Radian,
+    /// Radian per second.
+    RadianPerSecond,
+    /// Radian per second squared.
+    RadianPerSecondSquared,
+    /// Newton metre.
+    NewtonMetre,
+    /// Kilogram.
+    Kilogram,
 }
 
 impl Unit {
-    /// The unit's name in the model description: `m` or `rad`.
+    /// Every unit, in the model description's order.
+    pub const ALL: [Self; 6] = [
+        Self::Metre,
+        Self::Radian,
+        Self::RadianPerSecond,
+        Self::RadianPerSecondSquared,
+        Self::NewtonMetre,
+        Self::Kilogram,
+    ];
+
+    /// The unit's name in the model description.
     #[must_use]
     pub fn as_str(self) -> &'static str {
         match self {
             Self::Metre => "m",
             Self::Radian => "rad",
+            Self::RadianPerSecond => "rad/s",
+            Self::RadianPerSecondSquared => "rad/s2",
+            Self::NewtonMetre => "N.m",
+            Self::Kilogram => "kg",
+        }
+    }
+
+    /// Its SI base units with their exponents, as `<BaseUnit>` attributes.
+    #[must_use]
+    pub fn base_units(self) -> &'static [(&'static str, i32)] {
+        match self {
+            Self::Metre => &[("m", 1)],
+            Self::Radian => &[("rad", 1)],
+            Self::RadianPerSecond => &[("s", -1), ("rad", 1)],
+            Self::RadianPerSecondSquared => &[("s", -2), ("rad", 1)],
+            Self::NewtonMetre => &[("kg", 1), ("m", 2), ("s", -2)],
+            Self::Kilogram => &[("kg", 1)],
         }
     }
 }
@@ -123,11 +184,15 @@ const fn scalar(
 
 const M: Option<Unit> = Some(Unit::Metre);
 const RAD: Option<Unit> = Some(Unit::Radian);
+const RAD_S: Option<Unit> = Some(Unit::RadianPerSecond);
+const RAD_S2: Option<Unit> = Some(Unit::RadianPerSecondSquared);
+const NM: Option<Unit> = Some(Unit::NewtonMetre);
+const KG: Option<Unit> = Some(Unit::Kilogram);
 
 /// Every variable, ordered by value reference (so a variable's 1-based index in the model
 /// description's `ModelVariables` is its value reference plus one).
-pub const VARIABLES: [ScalarVariable; JOINT_COUNT + OUTPUT_COUNT + TOOL_COUNT] = {
-    use Variable::{Joint, Output, Tool};
+pub const VARIABLES: [ScalarVariable; VARIABLE_COUNT as usize] = {
+    use Variable::{Acceleration, Joint, Output, Payload, Tool, Torque, Velocity};
     [
         scalar("q1", Joint(0), RAD, "Joint 1 (shoulder pan) angle"),
         scalar("q2", Joint(1), RAD, "Joint 2 (shoulder lift) angle"),
@@ -201,8 +266,50 @@ pub const VARIABLES: [ScalarVariable; JOINT_COUNT + OUTPUT_COUNT + TOOL_COUNT] =
             RAD,
             "Tool (TCP) orientation in the flange frame, rotation vector z",
         ),
+        scalar("qd1", Velocity(0), RAD_S, "Joint 1 velocity"),
+        scalar("qd2", Velocity(1), RAD_S, "Joint 2 velocity"),
+        scalar("qd3", Velocity(2), RAD_S, "Joint 3 velocity"),
+        scalar("qd4", Velocity(3), RAD_S, "Joint 4 velocity"),
+        scalar("qd5", Velocity(4), RAD_S, "Joint 5 velocity"),
+        scalar("qd6", Velocity(5), RAD_S, "Joint 6 velocity"),
+        scalar("qdd1", Acceleration(0), RAD_S2, "Joint 1 acceleration"),
+        scalar("qdd2", Acceleration(1), RAD_S2, "Joint 2 acceleration"),
+        scalar("qdd3", Acceleration(2), RAD_S2, "Joint 3 acceleration"),
+        scalar("qdd4", Acceleration(3), RAD_S2, "Joint 4 acceleration"),
+        scalar("qdd5", Acceleration(4), RAD_S2, "Joint 5 acceleration"),
+        scalar("qdd6", Acceleration(5), RAD_S2, "Joint 6 acceleration"),
+        scalar("tau1", Torque(0), NM, TORQUE_DESCRIPTION),
+        scalar("tau2", Torque(1), NM, TORQUE_DESCRIPTION),
+        scalar("tau3", Torque(2), NM, TORQUE_DESCRIPTION),
+        scalar("tau4", Torque(3), NM, TORQUE_DESCRIPTION),
+        scalar("tau5", Torque(4), NM, TORQUE_DESCRIPTION),
+        scalar("tau6", Torque(5), NM, TORQUE_DESCRIPTION),
+        scalar("payload_mass", Payload(0), KG, "Payload mass"),
+        scalar(
+            "payload_cog_x",
+            Payload(1),
+            M,
+            "Payload centre of gravity x in the flange frame",
+        ),
+        scalar(
+            "payload_cog_y",
+            Payload(2),
+            M,
+            "Payload centre of gravity y in the flange frame",
+        ),
+        scalar(
+            "payload_cog_z",
+            Payload(3),
+            M,
+            "Payload centre of gravity z in the flange frame",
+        ),
     ]
 };
+
+/// What every torque output is.
+const TORQUE_DESCRIPTION: &str = "Joint torque of the inverse dynamics (rigid body, payload, \
+     reflected rotor inertia; gravity 9.82 m/s2 along the base's -z; no friction), as the UR \
+     controller's target_moment in a program";
 
 /// The FMU's log categories (`LogCategories` in the model description, `fmi2SetDebugLogging`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -429,8 +536,22 @@ mod tests {
         assert_eq!(names[..6], ["q1", "q2", "q3", "q4", "q5", "q6"]);
         assert_eq!(names[6..16], PoseFields::NAMES);
         assert_eq!(
-            names[16..],
+            names[16..22],
             ["tcp_x", "tcp_y", "tcp_z", "tcp_rx", "tcp_ry", "tcp_rz"]
+        );
+        assert_eq!(names[22..28], ["qd1", "qd2", "qd3", "qd4", "qd5", "qd6"]);
+        assert_eq!(
+            names[34..40],
+            ["tau1", "tau2", "tau3", "tau4", "tau5", "tau6"]
+        );
+        assert_eq!(
+            names[40..],
+            [
+                "payload_mass",
+                "payload_cog_x",
+                "payload_cog_y",
+                "payload_cog_z"
+            ]
         );
     }
 

@@ -10,8 +10,10 @@
 
 use std::fmt;
 
+use armtwin_core::dynamics::{ArmDynamics, Payload};
 use armtwin_core::fmi::{
-    FmuSettingsError, JOINT_COUNT, LogCategory, OUTPUT_COUNT, TOOL_COUNT, VARIABLES, Variable,
+    FmuSettingsError, JOINT_COUNT, LogCategory, OUTPUT_COUNT, PAYLOAD_COUNT, TOOL_COUNT, VARIABLES,
+    Variable,
 };
 use armtwin_core::kinematics::{KinematicsError, TcpOffset};
 use armtwin_core::model::RobotModel;
@@ -116,13 +118,22 @@ pub enum CallError {
         /// What is wrong with which joint.
         source: KinematicsError,
     },
-    /// A tool parameter is not finite.
+    /// A tool parameter, joint velocity or acceleration is not finite, or a payload parameter
+    /// is out of range.
     #[error("{function}: '{name}' = {value} is not a finite number")]
     Tool {
         /// The FMI function.
         function: &'static str,
         /// The parameter's name.
         name: &'static str,
+        /// The value given.
+        value: f64,
+    },
+    /// The payload mass is negative.
+    #[error("{function}: 'payload_mass' = {value} is negative")]
+    PayloadMass {
+        /// The FMI function.
+        function: &'static str,
         /// The value given.
         value: f64,
     },
@@ -281,6 +292,15 @@ pub struct Instance {
     model: RobotModel,
     /// `PoseFields` values of the current inputs and tool.
     outputs: [f64; OUTPUT_COUNT],
+    qd_rad_s: [f64; JOINT_COUNT],
+    qdd_rad_s2: [f64; JOINT_COUNT],
+    /// `[mass, cog x, cog y, cog z]`.
+    payload: [f64; PAYLOAD_COUNT],
+    /// The arm's dynamics with the current payload; `None` for an arm without inertial
+    /// parameters (its torques are NaN).
+    dynamics: Option<ArmDynamics<JOINT_COUNT>>,
+    /// Joint torques of the current inputs.
+    torques_nm: [f64; JOINT_COUNT],
 }
 
 /// Does what `fmi2Instantiate` does once its pointers are read: checks type and GUID, loads the
@@ -325,13 +345,24 @@ impl Instance {
             time_s: 0.0,
             q_rad: [0.0; JOINT_COUNT],
             tool: robot.settings.tool.to_ur_pose(),
+            dynamics: ArmDynamics::from_arm(model.arm()).ok(),
             model,
             outputs: [0.0; OUTPUT_COUNT],
+            qd_rad_s: [0.0; JOINT_COUNT],
+            qdd_rad_s2: [0.0; JOINT_COUNT],
+            payload: [0.0; PAYLOAD_COUNT],
+            torques_nm: [0.0; JOINT_COUNT],
             robot,
         };
         // Zero is inside every joint's limits.
         instance.outputs =
             pose_outputs(&instance.model, &instance.q_rad).unwrap_or([f64::NAN; OUTPUT_COUNT]);
+        instance.torques_nm = torques(
+            instance.dynamics.as_ref(),
+            &instance.q_rad,
+            &instance.qd_rad_s,
+            &instance.qdd_rad_s2,
+        );
         instance
     }
 
@@ -496,6 +527,10 @@ impl Instance {
                     Some(Variable::Joint(index)) => this.q_rad[index],
                     Some(Variable::Output(index)) => this.outputs[index],
                     Some(Variable::Tool(index)) => this.tool[index],
+                    Some(Variable::Velocity(index)) => this.qd_rad_s[index],
+                    Some(Variable::Acceleration(index)) => this.qdd_rad_s2[index],
+                    Some(Variable::Torque(index)) => this.torques_nm[index],
+                    Some(Variable::Payload(index)) => this.payload[index],
                     None => return Err(unknown(FUNCTION, "Real", vr)),
                 };
             }
@@ -503,17 +538,52 @@ impl Instance {
         })
     }
 
-    /// `fmi2SetReal`: joint angles (finite, within the joint limits) and tool parameters (finite).
-    /// All or nothing: on error no value changes. The outputs follow at once.
+    /// `fmi2SetReal`: joint angles (finite, within the joint limits), velocities, accelerations
+    /// and tool parameters (finite), payload parameters (finite, the mass at least 0). All or
+    /// nothing: on error no value changes. The outputs follow at once.
     pub fn set_real(&mut self, value_references: &[u32], values: &[f64]) -> Result<(), CallError> {
         const FUNCTION: &str = "fmi2SetReal";
         self.call(FUNCTION, SETTABLE, |this| {
             let mut q_rad = this.q_rad;
             let mut tool = this.tool;
             let mut tool_set = false;
+            let mut qd_rad_s = this.qd_rad_s;
+            let mut qdd_rad_s2 = this.qdd_rad_s2;
+            let mut payload = this.payload;
+            let mut payload_set = false;
+            let not_finite = |vr: u32, value: f64| CallError::Tool {
+                function: FUNCTION,
+                name: VARIABLES[vr as usize].name,
+                value,
+            };
             for (&vr, &value) in value_references.iter().zip(values) {
                 match Variable::from_value_reference(vr) {
                     Some(Variable::Joint(index)) => q_rad[index] = value,
+                    Some(
+                        variable @ (Variable::Velocity(index) | Variable::Acceleration(index)),
+                    ) => {
+                        if !value.is_finite() {
+                            return Err(not_finite(vr, value));
+                        }
+                        if matches!(variable, Variable::Velocity(_)) {
+                            qd_rad_s[index] = value;
+                        } else {
+                            qdd_rad_s2[index] = value;
+                        }
+                    }
+                    Some(Variable::Payload(index)) => {
+                        if !value.is_finite() {
+                            return Err(not_finite(vr, value));
+                        }
+                        if index == 0 && value < 0.0 {
+                            return Err(CallError::PayloadMass {
+                                function: FUNCTION,
+                                value,
+                            });
+                        }
+                        payload[index] = value;
+                        payload_set = true;
+                    }
                     Some(Variable::Tool(index)) => {
                         if !value.is_finite() {
                             return Err(CallError::Tool {
@@ -525,7 +595,7 @@ impl Instance {
                         tool[index] = value;
                         tool_set = true;
                     }
-                    Some(Variable::Output(_)) => {
+                    Some(Variable::Output(_) | Variable::Torque(_)) => {
                         return Err(CallError::Output {
                             function: FUNCTION,
                             name: VARIABLES[vr as usize].name,
@@ -546,9 +616,20 @@ impl Instance {
             if let Some(model) = model {
                 this.model = model;
             }
+            if payload_set {
+                let [mass_kg, x, y, z] = payload;
+                // Checked above: a finite mass of at least 0 and a finite centre of gravity.
+                this.dynamics = ArmDynamics::from_arm(this.model.arm())
+                    .and_then(|d| d.with_payload(Payload::point_mass(mass_kg, [x, y, z])))
+                    .ok();
+                this.payload = payload;
+            }
             this.q_rad = q_rad;
             this.tool = tool;
             this.outputs = outputs;
+            this.qd_rad_s = qd_rad_s;
+            this.qdd_rad_s2 = qdd_rad_s2;
+            this.torques_nm = torques(this.dynamics.as_ref(), &q_rad, &qd_rad_s, &qdd_rad_s2);
             Ok(())
         })
     }
@@ -647,6 +728,18 @@ fn unknown(function: &'static str, type_name: &'static str, value_reference: u32
         type_name,
         value_reference,
     }
+}
+
+/// The joint torques of the inverse dynamics (NaN without dynamics).
+fn torques(
+    dynamics: Option<&ArmDynamics<JOINT_COUNT>>,
+    q_rad: &[f64; JOINT_COUNT],
+    qd_rad_s: &[f64; JOINT_COUNT],
+    qdd_rad_s2: &[f64; JOINT_COUNT],
+) -> [f64; JOINT_COUNT] {
+    dynamics.map_or([f64::NAN; JOINT_COUNT], |dynamics| {
+        dynamics.inverse_dynamics_nm(q_rad, qd_rad_s, qdd_rad_s2)
+    })
 }
 
 /// The outputs, in `PoseFields` order, for joint angles `q_rad`: the same readout as `armtwin fk`.
@@ -778,19 +871,55 @@ mod tests {
     }
 
     #[test]
+    fn torques_are_the_cores_inverse_dynamics_with_the_payload() {
+        let mut instance = initialized();
+        let q = [0.3, -1.2, 1.1, -0.4, 1.5, 0.2];
+        let qd = [0.5, -0.3, 0.8, 1.0, -0.6, 0.4];
+        let qdd = [1.0, 2.0, -1.5, 0.5, 3.0, -2.0];
+        let payload = [3.5, 0.01, -0.02, 0.09];
+        let vrs: Vec<u32> = (0..6).chain(22..34).chain(40..44).collect();
+        instance
+            .set_real(&vrs, &[&q[..], &qd, &qdd, &payload].concat())
+            .expect("inputs and payload");
+        let arm = robot([0.0; 6]).model.arm().clone();
+        let expected = ArmDynamics::<JOINT_COUNT>::from_arm(&arm)
+            .and_then(|d| d.with_payload(Payload::point_mass(3.5, [0.01, -0.02, 0.09])))
+            .expect("dynamics")
+            .inverse_dynamics_nm(&q, &qd, &qdd);
+        let torque_vrs: Vec<u32> = (34..40).collect();
+        assert_eq!(get(&mut instance, &torque_vrs), expected);
+        assert_eq!(get(&mut instance, &[40, 41, 42, 43]), payload);
+    }
+
+    #[test]
     fn bad_sets_change_nothing_and_say_why() {
         let mut instance = initialized();
-        let before = get(&mut instance, &[0, 6, 16]);
-        let cases: [(&[u32], &[f64], &str); 5] = [
+        let before = get(&mut instance, &[0, 6, 16, 23, 34, 40]);
+        let cases: [(&[u32], &[f64], &str); 8] = [
             (
                 &[0, 6],
                 &[0.5, 1.0],
                 "fmi2SetReal: 'x' (value reference 6) is an output and cannot be set",
             ),
             (
-                &[0, 22],
+                &[0, 44],
                 &[0.5, 1.0],
-                "fmi2SetReal: no Real variable has value reference 22",
+                "fmi2SetReal: no Real variable has value reference 44",
+            ),
+            (
+                &[0, 34],
+                &[0.5, 1.0],
+                "fmi2SetReal: 'tau1' (value reference 34) is an output and cannot be set",
+            ),
+            (
+                &[0, 23],
+                &[0.5, f64::NAN],
+                "fmi2SetReal: 'qd2' = NaN is not a finite number",
+            ),
+            (
+                &[0, 40],
+                &[0.5, -1.0],
+                "fmi2SetReal: 'payload_mass' = -1 is negative",
             ),
             (
                 &[0, 1],
@@ -814,7 +943,11 @@ mod tests {
             let error = instance.set_real(vrs, values).expect_err(message);
             assert!(error.to_string().starts_with(message), "{error}");
             assert_eq!(instance.state(), State::Error);
-            assert_eq!(get(&mut instance, &[0, 6, 16]), before, "{message}");
+            assert_eq!(
+                get(&mut instance, &[0, 6, 16, 23, 34, 40]),
+                before,
+                "{message}"
+            );
         }
     }
 

@@ -15,7 +15,8 @@ use uuid::Uuid;
 use zip::write::SimpleFileOptions;
 
 use crate::fmi::{
-    FmuSettings, FmuSettingsError, LogCategory, RESOURCE_FILE, ScalarVariable, VARIABLES, Variable,
+    FmuSettings, FmuSettingsError, LogCategory, RESOURCE_FILE, ScalarVariable, Unit, VARIABLES,
+    Variable,
 };
 
 /// Namespace of armtwin's name-based (v5) FMU GUIDs.
@@ -224,8 +225,9 @@ pub fn model_description(model_identifier: &str, settings: &FmuSettings) -> Stri
         |file| format!("calibration {file}"),
     );
     let description = format!(
-        "{} forward kinematics (armtwin): joint angles q1..q6 in, TCP pose out; {calibration}, \
-         frame {}",
+        "{} forward kinematics and inverse dynamics (armtwin): joint angles q1..q6 in, TCP pose \
+         out; with velocities qd1..qd6 and accelerations qdd1..qdd6 in, joint torques tau1..tau6 \
+         out (payload_* parameters); {calibration}, frame {}",
         settings.model,
         settings.frame.as_str()
     );
@@ -256,19 +258,25 @@ pub fn model_description(model_identifier: &str, settings: &FmuSettings) -> Stri
     canSerializeFMUstate="false"
     providesDirectionalDerivative="false"/>
   <UnitDefinitions>
-    <Unit name="m">
-      <BaseUnit m="1"/>
-    </Unit>
-    <Unit name="rad">
-      <BaseUnit rad="1"/>
-    </Unit>
-  </UnitDefinitions>
-  <LogCategories>
 "#,
         guid = xml_escape(&settings.guid),
         description = xml_escape(&description),
         version = env!("CARGO_PKG_VERSION"),
     );
+    for unit in Unit::ALL {
+        let exponents: Vec<String> = unit
+            .base_units()
+            .iter()
+            .map(|(base, exponent)| format!(r#"{base}="{exponent}""#))
+            .collect();
+        let _ = write!(
+            xml,
+            "    <Unit name=\"{}\">\n      <BaseUnit {}/>\n    </Unit>\n",
+            unit.as_str(),
+            exponents.join(" ")
+        );
+    }
+    xml.push_str("  </UnitDefinitions>\n  <LogCategories>\n");
     for category in LogCategory::ALL {
         let _ = writeln!(
             xml,
@@ -283,6 +291,14 @@ pub fn model_description(model_identifier: &str, settings: &FmuSettings) -> Stri
         let _ = write!(xml, "{}", scalar_variable_xml(variable, &tool));
     }
     xml.push_str("  </ModelVariables>\n  <ModelStructure>\n");
+    xml.push_str(&model_structure_xml());
+    xml.push_str("  </ModelStructure>\n</fmiModelDescription>\n");
+    xml
+}
+
+/// The `<ModelStructure>` body: each output's dependencies by 1-based variable index.
+fn model_structure_xml() -> String {
+    let mut xml = String::new();
     let index = |v: &ScalarVariable| v.variable.value_reference() + 1;
     let indices = |keep: fn(Variable) -> bool| {
         VARIABLES
@@ -294,12 +310,34 @@ pub fn model_description(model_identifier: &str, settings: &FmuSettings) -> Stri
     };
     let joints = indices(|v| matches!(v, Variable::Joint(_)));
     let joints_and_tool = indices(|v| matches!(v, Variable::Joint(_) | Variable::Tool(_)));
-    for (section, dependencies) in [("Outputs", &joints), ("InitialUnknowns", &joints_and_tool)] {
+    let state = indices(|v| {
+        matches!(
+            v,
+            Variable::Joint(_) | Variable::Velocity(_) | Variable::Acceleration(_)
+        )
+    });
+    let state_and_payload = indices(|v| {
+        matches!(
+            v,
+            Variable::Joint(_)
+                | Variable::Velocity(_)
+                | Variable::Acceleration(_)
+                | Variable::Payload(_)
+        )
+    });
+    // The pose depends on the angles (and initially the tool), the torques on the joint state
+    // (and initially the payload).
+    for (section, pose, torque) in [
+        ("Outputs", &joints, &state),
+        ("InitialUnknowns", &joints_and_tool, &state_and_payload),
+    ] {
         let _ = writeln!(xml, "    <{section}>");
-        for output in VARIABLES
-            .iter()
-            .filter(|v| matches!(v.variable, Variable::Output(_)))
-        {
+        for output in &VARIABLES {
+            let dependencies = match output.variable {
+                Variable::Output(_) => pose,
+                Variable::Torque(_) => torque,
+                _ => continue,
+            };
             let _ = writeln!(
                 xml,
                 r#"      <Unknown index="{}" dependencies="{dependencies}"/>"#,
@@ -308,21 +346,26 @@ pub fn model_description(model_identifier: &str, settings: &FmuSettings) -> Stri
         }
         let _ = writeln!(xml, "    </{section}>");
     }
-    xml.push_str("  </ModelStructure>\n</fmiModelDescription>\n");
     xml
 }
 
 /// One `<ScalarVariable>`; `tool` gives the tool parameters' start values.
 fn scalar_variable_xml(variable: &ScalarVariable, tool: &[f64; 6]) -> String {
     let (attributes, start) = match variable.variable {
-        Variable::Joint(_) => (r#"causality="input" variability="continuous""#, Some(0.0)),
-        Variable::Output(_) => (
+        Variable::Joint(_) | Variable::Velocity(_) | Variable::Acceleration(_) => {
+            (r#"causality="input" variability="continuous""#, Some(0.0))
+        }
+        Variable::Output(_) | Variable::Torque(_) => (
             r#"causality="output" variability="continuous" initial="calculated""#,
             None,
         ),
         Variable::Tool(index) => (
             r#"causality="parameter" variability="tunable" initial="exact""#,
             Some(tool[index]),
+        ),
+        Variable::Payload(_) => (
+            r#"causality="parameter" variability="tunable" initial="exact""#,
+            Some(0.0),
         ),
     };
     let unit = variable
@@ -444,7 +487,8 @@ mod tests {
                 &rest[..rest.find('"').expect("closing quote")]
             })
             .collect();
-        assert_eq!(positions.len(), 22);
+        assert_eq!(positions.len(), 44);
+        assert_eq!(positions[34], "tau1");
         assert_eq!(positions[6], "x");
         // The first output, x, is the 7th ScalarVariable.
         assert!(xml.contains(r#"<Unknown index="7" dependencies="1 2 3 4 5 6"/>"#));
@@ -452,6 +496,13 @@ mod tests {
             xml.contains(r#"<Unknown index="16" dependencies="1 2 3 4 5 6 17 18 19 20 21 22"/>"#)
         );
         assert!(!xml.contains(r#"index="17""#));
+        // tau1, the 35th: on q, qd and qdd; initially also on the payload.
+        let state: Vec<String> = (1..=6).chain(23..=34).map(|i| i.to_string()).collect();
+        let state = state.join(" ");
+        assert!(xml.contains(&format!(r#"<Unknown index="35" dependencies="{state}"/>"#)));
+        assert!(xml.contains(&format!(
+            r#"<Unknown index="40" dependencies="{state} 41 42 43 44"/>"#
+        )));
     }
 
     #[test]

@@ -343,6 +343,12 @@ def validate_dynamics(tmp_path, text, *extra):
     report = json.loads((out / "report.json").read_text())
     rows = (out / "dynamics.csv").read_text().splitlines()
     assert "## Dynamics" in (out / "report.md").read_text()
+    # The plots: model and reference torque per joint, and their difference.
+    torques = (out / "dynamics_torques.svg").read_text()
+    residual = (out / "dynamics_residual.svg").read_text()
+    for joint in range(1, 7):
+        assert f'data-name="model {joint}"' in torques and f'data-name="measured {joint}"' in torques
+        assert f'data-name="joint {joint}"' in residual
     return report["dynamics"], rows, res.stderr
 
 

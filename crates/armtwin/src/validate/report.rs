@@ -592,6 +592,97 @@ pub fn plots(validation: &Validation) -> Vec<(&'static str, String)> {
     ]
 }
 
+/// The dynamics plots (`--dynamics`): file name and SVG text.
+pub const DYNAMICS_PLOT_FILES: [&str; 2] = ["dynamics_torques.svg", "dynamics_residual.svg"];
+
+/// The dynamics plots: the model's torques (dashed) against the currents' (or, without currents,
+/// the recorded `target_moment`), and their difference, per joint over the recording's time.
+#[must_use]
+pub fn dynamics_plots(dynamics: &DynamicsValidation) -> Vec<(&'static str, String)> {
+    const MODEL: [&str; 6] = [
+        "model 1", "model 2", "model 3", "model 4", "model 5", "model 6",
+    ];
+    const MEASURED: [&str; 6] = [
+        "measured 1",
+        "measured 2",
+        "measured 3",
+        "measured 4",
+        "measured 5",
+        "measured 6",
+    ];
+    const JOINT: [&str; 6] = [
+        "joint 1", "joint 2", "joint 3", "joint 4", "joint 5", "joint 6",
+    ];
+    let rows = &dynamics.rows;
+    let from_currents = rows.iter().any(|row| row.tau_measured_nm.is_some());
+    let reference = |row: &super::dynamics::DynamicsRow| {
+        if from_currents {
+            row.tau_measured_nm
+        } else {
+            row.target_moment_nm
+        }
+    };
+    let t0 = rows.iter().find_map(|row| row.t_s).unwrap_or(0.0);
+    // Rows without a timestamp are placed by their line.
+    let t = |row: &super::dynamics::DynamicsRow| {
+        #[allow(clippy::cast_precision_loss, reason = "a line number")]
+        row.t_s.map_or(row.line as f64, |t| t - t0)
+    };
+    let mut torques = Vec::new();
+    let mut residuals = Vec::new();
+    for joint in 0..6 {
+        torques.push(Series {
+            name: MEASURED[joint],
+            points: rows
+                .iter()
+                .filter_map(|row| Some((t(row), reference(row)?[joint])))
+                .collect(),
+            dashed: false,
+        });
+        torques.push(Series {
+            name: MODEL[joint],
+            points: rows
+                .iter()
+                .map(|row| (t(row), row.tau_model_nm[joint]))
+                .collect(),
+            dashed: true,
+        });
+        residuals.push(Series {
+            name: JOINT[joint],
+            points: rows
+                .iter()
+                .filter_map(|row| Some((t(row), reference(row)?[joint] - row.tau_model_nm[joint])))
+                .collect(),
+            dashed: false,
+        });
+    }
+    let reference_name = if from_currents {
+        "currents × torque factors"
+    } else {
+        "target_moment"
+    };
+    vec![
+        (
+            DYNAMICS_PLOT_FILES[0],
+            svg::line_chart(
+                &format!("Joint torques: model (dashed) vs {reference_name}"),
+                "time since the first row (s)",
+                "torque (N·m)",
+                &torques,
+            ),
+        ),
+        (
+            DYNAMICS_PLOT_FILES[1],
+            svg::line_chart(
+                &format!("Joint torque residual: {reference_name} − model"),
+                "time since the first row (s)",
+                "residual (N·m)",
+                &residuals,
+            ),
+        ),
+    ]
+}
+
 /// `report.md`: the UR10e FMU report's table and a short reading of it.
 #[must_use]
 pub fn report_md(validation: &Validation, report: &ReportJson) -> String {
@@ -854,6 +945,11 @@ pub fn write_all(
         let mut csv = Vec::new();
         write_dynamics_csv(dynamics, &mut csv)?;
         files.push(("dynamics.csv", csv));
+        files.extend(
+            dynamics_plots(dynamics)
+                .into_iter()
+                .map(|(name, text)| (name, text.into_bytes())),
+        );
     }
     files.extend(
         plots(validation)

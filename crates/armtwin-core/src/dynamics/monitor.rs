@@ -32,6 +32,9 @@ const ARMING_TIME_CONSTANTS: f64 = 5.0;
 const MOVING_RAD_S: f64 = 0.05;
 /// Moving samples (weighted by forgetting) a joint's friction fit needs before it is used.
 const MIN_FRICTION_WEIGHT: f64 = 200.0;
+/// Moving samples (weighted) a joint's friction fit needs before it becomes a temperature bin's
+/// baseline: a wear reference must not be a first rough fit.
+const MIN_BASELINE_WEIGHT: f64 = 2000.0;
 /// Temperature bins (°C) of the friction baselines: `[0, 5)`, `[5, 10)`, … `[95, 100)`, and one
 /// for samples with no temperature.
 const TEMPERATURE_BIN_C: f64 = 5.0;
@@ -846,6 +849,9 @@ impl EffortMonitor {
     /// Keeps, per joint, the first friction fitted in each temperature bin.
     fn update_baselines(&mut self) {
         for k in 0..J {
+            if self.friction[k].weight < MIN_BASELINE_WEIGHT {
+                continue;
+            }
             let Some((coulomb, _)) = self.friction[k].estimate() else {
                 continue;
             };
@@ -1132,6 +1138,60 @@ mod tests {
         assert_eq!(payload.in_use, (applied, PayloadSource::Applied));
         monitor.discard_applied();
         assert_eq!(monitor.summary().payload.in_use.1, PayloadSource::Config);
+    }
+
+    #[test]
+    fn friction_growing_at_one_temperature_shows_as_drift() {
+        let arm = catalog::arm("ur10e").expect("catalog arm");
+        let config = EffortConfig {
+            friction_window_s: 10.0,
+            ..EffortConfig::default()
+        };
+        let mut monitor = EffortMonitor::new(&arm, &config, 10.0).expect("monitor");
+        let rigid = ArmDynamics::<J>::from_arm(&arm).expect("dynamics");
+        let omega = [1.1, 0.7, 0.9, 1.3, 1.7, 2.1];
+        let seconds = 120.0;
+        let mut drift_at = Vec::new();
+        #[allow(
+            clippy::cast_possible_truncation,
+            clippy::cast_sign_loss,
+            reason = "a test's sample count"
+        )]
+        for i in 0..(seconds / DT_S) as usize {
+            #[allow(clippy::cast_precision_loss, reason = "a test's sample index")]
+            let t = i as f64 * DT_S;
+            // Joint 2's Coulomb friction wears from 6 to 7.5 N·m at a steady 35 °C.
+            let coulomb_2 = 6.0 + 1.5 * t / seconds;
+            let q: [f64; J] = std::array::from_fn(|k| -0.8 + 0.6 * (omega[k] * t).sin());
+            let qd: [f64; J] = std::array::from_fn(|k| 0.6 * omega[k] * (omega[k] * t).cos());
+            let qdd: [f64; J] =
+                std::array::from_fn(|k| -0.6 * omega[k] * omega[k] * (omega[k] * t).sin());
+            let mut tau = rigid.inverse_dynamics_nm(&q, &qd, &qdd);
+            for k in 0..J {
+                let coulomb = if k == 1 { coulomb_2 } else { COULOMB_NM[k] };
+                tau[k] += coulomb * sign(qd[k]) + VISCOUS_NM_S_RAD[k] * qd[k];
+            }
+            let mut state = JointState::new(J);
+            state.set(JointQuantity::Velocity, &qd);
+            state.set(JointQuantity::TargetPosition, &q);
+            state.set(JointQuantity::TargetVelocity, &qd);
+            state.set(JointQuantity::TargetAcceleration, &qdd);
+            state.set(JointQuantity::Torque, &tau);
+            state.set(JointQuantity::Temperature, &[35.0; J]);
+            monitor.step(t, &q, &state, |_| {});
+            if i % 5000 == 4999 {
+                drift_at.push(monitor.summary().friction[1].and_then(|f| f.drift_nm));
+            }
+        }
+        let last = monitor.summary().friction;
+        let joint_2 = last[1].expect("fitted");
+        // The fit lags the wear by about its window: 1.5 N·m over 120 s, 10 s behind.
+        assert!((joint_2.coulomb_nm - 7.5).abs() < 0.2, "{joint_2:?}");
+        let drift = joint_2.drift_nm.expect("a baseline at 35 °C");
+        assert!((1.1..1.6).contains(&drift), "{drift} N·m; {drift_at:?}");
+        // Joints that do not wear do not drift.
+        let steady = last[0].and_then(|f| f.drift_nm).expect("joint 1");
+        assert!(steady.abs() < 0.1, "{steady}");
     }
 
     #[test]

@@ -9,8 +9,10 @@
 )]
 use std::hint::black_box;
 
+use armtwin_core::dynamics::monitor::{EffortConfig, EffortMonitor};
 use armtwin_core::dynamics::{ArmDynamics, JointFriction, Payload};
 use armtwin_core::model::{RobotModel, catalog};
+use armtwin_core::sample::{JointQuantity, JointState};
 use criterion::{Criterion, criterion_group, criterion_main};
 
 const Q_RAD: [f64; 6] = [0.31, -1.22, 1.43, -0.87, 1.52, 0.64];
@@ -57,6 +59,31 @@ fn dynamics(c: &mut Criterion) {
     });
     c.bench_function("momentum/ur10e", |b| {
         b.iter(|| ur10e.momentum(black_box(&Q_RAD), black_box(&QD_RAD_S)));
+    });
+    // One live effort step: model, measured from currents, friction fit, residual statistics,
+    // payload identification's forgetting and the momentum observer, as the service runs it per
+    // joint sample of a robot with `effort = true` (a moving sample: no rest-time estimate).
+    let arm = catalog::arm("ur10e").expect("catalog model");
+    let mut monitor =
+        EffortMonitor::new(&arm, &EffortConfig::default(), 10.0).expect("a UR10e monitor");
+    let mut state = JointState::new(6);
+    state.set(JointQuantity::Velocity, &QD_RAD_S);
+    state.set(JointQuantity::TargetPosition, &Q_RAD);
+    state.set(JointQuantity::TargetVelocity, &QD_RAD_S);
+    state.set(JointQuantity::TargetAcceleration, &QDD_RAD_S2);
+    state.set(JointQuantity::Current, &[0.5, -2.1, 1.3, 0.2, -0.1, 0.05]);
+    state.set(JointQuantity::Temperature, &[35.0; 6]);
+    let mut stamp_s = 0.0;
+    c.bench_function("effort_step/ur10e", |b| {
+        b.iter(|| {
+            stamp_s += 0.002;
+            monitor.step(
+                black_box(stamp_s),
+                black_box(&Q_RAD),
+                black_box(&state),
+                |_| {},
+            )
+        });
     });
     let model = RobotModel::nominal("ur10e").expect("catalog model");
     c.bench_function("baseline/fk_pose_only_ur10e", |b| {

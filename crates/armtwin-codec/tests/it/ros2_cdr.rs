@@ -296,6 +296,10 @@ proptest! {
         let stamp = (sec != 0 || nanosec != 0)
             .then(|| f64::from(sec) + f64::from(nanosec) * 1e-9);
         prop_assert_eq!(sample.stamp_s, stamp);
+        // Bytes after a complete message (rclpy's serializer may leave some) change nothing.
+        let mut longer = bytes.clone();
+        longer.extend_from_slice(&[0xA5; 11]);
+        prop_assert_eq!(cdr::decode_joint_state(&longer, &names).expect("valid"), sample.clone());
         // Any cut short of the velocity arrays is refused, never read past.
         let cut = bytes.len() - 8 - 8 * message.effort.len() - 8 * message.velocity.len() - 1;
         for end in [4, 9, cut / 2, cut] {

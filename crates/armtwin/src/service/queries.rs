@@ -80,6 +80,18 @@ impl Queries {
         }
     }
 
+    /// A change query's action: its `action` parameter, else its payload as text.
+    fn action_of(query: &Query) -> String {
+        let payload = query
+            .payload()
+            .map(|p| p.to_bytes().into_owned())
+            .unwrap_or_default();
+        query.parameters().get("action").map_or_else(
+            || String::from_utf8_lossy(&payload).trim().to_owned(),
+            str::to_owned,
+        )
+    }
+
     fn reply_err(query: &Query, message: &str) {
         let body = serde_json::json!({ "error": message }).to_string();
         if let Err(e) = query
@@ -262,14 +274,7 @@ impl Queries {
             }
             return;
         };
-        let payload = query
-            .payload()
-            .map(|p| p.to_bytes().into_owned())
-            .unwrap_or_default();
-        let action = query.parameters().get("action").map_or_else(
-            || String::from_utf8_lossy(&payload).trim().to_owned(),
-            str::to_owned,
-        );
+        let action = Self::action_of(query);
         if stream == Stream::Calibrate && matches!(action.as_str(), "apply" | "discard") {
             Self::reply_err(
                 query,
@@ -338,14 +343,7 @@ impl Queries {
             Self::reply_err(query, "ask one robot: <prefix>/admin/payload/<robot id>");
             return;
         };
-        let payload = query
-            .payload()
-            .map(|p| p.to_bytes().into_owned())
-            .unwrap_or_default();
-        let action = query.parameters().get("action").map_or_else(
-            || String::from_utf8_lossy(&payload).trim().to_owned(),
-            str::to_owned,
-        );
+        let action = Self::action_of(query);
         let Some(robot) = self.fleet.find(id) else {
             Self::reply_err(query, &format!("robot '{id}' is not tracked"));
             return;

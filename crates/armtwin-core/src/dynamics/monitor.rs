@@ -15,7 +15,7 @@
 //! with time constant `1/K`; the readout gives `−r`, in the residual's sign.
 
 use super::payload::{AT_REST_RAD_S, AT_REST_RAD_S2, PayloadEstimate, PayloadIdentifier};
-use super::{ArmDynamics, ControllerMode, DynamicsError, Payload, ur};
+use super::{ArmDynamics, ControllerMode, DynamicsError, JointFriction, Payload, ur};
 use crate::model::ArmDescription;
 use crate::sample::{self, JointQuantity, JointState};
 
@@ -299,8 +299,8 @@ impl FrictionFit {
         self.weight += 1.0;
     }
 
-    /// `(coulomb, viscous)`, once enough motion in both directions and at several speeds is in.
-    fn estimate(&self) -> Option<(f64, f64)> {
+    /// The fitted friction, once enough motion in both directions and at several speeds is in.
+    fn estimate(&self) -> Option<JointFriction> {
         if self.weight < MIN_FRICTION_WEIGHT {
             return None;
         }
@@ -308,9 +308,10 @@ impl FrictionFit {
         if det <= 1e-9 * self.ss * self.vv {
             return None;
         }
-        let coulomb = (self.vv * self.sy - self.sv * self.vy) / det;
-        let viscous = (self.ss * self.vy - self.sv * self.sy) / det;
-        Some((coulomb, viscous))
+        Some(JointFriction {
+            coulomb_nm: (self.vv * self.sy - self.sv * self.vy) / det,
+            viscous_nm_s_rad: (self.ss * self.vy - self.sv * self.sy) / det,
+        })
     }
 }
 
@@ -387,7 +388,6 @@ struct Observer {
 #[derive(Debug, Clone)]
 pub struct EffortMonitor {
     config: EffortConfig,
-    model_name: String,
     arm_only: ArmDynamics<J>,
     loaded: ArmDynamics<J>,
     in_use: (Payload, PayloadSource),
@@ -401,6 +401,8 @@ pub struct EffortMonitor {
     rest_since_estimate: u32,
     estimate: Option<PayloadEstimate>,
     friction: [FrictionFit; J],
+    /// Each fit's estimate after the latest sample (what the residual and observer subtract).
+    fitted: [Option<JointFriction>; J],
     /// Per joint and temperature bin (the last: no temperature), the friction first fitted there.
     baselines: [[Option<f64>; TEMPERATURE_BINS + 1]; J],
     temperature_c: [Option<f64>; J],
@@ -455,7 +457,6 @@ impl EffortMonitor {
         let loaded = arm_only.clone().with_payload(in_use.0)?;
         Ok(Self {
             config: *config,
-            model_name: arm.name.clone(),
             arm_only,
             loaded,
             in_use,
@@ -469,6 +470,7 @@ impl EffortMonitor {
             rest_since_estimate: 0,
             estimate: None,
             friction: [FrictionFit::default(); J],
+            fitted: [None; J],
             baselines: [[None; TEMPERATURE_BINS + 1]; J],
             temperature_c: [None; J],
             cumulative: Block::default(),
@@ -479,12 +481,6 @@ impl EffortMonitor {
             collisions: 0,
             payload_mismatch: false,
         })
-    }
-
-    /// The arm's name.
-    #[must_use]
-    pub fn model_name(&self) -> &str {
-        &self.model_name
     }
 
     /// Steps the monitor with a joint sample: `q_rad` the actual joint angles, `state` what came
@@ -551,11 +547,7 @@ impl EffortMonitor {
             );
         }
         let friction_nm: [f64; J] = std::array::from_fn(|k| {
-            self.friction[k]
-                .estimate()
-                .map_or(0.0, |(coulomb, viscous)| {
-                    coulomb * sign(qd[k]) + viscous * qd[k]
-                })
+            self.fitted[k].map_or(0.0, |friction| friction.torque_nm(qd[k]))
         });
         let residual_nm = measured_nm
             .map(|measured| std::array::from_fn(|k| measured[k] - model_nm[k] - friction_nm[k]));
@@ -719,6 +711,7 @@ impl EffortMonitor {
             if program && qd[k].abs() > MOVING_RAD_S {
                 fit.add(qd[k], measured_nm[k] - model_nm[k]);
             }
+            self.fitted[k] = fit.estimate();
         }
         self.update_baselines();
     }
@@ -857,7 +850,11 @@ impl EffortMonitor {
             if self.friction[k].weight < MIN_BASELINE_WEIGHT {
                 continue;
             }
-            let Some((coulomb, _)) = self.friction[k].estimate() else {
+            let Some(JointFriction {
+                coulomb_nm: coulomb,
+                ..
+            }) = self.fitted[k]
+            else {
                 continue;
             };
             let bin = temperature_bin(self.temperature_c[k]);
@@ -881,7 +878,10 @@ impl EffortMonitor {
             }
         }
         let friction = std::array::from_fn(|k| {
-            let (coulomb_nm, viscous_nm_s_rad) = self.friction[k].estimate()?;
+            let JointFriction {
+                coulomb_nm,
+                viscous_nm_s_rad,
+            } = self.fitted[k]?;
             let temperature_c = self.temperature_c[k];
             let baseline_coulomb_nm = self.baselines[k][temperature_bin(temperature_c)];
             Some(FrictionReadout {
@@ -932,16 +932,6 @@ fn joint_values(state: &JointState, quantity: JointQuantity) -> Option<[f64; J]>
         .and_then(|values| values.try_into().ok())
 }
 
-fn sign(value: f64) -> f64 {
-    if value > 0.0 {
-        1.0
-    } else if value < 0.0 {
-        -1.0
-    } else {
-        0.0
-    }
-}
-
 #[allow(
     clippy::cast_possible_truncation,
     clippy::cast_sign_loss,
@@ -961,7 +951,6 @@ fn temperature_bin(temperature_c: Option<f64>) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dynamics::JointFriction;
     use crate::model::catalog;
     use crate::sample::ControllerStatus;
 
@@ -1173,8 +1162,11 @@ mod tests {
                 std::array::from_fn(|k| -0.6 * omega[k] * omega[k] * (omega[k] * t).sin());
             let mut tau = rigid.inverse_dynamics_nm(&q, &qd, &qdd);
             for k in 0..J {
-                let coulomb = if k == 1 { coulomb_2 } else { COULOMB_NM[k] };
-                tau[k] += coulomb * sign(qd[k]) + VISCOUS_NM_S_RAD[k] * qd[k];
+                let friction = JointFriction {
+                    coulomb_nm: if k == 1 { coulomb_2 } else { COULOMB_NM[k] },
+                    viscous_nm_s_rad: VISCOUS_NM_S_RAD[k],
+                };
+                tau[k] += friction.torque_nm(qd[k]);
             }
             let mut state = JointState::new(J);
             state.set(JointQuantity::Velocity, &qd);

@@ -174,8 +174,6 @@ pub struct RobotState<'a> {
     pub metrics: MetricsSnapshot,
     /// Which alarms are active.
     pub alarms_active: Alarms,
-    /// Its effort, when watched.
-    pub effort: Option<EffortSummary>,
 }
 
 /// The multi-robot twin core: one twin per robot that has had input, by [`RobotIndex`].

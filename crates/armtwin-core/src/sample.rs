@@ -129,7 +129,7 @@ impl ControllerStatus {
     /// The teach button is held: the arm is in freedrive, moved by hand.
     #[must_use]
     pub fn freedrive(&self) -> bool {
-        self.status_bits & 4 != 0
+        self.status_bits & (1 << crate::dynamics::ControllerMode::TEACH_BUTTON_BIT) != 0
     }
 }
 

@@ -619,9 +619,11 @@ impl Instance {
             if payload_set {
                 let [mass_kg, x, y, z] = payload;
                 // Checked above: a finite mass of at least 0 and a finite centre of gravity.
-                this.dynamics = ArmDynamics::from_arm(this.model.arm())
-                    .and_then(|d| d.with_payload(Payload::point_mass(mass_kg, [x, y, z])))
-                    .ok();
+                // `with_payload` replaces the payload the dynamics carried.
+                this.dynamics = this
+                    .dynamics
+                    .take()
+                    .and_then(|d| d.with_payload(Payload::point_mass(mass_kg, [x, y, z])).ok());
                 this.payload = payload;
             }
             this.q_rad = q_rad;

@@ -15,14 +15,6 @@ use armtwin_core::dynamics::payload::PayloadEstimate;
 
 use super::to_json_bytes;
 
-/// The wire name of a controller mode.
-fn mode_name(mode: armtwin_core::dynamics::ControllerMode) -> &'static str {
-    match mode {
-        armtwin_core::dynamics::ControllerMode::Program => "program",
-        armtwin_core::dynamics::ControllerMode::Freedrive => "freedrive",
-    }
-}
-
 /// A joint sample's effort: `{robot, t, mode, state, model_nm, measured_nm, residual_nm,
 /// observer_nm}` (the last three `null` without a measured torque).
 #[must_use]
@@ -30,7 +22,7 @@ pub fn effort_readout_json(robot: &str, readout: &EffortReadout) -> Value {
     json!({
         "robot": robot,
         "t": readout.stamp_s,
-        "mode": mode_name(readout.mode),
+        "mode": readout.mode.as_str(),
         "state": readout.state_source.as_str(),
         "model_nm": readout.model_nm,
         "measured_nm": readout.measured_nm,

@@ -357,6 +357,19 @@ impl MetricsMessage {
     #[must_use]
     pub fn new(snapshot: &MetricsSnapshot) -> Self {
         Self {
+            effort: snapshot
+                .effort
+                .as_deref()
+                .map(|summary| super::effort_summary_json(&snapshot.robot, summary)),
+            ..Self::without_effort(snapshot)
+        }
+    }
+
+    /// The message of a pipeline snapshot, leaving out its effort (which the state answer shows
+    /// beside the metrics).
+    #[must_use]
+    pub fn without_effort(snapshot: &MetricsSnapshot) -> Self {
+        Self {
             robot: snapshot.robot.clone(),
             t: snapshot.stamp_s,
             paired: snapshot.paired,
@@ -368,10 +381,7 @@ impl MetricsMessage {
                 seconds: snapshot.window_s,
                 stats: StatsSetJson::from(&snapshot.window),
             },
-            effort: snapshot
-                .effort
-                .as_deref()
-                .map(|summary| super::effort_summary_json(&snapshot.robot, summary)),
+            effort: None,
         }
     }
 
@@ -488,13 +498,11 @@ impl StateMessage {
             twin: state.last_twin_pose.as_ref().map(stamped),
             measured: state.last_measured.as_ref().map(stamped),
             alarms: AlarmsJson { position, angle },
-            metrics: MetricsMessage {
-                effort: None,
-                ..MetricsMessage::new(&state.metrics)
-            },
+            metrics: MetricsMessage::without_effort(&state.metrics),
             effort: state
+                .metrics
                 .effort
-                .as_ref()
+                .as_deref()
                 .map(|summary| super::effort_summary_json(state.robot, summary)),
         }
     }

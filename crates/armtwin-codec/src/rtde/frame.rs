@@ -229,12 +229,6 @@ impl FrameSplitter {
     pub fn pending_bytes(&self) -> usize {
         self.buffer.len() - self.start
     }
-
-    /// Forgets everything held (a new connection).
-    pub fn clear(&mut self) {
-        self.buffer.clear();
-        self.start = 0;
-    }
 }
 
 #[cfg(test)]

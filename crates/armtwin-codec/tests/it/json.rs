@@ -896,7 +896,6 @@ fn state_message_fields() {
             angle: false,
         },
         last_state: None,
-        effort: None,
     };
     let json = parse(&to_json_bytes(&StateMessage::new(&state)));
     assert_eq!(

@@ -78,6 +78,15 @@ impl ControllerMode {
     /// The bit of RTDE `robot_status_bits` set while the teach button is pressed.
     pub const TEACH_BUTTON_BIT: u32 = 2;
 
+    /// The wire name: `program` or `freedrive`.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Program => "program",
+            Self::Freedrive => "freedrive",
+        }
+    }
+
     /// The mode RTDE's `robot_status_bits` report.
     #[must_use]
     pub fn from_robot_status_bits(bits: u32) -> Self {

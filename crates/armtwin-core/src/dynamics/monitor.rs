@@ -17,7 +17,7 @@
 use super::payload::{AT_REST_RAD_S, AT_REST_RAD_S2, PayloadEstimate, PayloadIdentifier};
 use super::{ArmDynamics, ControllerMode, DynamicsError, JointFriction, Payload, ur};
 use crate::model::ArmDescription;
-use crate::sample::{self, JointQuantity, JointState};
+use crate::sample::{JointQuantity, JointState};
 
 /// The joints an effort monitor handles (every arm whose dynamics the catalog publishes).
 pub const EFFORT_JOINTS: usize = 6;
@@ -270,8 +270,8 @@ pub enum EffortAlarm {
 /// A joint's friction fit `y = coulomb · sign(q̇) + viscous · q̇`, with forgetting.
 #[derive(Debug, Clone, Copy, Default)]
 struct FrictionFit {
-    /// Normal equations: Σ s², Σ s·q̇, Σ q̇², Σ s·y, Σ q̇·y (s = sign(q̇)); weight Σ 1.
-    ss: f64,
+    /// Normal equations: Σ s·q̇, Σ q̇², Σ s·y, Σ q̇·y (s = sign(q̇)); Σ s² is `weight`, the
+    /// samples taken (|s| = 1 on a moving sample), both forgotten alike.
     sv: f64,
     vv: f64,
     sy: f64,
@@ -281,7 +281,6 @@ struct FrictionFit {
 
 impl FrictionFit {
     fn forget(&mut self, keep: f64) {
-        self.ss *= keep;
         self.sv *= keep;
         self.vv *= keep;
         self.sy *= keep;
@@ -291,7 +290,6 @@ impl FrictionFit {
 
     fn add(&mut self, qd_rad_s: f64, torque_nm: f64) {
         let sign = qd_rad_s.signum();
-        self.ss += 1.0;
         self.sv += sign * qd_rad_s;
         self.vv += qd_rad_s * qd_rad_s;
         self.sy += sign * torque_nm;
@@ -304,13 +302,13 @@ impl FrictionFit {
         if self.weight < MIN_FRICTION_WEIGHT {
             return None;
         }
-        let det = self.ss * self.vv - self.sv * self.sv;
-        if det <= 1e-9 * self.ss * self.vv {
+        let det = self.weight * self.vv - self.sv * self.sv;
+        if det <= 1e-9 * self.weight * self.vv {
             return None;
         }
         Some(JointFriction {
             coulomb_nm: (self.vv * self.sy - self.sv * self.vy) / det,
-            viscous_nm_s_rad: (self.ss * self.vy - self.sv * self.sy) / det,
+            viscous_nm_s_rad: (self.weight * self.vy - self.sv * self.sy) / det,
         })
     }
 }
@@ -521,7 +519,9 @@ impl EffortMonitor {
             });
             self.update_payload_in_use();
         }
-        let mode = state.status.map_or(ControllerMode::Program, mode_of);
+        let mode = state.status.map_or(ControllerMode::Program, |status| {
+            ControllerMode::from_robot_status_bits(status.status_bits)
+        });
         let (state_source, model_q, model_qd, model_qdd) = self.model_state(state, &q, &qd, step_s);
         let model_nm = self
             .loaded
@@ -918,11 +918,6 @@ impl EffortMonitor {
             payload_mismatch: self.payload_mismatch,
         }
     }
-}
-
-/// What a controller's status says its torque model contains.
-fn mode_of(status: sample::ControllerStatus) -> ControllerMode {
-    ControllerMode::from_robot_status_bits(status.status_bits)
 }
 
 /// One value per joint of `quantity`, if `state` has it for six joints.

@@ -5,7 +5,7 @@
 //! Owns these tables only; the recursion that uses them is in [`super`]. Values are copied digit
 //! for digit from the sources named on each table; nothing here is fitted or estimated.
 //!
-//! Sources (compared with each other in December 2026):
+//! Sources (checked against each other):
 //! - **P**: Universal Robots, "DH Parameters for calculations of kinematics and dynamics"
 //!   (universal-robots.com article).
 //! - **C**: the link and joint sections of e-Series controller configuration files

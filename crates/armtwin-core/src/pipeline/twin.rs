@@ -20,7 +20,7 @@ use super::{
 };
 use crate::align::{self, Aligner, Bracket, Pending, UnpairedReason};
 use crate::dynamics::Payload;
-use crate::dynamics::monitor::{EffortAlarm, EffortMonitor};
+use crate::dynamics::monitor::{EffortAlarm, EffortMonitor, EffortSummary};
 use crate::kinematics::{KinematicsError, OutputFrame, PoseReadout};
 use crate::metrics::{CumulativeStats, Deviation, WindowStats};
 use crate::model::{CalibrationForm, MountingDeltas, RobotModel};
@@ -345,7 +345,6 @@ impl Twin {
             last_measured: self.last_measured.as_ref().map(|(s, p)| (*s, p)),
             metrics: self.snapshot(),
             alarms_active: self.alarms.active(),
-            effort: self.effort.as_ref().map(|monitor| monitor.summary()),
         }
     }
 
@@ -591,6 +590,12 @@ impl Twin {
             };
             sink.event(&self.event(stamp_s, kind, Some(key), detail, Reason::Effort));
         }
+    }
+
+    /// What its effort monitor shows, if it has one.
+    #[must_use]
+    pub fn effort(&self) -> Option<EffortSummary> {
+        self.effort.as_ref().map(|monitor| monitor.summary())
     }
 
     /// Applies the identified payload to its effort model; `None` without an effort monitor or
@@ -882,10 +887,7 @@ impl Twin {
                 .unwrap_or_default(),
             window_s: self.window_s,
             epoch: self.epoch,
-            effort: self
-                .effort
-                .as_ref()
-                .map(|monitor| Box::new(monitor.summary())),
+            effort: self.effort().map(Box::new),
         }
     }
 }

@@ -385,7 +385,7 @@ impl Queries {
             }
             other => Err(format!("'{other}' is not apply, discard or status")),
         };
-        let summary = twin.state().effort;
+        let summary = twin.effort();
         drop(guard);
         match (outcome, summary) {
             (Ok(()), Some(summary)) => {

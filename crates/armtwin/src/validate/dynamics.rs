@@ -14,6 +14,7 @@
 use thiserror::Error;
 
 use crate::codec::recording::ColumnTable;
+pub use crate::dynamics::monitor::StateSource;
 use crate::dynamics::payload::{PayloadEstimate, PayloadIdentifier};
 use crate::dynamics::{ArmDynamics, ControllerMode, DynamicsError, Payload, ur};
 use crate::model::ArmDescription;
@@ -29,15 +30,6 @@ pub enum DynamicsValidationError {
     /// Neither target nor actual joint angles are in the recording.
     #[error("the recording has neither target_q_0..5 nor actual_q_0..5 with actual_qd_0..5")]
     NoState,
-}
-
-/// Which state a row's model torques are for.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum StateSource {
-    /// `target_q`, `target_qd`, `target_qdd`.
-    Target,
-    /// `actual_q`, `actual_qd` and accelerations from differences.
-    Actual,
 }
 
 /// Where the payload came from.

@@ -11,12 +11,11 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use super::dynamics::{DynamicsValidation, PayloadSource, StateSource};
+use super::dynamics::{DynamicsValidation, PayloadSource};
 use super::svg::{self, Series};
 use super::{EventCounts, Rejection, Validation};
 use crate::codec::PoseFields;
 use crate::codec::json::StatsSetJson;
-use crate::dynamics::ControllerMode;
 use crate::kinematics::PoseReadout;
 use crate::metrics::{Deviation, METRIC_NAMES};
 use crate::model::RobotModel;
@@ -235,14 +234,11 @@ pub struct DynamicsJson {
 pub fn dynamics_json(dynamics: &DynamicsValidation) -> DynamicsJson {
     let mut modes = BTreeMap::from([("program", 0), ("freedrive", 0)]);
     for row in &dynamics.rows {
-        *modes.entry(mode_name(row.mode)).or_insert(0) += 1;
+        *modes.entry(row.mode.as_str()).or_insert(0) += 1;
     }
     let difference = |a: [f64; 6], b: [f64; 6]| std::array::from_fn(|k| a[k] - b[k]);
     DynamicsJson {
-        state: match dynamics.state_source {
-            StateSource::Target => "target",
-            StateSource::Actual => "actual",
-        },
+        state: dynamics.state_source.as_str(),
         rows: dynamics.rows.len(),
         skipped: dynamics.skipped_lines.len(),
         modes,
@@ -277,13 +273,6 @@ pub fn dynamics_json(dynamics: &DynamicsValidation) -> DynamicsJson {
     }
 }
 
-fn mode_name(mode: ControllerMode) -> &'static str {
-    match mode {
-        ControllerMode::Program => "program",
-        ControllerMode::Freedrive => "freedrive",
-    }
-}
-
 /// `dynamics.csv`: per modelled row `t`, `line`, `mode`, then six each of `tau_model`,
 /// `tau_measured` (from currents), `residual` (measured − model) and `target_moment`; cells the
 /// recording cannot give are empty. Numbers in Rust's shortest round-trip form.
@@ -306,7 +295,7 @@ pub fn write_dynamics_csv(dynamics: &DynamicsValidation, out: &mut impl Write) -
         let mut line = vec![
             row.t_s.map(|t| format!("{t:?}")).unwrap_or_default(),
             row.line.to_string(),
-            mode_name(row.mode).to_owned(),
+            row.mode.as_str().to_owned(),
         ];
         line.extend(cells(Some(row.tau_model_nm)));
         line.extend(cells(row.tau_measured_nm));

@@ -209,10 +209,15 @@ def test_the_stand_in_is_read_back_by_ur_rtde_bit_for_bit(tmp_path, lasttest_row
                      *(rng.randint(-2**31, 2**31 - 1) for _ in range(6)), rng.randint(0, 2**64 - 1),
                      *(rng.uniform(20, 60) for _ in range(6))])
     path = recording(tmp_path, rows, header=header)
+    ready = tmp_path / "server.out"
+    # The server ends by itself (timeout) even if this shell is killed; the reader starts once the
+    # server says it listens (at most 10 s).
     script = (
         "ip link set lo up && "
-        f"{sys.executable} {HERE / 'rtde_server.py'} --port 30004 --recording {path} --rate-hz 50 & "
-        "server=$!; sleep 0.5; "
+        f"timeout 50 {sys.executable} {HERE / 'rtde_server.py'} --port 30004 --recording {path} --rate-hz 50 "
+        f"> {ready} & "
+        "server=$!; "
+        f"for i in $(seq 100); do grep -q listening {ready} && break; sleep 0.1; done; "
         f"timeout 30 {sys.executable} {HERE / 'rtde_readback.py'} 500 20 {' '.join(READBACK)}; "
         "code=$?; kill $server; exit $code"
     )

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Installs the tools the dashboard tests drive, idempotently: Debian's `chromium` (a headless
+# Installs the tools the tests drive, idempotently: `ip` (iproute2), Debian's `chromium` (a headless
 # browser for the page tests) and Debian's `prometheus` unpacked into .cache/prometheus-<version>/
 # (no system install, no service started). Prints the paths it settled on as shell assignments.
 set -euo pipefail
@@ -12,6 +12,12 @@ apt_update_once() {
     apt_updated=1
   fi
 }
+
+# `ip` brings up loopback in the private network namespace of the ur-rtde read-back test.
+if ! command -v ip >/dev/null 2>&1; then
+  apt_update_once
+  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends iproute2 >&2
+fi
 
 if ! command -v chromium >/dev/null 2>&1; then
   apt_update_once

@@ -16,6 +16,7 @@ Every wait here is bounded.
 from __future__ import annotations
 
 import json
+import os
 import signal
 import socket
 import subprocess
@@ -49,6 +50,12 @@ def port_accepts(port: int) -> bool:
             return True
     except OSError:
         return False
+
+
+def cpu_s(pid: int) -> float:
+    """User plus system CPU seconds process ``pid`` has used (from /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def wait_until(predicate, timeout: float, interval: float = 0.01) -> bool:
@@ -302,6 +309,7 @@ class TwinClient:
             pub = self.session.declare_publisher(
                 key,
                 congestion_control=zenoh.CongestionControl.BLOCK,
+                reliability=zenoh.Reliability.RELIABLE,
                 allowed_destination=zenoh.Locality.REMOTE,  # our own twin/** does not count
             )
             self._publishers[key] = pub

@@ -14,7 +14,6 @@ Run: ``ARMTWIN_BIN=$PWD/target/debug/armtwin .venv/bin/python tests/python/dashb
 from __future__ import annotations
 
 import json
-import os
 import statistics
 import sys
 import tempfile
@@ -25,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from playwright.sync_api import sync_playwright  # noqa: E402
 
-from armtwin_service import wait_until  # noqa: E402
+from armtwin_service import cpu_s, wait_until  # noqa: E402
 from conftest import armtwin_path  # noqa: E402
 from dashboard_support import DashboardService, chromium_path, http_json, lasttest_rows  # noqa: E402
 
@@ -39,11 +38,6 @@ model = "ur10e"
 MEASURED_KEYS = ("x", "y", "z", "qx", "qy", "qz", "qw")
 RATE_HZ = 2.0
 STREAM_S = 20.0
-
-
-def cpu_s(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def robots(n: int) -> list[str]:

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import signal
 import statistics
 import subprocess
@@ -32,7 +31,7 @@ from pathlib import Path
 import zenoh
 
 import rtde_recording
-from armtwin_service import ArmtwinProcess, open_session
+from armtwin_service import ArmtwinProcess, cpu_s, open_session
 
 HERE = Path(__file__).resolve().parent
 DATA = HERE.parent / "data" / "ur10e_lasttest.csv"
@@ -43,11 +42,6 @@ metrics_period_ms = 1000
 [robots.default]
 model = "ur10e"
 """
-
-
-def cpu_s(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def main() -> int:

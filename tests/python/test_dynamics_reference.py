@@ -275,7 +275,7 @@ ROWS_PER_REST = 15
 
 
 def rtde_recording(rng, configured, actual, with_target=True):
-    """A UR10e RTDE recording (space-separated, as record.py writes): a program-mode motion, the
+    """A UR10e RTDE recording (space-separated, as UR's RTDE example client `record.py` writes): a program-mode motion, the
     arm at rest in several poses, then freedrive. `target_moment` is Pinocchio's model with the
     configured payload, as the controller computes it; the currents carry the actual payload,
     Coulomb + viscous friction and noise. Returns the text and the truth per row."""
@@ -394,9 +394,10 @@ def test_validate_dynamics_without_targets_differentiates_the_actual_velocity(tm
     model = np.array([[float(v) for v in line.split(",")[3:9]] for line in rows[1:]])
     assert header[3:9] == [f"tau_model_{k}" for k in range(6)]
     error = np.abs(model - np.array(truth))
-    # The generated motion stops dead at row 300 (q̇ jumps to 0), which no difference can follow:
-    # rows 299 and 300 are excluded. Elsewhere central differences of a 500 Hz sinusoid give q̈
-    # to ~1e-4 rad/s², and rows at rest or in freedrive are exact.
+    # Row 0 has only a one-sided difference, and the generated motion stops dead at row 300 (q̇
+    # jumps to 0), which no difference can follow: rows 0, 299 and 300 are excluded. Elsewhere
+    # central differences of a 500 Hz sinusoid follow q̈ closely, and rows at rest or in freedrive
+    # are exact.
     smooth = np.ones(len(truth), dtype=bool)
     smooth[[0, 299, 300]] = False
     print(f"actual state: model vs target_moment max {error[smooth].max():.2e} N·m on smooth rows, "

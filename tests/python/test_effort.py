@@ -75,8 +75,7 @@ effort = true
 
 
 class EffortClient(TwinClient):
-    """A TwinClient subscribed to the effort, event and payload streams only (no poses), whose
-    joint publishers are reliable and block when congested."""
+    """A TwinClient subscribed to the effort, event and payload streams only (no poses)."""
 
     def __init__(self, endpoint: str):
         super().__init__(endpoint)
@@ -86,17 +85,6 @@ class EffortClient(TwinClient):
             for stream in ("effort", "events", "payload")
         ]
 
-    def publisher(self, key: str) -> zenoh.Publisher:
-        pub = self._publishers.get(key)
-        if pub is None:
-            pub = self.session.declare_publisher(
-                key,
-                congestion_control=zenoh.CongestionControl.BLOCK,
-                reliability=zenoh.Reliability.RELIABLE,
-                allowed_destination=zenoh.Locality.REMOTE,
-            )
-            self._publishers[key] = pub
-        return pub
 
 
 @pytest.fixture

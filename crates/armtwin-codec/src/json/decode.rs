@@ -153,7 +153,15 @@ fn joint_state(value: &Value, joint_count: usize) -> Result<JointState, WireErro
         items
             .iter()
             .enumerate()
-            .map(|(index, item)| number(&format!("{field}[{index}]"), item))
+            .map(|(index, item)| {
+                // The field's name is written only for an error.
+                item.as_f64().ok_or_else(|| {
+                    bad(
+                        &format!("{field}[{index}]"),
+                        format!("expected a number, got {}", json_type(item)),
+                    )
+                })
+            })
             .collect()
     };
     let mut state = JointState::new(joint_count);

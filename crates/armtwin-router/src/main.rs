@@ -2,6 +2,9 @@
 //! build theirs (`zenoh-bridge-ros2dds`): the same engine as `zenohd`, built from the zenoh
 //! crate the workspace already compiles, so a fleet's router and its tests need no separate
 //! `zenohd` build nor a plugin library whose compiler and feature set must match it exactly.
+//! Built with the feature `ros2dds`, it is also `zenoh-bridge-ros2dds`: the configuration's
+//! `plugins/ros2dds` section (read exactly as that bridge reads it) or `--ros2dds` starts the
+//! ROS 2 ⇄ Zenoh bridge in the same process.
 //!
 //! It takes a Zenoh JSON5 configuration (`-c`), `zenohd`'s flags for endpoints and the REST port,
 //! and `--cfg KEY:VALUE` for any other setting; it owns no armtwin logic.
@@ -12,7 +15,8 @@ use zenoh::Config;
 use zenoh::internal::plugins::PluginsManager;
 use zenoh::internal::runtime::RuntimeBuilder;
 
-/// A Zenoh router (`zenohd` 1.10) with the REST plugin built in.
+/// A Zenoh router (`zenohd` 1.10) with the REST plugin (and, built with the feature `ros2dds`,
+/// the ROS 2 DDS bridge) built in.
 #[derive(Debug, Parser)]
 #[command(name = "armtwin-router", version)]
 struct Args {
@@ -33,6 +37,10 @@ struct Args {
     /// Turn multicast scouting off (routers find each other through `--connect`).
     #[arg(long)]
     no_multicast_scouting: bool,
+    /// Start the ROS 2 DDS bridge with its defaults (DDS domain `ROS_DOMAIN_ID` or 0, namespace
+    /// `/`) when the file has no `plugins/ros2dds` section; needs the feature `ros2dds`.
+    #[arg(long)]
+    ros2dds: bool,
     /// A JSON5 value at a path of the Zenoh configuration, applied last
     /// (`--cfg transport/link/tx/lease:3000`).
     #[arg(long, value_name = "KEY:VALUE")]
@@ -77,6 +85,9 @@ fn config_from(args: &Args) -> Result<Config> {
             inserts.push(("plugins/rest/http_port".to_owned(), rest_port_json(port)));
         }
     }
+    if args.ros2dds && config.plugin("ros2dds").is_none() {
+        inserts.push(("plugins/ros2dds".to_owned(), "{}".to_owned()));
+    }
     for entry in &args.cfg {
         let (key, value) = entry
             .split_once(':')
@@ -110,6 +121,27 @@ async fn shutdown_signal() -> Result<()> {
     Ok(())
 }
 
+#[cfg(feature = "ros2dds")]
+#[expect(
+    clippy::unnecessary_wraps,
+    reason = "the same signature as the build without the bridge, which refuses"
+)]
+fn declare_ros2dds(plugins: &mut PluginsManager) -> Result<()> {
+    // The bridge reads `ROS_DISTRO` for the `ros_discovery_info` layout (Iron's and later ones'
+    // when it is unset, which is also Jazzy's).
+    plugins.declare_static_plugin::<zenoh_plugin_ros2dds::ROS2Plugin, &str>("ros2dds", true);
+    Ok(())
+}
+
+#[cfg(not(feature = "ros2dds"))]
+fn declare_ros2dds(_plugins: &mut PluginsManager) -> Result<()> {
+    anyhow::bail!(
+        "the configuration starts the ROS 2 DDS bridge (plugins/ros2dds or --ros2dds), but this \
+         armtwin-router was built without it: cargo build --release -p armtwin-router \
+         --features ros2dds (needs cmake and libclang)"
+    )
+}
+
 #[tokio::main]
 async fn main() -> Result<()> {
     zenoh::init_log_from_env_or("z=info,armtwin_router=info");
@@ -118,6 +150,10 @@ async fn main() -> Result<()> {
     let mut plugins = PluginsManager::static_plugins_only();
     if config.plugin("rest").is_some() {
         plugins.declare_static_plugin::<zenoh_plugin_rest::RestPlugin, &str>("rest", true);
+    }
+    let bridge = config.plugin("ros2dds").is_some();
+    if bridge {
+        declare_ros2dds(&mut plugins)?;
     }
     let mut runtime = RuntimeBuilder::new(config)
         .plugins_manager(plugins)
@@ -133,6 +169,13 @@ async fn main() -> Result<()> {
     tracing::info!(zid = %runtime.zid(), "armtwin-router started");
     shutdown_signal().await?;
     tracing::info!("armtwin-router stopping");
+    if bridge {
+        // Zenoh 1.10.2 panics in its routing tables when a closing runtime still holds the
+        // bridge's queryables (and then aborts on a second panic in a destructor);
+        // `zenoh-bridge-ros2dds` never closes its runtime either. The process ends here: peers
+        // see the link close, DDS readers the bridge's participant leave.
+        std::process::exit(0);
+    }
     runtime
         .close()
         .await

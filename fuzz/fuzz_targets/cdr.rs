@@ -38,7 +38,7 @@ fuzz_target!(|payload: &[u8]| {
 });
 
 fn joint_state(payload: &[u8], joints: &JointNames) {
-    match cdr::decode_joint_state(payload, joints) {
+    match cdr::decode_joint_state(payload, joints, Some(cdr::EffortMeaning::CurrentA)) {
         Ok(sample) => {
             assert_eq!(sample.q_rad.len(), joints.as_slice().len());
             assert!(sample.q_rad.iter().all(|q| q.is_finite()), "{sample:?}");

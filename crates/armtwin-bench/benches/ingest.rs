@@ -69,7 +69,7 @@ fn parts(c: &mut Criterion) {
         include_bytes!("../../../tests/data/ros2/joint_state_driver_order.cdr");
     let joint_names = cdr::JointNames::ur("");
     c.bench_function("decode/joint_state_cdr", |b| {
-        b.iter(|| cdr::decode_joint_state(black_box(joint_state), &joint_names));
+        b.iter(|| cdr::decode_joint_state(black_box(joint_state), &joint_names, None));
     });
     // What a ROS 2 joint sample on an `rmw_zenoh` key adds: its attachment (sequence number,
     // source time, 16-byte gid), read before the twin lock.

@@ -427,13 +427,53 @@ impl JointNames {
 const NAME: &str = "JointState.name";
 const POSITION: &str = "JointState.position";
 
+/// What a `JointState`'s `effort` holds. The message defines it as the joint's effort (N·m),
+/// but the Universal Robots driver has published motor currents (A) there, and newer releases
+/// publish torques on controllers that report them: only the source's configuration can say.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+pub enum EffortMeaning {
+    /// Motor currents (A).
+    #[serde(rename = "current_a")]
+    CurrentA,
+    /// Joint torques (N·m).
+    #[serde(rename = "torque_nm")]
+    TorqueNm,
+}
+
+impl EffortMeaning {
+    /// The joint state quantity the values become.
+    #[must_use]
+    pub fn quantity(self) -> JointQuantity {
+        match self {
+            Self::CurrentA => JointQuantity::Current,
+            Self::TorqueNm => JointQuantity::Torque,
+        }
+    }
+
+    /// The configuration's name.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::CurrentA => "current_a",
+            Self::TorqueNm => "torque_nm",
+        }
+    }
+}
+
 /// Decodes a `sensor_msgs/msg/JointState` into a joint sample of the arm named by `joints`.
 ///
 /// Angles (rad) come in the arm's joint order whatever the message's order; names the arm does
-/// not have are skipped; velocity and effort, when they hold one finite value per name, become
-/// the sample's joint state (velocity, and effort as joint torque in N·m), else are skipped.
+/// not have are skipped; velocity, and effort when `effort` says what it holds, become the
+/// sample's joint state when they hold one finite value per name, else are skipped.
 /// `stamp_s` is `header.stamp` (sec + nanosec · 1e-9), `None` when the stamp is unset (0).
-pub fn decode_joint_state(payload: &[u8], joints: &JointNames) -> Result<JointSample, CdrError> {
+///
+/// Only the message's own bytes are read: alignment padding may hold anything (rclpy's
+/// serializer leaves it uninitialised) and bytes after the last field are ignored.
+pub fn decode_joint_state(
+    payload: &[u8],
+    joints: &JointNames,
+    effort: Option<EffortMeaning>,
+) -> Result<JointSample, CdrError> {
     let mut reader = Reader::new(payload)?;
     let stamp_s = reader.stamp(
         Field::plain("JointState.header.stamp.sec"),
@@ -504,16 +544,17 @@ pub fn decode_joint_state(payload: &[u8], joints: &JointNames) -> Result<JointSa
     }
     let mut state: Option<Box<JointState>> = None;
     for (name, quantity) in [
-        ("JointState.velocity", JointQuantity::Velocity),
-        ("JointState.effort", JointQuantity::Torque),
+        ("JointState.velocity", Some(JointQuantity::Velocity)),
+        ("JointState.effort", effort.map(EffortMeaning::quantity)),
     ] {
         let count = reader.count(Field::plain(name), 8, MAX_JOINT_STATE_ENTRIES)?;
         let values = reader.take(8 * count, 8, Field::plain(name))?;
         // Empty (the driver has none) or of another length than the names (not per joint) is
-        // not carried; nor is one with a value that is not finite (drivers send NaN for unknown).
-        if count != name_count {
+        // not carried; nor is one with a value that is not finite (drivers send NaN for unknown),
+        // nor an effort whose meaning the source does not say.
+        let Some(quantity) = quantity.filter(|_| count == name_count) else {
             continue;
-        }
+        };
         let mut picked = [0.0; MAX_ARM_JOINTS];
         let mut finite = true;
         for (slot, &index) in picked.iter_mut().zip(&index_of[..wanted.len()]) {
@@ -631,14 +672,19 @@ fn refused(payload: &[u8]) -> impl FnOnce(CdrError) -> Refused<CdrError> + '_ {
 
 /// A ROS 2 source's `sensor_msgs/msg/JointState` messages, matched by name to the arm's joints.
 #[derive(Debug, Clone, Copy)]
-pub struct JointStates<'a>(pub &'a JointNames);
+pub struct JointStates<'a> {
+    /// The arm's joint names.
+    pub names: &'a JointNames,
+    /// What `effort` holds (`None`: it is not read).
+    pub effort: Option<EffortMeaning>,
+}
 
 impl Decoder for JointStates<'_> {
     type Message = JointSample;
     type Error = CdrError;
 
     fn read(&self, _robot: &Robot, payload: &[u8]) -> Result<JointSample, Refused<CdrError>> {
-        decode_joint_state(payload, self.0).map_err(refused(payload))
+        decode_joint_state(payload, self.names, self.effort).map_err(refused(payload))
     }
 
     fn stamp_hint(&self, payload: &[u8]) -> Option<f64> {
@@ -778,10 +824,10 @@ mod tests {
     fn header_errors_are_typed() {
         let names = JointNames::ur("");
         assert_eq!(
-            decode_joint_state(&[0, 1], &names),
+            decode_joint_state(&[0, 1], &names, None),
             Err(CdrError::NoHeader { bytes: 2 })
         );
-        let error = decode_joint_state(&[0, 7, 0, 0, 1, 2, 3, 4], &names).unwrap_err();
+        let error = decode_joint_state(&[0, 7, 0, 0, 1, 2, 3, 4], &names, None).unwrap_err();
         assert_eq!(error.kind(), "representation");
         let big = vec![0; MAX_PAYLOAD_BYTES + 1];
         assert_eq!(decode_pose_stamped(&big).unwrap_err().kind(), "too_large");

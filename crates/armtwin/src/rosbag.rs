@@ -412,24 +412,26 @@ fn to_recording(messages: &[BagMessage], options: &BagOptions) -> (Recording, Ba
     let mut entries = Vec::new();
     for (number, message) in (1_u64..).zip(messages.iter().filter(|m| m.stream == Stream::Joints)) {
         summary.joint_messages += 1;
-        entries.push(match cdr::decode_joint_state(&message.data, &joint_names) {
-            Ok(sample) => {
-                let stamp_s = sample
-                    .stamp_s
-                    .unwrap_or_else(|| log_time_s(message.log_time_ns));
-                let pose = poses.remove(&stamp_s.to_bits()).map(|values| {
-                    summary.paired_poses += 1;
-                    PoseCells::Quaternion(values.map(Cell::Number))
-                });
-                Ok(RecordingRow {
-                    line: number,
-                    stamp_s: Some(stamp_s),
-                    q: sample.q_rad.into_iter().map(Cell::Number).collect(),
-                    pose,
-                })
-            }
-            Err(error) => Err(malformed(number, &options.topics.joint_states, &error)),
-        });
+        entries.push(
+            match cdr::decode_joint_state(&message.data, &joint_names, None) {
+                Ok(sample) => {
+                    let stamp_s = sample
+                        .stamp_s
+                        .unwrap_or_else(|| log_time_s(message.log_time_ns));
+                    let pose = poses.remove(&stamp_s.to_bits()).map(|values| {
+                        summary.paired_poses += 1;
+                        PoseCells::Quaternion(values.map(Cell::Number))
+                    });
+                    Ok(RecordingRow {
+                        line: number,
+                        stamp_s: Some(stamp_s),
+                        q: sample.q_rad.into_iter().map(Cell::Number).collect(),
+                        pose,
+                    })
+                }
+                Err(error) => Err(malformed(number, &options.topics.joint_states, &error)),
+            },
+        );
     }
     summary.unmatched_poses = poses.len();
     let recording = Recording {

@@ -9,7 +9,7 @@
 
 use std::path::{Path, PathBuf};
 
-use armtwin_codec::cdr::{self, CdrError, JointNames};
+use armtwin_codec::cdr::{self, CdrError, EffortMeaning, JointNames};
 use armtwin_codec::json;
 use armtwin_core::kinematics::{OutputFrame, PoseReadout};
 use armtwin_core::orientation::Rpy;
@@ -46,7 +46,7 @@ fn every_fixture_decodes_to_what_its_writer_put_in() {
         match entry["type"].as_str().expect("type") {
             "sensor_msgs/msg/JointState" => {
                 let names = JointNames::ur(entry["tf_prefix"].as_str().expect("prefix"));
-                let decoded = cdr::decode_joint_state(&bytes, &names);
+                let decoded = cdr::decode_joint_state(&bytes, &names, None);
                 if let Some(kind) = entry["error"].as_str() {
                     let error = decoded.expect_err(file);
                     assert_eq!(error.kind(), kind, "{file}: {error}");
@@ -100,14 +100,14 @@ fn every_fixture_decodes_to_what_its_writer_put_in() {
 fn errors_name_the_field() {
     let empty = std::fs::read(fixtures().join("joint_state_empty_velocity_effort.cdr")).unwrap();
     let names = JointNames::ur("");
-    let error = cdr::decode_joint_state(&empty[..empty.len() - 12], &names).unwrap_err();
+    let error = cdr::decode_joint_state(&empty[..empty.len() - 12], &names, None).unwrap_err();
     assert_eq!(
         error.to_string(),
         "'JointState.position': needs 48 bytes at body offset 152, the body has 196"
     );
     let mut huge = empty.clone();
     huge[20..24].copy_from_slice(&0xFFFF_FFF0_u32.to_le_bytes());
-    let error = cdr::decode_joint_state(&huge, &names).unwrap_err();
+    let error = cdr::decode_joint_state(&huge, &names, None).unwrap_err();
     assert_eq!(
         error.to_string(),
         "'JointState.name': count 4294967280 exceeds the limit of 256"
@@ -122,7 +122,7 @@ fn errors_name_the_field() {
         "name[3] is wrist_1_joint"
     );
     long_name[third..third + 4].copy_from_slice(&200_u32.to_le_bytes());
-    let error = cdr::decode_joint_state(&long_name, &names).unwrap_err();
+    let error = cdr::decode_joint_state(&long_name, &names, None).unwrap_err();
     assert!(
         matches!(&error, CdrError::Truncated { field, .. } if field == "JointState.name[3]"),
         "{error}"
@@ -131,7 +131,7 @@ fn errors_name_the_field() {
     let last = nan.len() - 8 - 8;
     nan[last..last + 8].copy_from_slice(&f64::NAN.to_le_bytes());
     assert_eq!(
-        cdr::decode_joint_state(&nan, &names).unwrap_err(),
+        cdr::decode_joint_state(&nan, &names, None).unwrap_err(),
         CdrError::NonFinite {
             field: "JointState.position[5]".to_owned()
         }
@@ -156,17 +156,17 @@ fn a_duplicated_arm_joint_is_rejected_and_extra_ones_are_not() {
         .name
         .push("robotiq_85_left_knuckle_joint".to_owned());
     message.position.push(f64::NAN);
-    assert!(cdr::decode_joint_state(&oracle_bytes(&message, true), &names).is_ok());
+    assert!(cdr::decode_joint_state(&oracle_bytes(&message, true), &names, None).is_ok());
     message.name.push("elbow_joint".to_owned());
     message.position.push(0.0);
-    let error = cdr::decode_joint_state(&oracle_bytes(&message, true), &names).unwrap_err();
+    let error = cdr::decode_joint_state(&oracle_bytes(&message, true), &names, None).unwrap_err();
     assert_eq!(
         error.to_string(),
         "joint 'elbow_joint' appears more than once ('JointState.name[7]')"
     );
     message.name.pop();
     message.position.truncate(6);
-    let error = cdr::decode_joint_state(&oracle_bytes(&message, true), &names).unwrap_err();
+    let error = cdr::decode_joint_state(&oracle_bytes(&message, true), &names, None).unwrap_err();
     assert_eq!(
         error.to_string(),
         "'JointState.position': 6 values for 7 names"
@@ -272,38 +272,44 @@ proptest! {
         message.velocity = (0..count).map(|i| 0.5 + i as f64).collect();
         message.effort = (0..count).map(|i| -10.0 * (i as f64 + 1.0)).collect();
         let bytes = oracle_bytes(&message, little_endian);
-        let sample = cdr::decode_joint_state(&bytes, &names).expect("valid");
-        prop_assert_eq!(&sample.q_rad, &q.to_vec());
-        // Carried into the joint state in the arm's joint order.
+        // Carried into the joint state in the arm's joint order; effort as what the source says
+        // it is, or not at all.
         let arm_order = |values: &[f64]| -> Vec<f64> {
             (0..6)
                 .map(|j| values[order.iter().position(|&o| o == j).expect("every joint")])
                 .collect()
         };
-        if let Some(state) = &sample.state {
-            prop_assert_eq!(velocity_len, 1);
-            prop_assert_eq!(
-                state.get(JointQuantity::Velocity).map(<[f64]>::to_vec),
-                Some(arm_order(&message.velocity))
-            );
-            prop_assert_eq!(
-                state.get(JointQuantity::Torque).map(<[f64]>::to_vec),
-                Some(arm_order(&message.effort))
-            );
-        } else {
-            prop_assert_eq!(velocity_len, 0);
+        for effort in [None, Some(EffortMeaning::CurrentA), Some(EffortMeaning::TorqueNm)] {
+            let sample = cdr::decode_joint_state(&bytes, &names, effort).expect("valid");
+            prop_assert_eq!(&sample.q_rad, &q.to_vec());
+            if let Some(state) = &sample.state {
+                prop_assert_eq!(velocity_len, 1);
+                prop_assert_eq!(
+                    state.get(JointQuantity::Velocity).map(<[f64]>::to_vec),
+                    Some(arm_order(&message.velocity))
+                );
+                for meaning in [EffortMeaning::CurrentA, EffortMeaning::TorqueNm] {
+                    prop_assert_eq!(
+                        state.get(meaning.quantity()).map(<[f64]>::to_vec),
+                        (effort == Some(meaning)).then(|| arm_order(&message.effort))
+                    );
+                }
+            } else {
+                prop_assert_eq!(velocity_len, 0);
+            }
         }
+        let sample = cdr::decode_joint_state(&bytes, &names, None).expect("valid");
         let stamp = (sec != 0 || nanosec != 0)
             .then(|| f64::from(sec) + f64::from(nanosec) * 1e-9);
         prop_assert_eq!(sample.stamp_s, stamp);
         // Bytes after a complete message (rclpy's serializer may leave some) change nothing.
         let mut longer = bytes.clone();
         longer.extend_from_slice(&[0xA5; 11]);
-        prop_assert_eq!(cdr::decode_joint_state(&longer, &names).expect("valid"), sample.clone());
+        prop_assert_eq!(cdr::decode_joint_state(&longer, &names, None).expect("valid"), sample.clone());
         // Any cut short of the velocity arrays is refused, never read past.
         let cut = bytes.len() - 8 - 8 * message.effort.len() - 8 * message.velocity.len() - 1;
         for end in [4, 9, cut / 2, cut] {
-            prop_assert!(cdr::decode_joint_state(&bytes[..end], &names).is_err());
+            prop_assert!(cdr::decode_joint_state(&bytes[..end], &names, None).is_err());
         }
     }
 
@@ -363,8 +369,8 @@ proptest! {
                 _ => bytes.insert(at, byte),
             }
         }
-        let _ = cdr::decode_joint_state(&bytes, &JointNames::ur(""));
-        let _ = cdr::decode_joint_state(&bytes, &JointNames::ur("alice_"));
+        let _ = cdr::decode_joint_state(&bytes, &JointNames::ur(""), None);
+        let _ = cdr::decode_joint_state(&bytes, &JointNames::ur("alice_"), None);
         let _ = cdr::decode_pose_stamped(&bytes);
     }
 }

@@ -10,6 +10,7 @@ use serde::Deserialize;
 
 use super::{Congestion, EventBudget, OutputEncoding, SourceStream, ZenohSection};
 use crate::align::AlignConfig;
+use crate::codec::cdr::EffortMeaning;
 use crate::dynamics::monitor::EffortConfig;
 use crate::identify::IdentifyOptions;
 use crate::ingest::SourceCodec;
@@ -238,6 +239,7 @@ pub(super) struct SourceSection {
     pub(super) topic: Option<String>,
     pub(super) tf_prefix: Option<String>,
     pub(super) joint_names: Option<Vec<String>>,
+    pub(super) effort: Option<EffortMeaning>,
 }
 
 /// `ros2_pose` of a robot section (fields the robot's own leaves out come from

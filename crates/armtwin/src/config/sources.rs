@@ -12,7 +12,7 @@ use zenoh::key_expr::KeyExpr;
 use super::ConfigError;
 use super::file::{RobotFromKey, SourceSection};
 use super::zenoh_section::without_source_location;
-use crate::codec::cdr::JointNames;
+use crate::codec::cdr::{EffortMeaning, JointNames};
 use crate::ingest::SourceCodec;
 use crate::keys::{self, KeySpace};
 use crate::pipeline::RobotSettings;
@@ -57,6 +57,8 @@ pub struct Ros2Source {
     pub joint_names: JointNames,
     /// The frame a `PoseStamped` must be in: `<tf_prefix>base`.
     pub base_frame: String,
+    /// What `JointState.effort` holds (`None`: not read).
+    pub effort: Option<EffortMeaning>,
 }
 
 /// One `[[sources]]` entry, checked.
@@ -190,6 +192,7 @@ fn ros2_source(
         ("topic", section.topic.is_some()),
         ("tf_prefix", section.tf_prefix.is_some()),
         ("joint_names", section.joint_names.is_some()),
+        ("effort", section.effort.is_some()),
     ];
     match section.codec {
         SourceCodec::Json | SourceCodec::ZenohSerialized => {
@@ -213,6 +216,13 @@ fn ros2_source(
                         .to_owned(),
                 )
             })?;
+            if section.effort.is_some() && section.stream != SourceStream::Joints {
+                return Err(invalid(
+                    "effort",
+                    "is read only with stream = \"joints\" (it says what JointState.effort holds)"
+                        .to_owned(),
+                ));
+            }
             let tf_prefix = section.tf_prefix.clone().unwrap_or_default();
             let joint_names = match (&section.joint_names, section.stream) {
                 (None, _) => JointNames::ur(&tf_prefix),
@@ -239,6 +249,7 @@ fn ros2_source(
                 scheme,
                 base_frame: format!("{tf_prefix}base"),
                 joint_names,
+                effort: section.effort,
             }))
         }
     }

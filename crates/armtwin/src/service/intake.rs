@@ -431,7 +431,10 @@ impl Router {
         };
         match source.config.stream {
             SourceStream::Joints => {
-                let decoder = cdr::JointStates(&ros2.joint_names);
+                let decoder = cdr::JointStates {
+                    names: &ros2.joint_names,
+                    effort: ros2.effort,
+                };
                 self.intake(
                     id,
                     key,

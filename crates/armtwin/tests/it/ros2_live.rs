@@ -302,7 +302,8 @@ async fn ros2_namespaces_name_robots_under_both_key_schemes() {
                 assert_eq!(a[field], c[field]);
             }
         }
-        let first = cdr::decode_joint_state(&joints[0], &cdr::JointNames::ur("")).expect("decodes");
+        let first =
+            cdr::decode_joint_state(&joints[0], &cdr::JointNames::ur(""), None).expect("decodes");
         assert_eq!(h.on("twin/pose/bob")[0]["t"].as_f64(), first.stamp_s);
         h.stop().await;
     })
@@ -827,6 +828,22 @@ fn sources_that_cannot_work_are_refused_at_load_time() {
             "sources[0].joint_names: is read only with stream = \"joints\"",
         ),
         (
+            source(
+                "key = \"0/**/tcp_pose_broadcaster/pose/**\"\ncodec = \"ros2\"\nstream = \"measured\"\nscheme = \"bridge\"\nrobot = \"r\"\neffort = \"current_a\"",
+            ),
+            "sources[0].effort: is read only with stream = \"joints\"",
+        ),
+        (
+            source("key = \"a/b\"\ncodec = \"json\"\nstream = \"joints\"\nrobot = \"r\"\neffort = \"torque_nm\""),
+            "sources[0].effort: is read only with codec = \"ros2\"",
+        ),
+        (
+            source(&format!(
+                "{ros2_joints}scheme = \"bridge\"\nrobot = \"r\"\neffort = \"amperes\""
+            )),
+            "unknown variant `amperes`, expected `current_a` or `torque_nm`",
+        ),
+        (
             source("key = \"a/b\"\ncodec = \"ros3\"\nstream = \"joints\"\nrobot = \"r\""),
             "unknown variant `ros3`",
         ),
@@ -987,7 +1004,7 @@ robot_from_key = "ros2_namespace"
                 && r.iter().any(|(k, _)| k == "twin/pose/ur7")
         })
         .await;
-        let stamp_s = cdr::decode_joint_state(&joints[0], &cdr::JointNames::ur(""))
+        let stamp_s = cdr::decode_joint_state(&joints[0], &cdr::JointNames::ur(""), None)
             .unwrap()
             .stamp_s;
         let event = h.on("twin/events/stranger")[0];

@@ -96,6 +96,54 @@ fn every_fixture_decodes_to_what_its_writer_put_in() {
     }
 }
 
+/// Messages as real rclpy (ROS 2 Jazzy, rmw_fastrtps_cpp) serializes them, captured once by
+/// `tests/python/capture_rclpy_fixtures.py`: alignment padding holds whatever was in memory and a
+/// message with empty sequences has bytes after its end (`test_ros2_fixtures.py` shows both
+/// against rosbags' bytes for the same values). Both are read past, never judged.
+#[test]
+fn messages_rclpy_serialized_decode_to_what_was_put_in() {
+    let dir = fixtures().join("rclpy");
+    let text = std::fs::read_to_string(dir.join("messages.json")).expect("manifest");
+    let entries: Vec<Value> = serde_json::from_str(&text).expect("JSON");
+    assert_eq!(entries.len(), 5);
+    for entry in entries {
+        let file = entry["file"].as_str().expect("file");
+        let bytes = std::fs::read(dir.join(file)).expect("fixture");
+        assert_eq!(Some(bytes.len() as u64), entry["bytes"].as_u64(), "{file}");
+        let stamp_s = entry["stamp_s"].as_f64();
+        if entry["type"] == "sensor_msgs/msg/JointState" {
+            let names = JointNames::ur(entry["tf_prefix"].as_str().expect("prefix"));
+            let sample = cdr::decode_joint_state(&bytes, &names, Some(EffortMeaning::CurrentA))
+                .unwrap_or_else(|e| panic!("{file}: {e}"));
+            assert_eq!(sample.stamp_s, stamp_s, "{file}");
+            assert_eq!(sample.q_rad, numbers(&entry["q_rad"]), "{file}");
+            let state = sample.state.as_deref();
+            for (field, quantity) in [
+                ("qd_rad_s", JointQuantity::Velocity),
+                ("effort", JointQuantity::Current),
+            ] {
+                let want = (!entry[field].is_null()).then(|| numbers(&entry[field]));
+                let got = state.and_then(|s| s.get(quantity)).map(<[f64]>::to_vec);
+                assert_eq!(got, want, "{file}: {field}");
+            }
+        } else {
+            let decoded = cdr::decode_pose_stamped(&bytes).unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(decoded.frame_id, entry["frame_id"].as_str().expect("frame"));
+            assert_eq!(decoded.sample.stamp_s, stamp_s, "{file}");
+            assert_eq!(
+                decoded.sample.pose.position_m.to_vec(),
+                numbers(&entry["position_m"]),
+                "{file}"
+            );
+            assert_eq!(
+                decoded.xyzw_as_sent.to_vec(),
+                numbers(&entry["quaternion_xyzw"]),
+                "{file}"
+            );
+        }
+    }
+}
+
 #[test]
 fn errors_name_the_field() {
     let empty = std::fs::read(fixtures().join("joint_state_empty_velocity_effort.cdr")).unwrap();

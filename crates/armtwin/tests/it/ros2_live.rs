@@ -1016,3 +1016,20 @@ robot_from_key = "ros2_namespace"
     .await
     .expect("test finished in time");
 }
+
+/// The `rmw_zenoh` type hashes armtwin writes into keys are the ones real rclpy reports for a
+/// live publisher (`topic_type_hash`, captured by `tests/python/capture_rclpy_fixtures.py`; the
+/// bridge test asserts the live value against the same file).
+#[test]
+fn type_hashes_are_the_ones_rclpy_reports() {
+    let text = std::fs::read_to_string(data().join("rclpy/type_hashes.json")).expect("file");
+    let hashes: Value = serde_json::from_str(&text).expect("JSON");
+    assert_eq!(
+        hashes["sensor_msgs/msg/JointState"],
+        ros2::JOINT_STATE_TYPE_HASH
+    );
+    assert_eq!(
+        hashes["geometry_msgs/msg/PoseStamped"],
+        ros2::POSE_STAMPED_TYPE_HASH
+    );
+}

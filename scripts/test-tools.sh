@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# Installs the tools the tests drive, idempotently: `ip` (iproute2), Debian's `chromium` (a headless
-# browser for the page tests) and Debian's `prometheus` unpacked into .cache/prometheus-<version>/
-# (no system install, no service started). Prints the paths it settled on as shell assignments.
+# Installs the tools the tests drive, idempotently: `ip` (iproute2), `cmake` and libclang (which
+# build the ROS 2 bridge's CycloneDDS into armtwin-router's feature `ros2dds`), Debian's `chromium`
+# (a headless browser for the page tests) and Debian's `prometheus` unpacked into
+# .cache/prometheus-<version>/ (no system install, no service started). Prints the paths it settled
+# on as shell assignments.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -17,6 +19,12 @@ apt_update_once() {
 if ! command -v ip >/dev/null 2>&1; then
   apt_update_once
   DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends iproute2 >&2
+fi
+
+# The bridge's build script runs cmake on the C sources it bundles and bindgen, which loads libclang.
+if ! command -v cmake >/dev/null 2>&1 || ! ls /usr/lib/llvm-*/lib/libclang.so* >/dev/null 2>&1; then
+  apt_update_once
+  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends cmake libclang-dev >&2
 fi
 
 if ! command -v chromium >/dev/null 2>&1; then

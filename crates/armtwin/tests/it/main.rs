@@ -11,6 +11,7 @@ mod calibrate;
 mod common;
 mod dashboard;
 mod ros2_bag;
+mod ros2_client;
 mod ros2_live;
 mod service;
 mod validate;

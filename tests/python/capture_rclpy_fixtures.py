@@ -20,17 +20,9 @@ from rclpy.node import Node
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 
+from ur_joints import DRIVER_ORDER, UR_JOINTS
+
 OUT = Path(__file__).resolve().parents[1] / "data" / "ros2" / "rclpy"
-UR_JOINTS = [
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-]
-# The order the UR driver's joint_state_broadcaster has been seen to publish (not the model's).
-DRIVER_ORDER = [1, 2, 3, 4, 5, 0]
 Q_RAD = [-0.693, -0.833, 0.951, 1.149, 1.515, 1.739]
 QD_RAD_S = [0.011, -0.022, 0.033, -0.044, 0.055, -0.066]
 CURRENT_A = [0.125, -2.5, -1.375, 0.25, 0.0625, -0.03125]

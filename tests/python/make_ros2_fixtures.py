@@ -27,20 +27,12 @@ from mcap_ros2._dynamic import serialize_dynamic
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
+from ur_joints import DRIVER_ORDER, UR_JOINTS
+
 ROOT = Path(__file__).resolve().parents[2]
 CSV_PATH = ROOT / "tests" / "data" / "ur10e_lasttest.csv"
 DEFAULT_OUTPUT = ROOT / "tests" / "data" / "ros2"
 
-UR_JOINTS = [
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-]
-# The order the UR driver's joint_state_broadcaster has been seen to publish (not the model's).
-DRIVER_ORDER = [1, 2, 3, 4, 5, 0]
 BAG_ROWS = 400
 RATE_HZ = 500
 JOINT_TOPIC = "/joint_states"

@@ -40,6 +40,7 @@ from test_service import (
     reference_deviations,
     reference_stats,
 )
+from ur_joints import UR_JOINTS
 
 ROWS = 1000
 RATE_HZ = 500
@@ -60,14 +61,6 @@ JOINT_DDS = "sensor_msgs::msg::dds_::JointState_"
 POSE_DDS = "geometry_msgs::msg::dds_::PoseStamped_"
 JOINT_HASH = TYPESTORE.hash_rihs01("sensor_msgs/msg/JointState")
 POSE_HASH = TYPESTORE.hash_rihs01("geometry_msgs/msg/PoseStamped")
-UR_JOINTS = [
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-]
 
 CONFIG = f"""\
 [service]

@@ -61,7 +61,7 @@ fn joints(payload: &[u8], joint_count: usize) {
     if let Some(error) = &decoded.measured_error {
         assert_kind(error.kind(), KINDS);
     }
-    let mut message = json!({ "q": sample.q_rad });
+    let mut message = json!({ "q": sample.q_rad.to_vec() });
     if let Some(stamp_s) = sample.stamp_s {
         message["t"] = json!(stamp_s);
     }

@@ -20,7 +20,7 @@ use crate::json::{self, MAX_PAYLOAD_BYTES, WireError};
 use armtwin_core::kinematics::{OutputFrame, PoseReadout};
 use armtwin_core::model::catalog::UR_JOINT_NAMES;
 use armtwin_core::pipeline::{RejectCause, Robot};
-use armtwin_core::sample::{JointQuantity, JointSample, JointState, MeasuredSample};
+use armtwin_core::sample::{JointAngles, JointQuantity, JointSample, JointState, MeasuredSample};
 
 /// Most names (and values per array) a `JointState` may carry; more is a damaged message.
 pub const MAX_JOINT_STATE_ENTRIES: usize = 256;
@@ -526,7 +526,7 @@ pub fn decode_joint_state(
     // `count` checked that the values fit: take them all, then pick the arm's.
     let positions = reader.take(8 * position_count, 8, Field::plain(POSITION))?;
     let big_endian = reader.big_endian;
-    let mut q_rad = Vec::with_capacity(wanted.len());
+    let mut q_rad = JointAngles::with_capacity(wanted.len());
     for &index in &index_of[..wanted.len()] {
         let mut bytes = [0; 8];
         bytes.copy_from_slice(&positions[8 * index..8 * index + 8]);

@@ -28,7 +28,7 @@ use crate::PoseFields;
 use crate::json::{self, DecodedJoints, MAX_PAYLOAD_BYTES, Undecodable, WireError};
 use armtwin_core::metrics::Deviation;
 use armtwin_core::sample::{
-    ControllerStatus, JointQuantity, JointSample, JointState, MeasuredSample, Payload,
+    ControllerStatus, JointAngles, JointQuantity, JointSample, JointState, MeasuredSample, Payload,
 };
 
 /// The schema of a joint message (`twin/joints/<robot>`).
@@ -264,7 +264,8 @@ pub fn stamp_hint(payload: &[u8]) -> Option<f64> {
 /// payload.extend(7_u64.to_le_bytes()); // seq
 /// payload.push(0); // measured: empty
 /// let sample = read_joints(&payload, 2)?.sample;
-/// assert_eq!((sample.stamp_s, sample.seq, sample.q_rad), (Some(2.5), Some(7), vec![0.5, -1.0]));
+/// assert_eq!((sample.stamp_s, sample.seq), (Some(2.5), Some(7)));
+/// assert_eq!(sample.q_rad[..], [0.5, -1.0]);
 /// let refused = read_joints(&payload[..12], 2).unwrap_err();
 /// assert_eq!(refused.error.kind(), "truncated");
 /// assert_eq!(refused.stamp_s, Some(2.5));
@@ -306,7 +307,7 @@ fn read_joints_of(
             got: usize::try_from(count).unwrap_or(usize::MAX),
         }));
     }
-    let mut q_rad = vec![0.0; joint_count];
+    let mut q_rad = JointAngles::from_elem(0.0, joint_count);
     reader.f64s("q", &mut q_rad).map_err(refused)?;
     let seq = reader.u64(Field::Plain("seq")).map_err(refused)?;
     let measured_count = reader.length("measured").map_err(refused)?;
@@ -619,19 +620,24 @@ pub fn joints_state_bytes(
 /// assert_eq!(&bytes[..17], &[0, 0, 0, 0, 0, 0, 0xe0, 0x3f, 3, 0, 0, 0, 0, 0, 0, 0, 10]);
 /// ```
 #[must_use]
-pub fn twin_pose_bytes(stamp_s: f64, seq: u64, pose: &PoseFields) -> Vec<u8> {
-    let values = pose.values();
-    let mut bytes = Vec::with_capacity(8 + 8 + 1 + 8 * values.len());
-    bytes.extend_from_slice(&stamp_s.to_le_bytes());
-    bytes.extend_from_slice(&seq.to_le_bytes());
-    push_f64s(&mut bytes, &values);
+pub fn twin_pose_bytes(stamp_s: f64, seq: u64, pose: &PoseFields) -> [u8; TWIN_POSE_BYTES] {
+    let mut bytes = [0; TWIN_POSE_BYTES];
+    bytes[..8].copy_from_slice(&stamp_s.to_le_bytes());
+    bytes[8..16].copy_from_slice(&seq.to_le_bytes());
+    write_f64s(&mut bytes[16..], &pose.values());
     bytes
 }
+
+/// Length of an `armtwin/twin-pose/v1` message.
+pub const TWIN_POSE_BYTES: usize = 8 + 8 + 1 + 8 * PoseFields::NAMES.len();
+
+/// Length of an `armtwin/deviation/v1` message.
+pub const DEVIATION_BYTES: usize = 8 + 1 + 8 * DEVIATION_NAMES.len();
 
 /// Bytes of an `armtwin/deviation/v1` message: `t` (s), then the 9 values in
 /// [`DEVIATION_NAMES`] order (81 bytes).
 #[must_use]
-pub fn deviation_bytes(stamp_s: f64, deviation: &Deviation) -> Vec<u8> {
+pub fn deviation_bytes(stamp_s: f64, deviation: &Deviation) -> [u8; DEVIATION_BYTES] {
     let values = [
         deviation.dx_m,
         deviation.dy_m,
@@ -643,10 +649,22 @@ pub fn deviation_bytes(stamp_s: f64, deviation: &Deviation) -> Vec<u8> {
         deviation.dpitch_rad,
         deviation.dyaw_rad,
     ];
-    let mut bytes = Vec::with_capacity(8 + 1 + 8 * values.len());
-    bytes.extend_from_slice(&stamp_s.to_le_bytes());
-    push_f64s(&mut bytes, &values);
+    let mut bytes = [0; DEVIATION_BYTES];
+    bytes[..8].copy_from_slice(&stamp_s.to_le_bytes());
+    write_f64s(&mut bytes[8..], &values);
     bytes
+}
+
+/// [`push_f64s`] into `bytes`, which holds exactly the length byte and the values. The fixed-size
+/// outputs are arrays because Zenoh wraps whatever it is given in an `Arc`: an array is that one
+/// allocation, a `Vec` two.
+fn write_f64s(bytes: &mut [u8], values: &[f64]) {
+    debug_assert!(values.len() < 0x80, "a one-byte LEB128 length");
+    debug_assert_eq!(bytes.len(), 1 + 8 * values.len());
+    bytes[0] = values.len() as u8;
+    for (chunk, value) in bytes[1..].chunks_exact_mut(8).zip(values) {
+        chunk.copy_from_slice(&value.to_le_bytes());
+    }
 }
 
 /// A sequence of fewer than 128 `f64`: a one-byte LEB128 length, then the values.

@@ -1,7 +1,13 @@
 //! Decoded input samples, as the pipeline receives them from any source (Zenoh, CSV, FMU), and
 //! the joint state a controller reports beside the angles.
 
+use smallvec::SmallVec;
+
 use crate::kinematics::PoseReadout;
+
+/// Joint angles (rad) of one sample: held inline up to eight joints (every catalog arm, and a
+/// gripper beside it), so decoding a sample allocates nothing; longer chains spill to the heap.
+pub type JointAngles = SmallVec<[f64; 8]>;
 
 /// One joint-angle sample of one robot.
 #[derive(Debug, Clone, PartialEq)]
@@ -11,7 +17,7 @@ pub struct JointSample {
     /// The gateway's own sequence number, if it sent one.
     pub seq: Option<u64>,
     /// Joint angles (rad), already converted from degrees where the message said so.
-    pub q_rad: Vec<f64>,
+    pub q_rad: JointAngles,
     /// The controller's measured TCP pose from the same packet (RTDE sends both together); its
     /// stamp is the joint sample's.
     pub measured: Option<PoseReadout>,

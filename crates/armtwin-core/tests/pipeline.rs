@@ -60,7 +60,7 @@ fn sample(model: &RobotModel, q: [f64; 6], with_measured: bool) -> JointSample {
     JointSample {
         stamp_s: None,
         seq: None,
-        q_rad: q.to_vec(),
+        q_rad: q.into_iter().collect(),
         measured: with_measured.then(|| model.pose(&q).expect("valid").readout()),
         state: None,
     }

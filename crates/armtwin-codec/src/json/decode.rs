@@ -11,7 +11,7 @@ use std::fmt::{self, Write as _};
 use armtwin_core::kinematics::PoseReadout;
 use armtwin_core::orientation::{self, Rpy};
 use armtwin_core::sample::{
-    ControllerStatus, JointQuantity, JointSample, JointState, MeasuredSample, Payload,
+    ControllerStatus, JointAngles, JointQuantity, JointSample, JointState, MeasuredSample, Payload,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::de::{self, DeserializeSeed, Deserializer, IgnoredAny, MapAccess, SeqAccess, Visitor};
@@ -728,7 +728,7 @@ impl MessageSlots {
             sample: JointSample {
                 stamp_s,
                 seq,
-                q_rad,
+                q_rad: JointAngles::from_vec(q_rad),
                 measured,
                 state,
             },

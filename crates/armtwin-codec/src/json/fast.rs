@@ -15,7 +15,7 @@
 use super::MAX_PAYLOAD_BYTES;
 use super::decode::{DecodedJoints, OrientationForm, joint_index, pose_of};
 use armtwin_core::kinematics::PoseReadout;
-use armtwin_core::sample::{JointSample, MeasuredSample};
+use armtwin_core::sample::{JointAngles, JointSample, MeasuredSample};
 
 /// Nesting the skipper follows inside an unknown field before it gives up.
 const MAX_SKIP_DEPTH: usize = 32;
@@ -296,9 +296,9 @@ fn stamp_of(stamp_s: Option<f64>, time_s: Option<f64>) -> Result<Option<f64>, Bo
 }
 
 /// Exactly `joint_count` finite numbers in an array.
-fn angles(scanner: &mut Scanner<'_>, joint_count: usize) -> Option<Vec<f64>> {
+fn angles(scanner: &mut Scanner<'_>, joint_count: usize) -> Option<JointAngles> {
     scanner.expect(b'[')?;
-    let mut angles = Vec::with_capacity(joint_count);
+    let mut angles = JointAngles::with_capacity(joint_count);
     if scanner.peek()? == b']' {
         scanner.at += 1;
     } else {

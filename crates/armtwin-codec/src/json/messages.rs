@@ -14,8 +14,9 @@ use serde_json::{Value, json};
 use super::encode::FlatObject;
 use crate::PoseFields;
 
-/// Room for a pose or deviation message (about 300 bytes with a long robot id) without growing.
-const POSE_JSON_CAPACITY: usize = 384;
+/// Room for a pose or deviation message without growing: up to about 400 bytes with every number
+/// at full precision (17 digits and an exponent) and a long robot id.
+const POSE_JSON_CAPACITY: usize = 512;
 
 /// Room for a metrics message (about 1.6 kB with full-precision statistics) without growing.
 const METRICS_JSON_CAPACITY: usize = 2048;
@@ -59,16 +60,23 @@ impl PoseMessage {
     /// the message the service sends for every joint sample).
     #[must_use]
     pub fn to_json_bytes(&self) -> Vec<u8> {
-        let mut object = FlatObject::with_capacity(POSE_JSON_CAPACITY);
-        object.string("robot", &self.robot);
-        object.number("t", self.t);
-        object.unsigned("seq", self.seq);
-        object.string("frame", self.frame);
-        for (name, value) in PoseFields::NAMES.into_iter().zip(self.pose.values()) {
-            object.number(name, value);
-        }
-        object.finish()
+        pose_json_bytes(&self.robot, self.t, self.seq, self.frame, &self.pose)
     }
+}
+
+/// The JSON of a [`PoseMessage`], written without making one: the service writes one per joint
+/// sample, and a message would copy the robot id first.
+#[must_use]
+pub fn pose_json_bytes(robot: &str, t: f64, seq: u64, frame: &str, pose: &PoseFields) -> Vec<u8> {
+    let mut object = FlatObject::with_capacity(POSE_JSON_CAPACITY);
+    object.string("robot", robot);
+    object.number("t", t);
+    object.unsigned("seq", seq);
+    object.string("frame", frame);
+    for (name, value) in PoseFields::NAMES.into_iter().zip(pose.values()) {
+        object.number(name, value);
+    }
+    object.finish()
 }
 
 /// Twin minus measured for one paired sample (metres, radians):
@@ -122,20 +130,38 @@ impl DeviationMessage {
     /// the message the service sends for every paired measured pose).
     #[must_use]
     pub fn to_json_bytes(&self) -> Vec<u8> {
-        let mut object = FlatObject::with_capacity(POSE_JSON_CAPACITY);
-        object.string("robot", &self.robot);
-        object.number("t", self.t);
-        object.number("dx", self.dx);
-        object.number("dy", self.dy);
-        object.number("dz", self.dz);
-        object.number("position", self.position);
-        object.number("quat_distance", self.quat_distance);
-        object.number("angle", self.angle);
-        object.number("droll", self.droll);
-        object.number("dpitch", self.dpitch);
-        object.number("dyaw", self.dyaw);
-        object.finish()
+        let deviation = Deviation {
+            dx_m: self.dx,
+            dy_m: self.dy,
+            dz_m: self.dz,
+            position_m: self.position,
+            quat_distance: self.quat_distance,
+            angle_rad: self.angle,
+            droll_rad: self.droll,
+            dpitch_rad: self.dpitch,
+            dyaw_rad: self.dyaw,
+        };
+        deviation_json_bytes(&self.robot, self.t, &deviation)
     }
+}
+
+/// The JSON of a [`DeviationMessage`], written without making one: the service writes one per
+/// paired measured pose, and a message would copy the robot id first.
+#[must_use]
+pub fn deviation_json_bytes(robot: &str, t: f64, deviation: &Deviation) -> Vec<u8> {
+    let mut object = FlatObject::with_capacity(POSE_JSON_CAPACITY);
+    object.string("robot", robot);
+    object.number("t", t);
+    object.number("dx", deviation.dx_m);
+    object.number("dy", deviation.dy_m);
+    object.number("dz", deviation.dz_m);
+    object.number("position", deviation.position_m);
+    object.number("quat_distance", deviation.quat_distance);
+    object.number("angle", deviation.angle_rad);
+    object.number("droll", deviation.droll_rad);
+    object.number("dpitch", deviation.dpitch_rad);
+    object.number("dyaw", deviation.dyaw_rad);
+    object.finish()
 }
 
 /// Something a dashboard should hear about: `{robot, t, kind, reason, key?, detail?}`, `kind`

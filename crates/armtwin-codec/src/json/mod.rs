@@ -49,7 +49,8 @@ pub use encode::to_json_bytes;
 pub use messages::{
     AlarmsJson, DeviationMessage, ErrorsJson, EstimateMessage, EventMessage, MetricsMessage,
     ParameterJson, PoseMessage, StampedJointsJson, StampedPoseJson, StateMessage, StatsJson,
-    StatsSetJson, WindowJson, joint_state_json, not_identifiable, parameters_json,
+    StatsSetJson, WindowJson, deviation_json_bytes, joint_state_json, not_identifiable,
+    parameters_json, pose_json_bytes,
 };
 
 /// Largest accepted payload (bytes); larger ones are rejected before parsing.

@@ -32,7 +32,7 @@ fn an_invalid_measured_part_leaves_the_joint_sample_valid() {
         2,
     )
     .expect("the joint sample is valid");
-    assert_eq!(decoded.sample.q_rad, [0.1, 0.2]);
+    assert_eq!(decoded.sample.q_rad[..], [0.1, 0.2]);
     assert_eq!(decoded.sample.stamp_s, Some(3.5));
     assert_eq!(decoded.sample.measured, None);
     let error = decoded
@@ -90,7 +90,7 @@ fn array_form_with_t() {
     let sample = joints(r#"{"t": 12.5, "q": [0.1, -0.2, 0.3, 0, 1, -1]}"#, 6).expect("valid");
     assert_eq!(sample.stamp_s, Some(12.5));
     assert_eq!(sample.seq, None);
-    assert_eq!(sample.q_rad, [0.1, -0.2, 0.3, 0.0, 1.0, -1.0]);
+    assert_eq!(sample.q_rad[..], [0.1, -0.2, 0.3, 0.0, 1.0, -1.0]);
     assert_eq!(sample.measured, None);
 }
 
@@ -102,7 +102,7 @@ fn flat_form_with_time_in_any_key_order() {
     )
     .expect("valid");
     assert_eq!(sample.stamp_s, Some(7.0));
-    assert_eq!(sample.q_rad, [1.5, -2.0, 3.0, 4.0, 5.0, 6.0]);
+    assert_eq!(sample.q_rad[..], [1.5, -2.0, 3.0, 4.0, 5.0, 6.0]);
 }
 
 #[test]
@@ -136,8 +136,11 @@ fn degrees_are_converted_and_radians_are_the_default() {
     let deg_flat = joints(r#"{"unit": "deg", "q1": 180, "q2": 90}"#, 2).expect("valid");
     assert!((deg_flat.q_rad[0] - std::f64::consts::PI).abs() < 1e-15);
     let rad = joints(r#"{"unit": "rad", "q": [180]}"#, 1).expect("valid");
-    assert_eq!(rad.q_rad, [180.0]);
-    assert_eq!(joints(r#"{"q": [180]}"#, 1).expect("valid").q_rad, [180.0]);
+    assert_eq!(rad.q_rad[..], [180.0]);
+    assert_eq!(
+        joints(r#"{"q": [180]}"#, 1).expect("valid").q_rad[..],
+        [180.0]
+    );
 }
 
 #[test]
@@ -164,7 +167,7 @@ fn unknown_fields_are_ignored() {
         2,
     )
     .expect("valid");
-    assert_eq!(sample.q_rad, [1.0, 2.0]);
+    assert_eq!(sample.q_rad[..], [1.0, 2.0]);
 }
 
 #[test]
@@ -178,7 +181,7 @@ fn null_optional_fields_count_as_absent() {
         (sample.stamp_s, sample.seq, sample.measured),
         (None, None, None)
     );
-    assert_eq!(sample.q_rad, [1.0]);
+    assert_eq!(sample.q_rad[..], [1.0]);
 }
 
 #[test]
@@ -327,7 +330,10 @@ fn overflowing_numbers_are_non_finite() {
         "yaw",
     );
     // Underflow is not an error: 1e-400 reads as 0.
-    assert_eq!(joints(r#"{"q": [1e-400]}"#, 1).expect("valid").q_rad, [0.0]);
+    assert_eq!(
+        joints(r#"{"q": [1e-400]}"#, 1).expect("valid").q_rad[..],
+        [0.0]
+    );
 }
 
 #[test]

@@ -293,7 +293,7 @@ fn overflowing_numbers_are_located_and_unknown_ones_skipped() {
         2,
     )
     .expect("unknown fields are skipped");
-    assert_eq!(sample.sample.q_rad, [0.0, 0.0]);
+    assert_eq!(sample.sample.q_rad[..], [0.0, 0.0]);
 }
 
 #[test]
@@ -323,7 +323,7 @@ fn duplicate_known_fields_are_rejected() {
     assert_eq!(err.to_string(), "field 't': appears more than once");
     // Unknown fields are not looked at, repeated or not.
     let sample = decode_joints(br#"{"q": [1], "v": 1, "v": 2}"#, 1).expect("valid");
-    assert_eq!(sample.sample.q_rad, [1.0]);
+    assert_eq!(sample.sample.q_rad[..], [1.0]);
 }
 
 #[test]

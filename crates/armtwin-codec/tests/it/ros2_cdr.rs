@@ -57,7 +57,7 @@ fn every_fixture_decodes_to_what_its_writer_put_in() {
                 }
                 let sample = decoded.unwrap_or_else(|e| panic!("{file}: {e}"));
                 assert_eq!(sample.stamp_s, entry["stamp_s"].as_f64(), "{file}");
-                assert_eq!(sample.q_rad, numbers(&entry["q_rad"]), "{file}");
+                assert_eq!(sample.q_rad[..], numbers(&entry["q_rad"]), "{file}");
                 assert_eq!(sample.seq, None);
                 assert_eq!(sample.measured, None);
             }
@@ -116,7 +116,7 @@ fn messages_rclpy_serialized_decode_to_what_was_put_in() {
             let sample = cdr::decode_joint_state(&bytes, &names, Some(EffortMeaning::CurrentA))
                 .unwrap_or_else(|e| panic!("{file}: {e}"));
             assert_eq!(sample.stamp_s, stamp_s, "{file}");
-            assert_eq!(sample.q_rad, numbers(&entry["q_rad"]), "{file}");
+            assert_eq!(sample.q_rad[..], numbers(&entry["q_rad"]), "{file}");
             let state = sample.state.as_deref();
             for (field, quantity) in [
                 ("qd_rad_s", JointQuantity::Velocity),
@@ -329,7 +329,7 @@ proptest! {
         };
         for effort in [None, Some(EffortMeaning::CurrentA), Some(EffortMeaning::TorqueNm)] {
             let sample = cdr::decode_joint_state(&bytes, &names, effort).expect("valid");
-            prop_assert_eq!(&sample.q_rad, &q.to_vec());
+            prop_assert_eq!(&sample.q_rad[..], &q.to_vec());
             if let Some(state) = &sample.state {
                 prop_assert_eq!(velocity_len, 1);
                 prop_assert_eq!(

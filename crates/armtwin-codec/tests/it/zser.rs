@@ -77,7 +77,10 @@ fn the_byte_example_of_the_protocol_reads_as_documented() {
     let decoded = zser::read_joints(&bytes, 2).unwrap();
     assert_eq!(decoded.sample.stamp_s, Some(0.5));
     assert_eq!(decoded.sample.seq, Some(7));
-    assert_eq!(decoded.sample.q_rad, [0.0, -std::f64::consts::FRAC_PI_2]);
+    assert_eq!(
+        decoded.sample.q_rad[..],
+        [0.0, -std::f64::consts::FRAC_PI_2]
+    );
     assert_eq!(decoded.sample.measured, None);
     assert_eq!(decoded.measured_error, None);
 }
@@ -87,7 +90,7 @@ fn a_joint_message_with_measured_reads_as_its_json_twin() {
     let q = [0.1, -1.2, 1.3, -0.4, 1.5, 0.6];
     let decoded = zser::read_joints(&joints_bytes(12.5, &q, 99, &MEASURED), 6).unwrap();
     assert_eq!(decoded.measured_error, None);
-    assert_eq!(decoded.sample.q_rad, q);
+    assert_eq!(decoded.sample.q_rad[..], q);
     assert_eq!(decoded.sample.measured, Some(json_pose(MEASURED)));
     let measured = zser::read_measured(&pose_bytes(3.25, &MEASURED)).unwrap();
     assert_eq!(measured.stamp_s, Some(3.25));
@@ -246,7 +249,7 @@ fn a_bad_measured_part_leaves_the_joint_sample_valid() {
     ];
     for (measured, kind, field) in cases {
         let decoded = zser::read_joints(&joints_bytes(5.0, &q, 3, measured), 2).unwrap();
-        assert_eq!(decoded.sample.q_rad, q);
+        assert_eq!(decoded.sample.q_rad[..], q);
         assert_eq!(decoded.sample.measured, None);
         let error = decoded
             .measured_error
@@ -392,7 +395,7 @@ proptest! {
         let decoded = zser::read_joints(&joints_bytes(t, &q, seq, measured), q.len()).unwrap();
         prop_assert_eq!(decoded.sample.stamp_s, Some(t));
         prop_assert_eq!(decoded.sample.seq, Some(seq));
-        prop_assert_eq!(&decoded.sample.q_rad, &q);
+        prop_assert_eq!(&decoded.sample.q_rad[..], &q);
         prop_assert_eq!(decoded.sample.measured.is_some(), with_measured);
     }
 
@@ -414,7 +417,7 @@ proptest! {
                 let (t, q, seq, measured): (f64, Vec<f64>, u64, Vec<f64>) =
                     z_deserialize(&ZBytes::from(bytes.clone())).expect("zenoh-ext reads it too");
                 prop_assert_eq!(decoded.sample.stamp_s, Some(t));
-                prop_assert_eq!(decoded.sample.q_rad, q);
+                prop_assert_eq!(decoded.sample.q_rad.to_vec(), q);
                 prop_assert_eq!(decoded.sample.seq, Some(seq));
                 // A damaged length byte may leave a valid message without a measured pose;
                 // a measured part refused on its own keeps whatever length it had.
@@ -462,7 +465,7 @@ fn joint_state_round_trips_and_its_bad_parts_refuse_only_the_state() {
     let bytes = zser::joints_state_bytes(3.0, &[0.1, 0.2], 4, None, &hot);
     let decoded = zser::read_joints_with_state(&bytes, 2).unwrap();
     assert_eq!(decoded.sample.state, None);
-    assert_eq!(decoded.sample.q_rad, vec![0.1, 0.2]);
+    assert_eq!(decoded.sample.q_rad[..], vec![0.1, 0.2]);
     let error = decoded.state_error.unwrap();
     assert_eq!(error.kind(), "non_finite");
     assert!(error.to_string().contains("temperature_c[0]"), "{error}");
@@ -502,7 +505,7 @@ fn json_state_is_read_by_the_general_decoder_and_its_bad_parts_refuse_only_the_s
         let payload = format!(r#"{{"t": 1, "q": [0, 0], "state": {bad}}}"#);
         let decoded = read_joints(payload.as_bytes(), 2).unwrap();
         assert_eq!(decoded.sample.state, None, "{bad}");
-        assert_eq!(decoded.sample.q_rad, vec![0.0, 0.0]);
+        assert_eq!(decoded.sample.q_rad[..], vec![0.0, 0.0]);
         let error = decoded.state_error.unwrap();
         assert_eq!(error.kind(), "joint_state", "{bad}");
         assert!(error.to_string().contains(field), "{bad}: {error}");

@@ -939,6 +939,7 @@ mod tests {
     use crate::kinematics::TcpOffset;
     use crate::pipeline::sinks::{Discard, Record};
     use crate::pipeline::{AlarmConfig, Pipeline, RobotDirectory, RobotSettings};
+    use crate::sample::JointAngles;
 
     /// One input of a test run, given to a pipeline or to a twin alone.
     enum Input {
@@ -961,7 +962,7 @@ mod tests {
             let joints = JointSample {
                 stamp_s: None,
                 seq: Some(u64::from(i)),
-                q_rad: q_rad.clone(),
+                q_rad: JointAngles::from_slice(&q_rad),
                 measured: (i % 3 == 0).then_some(off),
                 state: None,
             };
@@ -1096,7 +1097,7 @@ mod tests {
         let joints = JointSample {
             stamp_s: None,
             seq: None,
-            q_rad: q_rad.clone(),
+            q_rad: JointAngles::from_slice(&q_rad),
             measured: None,
             state: None,
         };
@@ -1143,7 +1144,7 @@ mod tests {
             let joints = JointSample {
                 stamp_s: None,
                 seq: Some(u64::from(i)),
-                q_rad: q_rad.clone(),
+                q_rad: JointAngles::from_slice(&q_rad),
                 measured: Some(off),
                 state: None,
             };
@@ -1223,7 +1224,7 @@ mod tests {
         let joints = || JointSample {
             stamp_s: None,
             seq: None,
-            q_rad: q_rad.to_vec(),
+            q_rad: JointAngles::from_slice(&q_rad),
             measured: None,
             state: None,
         };

@@ -31,12 +31,12 @@ use crate::snapshot::SnapshotStore;
 /// and sent after it is released, so a robot's samples wait at most for its own snapshot, never
 /// for a metrics message's encoding and sending.
 fn publish_due_metrics(fleet: &Fleet) {
-    for cell in fleet.cells() {
+    fleet.for_each_cell(|cell| {
         let snapshot = {
             let mut guard = cell.lock();
             let state = &mut *guard;
             let Some(snapshot) = state.twin.as_mut().and_then(Twin::take_due_metrics) else {
-                continue;
+                return;
             };
             state.outputs.counts.last_active = Some(Instant::now());
             snapshot
@@ -51,16 +51,22 @@ fn publish_due_metrics(fleet: &Fleet) {
         fleet
             .outputs
             .publish(None, &snapshot.robot, Stream::Metrics, payload);
-    }
+    });
 }
 
-/// Twin poses a robot publishes on plain keys before the control thread declares the
-/// publishers (and input keys) that cache its routes. Zenoh computes the route of a put on an
-/// undeclared key anew every time; a declaration is paid once, costs in proportion to the keys
-/// beside it and holds memory for as long as the robot is tracked: a robot that streams repays
-/// it within a few dozen messages, while one that sends now and then never would, so a fleet of
-/// mostly quiet robots holds route caches only for the few that stream.
-pub(super) const ROUTE_CACHE_AFTER_POSES: u64 = 64;
+/// Twin poses a robot publishes on plain keys within [`ROUTE_CACHE_WINDOW_S`] of source time
+/// before the control thread declares the publishers (and input keys) that cache its routes: a
+/// rate (6.4 Hz), not a count, so a robot that sends now and then never gets them. Zenoh computes
+/// the route of a put on an undeclared key anew every time (tens of µs); a declaration is paid
+/// once, costs in proportion to the keys beside it (milliseconds in a fleet of thousands) and
+/// holds memory for as long as the robot is tracked. A robot that streams repays it within a few
+/// hundred messages; one under the rate spends at most a fraction of a millisecond of CPU a second
+/// on its plain keys, less than the declarations' memory and their cost to every other
+/// declaration is worth (BENCHMARKS.md, "The service next to a plain Zenoh echo").
+pub(super) const ROUTE_CACHE_POSES: u32 = 64;
+
+/// The span of source time (s) [`ROUTE_CACHE_POSES`] poses must fall in.
+pub(super) const ROUTE_CACHE_WINDOW_S: f64 = 10.0;
 
 /// Retires the robots idle for `forget_after` ([`Fleet::retire_idle`]), then, without any lock,
 /// finishes each (its final metrics and unpaired measurements go out) and undeclares its
@@ -387,15 +393,14 @@ impl Control {
         fleet.stop();
         let mut robots = 0;
         let mut declarations = Declarations::default();
-        for cell in fleet.cells() {
-            let mut guard = cell.lock();
-            if declarations.finish(outputs, cell.robot.shared_id(), &mut guard) {
+        let counted = fleet.walk(|cell, guard| {
+            if declarations.finish(outputs, cell.robot.shared_id(), guard) {
                 robots += 1;
             }
-        }
+        });
         let report = ServeReport {
-            inputs: fleet.inputs.load(Ordering::Relaxed),
-            poses: outputs.poses.load(Ordering::Relaxed),
+            inputs: counted.inputs,
+            poses: counted.poses,
             robots,
             publish_errors: outputs.publish_errors.load(Ordering::Relaxed),
         };

@@ -7,7 +7,7 @@
 #[cfg(debug_assertions)]
 use std::cell::Cell;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard, PoisonError, RwLock, RwLockReadGuard};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError, RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::{Duration, Instant};
 
 use zenoh::key_expr::KeyExpr;
@@ -29,25 +29,27 @@ use crate::ros2::PublisherSeq;
 /// a thread wake-up and a copy per sample. Backpressure is Zenoh's own: while the callback works,
 /// its link is not read.
 ///
-/// A sample finds its robot in `robots` under a read lock (one hash of the id; a robot under the
-/// default settings is admitted, under the write lock, on its first input, while the fleet has
-/// room), then, still under it, the robot's cell in `cells` under that vector's read lock (added,
-/// under its write lock, on the robot's first input), and clones the cell's `Arc` out: no shared
-/// lock is held while it decodes against the cell's robot and steps the twin under the cell's own
-/// lock. Samples of different robots never wait on each other's processing; samples of one robot
-/// take turns on its lock.
+/// A sample finds its robot's cell in the [`Directory`] under its read lock (one hash of the id,
+/// one index; a robot under the default settings is admitted, and a robot's cell made, under the
+/// write lock on its first input, while the fleet has room) and clones the cell's `Arc` out: no
+/// shared lock is held while it decodes against the cell's robot and steps the twin under the
+/// cell's own lock. Samples of different robots never wait on each other's processing; samples of
+/// one robot take turns on its lock. The sample path counts under the robot's lock only (its
+/// inputs and poses): no counter shared by the fleet is written per sample, and the totals are the
+/// robots' counts summed when read ([`Fleet::walk`]).
 ///
 /// **Retirement.** A robot admitted under the default that sent nothing for `forget_after` is
-/// retired by the control thread ([`Fleet::retire_idle`]): under both shared write locks its
-/// directory entry and cell slot go and its state is taken out of its cell, which is marked
-/// retired. A sample that found the cell just before sees the mark under the cell's lock and
-/// looks its robot up again, which admits it afresh: no sample is lost to a retirement.
+/// retired by the control thread ([`Fleet::retire_idle`]): under the directory's write lock its
+/// entry and cell slot go and its state is taken out of its cell, which is marked retired (and
+/// keeps the robot's counts, for a walk that found it before). A sample that found the cell just
+/// before sees the mark under the cell's lock and looks its robot up again, which admits it
+/// afresh: no sample is lost to a retirement.
 ///
-/// **Lock order**, held by this module: `robots`, then `cells`, then one robot's cell. Both
-/// shared locks are private here and no guard of them leaves this module, so only the functions
-/// below take them, and each releases them before it returns a cell. A cell's lock is taken only
-/// through [`RobotCell::lock`], whose guard (in debug builds) asserts that its thread holds no
-/// other cell and takes no shared lock while it lives. Under a cell only leaf locks are taken,
+/// **Lock order**, held by this module: the directory, then one robot's cell. The directory's lock
+/// is private here and no guard of it leaves this module, so only the functions below take it, and
+/// each releases it before it returns a cell. A cell's lock is taken only through
+/// [`RobotCell::lock`], whose guard (in debug builds) asserts that its thread holds no other cell
+/// and takes no shared lock while it lives. Under a cell only leaf locks are taken,
 /// briefly and never across a `put` (the untracked robots' event bucket, the snapshot time).
 /// Nothing that can wait on the network runs under a robot's lock except its own outputs' `put`
 /// (events and metrics with `block` congestion control, as the echo): a subscriber that stops
@@ -57,13 +59,14 @@ pub(super) struct Fleet {
     /// `[service] robots`.
     shard: KeyExpr<'static>,
     pub(super) pipeline: PipelineConfig,
-    robots: RwLock<RobotDirectory>,
-    /// By robot index, from the robot's first input (or its restored twin) on.
-    cells: RwLock<Vec<Option<Arc<RobotCell>>>>,
+    directory: RwLock<Directory>,
     /// What every robot's outputs share.
     pub(super) outputs: Outputs,
-    /// Inputs (samples and queries) processed.
-    pub(super) inputs: AtomicU64,
+    /// Inputs that reached no robot's twin (queries, samples of robots refused) and those of
+    /// robots since retired: with the robots' own counts, every input processed.
+    inputs_elsewhere: AtomicU64,
+    /// Twin poses of robots since retired.
+    retired_poses: AtomicU64,
     /// Set by the control thread before it finishes the twins, each under its robot's lock:
     /// an input that takes a robot's lock after its twin was finished sees it and is ignored.
     stopped: AtomicBool,
@@ -86,6 +89,47 @@ pub(super) struct Fleet {
     /// where reading the system clock per sample would cost more than it tells.
     clock_ms: AtomicU64,
     started: Instant,
+}
+
+/// Who may be tracked, and each tracked robot's cell: one lock for both, so a sample finds its
+/// robot's cell under a single read lock.
+struct Directory {
+    robots: RobotDirectory,
+    /// By robot index, from the robot's first input (or its restored twin) on.
+    cells: Vec<Option<Arc<RobotCell>>>,
+}
+
+impl Directory {
+    /// `robot`'s cell, if it has one. `robot` must have been found in `robots` under the lock
+    /// held: only then is its index its own.
+    fn cell(&self, robot: &Robot) -> Option<Arc<RobotCell>> {
+        self.cells.get(robot.index().get())?.clone()
+    }
+
+    /// `robot`'s cell, made now if it has none (with its last input at `now_ms`); `robot` as for
+    /// [`cell`](Self::cell).
+    fn cell_or_new(&mut self, robot: &Robot, now_ms: u64) -> Arc<RobotCell> {
+        let index = robot.index().get();
+        if self.cells.len() <= index {
+            self.cells.resize_with(index + 1, || None);
+        }
+        Arc::clone(self.cells[index].get_or_insert_with(|| {
+            Arc::new(RobotCell {
+                robot: robot.clone(),
+                state: Mutex::new(RobotState {
+                    last_input_ms: now_ms,
+                    ..RobotState::default()
+                }),
+            })
+        }))
+    }
+}
+
+/// Inputs processed and twin poses published, all robots.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub(super) struct Totals {
+    pub(super) inputs: u64,
+    pub(super) poses: u64,
 }
 
 /// Where an input's robot id leads.
@@ -117,6 +161,8 @@ pub(super) struct RobotState {
     /// By `[[sources]]` index: how a ROS source's `rmw_zenoh` sequence numbers become gateway
     /// `seq`s (a robot has one or two sources at most: a short list beats a map).
     pub(super) publisher_seqs: Vec<(usize, PublisherSeq)>,
+    /// Inputs stepped into the twin.
+    inputs: u64,
     /// The robot's last input, on the fleet's clock ([`Fleet::clock_ms`]).
     last_input_ms: u64,
     /// The robot was retired: this cell is no longer the fleet's, and an input that finds it
@@ -232,13 +278,14 @@ impl Fleet {
         Self {
             shard: config.shard.clone(),
             pipeline: config.pipeline,
-            robots: RwLock::new(
-                RobotDirectory::new(config.default_robot.clone(), config.robots.clone())
+            directory: RwLock::new(Directory {
+                robots: RobotDirectory::new(config.default_robot.clone(), config.robots.clone())
                     .limit_to(config.max_robots),
-            ),
-            cells: RwLock::new(Vec::new()),
+                cells: Vec::new(),
+            }),
             outputs,
-            inputs: AtomicU64::new(0),
+            inputs_elsewhere: AtomicU64::new(0),
+            retired_poses: AtomicU64::new(0),
             stopped: AtomicBool::new(false),
             snapshot_written: Mutex::new(None),
             refused_full: AtomicU64::new(0),
@@ -279,24 +326,34 @@ impl Fleet {
 
     /// Robots in the directory (configured and admitted) and the most it holds.
     pub(super) fn occupancy(&self) -> (usize, usize) {
-        let robots = self.read_robots();
-        (robots.len(), robots.max_robots())
+        let directory = self.read_directory();
+        (directory.robots.len(), directory.robots.max_robots())
     }
 
-    fn read_robots(&self) -> RwLockReadGuard<'_, RobotDirectory> {
+    fn read_directory(&self) -> RwLockReadGuard<'_, Directory> {
         assert_no_cell_held("the robot directory");
         // Entries are added and removed whole: a panic cannot leave half of one.
-        self.robots.read().unwrap_or_else(PoisonError::into_inner)
+        self.directory
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+    }
+
+    fn write_directory(&self) -> RwLockWriteGuard<'_, Directory> {
+        assert_no_cell_held("the robot directory");
+        self.directory
+            .write()
+            .unwrap_or_else(PoisonError::into_inner)
     }
 
     /// Robot `id`'s handle, if it is configured or tracked.
     pub(super) fn find(&self, id: &str) -> Option<Robot> {
-        self.read_robots().find(id).cloned()
+        self.read_directory().robots.find(id).cloned()
     }
 
     /// The model robot `id`'s settings give it (configured, or the default's), if any.
     pub(super) fn configured_model(&self, id: &str) -> Option<Arc<RobotModel>> {
-        self.read_robots()
+        self.read_directory()
+            .robots
             .settings_for(id)
             .map(|settings| Arc::clone(&settings.model))
     }
@@ -304,86 +361,78 @@ impl Fleet {
     /// Admits robot `id` under the default settings (or finds it configured or tracked), or
     /// says why this instance may not track it.
     pub(super) fn admit(&self, id: &str) -> Result<Robot, Untracked> {
-        assert_no_cell_held("the robot directory");
-        let mut robots = self.robots.write().unwrap_or_else(PoisonError::into_inner);
-        robots.admit(id).cloned()
+        self.write_directory().robots.admit(id).cloned()
     }
 
     /// Where an input of robot `id` goes: its cell (a robot under the default settings is
     /// admitted on its first input), or why it has none.
     pub(super) fn lookup(&self, id: &str) -> Lookup {
-        let admission = {
-            let robots = self.read_robots();
-            if let Some(robot) = robots.find(id) {
-                // The cell is taken under the directory's lock: a retirement, which holds it for
-                // writing, cannot come between the two.
-                return Lookup::Found(self.cell(robot));
+        let known = {
+            let directory = self.read_directory();
+            if let Some(robot) = directory.robots.find(id) {
+                // Taken under the directory's lock: a retirement, which holds it for writing,
+                // cannot come between the robot and its cell.
+                if let Some(cell) = directory.cell(robot) {
+                    return Lookup::Found(cell);
+                }
+                true
+            } else {
+                // Made-up ids of a service that rejects unknown robots, or of a full fleet, never
+                // take the write lock.
+                if let Err(why) = directory.robots.admission() {
+                    if !crate::config::owns(&self.shard, id) {
+                        return Lookup::Foreign;
+                    }
+                    return Lookup::Refused(why);
+                }
+                false
             }
-            robots.admission()
         };
         // Inputs of another instance's robots reach this one only through a `[[sources]]` key
         // that covers several shards: they are that instance's to take.
-        if !crate::config::owns(&self.shard, id) {
+        if !known && !crate::config::owns(&self.shard, id) {
             return Lookup::Foreign;
         }
-        // Made-up ids of a service that rejects unknown robots, or of a full fleet, never take
-        // the write lock.
-        if let Err(why) = admission {
-            return Lookup::Refused(why);
-        }
-        assert_no_cell_held("the robot directory");
-        let mut robots = self.robots.write().unwrap_or_else(PoisonError::into_inner);
-        match robots.admit(id) {
-            Ok(robot) => Lookup::Found(self.cell(robot)),
+        let now_ms = self.clock_ms();
+        let mut directory = self.write_directory();
+        let directory = &mut *directory;
+        match directory.robots.admit(id) {
+            Ok(robot) => {
+                let robot = robot.clone();
+                Lookup::Found(directory.cell_or_new(&robot, now_ms))
+            }
             Err(why) => Lookup::Refused(why),
         }
     }
 
     /// Robot `id`'s cell, if it has one.
     pub(super) fn existing_cell_of(&self, id: &str) -> Option<Arc<RobotCell>> {
-        let robots = self.read_robots();
-        let index = robots.find(id)?.index();
-        assert_no_cell_held("the fleet's cells");
-        let cells = self.cells.read().unwrap_or_else(PoisonError::into_inner);
-        cells.get(index.get())?.clone()
+        let directory = self.read_directory();
+        directory.cell(directory.robots.find(id)?)
     }
 
     /// `robot`'s cell while it is the fleet's: `None` once the robot was retired (its handle is
     /// then stale, and its index may be another robot's).
     pub(super) fn live_cell(&self, robot: &Robot) -> Option<Arc<RobotCell>> {
-        let robots = self.read_robots();
-        let current = robots.find(robot.id())?;
-        if !Arc::ptr_eq(current.shared_id(), robot.shared_id()) {
-            return None;
-        }
-        Some(self.cell(current))
-    }
-
-    /// `robot`'s cell, added on first use. The caller holds the directory's lock (read or
-    /// write) and found `robot` in it: only then is the robot's index its own.
-    fn cell(&self, robot: &Robot) -> Arc<RobotCell> {
-        assert_no_cell_held("the fleet's cells");
-        let index = robot.index().get();
+        let is_current = |current: &Robot| Arc::ptr_eq(current.shared_id(), robot.shared_id());
         {
-            let cells = self.cells.read().unwrap_or_else(PoisonError::into_inner);
-            if let Some(Some(cell)) = cells.get(index) {
-                return Arc::clone(cell);
+            let directory = self.read_directory();
+            let current = directory
+                .robots
+                .find(robot.id())
+                .filter(|c| is_current(c))?;
+            if let Some(cell) = directory.cell(current) {
+                return Some(cell);
             }
         }
-        let mut cells = self.cells.write().unwrap_or_else(PoisonError::into_inner);
-        if cells.len() <= index {
-            cells.resize_with(index + 1, || None);
-        }
-        let last_input_ms = self.clock_ms();
-        Arc::clone(cells[index].get_or_insert_with(|| {
-            Arc::new(RobotCell {
-                robot: robot.clone(),
-                state: Mutex::new(RobotState {
-                    last_input_ms,
-                    ..RobotState::default()
-                }),
-            })
-        }))
+        let now_ms = self.clock_ms();
+        let mut directory = self.write_directory();
+        let current = directory
+            .robots
+            .find(robot.id())
+            .filter(|c| is_current(c))?
+            .clone();
+        Some(directory.cell_or_new(&current, now_ms))
     }
 
     /// Retires every robot admitted under the default that has had no input for `idle`: each
@@ -393,28 +442,34 @@ impl Fleet {
         let idle_ms = u64::try_from(idle.as_millis()).unwrap_or(u64::MAX);
         let now_ms = self.clock_ms();
         let is_idle = |state: &RobotState| now_ms.saturating_sub(state.last_input_ms) >= idle_ms;
-        // Found without the write locks (each cell's lock taken alone), checked again under them.
+        // Found without the write lock (each cell's lock taken alone), checked again under it.
         let mut candidates = self.cells();
         {
-            let robots = self.read_robots();
-            candidates.retain(|cell| !robots.is_configured(&cell.robot));
+            let directory = self.read_directory();
+            candidates.retain(|cell| !directory.robots.is_configured(&cell.robot));
         }
         candidates.retain(|cell| is_idle(&cell.lock()));
         let mut retired = Vec::with_capacity(candidates.len());
         for batch in candidates.chunks(RETIRE_BATCH) {
-            assert_no_cell_held("the robot directory");
-            let mut robots = self.robots.write().unwrap_or_else(PoisonError::into_inner);
-            let mut cells = self.cells.write().unwrap_or_else(PoisonError::into_inner);
+            let mut directory = self.write_directory();
             for cell in batch {
                 let mut guard = cell.lock();
-                if guard.retired || !is_idle(&guard) || !robots.forget(&cell.robot) {
+                if guard.retired || !is_idle(&guard) || !directory.robots.forget(&cell.robot) {
                     continue;
                 }
-                if let Some(slot) = cells.get_mut(cell.robot.index().get()) {
+                if let Some(slot) = directory.cells.get_mut(cell.robot.index().get()) {
                     *slot = None;
                 }
                 let state = std::mem::take(&mut *guard);
+                // The counts move to the fleet's under the directory's write lock, and stay in
+                // the cell for a walk that took the cells before ([`Fleet::walk`]).
                 guard.retired = true;
+                guard.inputs = state.inputs;
+                guard.outputs.counts.poses = state.outputs.counts.poses;
+                self.inputs_elsewhere
+                    .fetch_add(state.inputs, Ordering::Relaxed);
+                self.retired_poses
+                    .fetch_add(state.outputs.counts.poses, Ordering::Relaxed);
                 retired.push(Retired {
                     robot: cell.robot.clone(),
                     state,
@@ -430,9 +485,60 @@ impl Fleet {
 
     /// Every robot's cell, in index order: taken out so the robots can be locked one by one.
     pub(super) fn cells(&self) -> Vec<Arc<RobotCell>> {
-        assert_no_cell_held("the fleet's cells");
-        let cells = self.cells.read().unwrap_or_else(PoisonError::into_inner);
-        cells.iter().flatten().cloned().collect()
+        let directory = self.read_directory();
+        directory.cells.iter().flatten().cloned().collect()
+    }
+
+    /// Calls `visit` with every robot's cell, in index order, a batch of cells at a time taken
+    /// out under the directory's read lock: no list of the whole fleet is made, and admissions
+    /// wait at most for one batch to be copied. A robot admitted or retired during the walk may
+    /// be visited or not.
+    pub(super) fn for_each_cell(&self, mut visit: impl FnMut(&Arc<RobotCell>)) {
+        const BATCH: usize = 256;
+        let mut batch = Vec::with_capacity(BATCH);
+        let mut next = 0;
+        loop {
+            {
+                let directory = self.read_directory();
+                let Some(rest) = directory.cells.get(next..) else {
+                    return;
+                };
+                let taken = rest.iter().take(BATCH);
+                next += taken.len();
+                batch.extend(taken.flatten().cloned());
+                if next == directory.cells.len() && batch.is_empty() {
+                    return;
+                }
+            }
+            for cell in batch.drain(..) {
+                visit(&cell);
+            }
+        }
+    }
+
+    /// Every robot's cell, locked in turn and handed to `visit` (under the robot's lock alone),
+    /// and the fleet's totals: the robots' counts summed with the fleet's. The cells and the
+    /// fleet's counts are taken under one read lock, and a robot retired since keeps its counts
+    /// in its cell, so each input and pose is counted once.
+    pub(super) fn walk(&self, mut visit: impl FnMut(&RobotCell, &mut CellGuard<'_>)) -> Totals {
+        let (cells, mut totals) = {
+            let directory = self.read_directory();
+            let cells: Vec<_> = directory.cells.iter().flatten().cloned().collect();
+            let totals = Totals {
+                inputs: self.inputs_elsewhere.load(Ordering::Relaxed),
+                poses: self.retired_poses.load(Ordering::Relaxed),
+            };
+            (cells, totals)
+        };
+        for cell in &cells {
+            let mut guard = cell.lock();
+            if !guard.retired {
+                visit(cell, &mut guard);
+            }
+            totals.inputs += guard.inputs;
+            totals.poses += guard.outputs.counts.poses;
+        }
+        totals
     }
 
     /// Whether the control thread has begun finishing the twins.
@@ -464,7 +570,7 @@ impl Fleet {
         if guard.retired {
             return false;
         }
-        self.inputs.fetch_add(1, Ordering::Relaxed);
+        guard.inputs += 1;
         guard.last_input_ms = self.clock_ms();
         input(guard.stepping(&cell.robot, &self.pipeline, &self.outputs));
         true
@@ -476,7 +582,7 @@ impl Fleet {
         if self.is_stopped() {
             return false;
         }
-        self.inputs.fetch_add(1, Ordering::Relaxed);
+        self.inputs_elsewhere.fetch_add(1, Ordering::Relaxed);
         true
     }
 
@@ -588,8 +694,53 @@ model = "ur5e"
         );
         assert!(!fleet.count_input());
         assert_eq!(stepped, 1);
-        assert_eq!(fleet.inputs.load(std::sync::atomic::Ordering::Relaxed), 2);
+        assert_eq!(fleet.walk(|_, _| {}).inputs, 2);
         assert!(fleet.unless_stopped(&cell).is_none());
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 1)]
+    async fn totals_sum_the_robots_counts_and_keep_those_of_retired_robots() {
+        let fleet = fleet_of("[service]\nrobots = \"lab/**\"\n").await;
+        let (Lookup::Found(a), Lookup::Found(b)) = (fleet.lookup("lab/a"), fleet.lookup("lab/b"))
+        else {
+            panic!("both admitted");
+        };
+        for cell in [&a, &a, &b] {
+            assert!(fleet.step(cell, |_| {}));
+        }
+        assert!(fleet.count_input());
+        let mut visited = Vec::new();
+        let totals = fleet.walk(|cell, _| visited.push(cell.robot.id().to_owned()));
+        assert_eq!(visited, ["lab/a", "lab/b"]);
+        assert_eq!(totals.inputs, 4);
+        let retired = fleet.retire_idle(std::time::Duration::ZERO);
+        assert_eq!(retired.len(), 2);
+        // A retired cell keeps its counts for a walk that took it before the retirement; the
+        // fleet's own count has them now, and a walk after finds no cell.
+        assert_eq!(a.lock().inputs, 2);
+        let mut visited = 0;
+        assert_eq!(fleet.walk(|_, _| visited += 1).inputs, 4);
+        assert_eq!(visited, 0);
+        let mut cells = 0;
+        fleet.for_each_cell(|_| cells += 1);
+        assert_eq!(cells, 0);
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 1)]
+    async fn for_each_cell_visits_a_fleet_larger_than_a_batch_once_each() {
+        let fleet = fleet_of("[service]\nrobots = \"lab/**\"\n").await;
+        for robot in 0..600 {
+            assert!(matches!(
+                fleet.lookup(&format!("lab/r{robot}")),
+                Lookup::Found(_)
+            ));
+        }
+        let mut ids = Vec::new();
+        fleet.for_each_cell(|cell| ids.push(cell.robot.id().to_owned()));
+        assert_eq!(ids.len(), 600);
+        ids.sort();
+        ids.dedup();
+        assert_eq!(ids.len(), 600);
     }
 
     #[cfg(debug_assertions)]

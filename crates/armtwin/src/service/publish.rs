@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use tracing::warn;
 use zenoh::Wait;
-use zenoh::bytes::Encoding;
+use zenoh::bytes::{Encoding, ZBytes};
 use zenoh::key_expr::KeyExpr;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Publisher;
@@ -27,9 +27,12 @@ use crate::keys::{KeySpace, Stream};
 use crate::ros2::PoseOutputs;
 
 /// A streaming robot's publishers of its outputs at the sample rate, and its input keys:
-/// declared so Zenoh caches their routes (after [`ROUTE_CACHE_AFTER_POSES`]). Its metrics, events and calibration, a few per second at most,
-/// go out without a publisher: every declaration costs in proportion to the keys beside it, on
-/// this side and on every subscriber's.
+/// declared so Zenoh caches their routes, once the robot streams at the rate
+/// [`ROUTE_CACHE_POSES`](super::control::ROUTE_CACHE_POSES) sets. Its metrics (one per metrics
+/// period), events and calibration go out without a publisher: every declaration costs in
+/// proportion to the keys beside it, on this side and on every subscriber's. (A metrics publisher
+/// halved the control thread's CPU at 1 000 robots, and slowed a fleet's first contact in
+/// trials: BENCHMARKS.md, "The per-sample path".)
 pub(super) struct RobotPublishers {
     pose: Publisher<'static>,
     deviation: Publisher<'static>,
@@ -69,8 +72,6 @@ pub(super) struct Outputs {
     /// Shared by the robots that may not be tracked, so a flood of made-up ids cannot grow the
     /// buckets. A leaf lock: held for a bucket's arithmetic only, never across a `put`.
     pub(super) untracked_bucket: Mutex<EventBucket>,
-    /// Twin poses published.
-    pub(super) poses: AtomicU64,
     /// Outputs Zenoh refused to send.
     pub(super) publish_errors: AtomicU64,
 }
@@ -100,7 +101,6 @@ impl Outputs {
             control,
             event_budget: config.event_budget,
             untracked_bucket: Mutex::new(EventBucket::full(config.event_budget, Instant::now())),
-            poses: AtomicU64::new(0),
             publish_errors: AtomicU64::new(0),
         }
     }
@@ -124,7 +124,7 @@ impl Outputs {
         outputs: Option<&RobotPublishers>,
         robot: &str,
         stream: Stream,
-        payload: Vec<u8>,
+        payload: ZBytes,
     ) -> bool {
         let result = if let Some(publisher) = outputs.and_then(|outputs| outputs.of(stream)) {
             publisher.put(payload).wait()
@@ -225,9 +225,9 @@ impl Outputs {
         declared: Option<&RobotPublishers>,
         robot: &str,
         stream: Stream,
-        payload: Vec<u8>,
+        payload: impl Into<ZBytes>,
     ) {
-        if !self.put(declared, robot, stream, payload) {
+        if !self.put(declared, robot, stream, payload.into()) {
             self.publish_errors.fetch_add(1, Ordering::Relaxed);
         }
     }

@@ -10,9 +10,10 @@ use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
 use tracing::{debug, info, warn};
 use zenoh::Wait;
+use zenoh::bytes::ZBytes;
 use zenoh::sample::Locality;
 
-use super::control::{Control, ROUTE_CACHE_AFTER_POSES};
+use super::control::{Control, ROUTE_CACHE_POSES, ROUTE_CACHE_WINDOW_S};
 use super::events::EventBucket;
 use super::publish::{Outputs, RobotPublishers};
 use crate::codec::{PoseFields, cdr, json, zser};
@@ -41,6 +42,37 @@ pub(super) struct RobotOutputState {
     ros2_pose: Option<Ros2PoseState>,
     /// What the dashboard and `/metrics` read beyond the twin's own state.
     pub(super) counts: RobotCounts,
+    /// Whether the robot streams fast enough for route caches.
+    route_demand: RouteDemand,
+}
+
+/// A robot's twin poses in its current span of source time, until they make it worth its route
+/// caches ([`ROUTE_CACHE_POSES`] within [`ROUTE_CACHE_WINDOW_S`]).
+#[derive(Default)]
+struct RouteDemand {
+    /// Source time (s) the current span began.
+    since_s: f64,
+    /// Poses since then.
+    poses: u32,
+    /// The caches were asked for.
+    asked: bool,
+}
+
+impl RouteDemand {
+    /// Counts a pose stamped `stamp_s`: `true` once, when the robot has reached the rate.
+    fn pose(&mut self, stamp_s: f64) -> bool {
+        if self.asked {
+            return false;
+        }
+        // A span that has run out (or a clock that went back) starts again here.
+        if !(self.since_s..self.since_s + ROUTE_CACHE_WINDOW_S).contains(&stamp_s) {
+            self.since_s = stamp_s;
+            self.poses = 0;
+        }
+        self.poses += 1;
+        self.asked = self.poses >= ROUTE_CACHE_POSES;
+        self.asked
+    }
 }
 
 /// A robot's twin pose output for ROS tools, as the sink publishes it.
@@ -80,7 +112,7 @@ impl<'a> ZenohSink<'a> {
     }
 
     /// Publishes `payload` on `robot`'s `stream` ([`Outputs::publish`]).
-    fn put(&self, robot: &str, stream: Stream, payload: Vec<u8>) {
+    fn put(&self, robot: &str, stream: Stream, payload: impl Into<ZBytes>) {
         let declared = self
             .robot
             .as_deref()
@@ -167,20 +199,19 @@ impl Sink for ZenohSink<'_> {
         frame: OutputFrame,
         pose: &PoseReadout,
     ) {
-        let payload = match self.outputs.encoding {
+        let payload: ZBytes = match self.outputs.encoding {
             OutputEncoding::Json => {
-                json::PoseMessage::new(robot.id(), stamp_s, seq, frame.as_str(), pose)
-                    .to_json_bytes()
+                let fields = PoseFields::from(pose);
+                json::pose_json_bytes(robot.id(), stamp_s, seq, frame.as_str(), &fields).into()
             }
             OutputEncoding::ZenohSerialized => {
-                zser::twin_pose_bytes(stamp_s, seq, &PoseFields::from(pose))
+                zser::twin_pose_bytes(stamp_s, seq, &PoseFields::from(pose)).into()
             }
         };
         self.put(robot.id(), Stream::Pose, payload);
-        self.outputs.poses.fetch_add(1, Ordering::Relaxed);
         if let Some(state) = self.robot.as_deref_mut() {
             state.counts.poses += 1;
-            if state.counts.poses == ROUTE_CACHE_AFTER_POSES {
+            if state.route_demand.pose(stamp_s) {
                 // Fails only once the control thread has stopped.
                 let _ = self
                     .outputs
@@ -198,11 +229,11 @@ impl Sink for ZenohSink<'_> {
         _measured: &PoseReadout,
         deviation: &Deviation,
     ) {
-        let payload = match self.outputs.encoding {
+        let payload: ZBytes = match self.outputs.encoding {
             OutputEncoding::Json => {
-                json::DeviationMessage::new(robot.id(), stamp_s, deviation).to_json_bytes()
+                json::deviation_json_bytes(robot.id(), stamp_s, deviation).into()
             }
-            OutputEncoding::ZenohSerialized => zser::deviation_bytes(stamp_s, deviation),
+            OutputEncoding::ZenohSerialized => zser::deviation_bytes(stamp_s, deviation).into(),
         };
         self.put(robot.id(), Stream::Deviation, payload);
     }
@@ -295,4 +326,49 @@ fn unix_now_ns() -> i64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{ROUTE_CACHE_POSES, ROUTE_CACHE_WINDOW_S, RouteDemand};
+
+    /// Poses stamped `period_s` apart from `start_s`: the index of the one that asks for route
+    /// caches, if any does within `poses`.
+    fn asks_at(demand: &mut RouteDemand, start_s: f64, period_s: f64, poses: u32) -> Option<u32> {
+        (0..poses).find(|&pose| demand.pose(start_s + f64::from(pose) * period_s))
+    }
+
+    #[test]
+    fn a_streaming_robot_asks_for_route_caches_once_at_the_rate() {
+        let mut demand = RouteDemand::default();
+        assert_eq!(
+            asks_at(&mut demand, 1.7e9, 0.01, 1000),
+            Some(ROUTE_CACHE_POSES - 1)
+        );
+        assert_eq!(asks_at(&mut demand, 1.7e9 + 10.0, 0.01, 1000), None);
+    }
+
+    #[test]
+    fn a_robot_under_the_rate_never_asks_however_long_it_sends() {
+        let period_s = ROUTE_CACHE_WINDOW_S / f64::from(ROUTE_CACHE_POSES) * 1.05;
+        let mut demand = RouteDemand::default();
+        assert_eq!(asks_at(&mut demand, 0.0, period_s, 10_000), None);
+        // Then it speeds up: it asks within one span.
+        let start_s = 10_000.0 * period_s;
+        let asked = asks_at(&mut demand, start_s, 0.01, 1000).expect("asks once it streams");
+        assert!(asked < 2 * ROUTE_CACHE_POSES, "{asked}");
+    }
+
+    #[test]
+    fn a_clock_that_goes_back_starts_the_span_again() {
+        let mut demand = RouteDemand::default();
+        assert_eq!(
+            asks_at(&mut demand, 100.0, 0.01, ROUTE_CACHE_POSES - 1),
+            None
+        );
+        assert_eq!(
+            asks_at(&mut demand, 50.0, 0.01, 1000),
+            Some(ROUTE_CACHE_POSES - 1)
+        );
+    }
 }

@@ -25,28 +25,27 @@ impl FleetView {
 impl FleetSource for FleetView {
     fn fleet(&self) -> (ServiceTotals, Vec<FleetRow>) {
         let fleet = &self.fleet;
-        let mut rows: Vec<FleetRow> = fleet
-            .cells()
-            .iter()
-            .filter_map(|cell| {
-                let guard = cell.lock();
-                let state = guard.twin.as_ref()?.state();
-                Some(FleetRow {
-                    id: Arc::clone(cell.robot.shared_id()),
-                    metrics: state.metrics,
-                    alarms_active: state.alarms_active,
-                    joint_state: state.last_state.map(|(_, joint_state)| joint_state.clone()),
-                    counts: RobotCounts {
-                        recent_events: VecDeque::new(),
-                        ..guard.outputs.counts.clone()
-                    },
-                })
-            })
-            .collect();
+        let mut rows: Vec<FleetRow> = Vec::new();
+        let counted = fleet.walk(|cell, guard| {
+            let Some(twin) = guard.twin.as_ref() else {
+                return;
+            };
+            let state = twin.state();
+            rows.push(FleetRow {
+                id: Arc::clone(cell.robot.shared_id()),
+                metrics: state.metrics,
+                alarms_active: state.alarms_active,
+                joint_state: state.last_state.map(|(_, joint_state)| joint_state.clone()),
+                counts: RobotCounts {
+                    recent_events: VecDeque::new(),
+                    ..guard.outputs.counts.clone()
+                },
+            });
+        });
         rows.sort_by(|a, b| a.id.cmp(&b.id));
         let totals = ServiceTotals {
-            inputs: fleet.inputs.load(Ordering::Relaxed),
-            poses: fleet.outputs.poses.load(Ordering::Relaxed),
+            inputs: counted.inputs,
+            poses: counted.poses,
             publish_errors: fleet.outputs.publish_errors.load(Ordering::Relaxed),
             robots: rows.len(),
             max_robots: fleet.occupancy().1,

@@ -9,7 +9,7 @@
 
 use std::hint::black_box;
 
-use armtwin::codec::json;
+use armtwin::codec::{PoseFields, json, zser};
 use armtwin::ingest::{self, Codec};
 use armtwin::kinematics::{OutputFrame, PoseReadout};
 use armtwin::metrics::Deviation;
@@ -24,10 +24,18 @@ use crate::workload::Workload;
 /// Samples rendered ahead; a run longer than this starts again on a fresh pipeline (untimed).
 pub const RENDERED: usize = 4096;
 
-/// Encodes every output as `armtwin serve` does before its `put`, and keeps only the byte count.
+/// Encodes every output as `armtwin serve` does before its `put` (poses and deviations in JSON
+/// by default, or binary), and keeps only counts.
 #[derive(Default)]
 pub struct Encode {
-    bytes: usize,
+    /// Poses and deviations in Zenoh's serialization rather than JSON.
+    pub binary: bool,
+    /// Bytes encoded.
+    pub bytes: usize,
+    /// Poses and deviations encoded.
+    pub outputs: u64,
+    /// Events encoded.
+    pub events: u64,
 }
 
 impl Sink for Encode {
@@ -39,16 +47,33 @@ impl Sink for Encode {
         frame: OutputFrame,
         pose: &PoseReadout,
     ) {
-        let message = json::PoseMessage::new(robot.id(), stamp_s, seq, frame.as_str(), pose);
-        self.bytes += black_box(message.to_json_bytes()).len();
+        let fields = PoseFields::from(pose);
+        self.outputs += 1;
+        self.bytes += if self.binary {
+            black_box(zser::twin_pose_bytes(stamp_s, seq, &fields)).len()
+        } else {
+            black_box(json::pose_json_bytes(
+                robot.id(),
+                stamp_s,
+                seq,
+                frame.as_str(),
+                &fields,
+            ))
+            .len()
+        };
     }
 
     fn deviation(&mut self, robot: &Robot, stamp_s: f64, _: &PoseReadout, deviation: &Deviation) {
-        let message = json::DeviationMessage::new(robot.id(), stamp_s, deviation);
-        self.bytes += black_box(message.to_json_bytes()).len();
+        self.outputs += 1;
+        self.bytes += if self.binary {
+            black_box(zser::deviation_bytes(stamp_s, deviation)).len()
+        } else {
+            black_box(json::deviation_json_bytes(robot.id(), stamp_s, deviation)).len()
+        };
     }
 
     fn event(&mut self, event: &Event<'_>) {
+        self.events += 1;
         self.bytes += black_box(json::to_json_bytes(&json::EventMessage::new(event))).len();
     }
 

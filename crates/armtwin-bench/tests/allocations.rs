@@ -17,15 +17,12 @@
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
-use std::hint::black_box;
 
-use armtwin::codec::{PoseFields, json, zser};
+use armtwin::codec::zser;
 use armtwin::ingest::{self, Codec};
-use armtwin::kinematics::{OutputFrame, PoseReadout};
-use armtwin::metrics::Deviation;
-use armtwin::pipeline::{Event, MeasuredStream, MetricsSnapshot, Robot, Sink};
+use armtwin::pipeline::MeasuredStream;
 use armtwin_bench::fleet::robot_id;
-use armtwin_bench::ingest_fixture::Load;
+use armtwin_bench::ingest_fixture::{Encode, Load};
 use armtwin_bench::net;
 use armtwin_bench::workload::Workload;
 
@@ -74,53 +71,6 @@ static ALLOCATOR: Counting = Counting;
 
 fn allocations() -> u64 {
     ALLOCATIONS.with(Cell::get)
-}
-
-/// Encodes every output as `armtwin serve` does in `encoding`, and counts them.
-struct Encode {
-    binary: bool,
-    outputs: u64,
-    events: u64,
-}
-
-impl Sink for Encode {
-    fn pose(
-        &mut self,
-        robot: &Robot,
-        stamp_s: f64,
-        seq: u64,
-        frame: OutputFrame,
-        pose: &PoseReadout,
-    ) {
-        self.outputs += 1;
-        if self.binary {
-            black_box(zser::twin_pose_bytes(stamp_s, seq, &PoseFields::from(pose)));
-        } else {
-            let fields = PoseFields::from(pose);
-            black_box(json::pose_json_bytes(
-                robot.id(),
-                stamp_s,
-                seq,
-                frame.as_str(),
-                &fields,
-            ));
-        }
-    }
-
-    fn deviation(&mut self, robot: &Robot, stamp_s: f64, _: &PoseReadout, deviation: &Deviation) {
-        self.outputs += 1;
-        if self.binary {
-            black_box(zser::deviation_bytes(stamp_s, deviation));
-        } else {
-            black_box(json::deviation_json_bytes(robot.id(), stamp_s, deviation));
-        }
-    }
-
-    fn event(&mut self, _: &Event<'_>) {
-        self.events += 1;
-    }
-
-    fn metrics(&mut self, _: &Robot, _: &MetricsSnapshot) {}
 }
 
 /// Samples before the count: the 10-s window full at 100 Hz, and its buffers at their size.
@@ -172,8 +122,7 @@ fn counted(binary: bool) -> (u64, u64) {
         .collect();
     let mut sink = Encode {
         binary,
-        outputs: 0,
-        events: 0,
+        ..Encode::default()
     };
     let mut before = (0, 0);
     for (sample, (stamp_s, joints, measured)) in payloads.iter().enumerate() {

@@ -14,8 +14,8 @@ use serde_json::{Value, json};
 use super::encode::FlatObject;
 use crate::PoseFields;
 
-/// Room for a pose or deviation message without growing: up to about 400 bytes with every number
-/// at full precision (17 digits and an exponent) and a long robot id.
+/// Room for a pose or deviation message without growing, with every number at full precision
+/// (17 digits and an exponent) and a long robot id.
 const POSE_JSON_CAPACITY: usize = 512;
 
 /// Room for a metrics message (about 1.6 kB with full-precision statistics) without growing.

@@ -56,13 +56,12 @@ fn publish_due_metrics(fleet: &Fleet) {
 
 /// Twin poses a robot publishes on plain keys within [`ROUTE_CACHE_WINDOW_S`] of source time
 /// before the control thread declares the publishers (and input keys) that cache its routes: a
-/// rate (6.4 Hz), not a count, so a robot that sends now and then never gets them. Zenoh computes
-/// the route of a put on an undeclared key anew every time (tens of µs); a declaration is paid
-/// once, costs in proportion to the keys beside it (milliseconds in a fleet of thousands) and
-/// holds memory for as long as the robot is tracked. A robot that streams repays it within a few
-/// hundred messages; one under the rate spends at most a fraction of a millisecond of CPU a second
-/// on its plain keys, less than the declarations' memory and their cost to every other
-/// declaration is worth (BENCHMARKS.md, "The service next to a plain Zenoh echo").
+/// rate, not a count, so a robot that sends now and then never gets them. Zenoh computes the route
+/// of a put on an undeclared key anew every time; a declaration is paid once, costs in proportion
+/// to the keys beside it and holds memory for as long as the robot is tracked. A robot that
+/// streams repays it; one under the rate spends less CPU on its plain keys than the declarations'
+/// memory and their cost to every later declaration are worth (the figures: BENCHMARKS.md, "The
+/// service next to a plain Zenoh echo").
 pub(super) const ROUTE_CACHE_POSES: u32 = 64;
 
 /// The span of source time (s) [`ROUTE_CACHE_POSES`] poses must fall in.

@@ -31,8 +31,8 @@ use crate::ros2::PoseOutputs;
 /// [`ROUTE_CACHE_POSES`](super::control::ROUTE_CACHE_POSES) sets. Its metrics (one per metrics
 /// period), events and calibration go out without a publisher: every declaration costs in
 /// proportion to the keys beside it, on this side and on every subscriber's. (A metrics publisher
-/// halved the control thread's CPU at 1 000 robots, and slowed a fleet's first contact in
-/// trials: BENCHMARKS.md, "The per-sample path".)
+/// would save the control thread CPU in a large fleet but slows a fleet's first contact:
+/// BENCHMARKS.md, "The per-sample path".)
 pub(super) struct RobotPublishers {
     pose: Publisher<'static>,
     deviation: Publisher<'static>,

@@ -68,6 +68,29 @@ fn number(value: &Value, path: &str) -> f64 {
         .unwrap_or_else(|| panic!("{path} is not a number in {value:#}"))
 }
 
+/// The paced comparison of 4 robots × 10 Hz, one 0.5-s round: the same schedule to both, every
+/// reply back, CPU and latency measured for each.
+fn assert_paced(paced: &Value) {
+    assert_eq!(paced["robots"], 4);
+    assert_eq!(paced["rate"], 40.0);
+    assert_eq!(paced["echo_lost"], 0);
+    assert_eq!(paced["armtwin_lost"], 0);
+    for system in ["echo", "armtwin"] {
+        // CPU time counts in clock ticks: the echo's 0.5 s at 40 samples/s may take none.
+        assert!(
+            number(paced, &format!("/{system}_cores")) >= 0.0,
+            "{system}"
+        );
+        let rounds = paced[format!("{system}_latency")]["rounds"]
+            .as_array()
+            .expect("paced rounds");
+        assert_eq!(rounds.len(), 1, "{system}: one measured round");
+        // 40 samples/s for 0.5 s, each timed.
+        assert_eq!(rounds[0]["count"], 20, "{system}");
+    }
+    number(paced, "/p99_ratio");
+}
+
 #[test]
 fn a_quick_run_reports_every_figure_and_loses_nothing() {
     let bench = PathBuf::from(env!("CARGO_BIN_EXE_armtwin-bench"));
@@ -96,6 +119,14 @@ fn a_quick_run_reports_every_figure_and_loses_nothing() {
         ])
         .args(["--latency-rate", "40", "--latency-duration", "0.25"])
         .args(["--fleet-hz", "10", "--fleet-duration", "0.3"])
+        .args([
+            "--paced-robots",
+            "4",
+            "--paced-hz",
+            "10",
+            "--paced-duration",
+            "0.5",
+        ])
         .arg("--armtwin")
         .arg(&armtwin)
         .arg("--out")
@@ -158,6 +189,8 @@ fn a_quick_run_reports_every_figure_and_loses_nothing() {
     assert_lossless(&contact["armtwin"], "armtwin", true);
     assert!(number(contact, "/ratio") > 0.0);
 
+    assert_paced(&report["paced"]);
+
     // Memory, the robots' declaration and the restart on the snapshot.
     assert_eq!(report["memory"]["memory"]["robots"], 6);
     assert_eq!(report["memory"]["gateways"], 2);
@@ -166,7 +199,7 @@ fn a_quick_run_reports_every_figure_and_loses_nothing() {
     number(&report, "/echo_bytes_per_robot");
 
     let targets = report["targets"].as_array().expect("targets");
-    assert!(targets.len() >= by_robots.len() + 5, "{targets:#?}");
+    assert!(targets.len() >= by_robots.len() + 8, "{targets:#?}");
     assert!(number(&report, "/wall_s") > 0.0);
 }
 
@@ -185,6 +218,7 @@ fn a_quick_zenoh_serialized_run_loses_nothing_and_raises_no_event() {
         .args(["--encoding", "zenoh-serialized", "--robots", "2"])
         .args(["--gateways", "2", "--first-contact-robots", "0"])
         .args(["--memory-robots", "0", "--fleet-duration", "0"])
+        .args(["--paced-duration", "0"])
         .args([
             "--start-rate",
             "40",
@@ -223,6 +257,10 @@ fn a_quick_zenoh_serialized_run_loses_nothing_and_raises_no_event() {
         }
     }
     assert_eq!(comparison["armtwin"]["totals"]["events"], 0);
+    assert!(
+        report["paced"].is_null(),
+        "the paced comparison was skipped"
+    );
 }
 
 /// Far above what armtwin needs for a few robots: a bound that only a leak of megabytes per

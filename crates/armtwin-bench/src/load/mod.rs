@@ -39,8 +39,9 @@
     reason = "a benchmark command's progress and report, on its terminal"
 )]
 
+use std::collections::HashSet;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock, PoisonError};
 use std::thread;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
@@ -57,7 +58,7 @@ use zenoh::bytes::Encoding;
 use zenoh::key_expr::KeyExpr;
 use zenoh::pubsub::{Publisher, Subscriber};
 use zenoh::qos::CongestionControl;
-use zenoh::sample::Sample;
+use zenoh::sample::{Sample, SampleKind};
 use zenoh::session::Session;
 
 mod churn;
@@ -565,6 +566,8 @@ struct Load {
     subscribers: Vec<Subscriber<()>>,
     /// The slow subscriber's session and subscriber.
     slow: Option<(Session, Subscriber<()>)>,
+    /// armtwin's robots' liveliness tokens as they come and go (none for the echo).
+    tokens: Option<Tokens>,
     /// Each robot's first gateway `seq` (from `--seq-file`).
     seq_start: Vec<u64>,
     /// The next robot (round robin over all trials).
@@ -733,6 +736,10 @@ impl Load {
             Some(path) if path.exists() => read_seq_file(path)?,
             _ => Vec::new(),
         };
+        let tokens = match args.target {
+            Target::Armtwin => Some(Tokens::watch(&session)?),
+            Target::Echo => None,
+        };
         Ok(Self {
             workload: Workload::ur10e()?,
             embedded: args.embedded,
@@ -743,6 +750,7 @@ impl Load {
             robots: Vec::new(),
             subscribers,
             slow,
+            tokens,
             seq_start,
             cursor: 0,
             accounted: Counts::default(),
@@ -771,6 +779,7 @@ impl Load {
     fn close(self) {
         drop(self.robots);
         drop(self.subscribers);
+        drop(self.tokens);
         if let Some((slow_session, subscriber)) = self.slow {
             drop(subscriber);
             let _ = slow_session.close().wait();
@@ -888,66 +897,14 @@ impl Load {
     /// armtwin declares a newly tracked robot's liveliness token on its control thread, after
     /// the robot's first sample has been answered, every new robot's token before any robot's
     /// route caches (Zenoh's declarations cost O(robots) each). The echo declares everything
-    /// before it reports ready. So that both are measured
-    /// tracking every robot, this waits until armtwin's token of the last of the first `robots`
-    /// robots is visible (they are declared in the order the robots were first seen, which is
-    /// the order the warm-up sent them over one session), then until every robot's token is.
-    /// Returns whether it waited (only armtwin has tokens); fails if the tokens stop appearing
-    /// for [`TRACKING_STALL`].
+    /// before it reports ready. So that both are measured tracking every robot, this waits until
+    /// `robots` tokens are visible. Returns whether it waited (only armtwin has tokens).
     fn wait_for_tracking(&self, robots: usize) -> Result<bool, LoadError> {
-        if self.args.target != Target::Armtwin || robots == 0 {
+        if self.tokens.is_none() || robots == 0 {
             return Ok(false);
         }
-        let last = net::key(net::ALIVE, &net::robot_id(robots - 1));
-        let every = net::every_robot(net::ALIVE);
-        let (mut seen, mut counted) = (self.tokens(&every)?, Instant::now());
-        let mut progress = counted;
-        // The last robot's key every 200 ms (one reply at most); all tokens, to see progress,
-        // every 5 s (thousands of replies, work taken from the system under test).
-        while self.tokens(&last)? == 0 {
-            thread::sleep(Duration::from_millis(200));
-            if counted.elapsed() >= Duration::from_secs(5) {
-                let now_seen = self.tokens(&every)?;
-                counted = Instant::now();
-                if now_seen > seen {
-                    seen = now_seen;
-                    progress = counted;
-                    eprintln!("load: armtwin has declared {seen} of {robots} robots");
-                } else if counted - progress >= TRACKING_STALL {
-                    return Err(LoadError::NoAnswer(format!(
-                        "armtwin declared {seen} of {robots} robots' liveliness tokens, then none for {} s",
-                        TRACKING_STALL.as_secs()
-                    )));
-                }
-            }
-        }
-        // Over several gateway sessions the robots' first samples reach armtwin in another
-        // order than they were sent, so the last robot's token is not the last token.
         self.await_tokens(robots)?;
         Ok(true)
-    }
-
-    /// Liveliness tokens visible under `key_expr`. Counted in the callback: the session answers
-    /// from the tokens it already knows in the calling thread, so a bounded channel of replies
-    /// would fill before `get` returns and block it for good.
-    fn tokens(&self, key_expr: &str) -> Result<usize, LoadError> {
-        let count = Arc::new(AtomicUsize::new(0));
-        let (done_tx, done_rx) = std::sync::mpsc::channel::<()>();
-        let counter = count.clone();
-        self.session
-            .liveliness()
-            .get(key_expr)
-            .callback(move |reply| {
-                // Holding the sender until the query ends (the callback is dropped) is its job.
-                let _ = &done_tx;
-                if reply.result().is_ok() {
-                    counter.fetch_add(1, Ordering::Relaxed);
-                }
-            })
-            .wait()?;
-        // Disconnected once the query has ended and dropped the callback.
-        let _ = done_rx.recv();
-        Ok(count.load(Ordering::Relaxed))
     }
 
     /// Sends one sample per robot of `robots` until every one is answered. The system under
@@ -1228,10 +1185,13 @@ impl Load {
     /// (a restarted armtwin declares its restored robots' tokens in its own order); fails if
     /// their count stops growing for [`TRACKING_STALL`].
     fn await_tokens(&self, robots: usize) -> Result<(), LoadError> {
-        let every = net::every_robot(net::ALIVE);
-        let (mut seen, mut progress) = (0, Instant::now());
+        let tokens = self
+            .tokens
+            .as_ref()
+            .ok_or_else(|| LoadError::NoAnswer("only armtwin declares tokens".to_owned()))?;
+        let (mut seen, mut progress, mut reported) = (0, Instant::now(), Instant::now());
         loop {
-            let now_seen = self.tokens(&every)?;
+            let now_seen = tokens.live();
             if now_seen >= robots {
                 eprintln!("load: armtwin tracks {now_seen} robots (liveliness tokens)");
                 return Ok(());
@@ -1245,8 +1205,52 @@ impl Load {
                     TRACKING_STALL.as_secs()
                 )));
             }
-            thread::sleep(Duration::from_millis(100));
+            if reported.elapsed() >= Duration::from_secs(5) {
+                reported = Instant::now();
+                eprintln!("load: armtwin has declared {seen} of {robots} robots");
+            }
+            thread::sleep(Duration::from_millis(10));
         }
+    }
+}
+
+/// The liveliness tokens of armtwin's robots, kept by a liveliness subscriber that is told of
+/// those already declared and then of each one declared or undeclared. Watching them costs the
+/// system under test one message per token; asking for all of them again and again (a
+/// liveliness `get`) would cost it and this process work in proportion to the tokens each time.
+struct Tokens {
+    live: Arc<Mutex<HashSet<String>>>,
+    _subscriber: Subscriber<()>,
+}
+
+impl Tokens {
+    fn watch(session: &Session) -> Result<Self, LoadError> {
+        let live = Arc::new(Mutex::new(HashSet::new()));
+        let kept = Arc::clone(&live);
+        let subscriber = session
+            .liveliness()
+            .declare_subscriber(net::every_robot(net::ALIVE))
+            .history(true)
+            .callback(move |sample| {
+                let mut live = kept.lock().unwrap_or_else(PoisonError::into_inner);
+                match sample.kind() {
+                    SampleKind::Put => live.insert(sample.key_expr().as_str().to_owned()),
+                    SampleKind::Delete => live.remove(sample.key_expr().as_str()),
+                };
+            })
+            .wait()?;
+        Ok(Self {
+            live,
+            _subscriber: subscriber,
+        })
+    }
+
+    /// Tokens declared now.
+    fn live(&self) -> usize {
+        self.live
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .len()
     }
 }
 

@@ -113,6 +113,17 @@ pub struct RunArgs {
     /// Seconds of the fleet check (default 10; quick 0.5; 0 skips it).
     #[arg(long)]
     pub fleet_duration: Option<f64>,
+    /// Robots of the paced comparison, each sending at `--paced-hz` with its measured pose
+    /// embedded, as a plant's gateways send (default 200; quick 10).
+    #[arg(long)]
+    pub paced_robots: Option<usize>,
+    /// Per-robot rate of the paced comparison, Hz (default 100; quick 10).
+    #[arg(long)]
+    pub paced_hz: Option<f64>,
+    /// Seconds of each paced round (default 10; quick 0.5; 0 skips it). Rounds alternate between
+    /// the systems, as many as latency rounds, after one unmeasured round each.
+    #[arg(long)]
+    pub paced_duration: Option<f64>,
     /// Robots of the first-contact trial, all new to a freshly started system (default: the
     /// largest robot count; 0 skips it).
     #[arg(long)]
@@ -179,6 +190,12 @@ pub struct Settings {
     pub fleet_hz: f64,
     /// Fleet check: seconds (0: none).
     pub fleet_duration_s: f64,
+    /// Paced comparison: robots.
+    pub paced_robots: usize,
+    /// Paced comparison: Hz per robot.
+    pub paced_hz: f64,
+    /// Paced comparison: seconds per round (0: none).
+    pub paced_duration_s: f64,
     /// First contact: robots (0: none).
     pub first_contact_robots: usize,
     /// First contact: samples/s (none: the echo's sustained rate).
@@ -234,6 +251,9 @@ impl Settings {
             latency_rounds: args.latency_rounds.unwrap_or(if quick { 1 } else { 2 }),
             fleet_hz: pick(args.fleet_hz, 100.0, 10.0),
             fleet_duration_s: pick(args.fleet_duration, 10.0, 0.5),
+            paced_robots: args.paced_robots.unwrap_or(if quick { 10 } else { 200 }),
+            paced_hz: pick(args.paced_hz, 100.0, 10.0),
+            paced_duration_s: pick(args.paced_duration, 10.0, 0.5),
             first_contact_robots: args.first_contact_robots.unwrap_or(largest),
             first_contact_rate: args.first_contact_rate,
             first_contact_duration_s: pick(args.first_contact_duration, 3.0, 0.5),
@@ -283,7 +303,7 @@ pub(crate) fn bench_and_armtwin(given: Option<&PathBuf>) -> Result<(PathBuf, Pat
 /// In order: each robot count in each encoding over the first gateway count; the largest robot
 /// count in the last encoding over each further gateway count (the fleet check rides on the row
 /// of the most gateways); first contact at the echo's sustained rate of the largest robot count;
-/// armtwin's memory at fleet size, with the declaration time and the restart; the echo's memory.
+/// the paced comparison; armtwin's memory at fleet size, with the declaration time and the restart; the echo's memory.
 pub fn run(args: &RunArgs) -> Result<Report> {
     let wall = Instant::now();
     let settings = Settings::of(args);
@@ -327,6 +347,14 @@ pub fn run(args: &RunArgs) -> Result<Report> {
         eprintln!("armtwin-bench: first contact skipped: no rate to offer");
         None
     };
+    let paced = if settings.paced_duration_s > 0.0 && settings.paced_robots > 0 {
+        orchestrator
+            .paced()
+            .inspect_err(|error| eprintln!("armtwin-bench: the paced comparison failed: {error:#}"))
+            .ok()
+    } else {
+        None
+    };
     let (memory, restart_s, echo_memory) = orchestrator.fleet_size();
     let _ = std::fs::remove_dir_all(&work_dir);
     let fleet_comparison = by_robots
@@ -358,6 +386,7 @@ pub fn run(args: &RunArgs) -> Result<Report> {
         restart_s,
         settings,
         fleet,
+        paced,
         memory,
         echo_bytes_per_robot: echo_memory.as_ref().map(|m| m.bytes_per_robot),
         echo_memory,

@@ -57,19 +57,11 @@ pub struct LatencySummary {
 
 impl LatencySummary {
     pub(super) fn of(rounds: Vec<Latency>) -> Self {
-        let median = |pick: fn(&Latency) -> f64| {
-            let mut values: Vec<f64> = rounds.iter().map(pick).collect();
-            values.sort_by(f64::total_cmp);
-            match values.len() {
-                0 => f64::NAN,
-                n if n % 2 == 1 => values[n / 2],
-                n => f64::midpoint(values[n / 2 - 1], values[n / 2]),
-            }
-        };
+        let of_rounds = |pick: fn(&Latency) -> f64| median(rounds.iter().map(pick).collect());
         Self {
-            p50_us: median(|l| l.p50_us),
-            p99_us: median(|l| l.p99_us),
-            p999_us: median(|l| l.p999_us),
+            p50_us: of_rounds(|l| l.p50_us),
+            p99_us: of_rounds(|l| l.p99_us),
+            p999_us: of_rounds(|l| l.p999_us),
             rounds,
         }
     }
@@ -94,6 +86,51 @@ pub struct Fleet {
     pub echo_sustained: bool,
     /// armtwin at that rate, zero loss and on schedule.
     pub armtwin_sustained: bool,
+}
+
+/// The median of `values` (NaN when there are none).
+pub(super) fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(f64::total_cmp);
+    match values.len() {
+        0 => f64::NAN,
+        n if n % 2 == 1 => values[n / 2],
+        n => f64::midpoint(values[n / 2 - 1], values[n / 2]),
+    }
+}
+
+/// A plant's load: every robot at a fixed rate with its measured pose embedded, the same
+/// schedule offered to both systems in alternated rounds. Each figure is the median over the
+/// rounds.
+#[derive(Debug, Clone, Serialize)]
+pub struct Paced {
+    /// Robots.
+    pub robots: usize,
+    /// Hz per robot.
+    pub hz_per_robot: f64,
+    /// Samples per second in total.
+    pub rate: f64,
+    /// The samples' format.
+    pub encoding: WireEncoding,
+    /// Load sessions.
+    pub gateways: u16,
+    /// Seconds per round.
+    pub duration_s: f64,
+    /// The echo's CPU over a round / its seconds (cores).
+    pub echo_cores: f64,
+    /// Same for armtwin.
+    pub armtwin_cores: f64,
+    /// armtwin's cores / the echo's.
+    pub cpu_ratio: f64,
+    /// armtwin's p99 latency / the echo's.
+    pub p99_ratio: f64,
+    /// Expected replies that never arrived, over every round of the echo.
+    pub echo_lost: u64,
+    /// Same for armtwin.
+    pub armtwin_lost: u64,
+    /// The echo's latency (and each round's trial).
+    pub echo_latency: LatencySummary,
+    /// armtwin's latency.
+    pub armtwin_latency: LatencySummary,
 }
 
 /// Robots new to a freshly started system at full rate: what comes through, armtwin against an
@@ -175,6 +212,8 @@ pub struct Report {
     pub wall_s: f64,
     /// The fleet check.
     pub fleet: Option<Fleet>,
+    /// The paced comparison (null when not measured).
+    pub paced: Option<Paced>,
     /// The memory measurement's load report.
     pub memory: Option<LoadReport>,
     /// The echo's resident bytes per robot, the transport's own share (null when not measured).
@@ -315,6 +354,28 @@ fn notes(report: &Report) -> String {
             sustained(fleet.armtwin_sustained),
         );
     }
+    if let Some(paced) = &report.paced {
+        let latency =
+            |l: &LatencySummary| format!("{:.0} / {:.0} / {:.0}", l.p50_us, l.p99_us, l.p999_us);
+        let _ = writeln!(
+            text,
+            "paced: {} robots × {} Hz = {} samples/s, embedded, {}, {} gateways, {} s rounds: CPU echo {:.3} / armtwin {:.3} cores ({:.2}×); p50 / p99 / p99.9 µs echo {} / armtwin {} (p99 {:.2}×); lost echo {} / armtwin {}",
+            paced.robots,
+            paced.hz_per_robot,
+            fmt_rate(paced.rate),
+            paced.encoding.as_str(),
+            paced.gateways,
+            paced.duration_s,
+            paced.echo_cores,
+            paced.armtwin_cores,
+            paced.cpu_ratio,
+            latency(&paced.echo_latency),
+            latency(&paced.armtwin_latency),
+            paced.p99_ratio,
+            paced.echo_lost,
+            paced.armtwin_lost,
+        );
+    }
     for contact in &report.first_contact {
         let _ = writeln!(
             text,
@@ -423,6 +484,7 @@ pub(super) fn targets(report: &Report) -> Vec<TargetRow> {
             met: fleet.armtwin_sustained,
         });
     }
+    rows.extend(report.paced.as_ref().map_or_else(Vec::new, paced_targets));
     if let Some(bytes) = report.bytes_per_robot {
         let allowed = report.echo_bytes_per_robot.map(|echo| echo + 2048.0);
         rows.push(TargetRow {
@@ -457,6 +519,36 @@ pub(super) fn targets(report: &Report) -> Vec<TargetRow> {
         measured: Some(report.wall_s),
         target: "≤ 600".to_owned(),
         met: report.wall_s <= 600.0,
+    });
+    rows
+}
+
+/// The paced comparison's targets: CPU and p99 latency against the echo's, and no loss.
+fn paced_targets(paced: &Paced) -> Vec<TargetRow> {
+    let mut rows = Vec::new();
+    let row = format!(
+        "paced {} robots × {} Hz, embedded, {}",
+        paced.robots,
+        paced.hz_per_robot,
+        paced.encoding.as_str()
+    );
+    rows.push(TargetRow {
+        figure: format!("{row}: CPU / echo's"),
+        measured: Some(paced.cpu_ratio),
+        target: "≤ 1.1".to_owned(),
+        met: paced.cpu_ratio <= 1.1,
+    });
+    rows.push(TargetRow {
+        figure: format!("{row}: p99 latency / echo's"),
+        measured: Some(paced.p99_ratio),
+        target: "≤ 1.5".to_owned(),
+        met: paced.p99_ratio <= 1.5,
+    });
+    rows.push(TargetRow {
+        figure: format!("{row}: replies lost (armtwin)"),
+        measured: Some(paced.armtwin_lost as f64),
+        target: "0".to_owned(),
+        met: paced.armtwin_lost == 0,
     });
     rows
 }

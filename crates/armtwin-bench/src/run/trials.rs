@@ -11,11 +11,14 @@ use std::process::{Command, Stdio};
 use anyhow::{Context, Result, bail};
 
 use super::Settings;
-use super::report::{Comparison, FirstContact, LatencySummary};
+use super::report::{Comparison, FirstContact, LatencySummary, Paced, median};
 use super::system::{SystemUnderTest, free_port, wait_listening};
 use crate::fleet::service_config_encoded;
-use crate::load::{LoadReport, Target, Trial, WireEncoding};
+use crate::load::{Latency, LoadReport, Target, Trial, WireEncoding};
 use crate::net;
+
+/// Seconds of the paced comparison's unmeasured first round.
+const PACED_WARM_UP_S: f64 = 2.0;
 
 fn target_name(target: Target) -> &'static str {
     match target {
@@ -318,6 +321,81 @@ impl Orchestrator {
             ratio: armtwin_delivered_rate / echo_delivered_rate,
             echo,
             armtwin,
+        })
+    }
+
+    /// A plant's load on both systems side by side (each idle while the other is measured):
+    /// every robot at `paced_hz` with its measured pose embedded, in the last encoding over the
+    /// first gateway count. One unmeasured round each first (armtwin declares a streaming
+    /// robot's route caches once it has seen it stream, the echo up front), then alternated
+    /// rounds, as many as latency rounds.
+    pub(super) fn paced(&self) -> Result<Paced> {
+        let s = &self.settings;
+        let (robots, encoding, gateways) = (s.paced_robots, s.last_encoding(), s.first_gateways());
+        let rate = s.paced_hz * robots as f64;
+        let args = |duration_s: f64| -> Vec<String> {
+            vec![
+                "--robots".into(),
+                robots.to_string(),
+                "--gateways".into(),
+                gateways.to_string(),
+                "--embedded".into(),
+                "--latency-rate".into(),
+                rate.to_string(),
+                "--latency-duration".into(),
+                duration_s.to_string(),
+            ]
+        };
+        let row = format!("paced: {robots} robots × {} Hz", s.paced_hz);
+        let echo_sut = self.start_echo(robots, false)?;
+        let armtwin_sut = self.start_armtwin(robots, encoding)?;
+        eprintln!("== {row}: one unmeasured round each");
+        let warm_up = args(s.paced_duration_s.min(PACED_WARM_UP_S));
+        self.load(&echo_sut, Target::Echo, encoding, &warm_up)?;
+        self.load(&armtwin_sut, Target::Armtwin, encoding, &warm_up)?;
+        let measured = args(s.paced_duration_s);
+        let (mut echo_rounds, mut armtwin_rounds) = (Vec::new(), Vec::new());
+        for round in 1..=s.latency_rounds.max(1) {
+            eprintln!("== {row}: round {round}, echo then armtwin serve");
+            echo_rounds.extend(
+                self.load(&echo_sut, Target::Echo, encoding, &measured)?
+                    .latency,
+            );
+            armtwin_rounds.extend(
+                self.load(&armtwin_sut, Target::Armtwin, encoding, &measured)?
+                    .latency,
+            );
+        }
+        echo_sut.stop();
+        armtwin_sut.stop();
+        let cores = |rounds: &[Latency]| {
+            median(
+                rounds
+                    .iter()
+                    .filter_map(|l| Some(l.trial.sut_cpu_s? / l.trial.duration_s))
+                    .collect(),
+            )
+        };
+        let lost = |rounds: &[Latency]| rounds.iter().map(|l| l.trial.lost).sum();
+        let (echo_cores, armtwin_cores) = (cores(&echo_rounds), cores(&armtwin_rounds));
+        let (echo_lost, armtwin_lost) = (lost(&echo_rounds), lost(&armtwin_rounds));
+        let echo_latency = LatencySummary::of(echo_rounds);
+        let armtwin_latency = LatencySummary::of(armtwin_rounds);
+        Ok(Paced {
+            robots,
+            hz_per_robot: s.paced_hz,
+            rate,
+            encoding,
+            gateways,
+            duration_s: s.paced_duration_s,
+            echo_cores,
+            armtwin_cores,
+            cpu_ratio: armtwin_cores / echo_cores,
+            p99_ratio: armtwin_latency.p99_us / echo_latency.p99_us,
+            echo_lost,
+            armtwin_lost,
+            echo_latency,
+            armtwin_latency,
         })
     }
 

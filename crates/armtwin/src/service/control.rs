@@ -32,14 +32,19 @@ use crate::snapshot::SnapshotStore;
 /// for a metrics message's encoding and sending.
 fn publish_due_metrics(fleet: &Fleet) {
     fleet.for_each_cell(|cell| {
-        let snapshot = {
+        let (snapshot, publisher) = {
             let mut guard = cell.lock();
             let state = &mut *guard;
             let Some(snapshot) = state.twin.as_mut().and_then(Twin::take_due_metrics) else {
                 return;
             };
             state.outputs.counts.last_active = Some(Instant::now());
-            snapshot
+            let publisher = state
+                .outputs
+                .declared
+                .as_ref()
+                .and_then(|declared| declared.metrics.clone());
+            (snapshot, publisher)
         };
         if let Some(effort) = &snapshot.effort {
             let payload = json::payload_message_bytes(&snapshot.robot, effort);
@@ -50,7 +55,7 @@ fn publish_due_metrics(fleet: &Fleet) {
         let payload = json::MetricsMessage::new(&snapshot).to_json_bytes();
         fleet
             .outputs
-            .publish(None, &snapshot.robot, Stream::Metrics, payload);
+            .publish_metrics(publisher.as_deref(), &snapshot.robot, payload);
     });
 }
 
@@ -265,6 +270,48 @@ fn give_to_live_cell<T>(
     None
 }
 
+/// Declares `robot`'s publishers and input keys and gives them to its cell; whether it has them
+/// now (not when the declaration failed or the robot was retired meanwhile).
+fn declare_route_caches(fleet: &Fleet, robot: &Robot) -> bool {
+    let outputs = &fleet.outputs;
+    match outputs.declare(robot.id()) {
+        Ok(publishers) => {
+            let refused = give_to_live_cell(fleet, robot, publishers, |state, publishers| {
+                state.outputs.declared = Some(publishers);
+            });
+            let installed = refused.is_none();
+            if let Some(publishers) = refused {
+                outputs.undeclare_all(
+                    vec![(Arc::clone(robot.shared_id()), publishers)],
+                    Vec::new(),
+                );
+            }
+            installed
+        }
+        Err(e) => {
+            warn!(robot = robot.id(), error = %e, "cannot declare the robot's publishers");
+            false
+        }
+    }
+}
+
+/// Declares `robot`'s metrics publisher and gives it to its publishers. A robot retired
+/// meanwhile drops it, which undeclares it.
+fn declare_metrics_publisher(fleet: &Fleet, robot: &Robot) {
+    match fleet.outputs.declare_metrics(robot.id()) {
+        Ok(publisher) => {
+            let _dropped = give_to_live_cell(fleet, robot, publisher, |state, publisher| {
+                if let Some(declared) = state.outputs.declared.as_mut() {
+                    declared.metrics = Some(Arc::new(publisher));
+                }
+            });
+        }
+        Err(e) => {
+            warn!(robot = robot.id(), error = %e, "cannot declare the robot's metrics publisher");
+        }
+    }
+}
+
 impl Control {
     /// Starts the thread that declares robots' Zenoh entities (never on Zenoh's own threads),
     /// publishes the periodic metrics, and finishes the pipeline at the end.
@@ -314,11 +361,17 @@ impl Control {
         let outputs = &fleet.outputs;
         // Streaming robots whose route caches are asked for and not yet declared.
         let mut undeclared = VecDeque::new();
+        // Streaming robots with route caches and no metrics publisher yet.
+        let mut metrics_undeclared = VecDeque::new();
         loop {
-            // Every new robot's token before any robot's publishers: each Zenoh declaration
-            // costs in proportion to the keys beside it, and a fleet is tracked once its tokens
-            // are.
-            let wait = schedule.wait(Instant::now(), !undeclared.is_empty());
+            // Every new robot's token before any robot's publishers, and every streaming robot's
+            // publishers of its per-sample outputs before any robot's metrics publisher: each
+            // Zenoh declaration costs in proportion to the keys beside it, and a fleet is
+            // tracked once its tokens are.
+            let wait = schedule.wait(
+                Instant::now(),
+                !undeclared.is_empty() || !metrics_undeclared.is_empty(),
+            );
             // Declared without the lock: samples keep flowing meanwhile (their outputs go out
             // with an undeclared key until the publishers exist).
             match rx.recv_timeout(wait) {
@@ -345,29 +398,14 @@ impl Control {
                 Ok(Self::CacheRoutes(robot)) => undeclared.push_back(robot),
                 Err(RecvTimeoutError::Timeout) => {
                     if let Some(robot) = undeclared.pop_front() {
-                        match outputs.declare(robot.id()) {
-                            Ok(publishers) => {
-                                if let Some(publishers) = give_to_live_cell(
-                                    fleet,
-                                    &robot,
-                                    publishers,
-                                    |state, publishers| {
-                                        state.outputs.declared = Some(publishers);
-                                    },
-                                ) {
-                                    outputs.undeclare_all(
-                                        vec![(Arc::clone(robot.shared_id()), publishers)],
-                                        Vec::new(),
-                                    );
-                                }
-                            }
-                            Err(e) => {
-                                warn!(robot = robot.id(), error = %e, "cannot declare the robot's publishers");
-                            }
+                        if declare_route_caches(fleet, &robot) {
+                            metrics_undeclared.push_back(robot);
                         }
                         if undeclared.is_empty() {
-                            debug!("every tracked robot's publishers are declared");
+                            debug!("every streaming robot's publishers are declared");
                         }
+                    } else if let Some(robot) = metrics_undeclared.pop_front() {
+                        declare_metrics_publisher(fleet, &robot);
                     }
                 }
             }

@@ -121,12 +121,13 @@ pub async fn serve(
     let http_listener = bind_http(config.http_listen).await?;
     let mut zenoh_config = zenoh_config_of(&config.zenoh)?;
     let keys = &config.keys;
-    // The outputs at the sample rate, one publisher per tracked robot on each.
+    // The outputs with a publisher per streaming robot: at the sample rate, and the metrics.
     aggregate_publishers(
         &mut zenoh_config,
         &[
             keys.every_robot(Stream::Pose),
             keys.every_robot(Stream::Deviation),
+            keys.every_robot(Stream::Metrics),
         ],
     )?;
     let session = zenoh::open(zenoh_config).await?;

@@ -28,16 +28,20 @@ use crate::ros2::PoseOutputs;
 
 /// A streaming robot's publishers of its outputs at the sample rate, and its input keys:
 /// declared so Zenoh caches their routes, once the robot streams at the rate
-/// [`ROUTE_CACHE_POSES`](super::control::ROUTE_CACHE_POSES) sets. Its metrics (one per metrics
-/// period), events and calibration go out without a publisher: every declaration costs in
-/// proportion to the keys beside it, on this side and on every subscriber's. (A metrics publisher
-/// would save the control thread CPU in a large fleet but slows a fleet's first contact:
-/// BENCHMARKS.md, "The per-sample path".)
+/// [`ROUTE_CACHE_POSES`](super::control::ROUTE_CACHE_POSES) sets; then, once every streaming
+/// robot has those, its metrics publisher (one message per metrics period: worth a route cache in
+/// a large fleet, but never ahead of another robot's poses, which would slow a fleet's first
+/// contact: BENCHMARKS.md, "The per-sample path"). Events and calibration go out without a
+/// publisher: every declaration costs in proportion to the keys beside it, on this side and on
+/// every subscriber's.
 pub(super) struct RobotPublishers {
     pose: Publisher<'static>,
     deviation: Publisher<'static>,
     /// The twin pose as a ROS 2 `PoseStamped`, if the robot has `ros2_pose`.
     pub(super) ros2_pose: Option<Publisher<'static>>,
+    /// Declared after the others (see above); shared so that the metrics period can publish
+    /// through it after releasing the robot's lock.
+    pub(super) metrics: Option<Arc<Publisher<'static>>>,
     inputs: Vec<KeyExpr<'static>>,
 }
 
@@ -47,6 +51,7 @@ impl RobotPublishers {
         match stream {
             Stream::Pose => Some(&self.pose),
             Stream::Deviation => Some(&self.deviation),
+            Stream::Metrics => self.metrics.as_deref(),
             _ => None,
         }
     }
@@ -177,8 +182,14 @@ impl Outputs {
             pose,
             deviation,
             ros2_pose,
+            metrics: None,
             inputs,
         })
+    }
+
+    /// The publisher of `robot`'s metrics.
+    pub(super) fn declare_metrics(&self, robot: &str) -> zenoh::Result<Publisher<'static>> {
+        self.publisher(Stream::Metrics, robot)
     }
 
     pub(super) fn declare_token(&self, robot: &str) -> zenoh::Result<LivelinessToken> {
@@ -198,9 +209,17 @@ impl Outputs {
                 pose,
                 deviation,
                 ros2_pose,
+                metrics,
                 inputs,
             } = outputs;
-            for publisher in [pose, deviation].into_iter().chain(ros2_pose) {
+            // A metrics publisher still shared by a metrics period in progress is undeclared
+            // when that period drops it.
+            let metrics = metrics.and_then(|metrics| Arc::try_unwrap(metrics).ok());
+            for publisher in [pose, deviation]
+                .into_iter()
+                .chain(ros2_pose)
+                .chain(metrics)
+            {
                 if let Err(e) = publisher.undeclare().wait() {
                     warn!(%robot, error = %e, "undeclaring a publisher failed");
                 }
@@ -228,6 +247,27 @@ impl Outputs {
         payload: impl Into<ZBytes>,
     ) {
         if !self.put(declared, robot, stream, payload.into()) {
+            self.publish_errors.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Publishes `robot`'s metrics message through `publisher`, its metrics publisher once
+    /// declared, else on the plain key; a refusal is logged and counted.
+    pub(super) fn publish_metrics(
+        &self,
+        publisher: Option<&Publisher<'static>>,
+        robot: &str,
+        payload: impl Into<ZBytes>,
+    ) {
+        let taken = match publisher {
+            Some(publisher) => publisher
+                .put(payload)
+                .wait()
+                .inspect_err(|e| warn!(error = %e, %robot, stream = "metrics", "publish failed"))
+                .is_ok(),
+            None => self.put(None, robot, Stream::Metrics, payload.into()),
+        };
+        if !taken {
             self.publish_errors.fetch_add(1, Ordering::Relaxed);
         }
     }

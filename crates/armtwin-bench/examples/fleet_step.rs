@@ -1,0 +1,116 @@
+//! A tracked robot's CPU per sample as the fleet grows: N robots each streaming at 100 Hz of
+//! source time, their samples round robin as `armtwin-bench load` sends them, through the
+//! service's entry points (`ingest::joint_message` / `ingest::measured_message`, JSON payloads)
+//! into one pipeline configured as `armtwin-bench run` configures the service, outputs dropped.
+//! Timed once every robot's 10-s window is full, when a streaming robot's state is largest: what
+//! the state's layout costs once it no longer fits the CPU's caches is the ratio to 1 robot.
+//!
+//! `cargo run --release -p armtwin-bench --example fleet_step [-- ROBOTS,...]` (default
+//! 1,10,100,1000); prints, per robot count, the fastest and the median pass in ns per sample.
+#![allow(
+    clippy::expect_used,
+    reason = "a measuring binary whose fixtures are the checkout's own constants"
+)]
+#![allow(clippy::print_stdout, reason = "a benchmark's report")]
+
+use std::time::Instant;
+
+use armtwin::ingest::{self, Codec};
+use armtwin::pipeline::{Discard, MeasuredStream, Pipeline, RobotDirectory};
+use armtwin_bench::fleet::{parsed_service_config, robot_id};
+use armtwin_bench::ingest_fixture::{Load, RENDERED};
+use armtwin_bench::net;
+
+/// Samples per robot before the timing starts: more than the 10-s window holds at 100 Hz.
+const WARM_UP: usize = 1100;
+/// Samples timed per pass, over all robots.
+const TIMED: usize = 400_000;
+
+/// One robot's keys and id.
+struct Keys {
+    id: String,
+    joints: String,
+    measured: String,
+}
+
+/// A fresh pipeline of `robots` robots, warmed up, then `TIMED` samples: ns per sample.
+fn pass(load: &Load, robots: usize) -> f64 {
+    let config = parsed_service_config(robots).expect("the benchmark's configuration");
+    let directory = RobotDirectory::new(config.default_robot, config.robots);
+    let mut pipeline = Pipeline::new(config.pipeline);
+    let keys: Vec<Keys> = (0..robots)
+        .map(|index| {
+            let id = robot_id(index);
+            Keys {
+                joints: net::key(net::JOINTS, &id),
+                measured: net::key(net::MEASURED, &id),
+                id,
+            }
+        })
+        .collect();
+    // Every robot gets the same payloads: each robot's own stream is what matters, and one set
+    // of rendered payloads keeps the load's memory out of the measurement.
+    let round = |index: usize, pipeline: &mut Pipeline| {
+        let (stamp_s, joints, measured) = &load.samples[index];
+        for keys in &keys {
+            let robot = directory.find(&keys.id).expect("a configured robot");
+            ingest::joint_message(
+                pipeline,
+                robot,
+                &keys.joints,
+                Codec::Json,
+                joints.as_bytes(),
+                || *stamp_s,
+                &mut Discard,
+            );
+            ingest::measured_message(
+                pipeline,
+                robot,
+                &keys.measured,
+                MeasuredStream::Robot,
+                Codec::Json,
+                measured.as_bytes(),
+                || *stamp_s,
+                &mut Discard,
+            );
+        }
+    };
+    for index in 0..WARM_UP {
+        round(index, &mut pipeline);
+    }
+    let rounds = (TIMED / robots).clamp(1, RENDERED - WARM_UP);
+    let start = Instant::now();
+    for index in WARM_UP..WARM_UP + rounds {
+        round(index, &mut pipeline);
+    }
+    start.elapsed().as_nanos() as f64 / (rounds * robots) as f64
+}
+
+fn main() {
+    let counts: Vec<usize> = std::env::args().nth(1).map_or_else(
+        || vec![1, 10, 100, 1000],
+        |list| {
+            list.split(',')
+                .map(|count| count.trim().parse().expect("robot counts: 1,10,1000"))
+                .collect()
+        },
+    );
+    let load = Load::starting_at(0);
+    // Untimed: a process's first pass runs slower (the rendered payloads' first reads).
+    let _ = pass(&load, 1);
+    println!("| robots | fastest pass ns/sample | median pass ns/sample | median / 1 robot's |");
+    println!("| ---: | ---: | ---: | ---: |");
+    let mut one_robot = None;
+    for robots in counts {
+        let passes = if robots >= 1000 { 3 } else { 7 };
+        let mut ns: Vec<f64> = (0..passes).map(|_| pass(&load, robots.max(1))).collect();
+        ns.sort_by(f64::total_cmp);
+        let median = ns[ns.len() / 2];
+        if robots == 1 {
+            one_robot = Some(median);
+        }
+        let ratio =
+            one_robot.map_or_else(|| "–".to_owned(), |base| format!("{:.2}", median / base));
+        println!("| {robots} | {:.0} | {median:.0} | {ratio} |", ns[0]);
+    }
+}

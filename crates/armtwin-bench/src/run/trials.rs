@@ -187,6 +187,26 @@ impl Orchestrator {
         args
     }
 
+    /// Latency rounds `rounds` with the load's `args`, alternated between the two systems (each
+    /// idle while the other is measured), so that both see the same machine: the echo's rounds
+    /// and armtwin's.
+    fn alternated(
+        &self,
+        (echo, armtwin): (&SystemUnderTest, &SystemUnderTest),
+        encoding: WireEncoding,
+        args: &[String],
+        rounds: std::ops::Range<u32>,
+        label: &str,
+    ) -> Result<(Vec<Latency>, Vec<Latency>)> {
+        let (mut echo_rounds, mut armtwin_rounds) = (Vec::new(), Vec::new());
+        for round in rounds {
+            eprintln!("== {label} round {round}, echo then armtwin serve");
+            echo_rounds.extend(self.load(echo, Target::Echo, encoding, args)?.latency);
+            armtwin_rounds.extend(self.load(armtwin, Target::Armtwin, encoding, args)?.latency);
+        }
+        Ok((echo_rounds, armtwin_rounds))
+    }
+
     /// Both systems run side by side (each idle while the other is measured): latency rounds
     /// alternate between them, so that both see the same machine; then each one's search, the
     /// echo's from `start_rate`, armtwin's from half the echo's result. The last latency round
@@ -207,19 +227,13 @@ impl Orchestrator {
         let echo_sut = self.start_echo(robots, false)?;
         let armtwin_sut = self.start_armtwin(robots, encoding)?;
         let latency_args = self.load_args(robots, gateways, true, 0.0, None);
-        let mut echo_rounds = Vec::new();
-        let mut armtwin_rounds = Vec::new();
-        for round in 1..self.settings.latency_rounds {
-            eprintln!("== {row}: latency round {round}, echo then armtwin serve");
-            echo_rounds.extend(
-                self.load(&echo_sut, Target::Echo, encoding, &latency_args)?
-                    .latency,
-            );
-            armtwin_rounds.extend(
-                self.load(&armtwin_sut, Target::Armtwin, encoding, &latency_args)?
-                    .latency,
-            );
-        }
+        let (mut echo_rounds, mut armtwin_rounds) = self.alternated(
+            (&echo_sut, &armtwin_sut),
+            encoding,
+            &latency_args,
+            1..self.settings.latency_rounds,
+            &format!("{row}: latency"),
+        )?;
         let throughput = |report: &LoadReport| {
             report
                 .search
@@ -353,19 +367,13 @@ impl Orchestrator {
         let warm_up = args(s.paced_duration_s.min(PACED_WARM_UP_S));
         self.load(&echo_sut, Target::Echo, encoding, &warm_up)?;
         self.load(&armtwin_sut, Target::Armtwin, encoding, &warm_up)?;
-        let measured = args(s.paced_duration_s);
-        let (mut echo_rounds, mut armtwin_rounds) = (Vec::new(), Vec::new());
-        for round in 1..=s.latency_rounds.max(1) {
-            eprintln!("== {row}: round {round}, echo then armtwin serve");
-            echo_rounds.extend(
-                self.load(&echo_sut, Target::Echo, encoding, &measured)?
-                    .latency,
-            );
-            armtwin_rounds.extend(
-                self.load(&armtwin_sut, Target::Armtwin, encoding, &measured)?
-                    .latency,
-            );
-        }
+        let (echo_rounds, armtwin_rounds) = self.alternated(
+            (&echo_sut, &armtwin_sut),
+            encoding,
+            &args(s.paced_duration_s),
+            1..s.latency_rounds.max(1) + 1,
+            &format!("{row}:"),
+        )?;
         echo_sut.stop();
         armtwin_sut.stop();
         let cores = |rounds: &[Latency]| {

@@ -15,62 +15,33 @@
 
 use std::time::Instant;
 
-use armtwin::ingest::{self, Codec};
-use armtwin::pipeline::{Discard, MeasuredStream, Pipeline, RobotDirectory};
-use armtwin_bench::fleet::{parsed_service_config, robot_id};
-use armtwin_bench::ingest_fixture::{Load, RENDERED};
-use armtwin_bench::net;
+use armtwin::ingest::Codec;
+use armtwin::pipeline::Discard;
+use armtwin_bench::ingest_fixture::{Load, RENDERED, RobotKeys, Twin, feed};
 
 /// Samples per robot before the timing starts: more than the 10-s window holds at 100 Hz.
 const WARM_UP: usize = 1100;
 /// Samples timed per pass, over all robots.
 const TIMED: usize = 400_000;
 
-/// One robot's keys and id.
-struct Keys {
-    id: String,
-    joints: String,
-    measured: String,
-}
-
 /// A fresh pipeline of `robots` robots, warmed up, then `TIMED` samples: ns per sample.
 fn pass(load: &Load, robots: usize) -> f64 {
-    let config = parsed_service_config(robots).expect("the benchmark's configuration");
-    let directory = RobotDirectory::new(config.default_robot, config.robots);
-    let mut pipeline = Pipeline::new(config.pipeline);
-    let keys: Vec<Keys> = (0..robots)
-        .map(|index| {
-            let id = robot_id(index);
-            Keys {
-                joints: net::key(net::JOINTS, &id),
-                measured: net::key(net::MEASURED, &id),
-                id,
-            }
-        })
-        .collect();
+    let Twin {
+        robots: directory,
+        mut pipeline,
+    } = Twin::of(robots);
+    let keys: Vec<RobotKeys> = (0..robots).map(RobotKeys::of).collect();
     // Every robot gets the same payloads: each robot's own stream is what matters, and one set
     // of rendered payloads keeps the load's memory out of the measurement.
-    let round = |index: usize, pipeline: &mut Pipeline| {
+    let round = |index: usize, pipeline: &mut _| {
         let (stamp_s, joints, measured) = &load.samples[index];
         for keys in &keys {
             let robot = directory.find(&keys.id).expect("a configured robot");
-            ingest::joint_message(
+            feed(
                 pipeline,
-                robot,
-                &keys.joints,
-                Codec::Json,
-                joints.as_bytes(),
-                || *stamp_s,
-                &mut Discard,
-            );
-            ingest::measured_message(
-                pipeline,
-                robot,
-                &keys.measured,
-                MeasuredStream::Robot,
-                Codec::Json,
-                measured.as_bytes(),
-                || *stamp_s,
+                (robot, keys),
+                (Codec::Json, Codec::Json),
+                (*stamp_s, joints.as_bytes(), measured.as_bytes()),
                 &mut Discard,
             );
         }

@@ -82,12 +82,64 @@ impl Sink for Encode {
     }
 }
 
+/// A robot's id and its input keys, as `armtwin-bench load` publishes them.
+pub struct RobotKeys {
+    /// The robot's id.
+    pub id: String,
+    /// Its joint messages' key.
+    pub joints: String,
+    /// Its measured poses' key.
+    pub measured: String,
+}
+
+impl RobotKeys {
+    /// Robot `index` of the benchmark's fleet.
+    #[must_use]
+    pub fn of(index: usize) -> Self {
+        let id = robot_id(index);
+        Self {
+            joints: net::key(net::JOINTS, &id),
+            measured: net::key(net::MEASURED, &id),
+            id,
+        }
+    }
+}
+
+/// One sample of `robot` into `pipeline` as the service feeds it: its joint message, then its
+/// measured pose, decoded with `codecs` (joints, measured), `stamp_s` their arrival time.
+pub fn feed(
+    pipeline: &mut Pipeline,
+    (robot, keys): (&Robot, &RobotKeys),
+    (joint_codec, measured_codec): (Codec, Codec),
+    (stamp_s, joints, measured): (f64, &[u8], &[u8]),
+    sink: &mut impl Sink,
+) {
+    ingest::joint_message(
+        pipeline,
+        robot,
+        &keys.joints,
+        joint_codec,
+        joints,
+        || stamp_s,
+        sink,
+    );
+    ingest::measured_message(
+        pipeline,
+        robot,
+        &keys.measured,
+        MeasuredStream::Robot,
+        measured_codec,
+        measured,
+        || stamp_s,
+        sink,
+    );
+}
+
 /// One robot's load: joint and measured payloads of `RENDERED` samples at 100 Hz.
 pub struct Load {
     /// The robot's id.
     pub robot: String,
-    joint_key: String,
-    measured_key: String,
+    keys: RobotKeys,
     /// Stamp (s), joint payload and measured payload of each sample.
     pub samples: Vec<(f64, String, String)>,
 }
@@ -110,8 +162,7 @@ impl Load {
             })
             .collect();
         Self {
-            joint_key: net::key(net::JOINTS, &robot),
-            measured_key: net::key(net::MEASURED, &robot),
+            keys: RobotKeys::of(0),
             robot,
             samples,
         }
@@ -121,11 +172,7 @@ impl Load {
     /// one robot.
     #[must_use]
     pub fn pipeline() -> Twin {
-        let config = parsed_service_config(1).expect("the benchmark's configuration");
-        Twin {
-            robots: RobotDirectory::new(config.default_robot, config.robots),
-            pipeline: Pipeline::new(config.pipeline),
-        }
+        Twin::of(1)
     }
 }
 
@@ -137,6 +184,18 @@ pub struct Twin {
     pub pipeline: Pipeline,
 }
 
+impl Twin {
+    /// Configured as `armtwin-bench run` configures the service for `robots` robots.
+    #[must_use]
+    pub fn of(robots: usize) -> Self {
+        let config = parsed_service_config(robots).expect("the benchmark's configuration");
+        Self {
+            robots: RobotDirectory::new(config.default_robot, config.robots),
+            pipeline: Pipeline::new(config.pipeline),
+        }
+    }
+}
+
 impl Load {
     /// Sample `index`'s joint message into `twin`, its robot resolved by id as the service
     /// resolves it.
@@ -146,7 +205,7 @@ impl Load {
         ingest::joint_message(
             &mut twin.pipeline,
             robot,
-            &self.joint_key,
+            &self.keys.joints,
             Codec::Json,
             joints.as_bytes(),
             || *stamp_s,
@@ -161,7 +220,7 @@ impl Load {
         ingest::measured_message(
             &mut twin.pipeline,
             robot,
-            &self.measured_key,
+            &self.keys.measured,
             MeasuredStream::Robot,
             Codec::Json,
             measured.as_bytes(),

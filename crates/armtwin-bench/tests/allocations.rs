@@ -19,11 +19,8 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 
 use armtwin::codec::zser;
-use armtwin::ingest::{self, Codec};
-use armtwin::pipeline::MeasuredStream;
-use armtwin_bench::fleet::robot_id;
-use armtwin_bench::ingest_fixture::{Encode, Load};
-use armtwin_bench::net;
+use armtwin::ingest::Codec;
+use armtwin_bench::ingest_fixture::{Encode, Load, RobotKeys, feed};
 use armtwin_bench::workload::Workload;
 
 thread_local! {
@@ -81,19 +78,15 @@ const COUNTED: u64 = 2_000;
 /// Allocations over the [`COUNTED`] samples after [`WARM_UP`], and the outputs encoded meanwhile.
 fn counted(binary: bool) -> (u64, u64) {
     let workload = Workload::ur10e().expect("the ur10e's payloads");
-    let robot_id = robot_id(0);
-    let (joint_key, measured_key) = (
-        net::key(net::JOINTS, &robot_id),
-        net::key(net::MEASURED, &robot_id),
-    );
+    let keys = RobotKeys::of(0);
     let mut twin = Load::pipeline();
     let robot = twin
         .robots
-        .find(&robot_id)
+        .find(&keys.id)
         .expect("a configured robot")
         .clone();
     // The codecs `ingest::codec_of` picks for the load's encodings.
-    let (joint_codec, measured_codec) = if binary {
+    let codecs = if binary {
         (
             Codec::ZenohSerialized(Some(zser::Schema::Joints)),
             Codec::ZenohSerialized(Some(zser::Schema::Pose)),
@@ -129,24 +122,11 @@ fn counted(binary: bool) -> (u64, u64) {
         if sample as u64 == WARM_UP {
             before = (allocations(), sink.outputs);
         }
-        let stamp_s = *stamp_s;
-        ingest::joint_message(
+        feed(
             &mut twin.pipeline,
-            &robot,
-            &joint_key,
-            joint_codec,
-            joints,
-            || stamp_s,
-            &mut sink,
-        );
-        ingest::measured_message(
-            &mut twin.pipeline,
-            &robot,
-            &measured_key,
-            MeasuredStream::Robot,
-            measured_codec,
-            measured,
-            || stamp_s,
+            (&robot, &keys),
+            codecs,
+            (*stamp_s, joints, measured),
             &mut sink,
         );
     }

@@ -669,9 +669,7 @@ fn write_f64s(bytes: &mut [u8], values: &[f64]) {
 
 /// A sequence of fewer than 128 `f64`: a one-byte LEB128 length, then the values.
 fn push_f64s(bytes: &mut Vec<u8>, values: &[f64]) {
-    debug_assert!(values.len() < 0x80, "a one-byte LEB128 length");
-    bytes.push(values.len() as u8);
-    for value in values {
-        bytes.extend_from_slice(&value.to_le_bytes());
-    }
+    let start = bytes.len();
+    bytes.resize(start + 1 + 8 * values.len(), 0);
+    write_f64s(&mut bytes[start..], values);
 }

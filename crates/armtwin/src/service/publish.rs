@@ -131,7 +131,23 @@ impl Outputs {
         stream: Stream,
         payload: ZBytes,
     ) -> bool {
-        let result = if let Some(publisher) = outputs.and_then(|outputs| outputs.of(stream)) {
+        self.put_through(
+            outputs.and_then(|outputs| outputs.of(stream)),
+            robot,
+            stream,
+            payload,
+        )
+    }
+
+    /// [`put`](Self::put) through `publisher`, or on the plain key when there is none.
+    fn put_through(
+        &self,
+        publisher: Option<&Publisher<'static>>,
+        robot: &str,
+        stream: Stream,
+        payload: ZBytes,
+    ) -> bool {
+        let result = if let Some(publisher) = publisher {
             publisher.put(payload).wait()
         } else {
             let (congestion, encoding) = self.qos(stream);
@@ -259,15 +275,7 @@ impl Outputs {
         robot: &str,
         payload: impl Into<ZBytes>,
     ) {
-        let taken = match publisher {
-            Some(publisher) => publisher
-                .put(payload)
-                .wait()
-                .inspect_err(|e| warn!(error = %e, %robot, stream = "metrics", "publish failed"))
-                .is_ok(),
-            None => self.put(None, robot, Stream::Metrics, payload.into()),
-        };
-        if !taken {
+        if !self.put_through(publisher, robot, Stream::Metrics, payload.into()) {
             self.publish_errors.fetch_add(1, Ordering::Relaxed);
         }
     }

@@ -199,14 +199,12 @@ impl Sink for ZenohSink<'_> {
         frame: OutputFrame,
         pose: &PoseReadout,
     ) {
+        let fields = PoseFields::from(pose);
         let payload: ZBytes = match self.outputs.encoding {
             OutputEncoding::Json => {
-                let fields = PoseFields::from(pose);
                 json::pose_json_bytes(robot.id(), stamp_s, seq, frame.as_str(), &fields).into()
             }
-            OutputEncoding::ZenohSerialized => {
-                zser::twin_pose_bytes(stamp_s, seq, &PoseFields::from(pose)).into()
-            }
+            OutputEncoding::ZenohSerialized => zser::twin_pose_bytes(stamp_s, seq, &fields).into(),
         };
         self.put(robot.id(), Stream::Pose, payload);
         if let Some(state) = self.robot.as_deref_mut() {

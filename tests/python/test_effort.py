@@ -31,11 +31,11 @@ import time
 
 import numpy as np
 import pytest
-import zenoh
 
-import effort_recording as er
-from armtwin_service import PREFIX, ArmtwinProcess, TwinClient, reply_payloads, wait_until
-from test_service import Checks
+from support import effort_recording as er
+from support.checks import Checks
+from support.process import ArmtwinProcess, wait_until
+from support.zenoh_clients import PREFIX, TwinClient, reply_payloads
 
 ROBOT = "plant/cell-1/ur10e"
 WATCHDOG_S = 240.0

@@ -13,8 +13,9 @@ import re
 
 import zenoh
 
-from armtwin_service import PREFIX, wait_until
-from dashboard_support import DashboardService, http_get
+from support.dashboard import DashboardService, http_get
+from support.process import wait_until
+from support.zenoh_clients import PREFIX
 
 Q = [-0.693, -0.833, 0.951, 1.149, 1.515, 1.739]
 CONFIGURED = "cell/r1"
@@ -91,7 +92,7 @@ def test_a_flood_of_new_ids_fills_the_fleet_to_max_robots_and_no_further(armtwin
         # A configured robot always fits.
         put_joints(session, CONFIGURED, 2.0)
         assert wait_until(lambda: (service.state(CONFIGURED).get("joints") or {}).get("t") == 2.0, 10)
-        logs = service.proc.stderr_path.read_text()
+        logs = service.proc.logs(limit=10**9)
         assert logs.count("the fleet is full") == 1, "logged once, not per sample"
 
 

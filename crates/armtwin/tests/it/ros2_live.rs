@@ -1018,7 +1018,7 @@ robot_from_key = "ros2_namespace"
 }
 
 /// The `rmw_zenoh` type hashes armtwin writes into keys are the ones real rclpy reports for a
-/// live publisher (`topic_type_hash`, captured by `tests/python/capture_rclpy_fixtures.py`; the
+/// live publisher (`topic_type_hash`, captured by `tools/capture_rclpy_fixtures.py`; the
 /// bridge test asserts the live value against the same file).
 #[test]
 fn type_hashes_are_the_ones_rclpy_reports() {

@@ -34,7 +34,7 @@ def twin_config(robots: str = "**", extra: str = "") -> str:
 
 
 
-def test_gateway_and_dashboard_reach_armtwin_through_the_router_and_rest(
+def test_clients_reach_armtwin_through_the_router(
     tmp_path, armtwin_bin, router_bin, processes, sessions
 ):
     router = Router(router_bin, tmp_path, rest=True).start()
@@ -121,7 +121,7 @@ def test_two_shards_split_a_fleet_and_an_overlap_is_refused(
     assert "service.robots '*/r1' overlaps" in log and ("'site-a/**'" in log or "'site-b/**'" in log), log
 
 
-def test_router_restart_mid_stream_is_survived_and_measured(
+def test_a_router_restart_mid_stream_is_survived(
     tmp_path, armtwin_bin, router_bin, processes, sessions
 ):
     router = Router(router_bin, tmp_path).start()
@@ -180,7 +180,7 @@ def twin_with_snapshots(tmp_path, armtwin_bin, router_bin, processes, sessions, 
     return state_dir, config, router, twin, client
 
 
-def test_sigkill_restores_metrics_seq_and_alarms_from_the_snapshot(
+def test_after_a_sigkill_the_twins_come_back_from_the_snapshot(
     tmp_path, armtwin_bin, router_bin, processes, sessions
 ):
     state_dir, config, router, twin, client = twin_with_snapshots(

@@ -300,7 +300,7 @@ def test_a_real_rclpy_node_through_the_real_bridge_twins_as_the_json_path(deploy
     checks.done(deployment.logs())
 
 
-def test_the_bridge_namespace_and_robots_joining_and_leaving(deployments, tmp_path):
+def test_robots_come_and_go_under_the_bridges_namespace(deployments, tmp_path):
     """Bridge ``namespace: "/plant"``: ``/ur5/joint_states`` is key ``plant/ur5/joint_states``, the robot
     ``plant/ur5``, its twin pose key ``plant/ur5/armtwin/tcp_pose`` back to ``/ur5/armtwin/tcp_pose``.
     ``ur5`` streams and stops; then ``ur10`` joins. When a node stops, the bridge undeclares its

@@ -90,7 +90,7 @@ def tls_router_and_twin(tmp_path, certs, armtwin_bin) -> tuple[Router, Armtwin]:
     return router, twin
 
 
-def test_only_gateways_put_joints_only_armtwin_publishes_and_strangers_cannot_connect(
+def test_access_control_lets_each_role_do_only_its_part(
     tmp_path, certs, armtwin_bin
 ):
     router, twin = tls_router_and_twin(tmp_path, certs, armtwin_bin)
@@ -166,7 +166,7 @@ def replies(session: zenoh.Session, selector: str) -> tuple[list[dict], list[dic
     return oks, errs
 
 
-def test_a_dashboard_reads_a_twin_but_cannot_change_it_and_an_operator_can(tmp_path, certs, armtwin_bin):
+def test_only_an_operator_may_reset_a_twin(tmp_path, certs, armtwin_bin):
     router, twin = tls_router_and_twin(tmp_path, certs, armtwin_bin)
     sessions = []
     try:

@@ -36,6 +36,7 @@ class Prometheus(Process):
     """A Prometheus scraping ``target`` every second, its data in ``workdir``."""
 
     def __init__(self, workdir, target: str):
+        self.binary = prometheus_path()
         self.port = free_port()
         self.config = workdir / "prometheus.yml"
         self.config.write_text(
@@ -44,7 +45,7 @@ class Prometheus(Process):
             f"      - targets: ['{target}']\n"
         )
         self.data = workdir / "prometheus-data"
-        argv = [prometheus_path(), f"--config.file={self.config}", f"--storage.tsdb.path={self.data}",
+        argv = [self.binary, f"--config.file={self.config}", f"--storage.tsdb.path={self.data}",
                 f"--web.listen-address=127.0.0.1:{self.port}"]
         super().__init__("prometheus", argv, workdir)
 

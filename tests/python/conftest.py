@@ -1,4 +1,5 @@
-"""Shared fixtures for the armtwin Python reference tests.
+"""Shared fixtures for the armtwin Python reference tests; what the tests share besides fixtures
+is in ``support/`` (its ``__init__`` lists the modules).
 
 The binary is ``$ARMTWIN_BIN`` if set, else ``<repo>/target/debug/armtwin``.
 These tests never build it: run ``cargo build`` first.
@@ -6,47 +7,28 @@ These tests never build it: run ``cargo build`` first.
 
 from __future__ import annotations
 
-import os
-import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-DATA_DIR = REPO_ROOT / "tests" / "data"
-TIMEOUT_S = 60
+# `support` is imported from this directory whichever way pytest imports the test modules.
+HERE = str(Path(__file__).resolve().parent)
+if HERE not in sys.path:
+    sys.path.insert(0, HERE)
 
-
-def armtwin_path() -> Path:
-    env = os.environ.get("ARMTWIN_BIN")
-    return Path(env) if env else REPO_ROOT / "target" / "debug" / "armtwin"
-
-
-def _require_binary() -> Path:
-    path = armtwin_path()
-    if not path.is_file():
-        source = "ARMTWIN_BIN" if os.environ.get("ARMTWIN_BIN") else "default path"
-        pytest.fail(
-            f"armtwin binary not found at {path} ({source}). "
-            "Build it first (cargo build) or set ARMTWIN_BIN to the binary's path.",
-            pytrace=False,
-        )
-    if not os.access(path, os.X_OK):
-        pytest.fail(f"armtwin binary at {path} is not executable.", pytrace=False)
-    return path
+from support.paths import require_armtwin, router_path  # noqa: E402
 
 
 @pytest.fixture(scope="session")
 def armtwin_bin() -> Path:
     """Path of the armtwin binary; fails (never skips) if it is missing."""
-    return _require_binary()
+    return require_armtwin()
 
 
 @pytest.fixture(scope="module")
 def router_bin(armtwin_bin) -> Path:
     """``armtwin-router`` beside the armtwin binary (or ``$ARMTWIN_ROUTER_BIN``); fails if missing."""
-    from fleet import router_path
-
     path = router_path(armtwin_bin)
     if not path.is_file():
         pytest.fail(f"armtwin-router not found at {path}: cargo build --workspace first", pytrace=False)
@@ -72,16 +54,3 @@ def sessions():
             session.close()
         except Exception:
             pass
-
-
-def run_armtwin(*args, input: str | None = None) -> subprocess.CompletedProcess:
-    """Run armtwin with ``args`` (converted with str), text mode, 60 s timeout."""
-    binary = _require_binary()
-    return subprocess.run(
-        [str(binary), *(str(a) for a in args)],
-        input=input,
-        stdin=subprocess.DEVNULL if input is None else None,
-        capture_output=True,
-        text=True,
-        timeout=TIMEOUT_S,
-    )

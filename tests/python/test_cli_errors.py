@@ -6,8 +6,8 @@ import re
 
 import pytest
 
-import ur_reference as ur
-from conftest import run_armtwin
+from support import ur_reference as ur
+from support.process import run_armtwin
 
 GOOD_CAL = ur.Calibration(
     delta_theta=[1.2e-06, 0.31, -0.55, 0.24, -3.1e-06, 2.0e-06],

@@ -15,8 +15,8 @@ from pathlib import Path
 import zenoh
 from ruamel.yaml import YAML
 
-from armtwin_service import free_port, port_accepts, wait_until
-from fleet import Process, router_path
+from support.paths import router_path
+from support.process import Process, free_port, port_accepts, wait_until
 
 REPO = Path(__file__).resolve().parents[2]
 DOCKER = REPO / "docker"
@@ -103,7 +103,7 @@ def test_the_compose_topology_runs_natively(tmp_path, armtwin_bin):
     try:
         router = Process("router", [router_path(armtwin_bin), *native(services["router"]["command"])], tmp_path)
         started.append(router.start())
-        assert wait_until(lambda: port_accepts(router_port) and port_accepts(rest_port), 30), router.log()
+        assert wait_until(lambda: port_accepts(router_port) and port_accepts(rest_port), 30), router.logs()
         for name in ("shard-a", "shard-b"):
             source, _ = shard_config(services[name])
             state = tmp_path / f"{name}-state"
@@ -113,7 +113,7 @@ def test_the_compose_topology_runs_natively(tmp_path, armtwin_bin):
             argv[argv.index("-c") + 1] = str(config)
             shard = Process(name, [armtwin_bin, *argv], tmp_path, {"RUST_LOG": "armtwin=info"})
             started.append(shard.start())
-            assert shard.wait_log("robots claimed"), shard.log()
+            assert shard.wait_log("robots claimed"), shard.logs()
         argv = native(services["gateway"]["command"])
         argv[1] = str(REPO / "tests" / "data" / Path(argv[1]).name)
         replay = subprocess.run(
@@ -125,7 +125,7 @@ def test_the_compose_topology_runs_natively(tmp_path, armtwin_bin):
         assert [item["key"] for item in fleet] == ["twin/state/site-a/ur10e"]
         state = fleet[0]["value"]
         assert state["joints"] is not None and state["metrics"]["paired"] > 0
-        assert "site-a/ur10e" in started[1].log(10**9) and "site-a/ur10e" not in started[2].log(10**9)
+        assert "site-a/ur10e" in started[1].logs(10**9) and "site-a/ur10e" not in started[2].logs(10**9)
     finally:
         for process in reversed(started):
             process.stop()

@@ -16,9 +16,10 @@ import numpy as np
 import pytest
 from playwright.sync_api import sync_playwright
 
-import ur_reference as ur
-from armtwin_service import wait_until
-from dashboard_support import DashboardService, Gateway, chromium_path, http_json
+from support import ur_reference as ur
+from support.dashboard import DashboardService, chromium_path, http_json
+from support.gateway import Gateway
+from support.process import wait_until
 
 CONFIG = """\
 [service]
@@ -57,10 +58,11 @@ def cell(page, robot: str, column: str) -> str:
     return page.locator(f'tr[data-robot="{robot}"] td.{column}').inner_text(timeout=20_000)
 
 
-def test_fleet_rows_appear_change_group_filter_and_alarm_turns_red(armtwin_bin, tmp_path, browser):
+def test_the_fleet_page_follows_the_fleet_live(armtwin_bin, tmp_path, browser):
     with DashboardService(armtwin_bin, tmp_path, CONFIG) as service:
         # The alarm robot's measured x is 10 mm off: twice its 5 mm threshold.
-        gateway = Gateway(service.client, ROBOTS, rate_hz=150.0, measured_offset_m={ALARM_ROBOT: 0.010})
+        gateway = Gateway(service.client, ROBOTS, rate_hz=150.0, recording=True,
+                          measured_offset_m={ALARM_ROBOT: 0.010})
         alarm_seen_at = []
         service.client.session.declare_subscriber(
             f"twin/events/{ALARM_ROBOT}",
@@ -138,11 +140,11 @@ def webgl_pixels(page) -> dict:
     )
 
 
-def test_robot_page_draws_the_arm_and_the_chart_updates(armtwin_bin, tmp_path, browser):
+def test_the_robot_page_follows_its_robot_live(armtwin_bin, tmp_path, browser):
     with DashboardService(armtwin_bin, tmp_path, CONFIG + TOOL_CONFIG) as service:
         # ROBOTS[0] runs the nominal arm its recording's measured poses are of; TOOL_ROBOT carries
         # a 15 cm tool (its measured poses, of the flange, are then far from its twin).
-        gateway = Gateway(service.client, [ROBOTS[0], TOOL_ROBOT], rate_hz=200.0)
+        gateway = Gateway(service.client, [ROBOTS[0], TOOL_ROBOT], rate_hz=200.0, recording=True)
         gateway.start()
         try:
             assert wait_until(lambda: gateway.sent > 50, 15.0)

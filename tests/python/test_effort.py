@@ -31,11 +31,11 @@ import time
 
 import numpy as np
 import pytest
-import zenoh
 
-import effort_recording as er
-from armtwin_service import PREFIX, ArmtwinProcess, TwinClient, reply_payloads, wait_until
-from test_service import Checks
+from support import effort_recording as er
+from support.checks import Checks
+from support.process import ArmtwinProcess, wait_until
+from support.zenoh_clients import PREFIX, TwinClient, reply_payloads
 
 ROBOT = "plant/cell-1/ur10e"
 WATCHDOG_S = 240.0
@@ -352,7 +352,7 @@ def test_b_every_contact_is_detected_within_50_ms_and_nothing_else(start_twin):
 # ----------------------------------------------------------------------------------------------
 
 
-def test_c_a_heavier_payload_is_estimated_alarmed_and_applied(start_twin):
+def test_c_a_heavier_payload_is_identified(start_twin):
     """2.0 kg configured, 3.5 kg carried: the estimate (payload stream and alarm) is within 0.2 kg;
     applied through the admin query, the mean |residual| at rest on joints 2 and 3 falls at least
     threefold."""

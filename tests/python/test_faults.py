@@ -22,8 +22,9 @@ from pathlib import Path
 
 import pytest
 
-from armtwin_service import free_port, wait_until
-from fleet import Armtwin, Gateway, Poses, Router, get_json, open_client, wait_matched, wait_queryable
+from support.gateway import Gateway
+from support.process import Armtwin, Router, free_port, wait_until
+from support.zenoh_clients import Poses, get_json, open_client, wait_matched, wait_queryable
 
 TWIN_CONFIG = """
 [service]
@@ -94,28 +95,28 @@ def test_a_full_snapshot_disk_is_counted_and_twinning_goes_on(
     wait_matched(gateway.pub)
     gateway.start()
     try:
-        assert wait_until(lambda: snapshot.exists() and "r1" in snapshot.read_text(), 20), twin.log()
+        assert wait_until(lambda: snapshot.exists() and "r1" in snapshot.read_text(), 20), twin.logs()
         filler = inside / "filler"
         with open(filler, "wb", buffering=0) as out:
             with pytest.raises(OSError) as full:
                 while True:
                     out.write(b"\0" * 65536)
         assert full.value.errno == errno.ENOSPC
-        assert wait_until(lambda: (metric(http_port, "armtwin_snapshot_failures_total") or 0) >= 5, 20), twin.log()
+        assert wait_until(lambda: (metric(http_port, "armtwin_snapshot_failures_total") or 0) >= 5, 20), twin.logs()
         during = paired(client, "r1")
         assert wait_until(lambda: paired(client, "r1") >= during + 100, 10), "twinning stopped with the disk full"
         filler.unlink()
         freed_at = paired(client, "r1")
-        assert wait_until(lambda: "snapshot written again" in twin.log(limit=10**9), 10), twin.log()
+        assert wait_until(lambda: "snapshot written again" in twin.logs(limit=10**9), 10), twin.logs()
         assert wait_until(
             lambda: json.loads(snapshot.read_text())["robots"][0]["paired"] >= freed_at, 10
         )
     finally:
         gateway.stop()
-    log = twin.log(limit=10**9)
+    log = twin.logs(limit=10**9)
     assert log.count("snapshot not written") == 1, "the first failure is logged, the rest counted"
     failures = metric(http_port, "armtwin_snapshot_failures_total")
-    assert twin.stop() == 0
+    assert twin.stop().code == 0
     print(f"snapshot disk full: {failures:.0f} failed writes counted, twinning went on, written again once freed")
 
 
@@ -149,11 +150,11 @@ def test_the_router_armtwin_uses_dies_and_it_resumes_through_the_other(
     unheard = gateway.seq - paired(dashboard, "r1")
     gateway.start()
     try:
-        assert wait_until(lambda: len(poses.items) >= 200, 20), router_b.log()
+        assert wait_until(lambda: len(poses.items) >= 200, 20), router_b.logs()
         router_a.kill()
         killed_at = time.monotonic()
         assert wait_until(lambda: poses.items[-1][0] > killed_at + 0.05, 30), (
-            f"no pose after router A died\n{twin.log()}"
+            f"no pose after router A died\n{twin.logs()}"
         )
         resumed_at = next(at for at, _ in poses.items if at > killed_at)
         time.sleep(1.0)
@@ -244,13 +245,13 @@ def test_a_gateway_whose_network_drops_for_30_s_is_taken_back_with_the_gap_repor
     wait_matched(gateway.pub)
     gateway.start()
     try:
-        assert wait_until(lambda: len(poses.items) >= 100, 20), twin.log()
+        assert wait_until(lambda: len(poses.items) >= 100, 20), twin.logs()
         proxy.cut()
         time.sleep(BLACKHOLE_S)
         proxy.restore()
         restored_at = time.monotonic()
         assert wait_until(lambda: poses.items[-1][0] > restored_at, 60), (
-            f"no pose after the network came back\n{router.log()}"
+            f"no pose after the network came back\n{router.logs()}"
         )
         resumed_at = next(at for at, _ in poses.items if at > restored_at)
         time.sleep(1.0)

@@ -11,8 +11,9 @@ import json
 import time
 import urllib.request
 
-from armtwin_service import wait_until
-from fleet import Armtwin, Gateway, Poses, Router, get_json, open_client, paired_of, wait_matched, wait_queryable
+from support.gateway import Gateway
+from support.process import Armtwin, Router, wait_until
+from support.zenoh_clients import Poses, get_json, open_client, paired_of, wait_matched, wait_queryable
 
 TWIN_CONFIG = """
 [service]
@@ -33,7 +34,7 @@ def twin_config(robots: str = "**", extra: str = "") -> str:
 
 
 
-def test_gateway_and_dashboard_reach_armtwin_through_the_router_and_rest(
+def test_clients_reach_armtwin_through_the_router(
     tmp_path, armtwin_bin, router_bin, processes, sessions
 ):
     router = Router(router_bin, tmp_path, rest=True).start()
@@ -48,7 +49,7 @@ def test_gateway_and_dashboard_reach_armtwin_through_the_router_and_rest(
     for _ in range(50):
         gateway.send_one()
         time.sleep(0.005)
-    assert wait_until(lambda: len(poses.items) >= 50, 15), f"{len(poses.items)} poses\n{router.log()}"
+    assert wait_until(lambda: len(poses.items) >= 50, 15), f"{len(poses.items)} poses\n{router.logs()}"
     assert poses.seqs() == list(range(50))
     [(key, state)] = get_json(dashboard, "twin/state/**")
     assert key == "twin/state/site/r1" and state["robot"] == "site/r1"
@@ -106,21 +107,21 @@ def test_two_shards_split_a_fleet_and_an_overlap_is_refused(
     assert sorted(key for key, _ in replies) == [f"twin/state/{robot}" for robot in fleet], replies
     assert all(state["metrics"]["paired"] == 10 for _, state in replies)
     # Each shard tracks its own robots alone.
-    assert "site-b" not in shard_a.log(limit=10**9).split("robots claimed", 1)[1]
-    assert "site-a/r1" in shard_a.log(limit=10**9) and "site-a/r1" not in shard_b.log(limit=10**9)
+    assert "site-b" not in shard_a.logs(limit=10**9).split("robots claimed", 1)[1]
+    assert "site-a/r1" in shard_a.logs(limit=10**9) and "site-a/r1" not in shard_b.logs(limit=10**9)
     claims = sorted(claim["robots"] for _, claim in get_json(client, "twin/shards/**"))
     assert claims == ["site-a/**", "site-b/**"]
 
     overlapping = Armtwin(armtwin_bin, tmp_path, "shard-ab", twin_config("*/r1"), router.endpoint)
     overlapping.start(ready=False)
     processes.append(overlapping)
-    assert wait_until(lambda: not overlapping.running(), 30), overlapping.log()
+    assert wait_until(lambda: not overlapping.running(), 30), overlapping.logs()
     assert overlapping.proc.returncode != 0
-    log = overlapping.log()
+    log = overlapping.logs()
     assert "service.robots '*/r1' overlaps" in log and ("'site-a/**'" in log or "'site-b/**'" in log), log
 
 
-def test_router_restart_mid_stream_is_survived_and_measured(
+def test_a_router_restart_mid_stream_is_survived(
     tmp_path, armtwin_bin, router_bin, processes, sessions
 ):
     router = Router(router_bin, tmp_path).start()
@@ -137,7 +138,7 @@ def test_router_restart_mid_stream_is_survived_and_measured(
     wait_matched(gateway.pub)
     gateway.start()
     try:
-        assert wait_until(lambda: len(poses.items) >= 200, 20), router.log()
+        assert wait_until(lambda: len(poses.items) >= 200, 20), router.logs()
         router.kill()
         killed_at = time.monotonic()
         time.sleep(1.0)
@@ -145,13 +146,13 @@ def test_router_restart_mid_stream_is_survived_and_measured(
         processes.append(router.start())
         restarted_at = time.monotonic()
         assert wait_until(lambda: poses.items and poses.items[-1][0] > restarted_at, 60), (
-            f"no pose after the router restarted\n{twin.log()}"
+            f"no pose after the router restarted\n{twin.logs()}"
         )
         resumed_at = next(at for at, _ in poses.items if at > restarted_at)
         time.sleep(1.0)
     finally:
         gateway.stop()
-    assert twin.running(), twin.log()
+    assert twin.running(), twin.logs()
     gaps = [e for e in events if e["kind"] == "gap" and "expected" in e["detail"]]
     assert gaps, f"no gap event from the gateway's seq: {events[-5:]}"
     lost = sum(e["detail"]["got"] - e["detail"]["expected"] for e in gaps)
@@ -179,7 +180,7 @@ def twin_with_snapshots(tmp_path, armtwin_bin, router_bin, processes, sessions, 
     return state_dir, config, router, twin, client
 
 
-def test_sigkill_restores_metrics_seq_and_alarms_from_the_snapshot(
+def test_after_a_sigkill_the_twins_come_back_from_the_snapshot(
     tmp_path, armtwin_bin, router_bin, processes, sessions
 ):
     state_dir, config, router, twin, client = twin_with_snapshots(
@@ -201,7 +202,7 @@ def test_sigkill_restores_metrics_seq_and_alarms_from_the_snapshot(
 
     twin = Armtwin(armtwin_bin, tmp_path, "twin", config, router.endpoint).start()
     processes.append(twin)
-    assert "twins restored from the snapshot" in twin.log()
+    assert "twins restored from the snapshot" in twin.logs()
     assert wait_queryable(client, "twin/state/**")
     [(_, after)] = get_json(client, "twin/state/r1")
     assert after["metrics"]["paired"] == 300 and after["metrics"]["cumulative"] == before["metrics"]["cumulative"]
@@ -227,7 +228,7 @@ def test_a_corrupt_snapshot_is_set_aside_and_the_service_starts_fresh(
     processes.append(router)
     twin = Armtwin(armtwin_bin, tmp_path, "twin", config, router.endpoint).start()
     processes.append(twin)
-    log = twin.log()
+    log = twin.logs()
     assert "snapshot refused: starting fresh" in log and "not a readable snapshot" in log, log
     aside = list(state_dir.glob("twin-state.json.refused-*"))
     assert len(aside) == 1 and aside[0].read_text().endswith('"robots": [')
@@ -235,7 +236,7 @@ def test_a_corrupt_snapshot_is_set_aside_and_the_service_starts_fresh(
     sessions.append(client)
     assert wait_queryable(client, "twin/state/**")
     assert get_json(client, "twin/state/**") == []
-    assert twin.stop() == 0
+    assert twin.stop().code == 0
     # The clean shutdown writes a fresh snapshot in place of the refused one.
     assert json.loads((state_dir / "twin-state.json").read_text())["robots"] == []
 
@@ -258,13 +259,13 @@ def test_sigkill_mid_stream_loses_at_most_one_snapshot_period(
     wait_matched(gateway.pub)
     gateway.start()
     try:
-        assert wait_until(lambda: metrics and metrics[-1] >= 600, 30), twin.log()
+        assert wait_until(lambda: metrics and metrics[-1] >= 600, 30), twin.logs()
         twin.kill()
         # Metrics go out every 100 ms: the last one seen is at most that much behind the kill.
         paired_at_kill = metrics[-1]
         twin = Armtwin(armtwin_bin, tmp_path, "twin", config, router.endpoint).start()
         processes.append(twin)
-        assert "twins restored from the snapshot" in twin.log(), twin.log()
+        assert "twins restored from the snapshot" in twin.logs(), twin.logs()
         assert wait_until(lambda: any(e["kind"] == "gap" and "expected" in e["detail"] for e in events), 20)
     finally:
         gateway.stop()

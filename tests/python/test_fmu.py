@@ -26,9 +26,10 @@ from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 from fmpy.logging import addLoggerProxy
 from fmpy.validation import validate_fmu
 
-import ur_reference as ur
-from conftest import DATA_DIR, REPO_ROOT, armtwin_path, run_armtwin
-from test_fk_reference import check_poses, csv_input, parse_csv_output
+from support import ur_reference as ur
+from support.fk_csv import check_poses, csv_input, parse_csv_output
+from support.paths import DATA_DIR, REPO_ROOT, armtwin_path
+from support.process import run_armtwin
 
 STEP_S = 0.1
 OUTPUTS = ["x", "y", "z", "roll", "pitch", "yaw", "qx", "qy", "qz", "qw"]
@@ -192,8 +193,15 @@ def test_torques_equal_pinocchio_with_a_payload_in_fmpy(nominal_fmu):
     rnea of the same UR10e (an independent implementation)."""
     import pinocchio as pin
 
-    from test_dynamics_reference import (GEAR_RATIO, PARAMETERS, ROTOR_INERTIA_KG_M2, TOLERANCE_NM,
-                                         UR_GRAVITY_M_S2, pinocchio_arm, with_payload)
+    from support.ur_dynamics import (
+        GEAR_RATIO,
+        PARAMETERS,
+        ROTOR_INERTIA_KG_M2,
+        TOLERANCE_NM,
+        UR_GRAVITY_M_S2,
+        pinocchio_arm,
+        with_payload,
+    )
 
     masses, coms, diagonals, sizes = PARAMETERS["ur10e"]
     links = [(masses[k], coms[k], [*diagonals[k], 0.0, 0.0, 0.0]) for k in range(6)]

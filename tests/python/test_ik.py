@@ -16,8 +16,8 @@ import pytest
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-import ur_reference as ur
-from conftest import run_armtwin
+from support import ur_reference as ur
+from support.process import run_armtwin
 
 POSES_PER_MODEL = 2
 STARTS = 24

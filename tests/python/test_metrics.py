@@ -15,9 +15,10 @@ import re
 import subprocess
 import urllib.parse
 
-from armtwin_service import free_port, port_accepts, wait_until
-from conftest import REPO_ROOT
-from dashboard_support import DashboardService, Gateway, http_get, http_json, prometheus_path
+from support.dashboard import DashboardService, http_get, http_json, prometheus_path
+from support.gateway import Gateway
+from support.paths import REPO_ROOT
+from support.process import Process, free_port, wait_until
 
 CONFIG = """\
 [service]
@@ -31,7 +32,7 @@ ROWS = 4000
 DASHBOARD = REPO_ROOT / "config" / "grafana" / "dashboards" / "armtwin.json"
 
 
-class Prometheus:
+class Prometheus(Process):
     """A Prometheus scraping ``target`` every second, its data in ``workdir``."""
 
     def __init__(self, workdir, target: str):
@@ -43,26 +44,18 @@ class Prometheus:
             "scrape_configs:\n  - job_name: armtwin\n    static_configs:\n"
             f"      - targets: ['{target}']\n"
         )
-        self.log = workdir / "prometheus.log"
         self.data = workdir / "prometheus-data"
-        self.proc = None
+        argv = [self.binary, f"--config.file={self.config}", f"--storage.tsdb.path={self.data}",
+                f"--web.listen-address=127.0.0.1:{self.port}"]
+        super().__init__("prometheus", argv, workdir)
 
     def __enter__(self) -> Prometheus:
-        self.proc = subprocess.Popen(
-            [str(self.binary), f"--config.file={self.config}", f"--storage.tsdb.path={self.data}",
-             f"--web.listen-address=127.0.0.1:{self.port}"],
-            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=open(self.log, "wb"),
-        )
-        assert wait_until(lambda: port_accepts(self.port), 30.0, 0.05), self.log.read_text()[-2000:]
+        self.start()
+        self.wait_port(self.port, f"listen on {self.port}")
         return self
 
     def __exit__(self, *exc) -> None:
-        self.proc.terminate()
-        try:
-            self.proc.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait(timeout=5)
+        self.stop()
 
     def query(self, expr: str) -> dict:
         url = f"http://127.0.0.1:{self.port}/api/v1/query?" + urllib.parse.urlencode({"query": expr})
@@ -89,12 +82,12 @@ def exposed_names(text: str) -> set[str]:
 def test_prometheus_scrapes_the_twin_and_agrees_with_the_state_query(armtwin_bin, tmp_path):
     with DashboardService(armtwin_bin, tmp_path, CONFIG) as service, \
             Prometheus(tmp_path, f"127.0.0.1:{service.http_port}") as prometheus:
-        gateway = Gateway(service.client, ROBOTS, rate_hz=250.0, rows=ROWS)
+        gateway = Gateway(service.client, ROBOTS, rate_hz=250.0, recording=True, rows=ROWS)
         gateway.start()
         # Scraped while the recording streams.
         assert wait_until(
             lambda: (prometheus.value(f'armtwin_paired_total{{robot="{ROBOTS[0]}"}}') or 0) > 0, 30.0, 0.2
-        ), prometheus.log.read_text()[-2000:]
+        ), prometheus.logs(2000)
         assert gateway.is_alive(), "the recording ended before the first scrape"
         targets = http_json(f"http://127.0.0.1:{prometheus.port}/api/v1/targets")["data"]["activeTargets"]
         assert [t["health"] for t in targets] == ["up"], targets

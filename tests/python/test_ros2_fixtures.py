@@ -17,10 +17,10 @@ import json
 from pathlib import Path
 
 import numpy as np
-
-import make_ros2_fixtures as fixtures
-from conftest import DATA_DIR
 from rosbags.highlevel import AnyReader
+
+from support import ros2_fixtures as fixtures
+from support.paths import DATA_DIR
 
 ROS2_DIR = DATA_DIR / "ros2"
 

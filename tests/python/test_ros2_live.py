@@ -30,17 +30,18 @@ import zenoh
 from rosbags.typesys import Stores, get_typestore
 from zenoh.ext import Int64, z_deserialize, z_serialize
 
-from armtwin_service import ArmtwinProcess, TwinClient, wait_until
-from conftest import DATA_DIR
-from test_service import (
-    Checks,
+from support.checks import Checks
+from support.paths import DATA_DIR
+from support.process import ArmtwinProcess, wait_until
+from support.twin_reference import (
     check_deviations,
     check_metrics,
     check_poses,
     reference_deviations,
     reference_stats,
 )
-from ur_joints import UR_JOINTS
+from support.ur_joints import UR_JOINTS
+from support.zenoh_clients import TwinClient
 
 ROWS = 1000
 RATE_HZ = 500

@@ -26,22 +26,21 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 import os
 import random
 import socket
 import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import zenoh
 
-from armtwin_service import Collector, wait_until
-from conftest import DATA_DIR, REPO_ROOT, run_armtwin
-from fleet import Armtwin, Process, Router, open_client, wait_queryable
-from test_service import Checks, check_metrics, check_poses, reference_deviations, reference_stats
+from support.checks import Checks
+from support.paths import DATA_DIR, REPO_ROOT, SUPPORT_DIR
+from support.process import Armtwin, Process, Router, run_armtwin, wait_until
+from support.twin_reference import check_metrics, check_poses, reference_deviations, reference_stats
+from support.zenoh_clients import Collector, open_client, wait_queryable
 
 RATE_HZ = 500  # the stamps' rate (the UR driver's on e-Series)
 PUBLISH_HZ = 250.0  # the node's pace: what this shared 2-core machine keeps without backlog
@@ -126,7 +125,7 @@ class Deployment:
         self.armtwin.start()
         self.session = open_client(self.router.endpoint)
         self.subscriber = self.session.declare_subscriber(f"{PREFIX}/**", self.collector)
-        assert wait_queryable(self.session, f"{PREFIX}/state/**"), self.armtwin.log()
+        assert wait_queryable(self.session, f"{PREFIX}/state/**"), self.armtwin.logs()
         return self
 
     def node(self, name: str, rows: Path, namespace: str, tf_prefix: str) -> "Node":
@@ -150,10 +149,10 @@ class Deployment:
     def stop(self) -> tuple[int | None, int | None]:
         if self.session is not None:
             self.session.close()
-        return self.armtwin.stop(), self.router.stop()
+        return self.armtwin.stop().code, self.router.stop().code
 
     def logs(self) -> str:
-        return f"{self.armtwin.log()}\n--- router ---\n{self.router.log()}"
+        return f"{self.armtwin.logs()}\n--- router ---\n{self.router.logs()}"
 
 
 class Node:
@@ -161,7 +160,7 @@ class Node:
 
     def __init__(self, deployment: Deployment, name: str, rows: Path, namespace: str, tf_prefix: str):
         self.out = deployment.workdir / f"{name}.json"
-        argv = [ros2_python(), Path(__file__).with_name("ros2_driver.py"), "--rows", rows,
+        argv = [ros2_python(), SUPPORT_DIR / "ros2_driver.py", "--rows", rows,
                 "--namespace", namespace, "--tf-prefix", tf_prefix, "--rate-hz", PUBLISH_HZ, "--out", self.out]
         self.process = Process(f"node-{name}", argv, deployment.workdir, deployment.ros_env)
 
@@ -174,9 +173,9 @@ class Node:
             code = self.process.proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
             self.process.kill()
-            pytest.fail(f"the rclpy node did not finish within {timeout} s\n{self.process.log()}")
+            pytest.fail(f"the rclpy node did not finish within {timeout} s\n{self.process.logs()}")
         self.process.stop()
-        assert code == 0, f"rclpy node exited with {code}\n{self.process.log()}"
+        assert code == 0, f"rclpy node exited with {code}\n{self.process.logs()}"
         return json.loads(self.out.read_text())
 
 
@@ -301,7 +300,7 @@ def test_a_real_rclpy_node_through_the_real_bridge_twins_as_the_json_path(deploy
     checks.done(deployment.logs())
 
 
-def test_the_bridge_namespace_and_robots_joining_and_leaving(deployments, tmp_path):
+def test_robots_come_and_go_under_the_bridges_namespace(deployments, tmp_path):
     """Bridge ``namespace: "/plant"``: ``/ur5/joint_states`` is key ``plant/ur5/joint_states``, the robot
     ``plant/ur5``, its twin pose key ``plant/ur5/armtwin/tcp_pose`` back to ``/ur5/armtwin/tcp_pose``.
     ``ur5`` streams and stops; then ``ur10`` joins. When a node stops, the bridge undeclares its

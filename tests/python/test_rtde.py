@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import random
 import shutil
-import signal
 import subprocess
 import sys
 import time
@@ -19,11 +18,11 @@ from pathlib import Path
 
 import pytest
 
-import rtde_recording
-from armtwin_service import ArmtwinProcess, open_session, reply_payloads, wait_until
-from conftest import DATA_DIR, run_armtwin
+from support import rtde_recording
+from support.paths import DATA_DIR, SUPPORT_DIR
+from support.process import STARTUP_TIMEOUT_S, ArmtwinProcess, Process, free_port, run_armtwin, wait_until
+from support.zenoh_clients import open_session, reply_payloads
 
-HERE = Path(__file__).resolve().parent
 ROBOT = "cell-1/ur10e"
 CONFIG = """\
 [service]
@@ -42,59 +41,38 @@ STREAM_TIMEOUT_S = 60.0
 # ----------------------------------------------------------------------------------------------
 
 
-class StandIn:
+class StandIn(Process):
     """rtde_server.py in its own process; its ports once it listens."""
 
-    def __init__(self, recording: Path, *args, workdir: Path, ports: int = 1, prefix=()):
-        self.log = workdir / f"rtde_server-{time.monotonic_ns()}.log"
-        command = [*prefix, sys.executable, str(HERE / "rtde_server.py"), "--recording", str(recording)]
-        command += ["--port", "0"] * ports if not prefix else []
-        command += [str(a) for a in args]
-        self.proc = subprocess.Popen(
-            command, stdout=subprocess.PIPE, stderr=open(self.log, "wb"), text=True, start_new_session=True
-        )
-        self.ports: list[int] = []
-        if not prefix:
-            line = self.proc.stdout.readline()
-            assert line.startswith("listening"), f"stand-in did not start: {line!r}\n{self.log.read_text()}"
-            self.ports = [int(p) for p in line.split()[1:]]
+    def __init__(self, recording: Path, *args, workdir: Path, ports: int = 1):
+        command = [sys.executable, SUPPORT_DIR / "rtde_server.py", "--recording", recording]
+        command += ["--port", "0"] * ports + list(args)
+        super().__init__(f"rtde_server-{time.monotonic_ns()}", command, workdir, watchdog_s=WATCHDOG_S)
+        self.start()
+        assert wait_until(lambda: self.listening() is not None or not self.running(), STARTUP_TIMEOUT_S), (
+            f"stand-in did not start\n{self.logs()}")
+        self.ports = self.listening()
+        assert self.ports is not None, f"stand-in did not start\n{self.logs()}"
 
-    def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
+    def listening(self) -> list[int] | None:
+        """The ports of its ``listening`` line, once it printed one."""
+        for line in self.logs(limit=10**9).splitlines():
+            if line.startswith("listening"):
+                return [int(p) for p in line.split()[1:]]
+        return None
 
 
-class Gateway:
+class Gateway(Process):
     """`armtwin gateway rtde …` connected to the service's endpoint."""
 
     def __init__(self, binary: Path, workdir: Path, endpoint: str, *args):
-        self.log = workdir / f"gateway-{time.monotonic_ns()}.log"
-        self.proc = subprocess.Popen(
-            [str(binary), "gateway", "rtde", "-e", endpoint, *[str(a) for a in args]],
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL,
-            stderr=open(self.log, "wb"),
-            start_new_session=True,
-        )
+        argv = [binary, "gateway", "rtde", "-e", endpoint, *args]
+        super().__init__(f"gateway-{time.monotonic_ns()}", argv, workdir, watchdog_s=WATCHDOG_S)
+        self.start()
 
-    def logs(self) -> str:
-        return self.log.read_text(errors="replace")
-
-    def stop(self) -> int | None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                return self.proc.wait(15)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
-                return None
-        return self.proc.returncode
+    def logs(self, limit: int = 10**9) -> str:
+        """The whole log by default: the tests count what it says."""
+        return super().logs(limit)
 
 
 @pytest.fixture
@@ -132,7 +110,7 @@ def started(armtwin_bin, tmp_path, service):
         return stand_in, gateway
 
     yield start
-    codes = [gateway.stop() for gateway in gateways]
+    codes = [gateway.stop().code for gateway in gateways]
     for stand_in in stand_ins:
         stand_in.stop()
     assert codes == [0] * len(codes), f"a gateway did not stop cleanly: {codes}\n{gateways[0].logs()}"
@@ -214,11 +192,11 @@ def test_the_stand_in_is_read_back_by_ur_rtde_bit_for_bit(tmp_path, lasttest_row
     # server says it listens (at most 10 s).
     script = (
         "ip link set lo up && "
-        f"timeout 50 {sys.executable} {HERE / 'rtde_server.py'} --port 30004 --recording {path} --rate-hz 50 "
+        f"timeout 50 {sys.executable} {SUPPORT_DIR / 'rtde_server.py'} --port 30004 --recording {path} --rate-hz 50 "
         f"> {ready} & "
         "server=$!; "
         f"for i in $(seq 100); do grep -q listening {ready} && break; sleep 0.1; done; "
-        f"timeout 30 {sys.executable} {HERE / 'rtde_readback.py'} 500 20 {' '.join(READBACK)}; "
+        f"timeout 30 {sys.executable} {SUPPORT_DIR / 'rtde_readback.py'} 500 20 {' '.join(READBACK)}; "
         "code=$?; kill $server; exit $code"
     )
     result = subprocess.run(["unshare", "-rn", "sh", "-c", script], capture_output=True, text=True, timeout=60)
@@ -277,7 +255,7 @@ def test_a_recording_through_the_gateway_twins_every_row_as_validate_does(
     assert gateway.logs().count("does not have these variables") == 1, gateway.logs()
     assert "joint_temperatures" in gateway.logs()
     # --record wrote ur_rtde's form, which validate reads to the same figures.
-    assert gateway.stop() == 0, gateway.logs()
+    assert gateway.stop().code == 0, gateway.logs()
     assert recorded.read_text().splitlines()[0] == ",".join(rtde_recording.HEADER)
     assert validate_cumulative(recorded, tmp_path)["cumulative"] == expected
 
@@ -387,8 +365,6 @@ def test_twenty_controllers_from_one_gateway(tmp_path, lasttest_rows, service, s
 def test_a_controller_that_comes_up_late_is_streamed_once_it_does(
     armtwin_bin, tmp_path, lasttest_rows, service
 ):
-    from armtwin_service import free_port
-
     port = free_port()
     gateway = Gateway(armtwin_bin, tmp_path, service.endpoint, "--host", "127.0.0.1", "--port", port,
                       "--robot", ROBOT)
@@ -403,7 +379,7 @@ def test_a_controller_that_comes_up_late_is_streamed_once_it_does(
                            ports=0)
         metrics = metrics_when(service, ROBOT, paired_at_least(500), timeout=20.0)
         assert metrics.get("paired") == 500, (metrics, gateway.logs())
-        assert gateway.stop() == 0, gateway.logs()
+        assert gateway.stop().code == 0, gateway.logs()
     finally:
         gateway.stop()
         if stand_in is not None:

@@ -14,8 +14,10 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from armtwin_service import wait_until
-from fleet import Armtwin, Gateway, Router, get_json, paired_of, router_path, wait_queryable
+from support.gateway import Gateway
+from support.paths import router_path
+from support.process import Armtwin, Router, wait_until
+from support.zenoh_clients import get_json, paired_of, wait_queryable
 
 REPO = Path(__file__).resolve().parents[2]
 ROUTER_CONFIG = REPO / "config" / "router-tls-acl.json5"
@@ -88,7 +90,7 @@ def tls_router_and_twin(tmp_path, certs, armtwin_bin) -> tuple[Router, Armtwin]:
     return router, twin
 
 
-def test_only_gateways_put_joints_only_armtwin_publishes_and_strangers_cannot_connect(
+def test_access_control_lets_each_role_do_only_its_part(
     tmp_path, certs, armtwin_bin
 ):
     router, twin = tls_router_and_twin(tmp_path, certs, armtwin_bin)
@@ -102,15 +104,15 @@ def test_only_gateways_put_joints_only_armtwin_publishes_and_strangers_cannot_co
         sessions += [gateway_session, dashboard, watcher]
         poses = []
         watcher.declare_subscriber("twin/pose/**", lambda s: poses.append(json.loads(s.payload.to_bytes())))
-        assert wait_queryable(dashboard, "twin/state/**"), router.log()
-        assert wait_queryable(watcher, "twin/state/**"), router.log()
+        assert wait_queryable(dashboard, "twin/state/**"), router.logs()
+        assert wait_queryable(watcher, "twin/state/**"), router.logs()
 
         gateway = Gateway(gateway_session, "r1")
-        assert wait_until(lambda: gateway.pub.matching_status.matching, 20), router.log()
+        assert wait_until(lambda: gateway.pub.matching_status.matching, 20), router.logs()
         for _ in range(20):
             gateway.send_one()
             time.sleep(0.005)
-        assert wait_until(lambda: len(poses) == 20, 15), (len(poses), router.log())
+        assert wait_until(lambda: len(poses) == 20, 15), (len(poses), router.logs())
         [(_, state)] = get_json(dashboard, "twin/state/r1")
         assert state["metrics"]["paired"] == 20
 
@@ -129,7 +131,7 @@ def test_only_gateways_put_joints_only_armtwin_publishes_and_strangers_cannot_co
         def denied(name: str, key: str) -> bool:
             return any(
                 f"CertCommonName({name})" in line and f"is unauthorized to Put (ingress) on {key}" in line
-                for line in router.log(10**9).splitlines()
+                for line in router.logs(10**9).splitlines()
             )
 
         assert wait_until(lambda: denied("dashboard", "twin/joints/r1"), 10)
@@ -164,7 +166,7 @@ def replies(session: zenoh.Session, selector: str) -> tuple[list[dict], list[dic
     return oks, errs
 
 
-def test_a_dashboard_reads_a_twin_but_cannot_change_it_and_an_operator_can(tmp_path, certs, armtwin_bin):
+def test_only_an_operator_may_reset_a_twin(tmp_path, certs, armtwin_bin):
     router, twin = tls_router_and_twin(tmp_path, certs, armtwin_bin)
     sessions = []
     try:
@@ -174,10 +176,10 @@ def test_a_dashboard_reads_a_twin_but_cannot_change_it_and_an_operator_can(tmp_p
         dashboard = zenoh.open(_client(router.endpoint, tls_of(certs, "dashboard")))
         operator = zenoh.open(_client(router.endpoint, tls_of(certs, "operator")))
         sessions += [gateway_session, dashboard, operator]
-        assert wait_queryable(dashboard, "twin/state/**"), router.log()
-        assert wait_queryable(operator, "twin/admin/reset/**"), router.log()
+        assert wait_queryable(dashboard, "twin/state/**"), router.logs()
+        assert wait_queryable(operator, "twin/admin/reset/**"), router.logs()
         gateway = Gateway(gateway_session, "r1")
-        assert wait_until(lambda: gateway.pub.matching_status.matching, 20), router.log()
+        assert wait_until(lambda: gateway.pub.matching_status.matching, 20), router.logs()
         for _ in range(20):
             gateway.send_one()
             time.sleep(0.005)
@@ -197,10 +199,10 @@ def test_a_dashboard_reads_a_twin_but_cannot_change_it_and_an_operator_can(tmp_p
         def denied(name: str, key: str) -> bool:
             return any(
                 f"CertCommonName({name})" in line and "is unauthorized to Query" in line and key in line
-                for line in router.log(10**9).splitlines()
+                for line in router.logs(10**9).splitlines()
             )
 
-        assert wait_until(lambda: denied("dashboard", "twin/admin/reset/r1"), 10), router.log()
+        assert wait_until(lambda: denied("dashboard", "twin/admin/reset/r1"), 10), router.logs()
         assert denied("dashboard", "twin/admin/calibrate/r1")
 
         # The operator reads and changes.

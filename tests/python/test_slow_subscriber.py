@@ -24,8 +24,9 @@ import time
 import pytest
 import zenoh
 
-from armtwin_service import PREFIX, ArmtwinProcess, TwinClient, wait_until
-from test_service import joint_message, load_fmpy
+from support.process import ArmtwinProcess, wait_until
+from support.twin_reference import joint_message, load_fmpy
+from support.zenoh_clients import PREFIX, TwinClient
 
 CONFIG = """\
 [service]

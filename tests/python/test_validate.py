@@ -18,8 +18,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-import ur_reference as ur
-from conftest import DATA_DIR, REPO_ROOT, run_armtwin
+from support import ur_reference as ur
+from support.paths import DATA_DIR, REPO_ROOT
+from support.process import run_armtwin
 
 STATS = ("position", "x", "y", "z", "quat_distance", "angle", "roll", "pitch", "yaw")
 TOL_POS = 1e-12

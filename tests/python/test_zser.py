@@ -24,13 +24,13 @@ import pytest
 import zenoh
 from zenoh.ext import Int32, UInt32, UInt64, z_deserialize, z_serialize
 
-from armtwin_service import PREFIX, ArmtwinProcess, Collector, TwinClient, wait_until
-from test_service import (
+from support.checks import Checks
+from support.process import ArmtwinProcess, wait_until
+from support.twin_reference import (
     TOL_ANGLE,
     TOL_EULER,
     TOL_POS,
     TOL_QUAT,
-    Checks,
     check_metrics,
     joint_message,
     load_fmpy,
@@ -39,6 +39,7 @@ from test_service import (
     reference_poses,
     reference_stats,
 )
+from support.zenoh_clients import PREFIX, Collector, TwinClient
 
 CONFIG = """\
 [service]

@@ -97,7 +97,7 @@ fn every_fixture_decodes_to_what_its_writer_put_in() {
 }
 
 /// Messages as real rclpy (ROS 2 Jazzy, `rmw_fastrtps_cpp`) serializes them, captured once by
-/// `tests/python/capture_rclpy_fixtures.py`: alignment padding holds whatever was in memory and a
+/// `tools/capture_rclpy_fixtures.py`: alignment padding holds whatever was in memory and a
 /// message with empty sequences has bytes after its end (`test_ros2_fixtures.py` shows both
 /// against rosbags' bytes for the same values). Both are read past, never judged.
 #[test]

@@ -1,8 +1,10 @@
-//! What the service end-to-end tests share: the outputs a client collects.
+//! What the service end-to-end tests share: the service in this process, a client of it and the
+//! outputs that client collects, and the harness that holds the three.
 
 use std::time::Duration;
 
 use serde_json::Value;
+use zenoh::Session;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::Subscriber;
 use zenoh::sample::{Sample, SampleKind};
@@ -173,5 +175,128 @@ impl Service {
             .expect("the service stops in time")
             .expect("the service task")
             .expect("the service ran")
+    }
+}
+
+/// The service in this process, and a client peer of it that collects its outputs.
+pub struct Harness {
+    pub service: Service,
+    pub client: Session,
+    pub outputs: Outputs,
+}
+
+impl Harness {
+    /// The service with the configuration `config_for` makes for its endpoint, and a client whose
+    /// publishers on `probe_keys` the service's subscribers match; returns once the service has
+    /// seen the client's subscriber (one state query's round trip).
+    pub async fn start(
+        config_for: impl FnOnce(&str) -> armtwin::config::ServiceConfig,
+        probe_keys: &[&str],
+    ) -> Self {
+        let service = Service::start(config_for).await;
+        let (client, outputs) = connect_client(&service.endpoint).await;
+        for key in probe_keys {
+            wait_for_subscriber(&client, key).await;
+        }
+        let harness = Self {
+            service,
+            client,
+            outputs,
+        };
+        harness.round_trip().await;
+        harness
+    }
+
+    /// A state query, answered after everything the client sent before it (one ordered link):
+    /// the robots that answered, sorted.
+    pub async fn round_trip(&self) -> Vec<String> {
+        let replies = self.client.get("twin/state/**").await.expect("get");
+        let mut robots = Vec::new();
+        while let Ok(reply) = tokio::time::timeout(RECEIVE_LIMIT, replies.recv_async())
+            .await
+            .expect("state query answered")
+        {
+            let sample = reply.result().expect("state");
+            let state: Value = serde_json::from_slice(&sample.payload().to_bytes()).expect("json");
+            robots.push(state["robot"].as_str().expect("robot").to_owned());
+        }
+        robots.sort();
+        robots
+    }
+
+    /// Puts `payload` as JSON text.
+    pub async fn put(&self, key: &str, payload: &Value) {
+        self.client
+            .put(key, payload.to_string())
+            .await
+            .expect("put");
+    }
+
+    /// Puts raw bytes, blocking rather than dropped under congestion: a large payload is
+    /// fragmented, and on a loaded machine a dropped fragment would lose the message the test
+    /// counts on.
+    pub async fn put_raw(&self, key: &str, payload: Vec<u8>) {
+        self.client
+            .put(key, payload)
+            .congestion_control(zenoh::qos::CongestionControl::Block)
+            .await
+            .expect("put");
+    }
+
+    /// Puts raw bytes with an attachment (as `rmw_zenoh` does).
+    pub async fn put_attached(&self, key: &str, payload: &[u8], attachment: Option<Vec<u8>>) {
+        self.client
+            .put(key, payload.to_vec())
+            .attachment(attachment)
+            .await
+            .expect("put");
+    }
+
+    /// Every reply to a query of `selector` (with `payload` as JSON): key and message, or the
+    /// error's message.
+    pub async fn get(
+        &self,
+        selector: &str,
+        payload: Option<Value>,
+    ) -> Vec<Result<(String, Value), Value>> {
+        let mut get = self.client.get(selector);
+        if let Some(payload) = payload {
+            get = get.payload(payload.to_string());
+        }
+        let replies = get.await.expect("get");
+        let mut out = Vec::new();
+        while let Ok(reply) = tokio::time::timeout(RECEIVE_LIMIT, replies.recv_async())
+            .await
+            .expect("replies end in time")
+        {
+            match reply.result() {
+                Ok(sample) => out.push(Ok((
+                    sample.key_expr().as_str().to_owned(),
+                    serde_json::from_slice(&sample.payload().to_bytes()).expect("json reply"),
+                ))),
+                Err(error) => out.push(Err(
+                    serde_json::from_slice(&error.payload().to_bytes()).expect("json error")
+                )),
+            }
+        }
+        out
+    }
+
+    pub async fn receive_until(&mut self, what: &str, done: impl Fn(&[(String, Value)]) -> bool) {
+        self.outputs.receive_until(what, done).await;
+    }
+
+    pub fn on(&self, key: &str) -> Vec<&Value> {
+        self.outputs.on(key)
+    }
+
+    /// The last metrics message of `robot` received so far.
+    pub fn last_metrics(&self, robot: &str) -> Option<&Value> {
+        self.on(&format!("twin/metrics/{robot}")).last().copied()
+    }
+
+    /// Stops the service (as SIGINT would) and returns its report.
+    pub async fn stop(&mut self) -> armtwin::service::ServeReport {
+        self.service.stop().await
     }
 }

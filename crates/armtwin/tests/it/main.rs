@@ -12,6 +12,8 @@ mod common;
 mod dashboard;
 mod ros2_bag;
 mod ros2_client;
+mod ros2_config;
+mod ros2_fixtures;
 mod ros2_live;
 mod service;
 mod validate;

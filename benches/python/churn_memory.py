@@ -4,7 +4,7 @@ it is retired; with gdb on the machine also glibc's own count of the heap in use
 which tells memory the service still holds from memory the allocator keeps. A measurement, not a
 test (BENCHMARKS.md, "Robots that come and go").
 
-Run: ``.venv/bin/python tests/python/churn_memory.py target/release/armtwin [--waves 3] [--ids 40000]``.
+Run: ``.venv/bin/python benches/python/churn_memory.py target/release/armtwin [--waves 3] [--ids 40000]``.
 """
 
 from __future__ import annotations
@@ -22,7 +22,9 @@ from pathlib import Path
 
 import zenoh
 
-from armtwin_service import free_port, port_accepts, wait_until
+# The shared test support (tests/python/support) is imported from beside the tests.
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests" / "python"))
+from support.process import free_port, port_accepts, wait_until  # noqa: E402
 
 Q = [-0.693, -0.833, 0.951, 1.149, 1.515, 1.739]
 

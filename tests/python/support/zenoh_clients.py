@@ -1,14 +1,16 @@
-"""Helpers for the end-to-end tests of ``armtwin serve`` over Zenoh.
+"""The Python side of the wire: Zenoh sessions that reach armtwin, what they receive, what they ask.
 
 Written against docs/protocol.md (the wire contract), not the Rust source.
 
-* :class:`ArmtwinProcess` runs the real binary on a private loopback port, with stdout/stderr in
-  files, a watchdog that kills it if a test overruns, and a bounded SIGINT shutdown.
+* :func:`open_session` is a peer of one armtwin's listener; :func:`open_client` a client of a
+  router (TLS if asked).
 * :class:`Collector` records every output sample (``twin/**`` minus the input subtrees) in a
   thread-safe list from the Zenoh callback; JSON is decoded later, off the receive thread.
 * :class:`TwinClient` is one Python Zenoh peer: it declares the output subscriber, per-robot input
   publishers (congestion control BLOCK, remote destinations only) and waits until armtwin's
   subscribers and queryables are matched and armtwin has seen the subscriber (a query round trip).
+* :class:`Poses` is a dashboard's subscriber of one robot's poses; :func:`get_json`,
+  :func:`paired_of`, :func:`wait_queryable` and :func:`wait_matched` are bounded queries and waits.
 
 Every wait here is bounded.
 """
@@ -16,174 +18,20 @@ Every wait here is bounded.
 from __future__ import annotations
 
 import json
-import os
-import signal
-import socket
-import subprocess
 import threading
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import zenoh
+
+from support.process import wait_until
 
 PREFIX = "twin"
 INPUT_STREAMS = ("joints", "measured")
 OUTPUT_STREAMS = ("pose", "deviation", "metrics", "events")
 
-STARTUP_TIMEOUT_S = 30.0
-SHUTDOWN_TIMEOUT_S = 15.0
 MATCH_TIMEOUT_S = 15.0
 QUERY_TIMEOUT_S = 10.0
-
-
-def free_port() -> int:
-    """A TCP port that was free on 127.0.0.1 a moment ago (bind to port 0, read, close)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def port_accepts(port: int) -> bool:
-    try:
-        with socket.create_connection(("127.0.0.1", port), timeout=0.5):
-            return True
-    except OSError:
-        return False
-
-
-def cpu_s(pid: int) -> float:
-    """User plus system CPU seconds process ``pid`` has used (from /proc)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-def wait_until(predicate, timeout: float, interval: float = 0.01) -> bool:
-    """Poll ``predicate`` until true or ``timeout`` seconds pass; returns its last value."""
-    deadline = time.monotonic() + timeout
-    while True:
-        if predicate():
-            return True
-        if time.monotonic() >= deadline:
-            return bool(predicate())
-        time.sleep(interval)
-
-
-# --------------------------------------------------------------------------------------------
-# the process
-# --------------------------------------------------------------------------------------------
-
-
-class ArmtwinProcess:
-    """``armtwin serve -c CONFIG -l tcp/127.0.0.1:PORT`` as a subprocess."""
-
-    def __init__(self, binary: Path, workdir: Path, config_text: str, watchdog_s: float):
-        self.binary = Path(binary)
-        self.workdir = Path(workdir)
-        self.config_path = self.workdir / "armtwin.toml"
-        self.config_path.write_text(config_text)
-        self.stdout_path = self.workdir / "armtwin.stdout"
-        self.stderr_path = self.workdir / "armtwin.stderr"
-        self.port = free_port()
-        self.endpoint = f"tcp/127.0.0.1:{self.port}"
-        self.proc: subprocess.Popen | None = None
-        self.returncode: int | None = None
-        self.sigint_at: float | None = None
-        self.watchdog_fired = False
-        self._watchdog_s = watchdog_s
-        self._watchdog: threading.Timer | None = None
-        self._files = []
-
-    # -- lifecycle -------------------------------------------------------------------------
-
-    def start(self) -> None:
-        out = open(self.stdout_path, "wb")
-        err = open(self.stderr_path, "wb")
-        self._files = [out, err]
-        self.proc = subprocess.Popen(
-            [str(self.binary), "serve", "-c", str(self.config_path), "-l", self.endpoint],
-            stdin=subprocess.DEVNULL,
-            stdout=out,
-            stderr=err,
-            cwd=self.workdir,
-            start_new_session=True,  # a terminal's Ctrl-C does not reach it; we signal it ourselves
-        )
-        self._watchdog = threading.Timer(self._watchdog_s, self._on_watchdog)
-        self._watchdog.daemon = True
-        self._watchdog.start()
-        deadline = time.monotonic() + STARTUP_TIMEOUT_S
-        while not port_accepts(self.port):
-            if self.proc.poll() is not None:
-                raise RuntimeError(
-                    f"armtwin exited with {self.proc.returncode} before listening on {self.endpoint}"
-                    f"\n{self.logs()}"
-                )
-            if time.monotonic() > deadline:
-                raise RuntimeError(
-                    f"armtwin did not listen on {self.endpoint} within {STARTUP_TIMEOUT_S} s\n{self.logs()}"
-                )
-            time.sleep(0.02)
-
-    def _on_watchdog(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.watchdog_fired = True
-            self.proc.kill()
-
-    def running(self) -> bool:
-        return self.proc is not None and self.proc.poll() is None
-
-    def interrupt(self) -> None:
-        """Send SIGINT once (no wait)."""
-        if self.running() and self.sigint_at is None:
-            self.sigint_at = time.monotonic()
-            self.proc.send_signal(signal.SIGINT)
-
-    def stop(self, timeout: float = SHUTDOWN_TIMEOUT_S) -> tuple[int | None, float | None]:
-        """SIGINT, wait up to ``timeout`` s; kill if still alive. Returns (exit code, seconds taken),
-        seconds None if it had to be killed (or had already exited before)."""
-        if self.proc is None:
-            return None, None
-        if self.returncode is not None:
-            return self.returncode, None
-        took = None
-        if self.proc.poll() is None:
-            self.interrupt()
-            try:
-                self.proc.wait(timeout=max(0.0, timeout - (time.monotonic() - self.sigint_at)))
-                took = time.monotonic() - self.sigint_at
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(timeout=10)
-                self.returncode = self.proc.returncode
-                self._cleanup()
-                return None, None
-        self.returncode = self.proc.returncode
-        self._cleanup()
-        return self.returncode, took
-
-    def _cleanup(self) -> None:
-        if self._watchdog is not None:
-            self._watchdog.cancel()
-        for f in self._files:
-            f.close()
-        self._files = []
-
-    def logs(self, limit: int = 4000) -> str:
-        parts = []
-        for name, path in (("stdout", self.stdout_path), ("stderr", self.stderr_path)):
-            try:
-                text = path.read_text(errors="replace")
-            except OSError:
-                text = ""
-            if len(text) > limit:
-                text = "…" + text[-limit:]
-            parts.append(f"--- armtwin {name} ({path}) ---\n{text}")
-        return "\n".join(parts)
-
-
-# --------------------------------------------------------------------------------------------
-# the client
-# --------------------------------------------------------------------------------------------
 
 
 def open_session(endpoint: str) -> zenoh.Session:
@@ -369,3 +217,67 @@ class TwinClient:
         except Exception:  # pragma: no cover - teardown must not mask the test's failure
             pass
 
+
+def client_config(endpoint: str, tls: dict | None = None) -> zenoh.Config:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    for key, value in (tls or {}).items():
+        conf.insert_json5(f"transport/link/tls/{key}", json.dumps(value))
+    return conf
+
+
+def open_client(endpoint: str, tls: dict | None = None) -> zenoh.Session:
+    """A Zenoh client session of the router at ``endpoint``."""
+    return zenoh.open(client_config(endpoint, tls))
+
+
+def wait_queryable(session: zenoh.Session, key: str, timeout: float = 20.0) -> bool:
+    """Whether a queryable (armtwin's, through the router) answers ``key`` within ``timeout``;
+    then one query round trip, so that armtwin has also seen every subscriber ``session``
+    declared before (declarations and queries keep their order on each link)."""
+    querier = session.declare_querier(key, timeout=5.0)
+    try:
+        if not wait_until(lambda: querier.matching_status.matching, timeout):
+            return False
+    finally:
+        querier.undeclare()
+    list(session.get(key, timeout=10.0))
+    return True
+
+
+def paired_of(session: zenoh.Session, robot: str) -> int | None:
+    """The robot's paired count from its state answer; ``None`` while it is not tracked (no reply),
+    so that a wait polls on instead of failing on an empty answer."""
+    answers = get_json(session, f"twin/state/{robot}")
+    return answers[0][1]["metrics"]["paired"] if answers else None
+
+
+def get_json(session: zenoh.Session, selector: str, timeout: float = 10.0) -> list[tuple[str, dict]]:
+    replies = session.get(selector, timeout=timeout, consolidation=zenoh.ConsolidationMode.NONE)
+    out = []
+    for reply in replies:
+        if reply.ok is not None:
+            out.append((str(reply.ok.key_expr), json.loads(reply.ok.payload.to_bytes())))
+    return out
+
+
+class Poses:
+    """A dashboard's subscriber of one robot's poses (seq, arrival time)."""
+
+    def __init__(self, session, robot: str):
+        self.items: list[tuple[float, int]] = []
+        self.sub = session.declare_subscriber(f"twin/pose/{robot}", self)
+
+    def __call__(self, sample):
+        self.items.append((time.monotonic(), json.loads(sample.payload.to_bytes())["seq"]))
+
+    def seqs(self) -> list[int]:
+        return [seq for _, seq in list(self.items)]
+
+
+def wait_matched(publisher, timeout: float = 20.0) -> None:
+    assert wait_until(lambda: publisher.matching_status.matching, timeout), (
+        f"no subscriber of {publisher.key_expr} reached through the router"
+    )

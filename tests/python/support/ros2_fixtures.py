@@ -1,4 +1,4 @@
-"""Writes the ROS 2 fixtures in tests/data/ros2/ with implementations independent of armtwin.
+"""The ROS 2 fixtures in tests/data/ros2/, written with implementations independent of armtwin.
 
 CDR messages are serialised by `rosbags` and, for every little-endian one, also by
 `mcap-ros2-support` (a separate serializer): the two must give the same bytes. Damaged messages
@@ -10,7 +10,9 @@ tests/data/ur10e_lasttest.csv as `/joint_states` and `/tcp_pose_broadcaster/pose
 stamps inside each recorded second; `ur10e_lasttest_head.csv` is the same rows as a ROS 2 export
 with `header.stamp.nanosec`, so a bag and its CSV can be validated side by side.
 
-    python tests/python/make_ros2_fixtures.py [OUTPUT_DIR]   (default: tests/data/ros2)
+test_ros2_fixtures.py writes them again and compares; ``tools/make_ros2_fixtures.py`` writes them:
+
+    .venv/bin/python tools/make_ros2_fixtures.py [OUTPUT_DIR]   (default: tests/data/ros2)
 """
 
 from __future__ import annotations
@@ -19,7 +21,6 @@ import csv
 import json
 import shutil
 import struct
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -27,11 +28,11 @@ from mcap_ros2._dynamic import serialize_dynamic
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from ur_joints import DRIVER_ORDER, UR_JOINTS
+from support.paths import DATA_DIR
+from support.ur_joints import DRIVER_ORDER, UR_JOINTS
 
-ROOT = Path(__file__).resolve().parents[2]
-CSV_PATH = ROOT / "tests" / "data" / "ur10e_lasttest.csv"
-DEFAULT_OUTPUT = ROOT / "tests" / "data" / "ros2"
+CSV_PATH = DATA_DIR / "ur10e_lasttest.csv"
+DEFAULT_OUTPUT = DATA_DIR / "ros2"
 
 BAG_ROWS = 400
 RATE_HZ = 500
@@ -304,7 +305,3 @@ def main(output: Path) -> None:
     ]:
         shutil.rmtree(output / name, ignore_errors=True)
         write_bag(output / name, plugin)
-
-
-if __name__ == "__main__":
-    main(Path(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT_OUTPUT)

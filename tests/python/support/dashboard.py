@@ -1,5 +1,5 @@
-"""What the dashboard tests share: the service with its HTTP side on, a streaming gateway, the
-tools (a real headless Chromium, a real Prometheus) and bounded HTTP reads.
+"""What the dashboard tests share: the service with its HTTP side on, the tools (a real headless
+Chromium, a real Prometheus) and bounded HTTP reads.
 
 The tools come from ``scripts/test-tools.sh`` (``tests/run_all.sh`` runs it before pytest): the
 tests fail, never skip, when one is missing.
@@ -7,23 +7,20 @@ tests fail, never skip, when one is missing.
 
 from __future__ import annotations
 
-import csv
 import json
 import os
 import shutil
-import threading
-import time
 import urllib.error
 import urllib.request
 from pathlib import Path
 
 import pytest
 
-from armtwin_service import ArmtwinProcess, TwinClient, free_port, port_accepts, wait_until
-from conftest import DATA_DIR, REPO_ROOT
+from support.paths import REPO_ROOT
+from support.process import ArmtwinProcess, free_port, port_accepts, wait_until
+from support.zenoh_clients import TwinClient
 
 HTTP_TIMEOUT_S = 10.0
-MEASURED_KEYS = ("x", "y", "z", "qx", "qy", "qz", "qw")
 
 
 def chromium_path() -> str:
@@ -91,54 +88,3 @@ class DashboardService:
         values = [json.loads(r.ok.payload.to_string()) for r in replies if r.ok is not None]
         assert len(values) == 1, f"state of {robot}: {len(values)} replies"
         return values[0]
-
-
-def lasttest_rows() -> list[tuple[list[float], list[float]]]:
-    """The sample UR10e recording's (q, measured x y z qx qy qz qw) rows."""
-    with open(DATA_DIR / "ur10e_lasttest.csv", newline="") as f:
-        reader = csv.reader(f)
-        next(reader)
-        rows = []
-        for fields in reader:
-            values = [float(v) for v in fields[1:14]]
-            rows.append((values[:6], values[6:13]))
-    return rows
-
-
-class Gateway(threading.Thread):
-    """Streams the sample recording for ``robots`` (joints with their measured pose) at
-    ``rate_hz`` per robot, row after row, until ``stop()`` or ``rows`` rows per robot."""
-
-    def __init__(self, client: TwinClient, robots, rate_hz: float = 200.0, rows: int | None = None,
-                 measured_offset_m: dict[str, float] | None = None):
-        super().__init__(daemon=True)
-        self.client = client
-        self.robots = list(robots)
-        self.rate_hz = rate_hz
-        self.data = lasttest_rows()
-        self.rows = len(self.data) if rows is None else min(rows, len(self.data))
-        self.offsets = measured_offset_m or {}
-        self.sent = 0
-        self._stopping = threading.Event()
-        self.client.ready(self.robots)
-
-    def stop(self) -> None:
-        self._stopping.set()
-        self.join(timeout=10)
-
-    def run(self) -> None:
-        pubs = {robot: self.client.joints(robot) for robot in self.robots}
-        start = time.monotonic()
-        for i in range(self.rows):
-            if self._stopping.is_set():
-                return
-            q, measured = self.data[i]
-            for robot, pub in pubs.items():
-                pose = list(measured)
-                pose[0] += self.offsets.get(robot, 0.0)
-                message = {"t": 1000.0 + i * 0.002, "q": q, "measured": dict(zip(MEASURED_KEYS, pose))}
-                pub.put(json.dumps(message))
-            self.sent = i + 1
-            pause = start + (i + 1) / self.rate_hz - time.monotonic()
-            if pause > 0:
-                time.sleep(pause)

@@ -1,6 +1,6 @@
 """How many co-simulation steps per second FMPy achieves driving armtwin's FMU.
 
-Usage: python tests/python/fmu_speed.py [FMU]
+Usage: python benches/python/fmu_speed.py [FMU]
 Without FMU, builds one with `$ARMTWIN_BIN fmu build --model ur10e` (default
 target/release/armtwin) into a temporary folder. Input: the real UR10e recording
 tests/data/ur10e_lasttest.csv (29 061 joint samples), one step per sample at 500 Hz.

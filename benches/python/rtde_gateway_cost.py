@@ -1,10 +1,10 @@
 """The RTDE gateway's cost: CPU per controller at the controllers' pace, and the latency from a
 controller's data package to the twin pose (BENCHMARKS.md, "The RTDE gateway").
 
-    .venv/bin/python tests/python/rtde_gateway_cost.py target/release/armtwin \\
+    .venv/bin/python benches/python/rtde_gateway_cost.py target/release/armtwin \\
         [--controllers 20] [--rate-hz 500] [--seconds 30]
 
-Starts ``armtwin serve`` (peer, loopback), the stand-in controller (tests/python/rtde_server.py,
+Starts ``armtwin serve`` (peer, loopback), the stand-in controller (tests/python/support/rtde_server.py,
 one port per controller, serving the UR10e recording at ``--rate-hz``) and one
 ``armtwin gateway rtde -c`` for all of them, and subscribes the twin poses. After a 5-s warm-up
 it reads the gateway's and the service's CPU time from /proc over ``--seconds``, and each pose's
@@ -30,11 +30,14 @@ from pathlib import Path
 
 import zenoh
 
-import rtde_recording
-from armtwin_service import ArmtwinProcess, cpu_s, open_session
+# The shared test support (tests/python/support) is imported from beside the tests.
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests" / "python"))
+from support import rtde_recording  # noqa: E402
+from support.paths import DATA_DIR, SUPPORT_DIR  # noqa: E402
+from support.process import ArmtwinProcess, cpu_s  # noqa: E402
+from support.zenoh_clients import open_session  # noqa: E402
 
-HERE = Path(__file__).resolve().parent
-DATA = HERE.parent / "data" / "ur10e_lasttest.csv"
+DATA = DATA_DIR / "ur10e_lasttest.csv"
 CONFIG = """\
 [service]
 metrics_period_ms = 1000
@@ -57,7 +60,7 @@ def main() -> int:
     service = ArmtwinProcess(args.armtwin, work, CONFIG, 600.0)
     service.start()
     server = subprocess.Popen(
-        [sys.executable, str(HERE / "rtde_server.py"), "--recording", str(recording),
+        [sys.executable, str(SUPPORT_DIR / "rtde_server.py"), "--recording", str(recording),
          "--rate-hz", str(args.rate_hz), *["--port", "0"] * args.controllers],
         stdout=subprocess.PIPE, stderr=open(work / "server.log", "wb"), text=True, start_new_session=True,
     )

@@ -7,7 +7,7 @@
    pages and with 10 robot pages, each twice, interleaved; CPU seconds of the armtwin process
    from /proc/PID/stat. ``--no-load`` skips the first figure.
 
-Run: ``ARMTWIN_BIN=$PWD/target/debug/armtwin .venv/bin/python tests/python/dashboard_cost.py``
+Run: ``ARMTWIN_BIN=$PWD/target/debug/armtwin .venv/bin/python benches/python/dashboard_cost.py``
 (after ``bash scripts/test-tools.sh``).
 """
 
@@ -20,13 +20,15 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from playwright.sync_api import sync_playwright  # noqa: E402
+from playwright.sync_api import sync_playwright
 
-from armtwin_service import cpu_s, wait_until  # noqa: E402
-from conftest import armtwin_path  # noqa: E402
-from dashboard_support import DashboardService, chromium_path, http_json, lasttest_rows  # noqa: E402
+# The shared test support (tests/python/support) is imported from beside the tests.
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests" / "python"))
+from support.dashboard import DashboardService, chromium_path, http_json  # noqa: E402
+from support.gateway import lasttest_rows  # noqa: E402
+from support.paths import armtwin_path  # noqa: E402
+from support.process import cpu_s, wait_until  # noqa: E402
 
 CONFIG = """\
 [service]
@@ -63,7 +65,7 @@ def wait_declared(service: DashboardService, last: str, timeout_s: float) -> Non
     """Until the service has declared every robot's outputs (its control thread logs each): the
     figures are of a steady service, not of one still declaring a fleet."""
     needle = f'tracking robot robot="{last}"'
-    assert wait_until(lambda: needle in service.proc.stderr_path.read_text(errors="replace"), timeout_s, 0.5), \
+    assert wait_until(lambda: needle in service.proc.logs(limit=10**9), timeout_s, 0.5), \
         f"{last} never declared"
 
 

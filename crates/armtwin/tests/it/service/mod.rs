@@ -4,129 +4,46 @@
     reason = "counts and exact pairings have exact answers"
 )]
 
-use crate::common::{Outputs, RECEIVE_LIMIT, Service, connect_client, wait_for_subscriber};
+mod replay;
+
+use crate::common::{Harness, RECEIVE_LIMIT, connect_client, wait_for_subscriber};
 use std::collections::HashMap;
 use std::path::Path;
 use std::time::Duration;
 
 use armtwin::codec::json::MetricsMessage;
-use armtwin::codec::recording;
-use armtwin::config::{ConfigError, Overrides, ServiceConfig, ZenohMode, ZenohSection};
+use armtwin::config::{ConfigError, Overrides, ServiceConfig};
 use armtwin::ingest::{self, Codec};
 use armtwin::kinematics::PoseReadout;
 use armtwin::model::RobotModel;
 use armtwin::pipeline::{Discard, Pipeline, RobotDirectory};
-use armtwin::replay::{ReplaySettings, replay};
-use armtwin::service::ServeReport;
-use armtwin::validate::validate;
 use serde_json::{Value, json};
-use zenoh::Session;
 use zenoh::sample::SampleKind;
 
 /// Every test must end by itself within this time.
 const TEST_LIMIT: Duration = Duration::from_secs(180);
 
-/// Held by the tests that replay a whole recording at full rate: Zenoh's runtime is shared by
-/// every session of a process, and two services each taking 29 000 samples as fast as they come,
-/// with blocking puts in their callbacks, starve each other's links until Zenoh closes one.
-static FULL_RATE_REPLAY: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
-
-struct Harness {
-    service: Service,
-    client: Session,
-    outputs: Outputs,
-}
-
+/// The service on `config_toml` (files it names relative to the repository's `config/`), and a
+/// client whose joints publishers the service's subscribers match.
 async fn start(config_toml: &str) -> Harness {
-    let service = Service::start(|endpoint| {
-        ServiceConfig::parse(
-            config_toml,
-            "test config",
-            Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
-                .join("config")
-                .as_path(),
-            &Overrides {
-                listen: vec![endpoint.to_owned()],
-                ..Overrides::default()
-            },
-        )
-        .expect("valid test config")
-    })
-    .await;
-    let (client, outputs) = connect_client(&service.endpoint).await;
-    wait_for_subscriber(&client, "twin/joints/probe").await;
-    // A query travels after our subscriber's declaration on the same link: once it is answered,
-    // the service knows where to send outputs.
-    let replies = client.get("twin/state/**").await.expect("get");
-    while tokio::time::timeout(RECEIVE_LIMIT, replies.recv_async())
-        .await
-        .expect("state query answered")
-        .is_ok()
-    {}
-    Harness {
-        service,
-        client,
-        outputs,
-    }
-}
-
-impl Harness {
-    async fn put(&self, key: &str, payload: &Value) {
-        self.client
-            .put(key, payload.to_string())
-            .await
-            .expect("put");
-    }
-
-    async fn put_raw(&self, key: &str, payload: Vec<u8>) {
-        // Blocking, not dropped under congestion: a large payload is fragmented, and on a loaded
-        // machine a dropped fragment would lose the message the test counts on.
-        self.client
-            .put(key, payload)
-            .congestion_control(zenoh::qos::CongestionControl::Block)
-            .await
-            .expect("put");
-    }
-
-    async fn receive_until(&mut self, what: &str, done: impl Fn(&[(String, Value)]) -> bool) {
-        self.outputs.receive_until(what, done).await;
-    }
-
-    fn on(&self, key: &str) -> Vec<&Value> {
-        self.outputs.on(key)
-    }
-
-    async fn stop(&mut self) -> ServeReport {
-        self.service.stop().await
-    }
-
-    async fn get(
-        &self,
-        selector: &str,
-        payload: Option<Value>,
-    ) -> Vec<Result<(String, Value), Value>> {
-        let mut get = self.client.get(selector);
-        if let Some(payload) = payload {
-            get = get.payload(payload.to_string());
-        }
-        let replies = get.await.expect("get");
-        let mut out = Vec::new();
-        while let Ok(reply) = tokio::time::timeout(RECEIVE_LIMIT, replies.recv_async())
-            .await
-            .expect("replies end in time")
-        {
-            match reply.result() {
-                Ok(sample) => out.push(Ok((
-                    sample.key_expr().as_str().to_owned(),
-                    serde_json::from_slice(&sample.payload().to_bytes()).expect("json reply"),
-                ))),
-                Err(error) => out.push(Err(
-                    serde_json::from_slice(&error.payload().to_bytes()).expect("json error")
-                )),
-            }
-        }
-        out
-    }
+    Harness::start(
+        |endpoint| {
+            ServiceConfig::parse(
+                config_toml,
+                "test config",
+                Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
+                    .join("config")
+                    .as_path(),
+                &Overrides {
+                    listen: vec![endpoint.to_owned()],
+                    ..Overrides::default()
+                },
+            )
+            .expect("valid test config")
+        },
+        &["twin/joints/probe"],
+    )
+    .await
 }
 
 const CONFIG: &str = r#"
@@ -175,15 +92,11 @@ fn number(value: &Value, path: &[&str]) -> f64 {
 }
 
 fn final_metrics<'a>(harness: &'a Harness, robot: &str) -> &'a Value {
-    harness
-        .on(&format!("twin/metrics/{robot}"))
-        .last()
-        .copied()
-        .expect("metrics")
+    harness.last_metrics(robot).expect("metrics")
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn several_robots_poses_deviations_metrics_and_fleet_queries() {
+async fn several_robots_are_twinned_side_by_side() {
     tokio::time::timeout(TEST_LIMIT, async {
         let mut h = start(CONFIG).await;
         let model = ur10e();
@@ -286,7 +199,7 @@ async fn several_robots_poses_deviations_metrics_and_fleet_queries() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn bad_input_is_rejected_with_an_event_and_neighbours_are_processed() {
+async fn bad_input_is_rejected_without_harming_its_neighbours() {
     tokio::time::timeout(TEST_LIMIT, async {
         let mut h = start(CONFIG).await;
         let model = ur10e();
@@ -379,7 +292,7 @@ async fn bad_input_is_rejected_with_an_event_and_neighbours_are_processed() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn alignment_exact_interpolated_waiting_and_unpaired() {
+async fn measured_poses_pair_with_the_joints_they_align_to() {
     tokio::time::timeout(TEST_LIMIT, async {
         let mut h = start(CONFIG).await;
         let model = ur10e();
@@ -482,7 +395,7 @@ async fn alignment_exact_interpolated_waiting_and_unpaired() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn window_forgets_what_cumulative_keeps_and_alarms_fire_and_recover() {
+async fn the_window_and_its_alarms_forget_old_samples() {
     // 0.99 s, so that no sample sits exactly on the window's edge.
     let config = r#"
 [service]
@@ -559,7 +472,7 @@ alarm_hold_s = 0.2
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn liveliness_token_lives_while_tracked_and_final_metrics_go_out_on_shutdown() {
+async fn a_robots_presence_lasts_from_its_first_sample_to_shutdown() {
     tokio::time::timeout(TEST_LIMIT, async {
         let mut h = start(CONFIG).await;
         let alive = h
@@ -621,7 +534,7 @@ async fn liveliness_token_lives_while_tracked_and_final_metrics_go_out_on_shutdo
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn sensor_streams_are_transformed_and_unknown_robots_rejected() {
+async fn a_sensor_stream_is_transformed_into_its_robots_base() {
     let config = r#"
 [service]
 metrics_period_ms = 50
@@ -669,95 +582,6 @@ base_from_sensor = [1.0, -0.5, 0.2, 0.0, 0.0, 1.5707963267948966]
             *counts.entry(key.as_str()).or_default() += 1;
         }
         assert_eq!(counts.get("twin/pose/lab/r7"), Some(&1));
-        h.stop().await;
-    })
-    .await
-    .expect("test finished in time");
-}
-
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn replaying_the_sample_recordings_twins_every_row() {
-    let _alone = FULL_RATE_REPLAY.lock().await;
-    tokio::time::timeout(TEST_LIMIT, async {
-        let mut h = start(CONFIG).await;
-        let endpoint = h.service.endpoint.clone();
-        let data = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../..")).join("tests/data");
-        let settings = |robot: &str| ReplaySettings {
-            zenoh: ZenohSection {
-                mode: ZenohMode::Peer,
-                listen: Vec::new(),
-                connect: vec![endpoint.clone()],
-                file: None,
-                multicast_scouting: false,
-                cfg: Vec::new(),
-            },
-            key_prefix: "twin".to_owned(),
-            robot: robot.to_owned(),
-            speed: None,
-        };
-        // The UR10e FMU report's FMPy input: its time column is a row index; 0.1 s apart as the
-        // report streamed it.
-        let text = std::fs::read_to_string(data.join("fmpy_inputs.csv")).expect("data");
-        let fmpy = recording::read(&text).expect("recognised");
-        let times = recording::source_times(&fmpy, Some(0.1));
-        let report = replay(
-            &fmpy,
-            &times,
-            &settings("fmpy"),
-            std::future::pending(),
-            |_| {},
-        )
-        .await
-        .expect("replay");
-        assert_eq!(report.published, 54);
-        // The ROS 2 export: whole-second stamps spread over each second, 7 malformed lines.
-        let text = std::fs::read_to_string(data.join("ur10e_lasttest.csv")).expect("data");
-        let ros = recording::read(&text).expect("recognised");
-        let times = recording::source_times(&ros, None);
-        assert!(times.windows(2).all(|w| w[1] > w[0]), "strictly increasing");
-        let report = replay(
-            &ros,
-            &times,
-            &settings("lasttest"),
-            std::future::pending(),
-            |_| {},
-        )
-        .await
-        .expect("replay");
-        assert_eq!((report.published, report.malformed), (29_061, 7));
-        h.receive_until("every row twinned", |r| {
-            let last = |key: &str| {
-                r.iter()
-                    .rev()
-                    .find(|(k, _)| k == key)
-                    .map(|(_, m)| (m["paired"].as_u64(), m["rejected"].as_u64()))
-            };
-            last("twin/metrics/fmpy") == Some((Some(54), Some(0)))
-                && last("twin/metrics/lasttest") == Some((Some(29_054), Some(7)))
-        })
-        .await;
-        assert_eq!(h.on("twin/pose/fmpy").len(), 54);
-        assert_eq!(h.on("twin/pose/lasttest").len(), 29_054);
-        // Offline validation of the same recordings gives exactly the service's metrics.
-        let config = ServiceConfig::parse(CONFIG, "test", Path::new("."), &Overrides::default())
-            .expect("config");
-        let robot = config.default_robot.clone().expect("default robot");
-        for (name, recording, times) in [
-            ("fmpy", &fmpy, recording::source_times(&fmpy, Some(0.1))),
-            ("lasttest", &ros, recording::source_times(&ros, None)),
-        ] {
-            let offline = validate(recording, &times, config.pipeline, robot.clone(), |_| {});
-            let offline =
-                serde_json::to_value(MetricsMessage::new(&offline.metrics)).expect("json");
-            let live = h
-                .on(&format!("twin/metrics/{name}"))
-                .last()
-                .copied()
-                .expect("metrics");
-            for field in ["paired", "unpaired", "rejected", "cumulative", "window"] {
-                assert_eq!(live[field], offline[field], "{name}: {field}");
-            }
-        }
         h.stop().await;
     })
     .await
@@ -820,172 +644,6 @@ base_from_sensor = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
     );
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn self_calibration_converges_on_a_replayed_recording_and_applies_on_request() {
-    let _alone = FULL_RATE_REPLAY.lock().await;
-    tokio::time::timeout(TEST_LIMIT, async {
-        let config = format!(
-            "{CONFIG}[robots.lasttest]\nmodel = \"ur10e\"\nself_calibrate = true\n\
-             [self_calibration]\nrefit_period_s = 0.3\ntrain_capacity = 1500\nheld_out_capacity = 500\n"
-        );
-        let mut h = start(&config).await;
-        // Configured, no input yet: nothing kept, nothing fitted.
-        let before = h.get("twin/calibrate/lasttest", None).await;
-        let [Ok((_, before))] = before.as_slice() else {
-            panic!("status answered: {before:?}");
-        };
-        assert_eq!((before["offered"].as_u64(), before["fits"].as_u64()), (Some(0), Some(0)));
-        assert!(before["pending"].is_null());
-        let data = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../..")).join("tests/data");
-        let text = std::fs::read_to_string(data.join("ur10e_lasttest.csv")).expect("data");
-        let ros = recording::read(&text).expect("recognised");
-        let times = recording::source_times(&ros, None);
-        let settings = ReplaySettings {
-            zenoh: ZenohSection {
-                mode: ZenohMode::Peer,
-                listen: Vec::new(),
-                connect: vec![h.service.endpoint.clone()],
-                file: None,
-                multicast_scouting: false,
-                cfg: Vec::new(),
-            },
-            key_prefix: "twin".to_owned(),
-            robot: "lasttest".to_owned(),
-            speed: None,
-        };
-        replay(&ros, &times, &settings, std::future::pending(), |_| {})
-            .await
-            .expect("replay");
-        h.receive_until("every row paired", |r| {
-            r.iter()
-                .rev()
-                .find(|(k, _)| k == "twin/metrics/lasttest")
-                .is_some_and(|(_, m)| m["paired"].as_u64() == Some(29_054))
-        })
-        .await;
-        // The fit of every pair offered (the reservoir skips pairs closer than 8 ms): the last
-        // fit has seen as many as the reservoir has.
-        let deadline = tokio::time::Instant::now() + RECEIVE_LIMIT;
-        let status = loop {
-            let status = h.get("twin/calibrate/lasttest", None).await;
-            let [Ok((_, status))] = status.as_slice() else {
-                panic!("one status: {status:?}");
-            };
-            if status["offered"].as_u64().is_some_and(|n| n > 5000)
-                && status["last"]["offered"] == status["offered"]
-                && status["fitting"] == false
-            {
-                break status.clone();
-            }
-            assert!(tokio::time::Instant::now() < deadline, "no final fit: {status}");
-            tokio::time::sleep(Duration::from_millis(100)).await;
-        };
-        let offered = status["offered"].clone();
-        h.receive_until("the final estimate published", |r| {
-            r.iter()
-                .any(|(k, m)| k == "twin/calibration/lasttest" && m["offered"] == offered)
-        })
-        .await;
-        let pending = &status["pending"];
-        assert_eq!(pending["status"], "estimate", "{status}");
-        assert_eq!(status["epoch"], 0);
-        let current_mm = number(pending, &["current", "position_mae_mm"]);
-        let identified_mm = number(pending, &["identified", "position_mae_mm"]);
-        println!(
-            "live estimate from {} pairs offered ({} fitted, {} held out): position MAE {current_mm:.4} → {identified_mm:.4} mm, angle MAE {:.4} → {:.4} mrad",
-            pending["offered"],
-            pending["train_pairs"],
-            pending["held_out_pairs"],
-            number(pending, &["current", "angle_mae_mrad"]),
-            number(pending, &["identified", "angle_mae_mrad"]),
-        );
-        // The recording is rounded to 1 mm / 1 mrad: nominal DH is ~1 mm off, the rounding
-        // floor ~0.5 mm (see `armtwin calibrate` on the same file).
-        assert!(current_mm > 0.9 && identified_mm < 0.75, "held out: {current_mm} mm → {identified_mm} mm");
-        assert!(number(pending, &["improvement"]) > 1.3);
-        assert!(pending["held_out_pairs"].as_u64().unwrap_or(0) >= 400);
-        assert!(pending["calibration_conf"].as_str().is_some_and(|c| c.contains("delta_d")));
-        apply_then_fk_and_ik_answer_with_the_estimate(&mut h).await;
-        h.stop().await;
-    })
-    .await
-    .expect("test finished in time");
-}
-
-/// Applies `lasttest`'s pending estimate; checks the epoch, and that FK and IK use it.
-async fn apply_then_fk_and_ik_answer_with_the_estimate(h: &mut Harness) {
-    // Applying starts epoch 1: the old epoch's final metrics, an `epoch` event, the twin's
-    // model replaced (FK and IK answer with it).
-    let q = [0.3, -1.2, 1.1, -1.4, -1.5, 0.2];
-    let fk_before = h.get("twin/fk/lasttest", Some(json!({ "q": q }))).await;
-    let applied = h
-        .get("twin/admin/calibrate/lasttest?action=apply", None)
-        .await;
-    let [Ok((_, applied))] = applied.as_slice() else {
-        panic!("apply answered: {applied:?}");
-    };
-    assert_eq!(applied["epoch"], 1, "{applied}");
-    assert_eq!(applied["calibration"], "self-calibration");
-    assert!(applied["pending"].is_null());
-    h.receive_until("the epoch event", |r| {
-        r.iter()
-            .any(|(k, m)| k == "twin/events/lasttest" && m["kind"] == "epoch")
-    })
-    .await;
-    let event = h
-        .on("twin/events/lasttest")
-        .into_iter()
-        .find(|m| m["kind"] == "epoch")
-        .expect("epoch");
-    assert_eq!(event["detail"]["epoch"], 1);
-    let again = h
-        .get("twin/admin/calibrate/lasttest?action=apply", None)
-        .await;
-    assert!(
-        matches!(again.as_slice(), [Err(_)]),
-        "nothing left to apply: {again:?}"
-    );
-    let fk_after = h.get("twin/fk/lasttest", Some(json!({ "q": q }))).await;
-    let (Ok((_, before)), Ok((_, after))) = (&fk_before[0], &fk_after[0]) else {
-        panic!("fk answered: {fk_before:?} {fk_after:?}");
-    };
-    let moved_m = ["x", "y", "z"]
-        .map(|k| number(before, &[k]) - number(after, &[k]))
-        .iter()
-        .map(|d| d * d)
-        .sum::<f64>()
-        .sqrt();
-    assert!(
-        moved_m > 1e-4 && moved_m < 0.02,
-        "the calibrated FK moved the TCP by {moved_m} m"
-    );
-    // IK with the applied model inverts its FK.
-    let pose = ["x", "y", "z", "qx", "qy", "qz", "qw"].map(|k| number(after, &[k]));
-    let ik = h
-        .get("twin/ik/lasttest", Some(json!({ "pose": pose, "seed": q })))
-        .await;
-    let [Ok((_, ik))] = ik.as_slice() else {
-        panic!("ik answered: {ik:?}");
-    };
-    let nearest = &ik["solutions"][0];
-    for (i, expected) in q.iter().enumerate() {
-        let got = nearest["q"][i].as_f64().expect("angle");
-        assert!(
-            (got - expected).abs() < 1e-9,
-            "joint {i}: {got} vs {expected}"
-        );
-    }
-    let bad = h
-        .get("twin/ik/lasttest", Some(json!({ "pose": [1.0] })))
-        .await;
-    assert!(
-        matches!(bad.as_slice(), [Err(e)] if e["error"].as_str().is_some_and(|e| e.contains("7 values"))),
-        "{bad:?}"
-    );
-    let unknown = h.get("twin/calibrate/lasttest?action=undo", None).await;
-    assert!(matches!(unknown.as_slice(), [Err(_)]), "{unknown:?}");
-}
-
 /// The messages a gateway sends for `robot`: joints at 100 Hz, each with a measured pose off by
 /// a pattern of its own, and every 40th message sent twice (its repeated stamp is rejected).
 fn gateway_messages(model: &RobotModel, robot_offset_m: f64, count: usize) -> Vec<Vec<u8>> {
@@ -1009,7 +667,7 @@ fn gateway_messages(model: &RobotModel, robot_offset_m: f64, count: usize) -> Ve
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn two_gateways_stream_two_robots_at_once_and_each_gets_exact_metrics() {
+async fn two_gateways_at_once_each_get_exact_metrics() {
     tokio::time::timeout(TEST_LIMIT, async {
         let mut h = start(CONFIG).await;
         let model = ur10e();

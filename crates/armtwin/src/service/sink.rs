@@ -23,7 +23,7 @@ use crate::dynamics::monitor::EffortReadout;
 use crate::keys::Stream;
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
-use crate::pipeline::{Event, EventDetail, EventKind, MetricsSnapshot, Robot, Sink};
+use crate::pipeline::{Event, EventDetail, EventKind, MetricsReadout, Robot, Sink};
 use crate::ros2;
 
 /// Events kept per robot for the dashboard's robot page.
@@ -314,8 +314,8 @@ impl Sink for ZenohSink<'_> {
         );
     }
 
-    fn metrics(&mut self, robot: &Robot, snapshot: &MetricsSnapshot) {
-        let message = json::MetricsMessage::new(snapshot);
+    fn metrics(&mut self, robot: &Robot, readout: &MetricsReadout) {
+        let message = json::MetricsMessage::new(readout);
         self.put(robot.id(), Stream::Metrics, message.to_json_bytes());
     }
 }

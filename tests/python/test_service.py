@@ -88,7 +88,7 @@ def twin(armtwin_bin, tmp_path):
 
 def final_metrics(tw: Twin, robot, predicate, timeout=10.0):
     """The metrics message satisfying ``predicate``; if none comes within ``timeout``, SIGINT the
-    service and take the last metrics message it published (its shutdown snapshot)."""
+    service and take the last metrics message it published (its final metrics)."""
     msg = tw.collector.wait_message("metrics", robot, predicate, timeout)
     if msg is not None:
         return msg, "periodic"
@@ -383,12 +383,12 @@ def test_queries(twin):
     oks, errs = reply_payloads(client.get(f"{PREFIX}/admin/reset/r1"))
     checks.equal(errs, [], "reset r1: error replies")
     if checks.equal(len(oks), 1, "reset r1: replies"):
-        snap = oks[0][1]
-        check_metrics(checks, snap, "r1", n, 0, stats, "reset r1: reply (final snapshot)", t=(n - 1) * 0.1)
+        final = oks[0][1]
+        check_metrics(checks, final, "r1", n, 0, stats, "reset r1: reply (final metrics)", t=(n - 1) * 0.1)
         published = twin.collector.wait_message(
-            "metrics", "r1", lambda m: m == snap, 5.0
+            "metrics", "r1", lambda m: m == final, 5.0
         ) if wait_until(lambda: twin.collector.count("metrics", "r1") > before, 5.0) else None
-        checks.true(published is not None, "reset r1: the snapshot is also published on twin/metrics/r1")
+        checks.true(published is not None, "reset r1: the final metrics are also published on twin/metrics/r1")
     oks, _ = reply_payloads(client.get(f"{PREFIX}/state/r1"))
     if checks.equal(len(oks), 1, "state r1 after reset: replies"):
         m = oks[0][1].get("metrics") or {}

@@ -1,5 +1,5 @@
 //! Streaming statistics cost: one sample into the exact sliding window in steady state (each add
-//! evicts one), a window snapshot (rounding the 18 exact sums), and the cumulative statistics.
+//! evicts one), a window readout (rounding the 18 exact sums), and the cumulative statistics.
 //!
 //! `cargo bench -p armtwin-bench --bench metrics`
 #![allow(
@@ -40,8 +40,8 @@ fn window(c: &mut Criterion) {
         });
     });
     let (window, _) = full_window();
-    c.bench_function("window/snapshot", |b| {
-        b.iter(|| black_box(&window).snapshot());
+    c.bench_function("window/readout", |b| {
+        b.iter(|| black_box(&window).readout());
     });
     let mut cumulative = CumulativeStats::new();
     let mut next = 0u64;

@@ -14,7 +14,7 @@ use armtwin::ingest::{self, Codec};
 use armtwin::kinematics::{OutputFrame, PoseReadout};
 use armtwin::metrics::Deviation;
 use armtwin::pipeline::{
-    Event, MeasuredStream, MetricsSnapshot, Pipeline, Robot, RobotDirectory, Sink,
+    Event, MeasuredStream, MetricsReadout, Pipeline, Robot, RobotDirectory, Sink,
 };
 
 use crate::fleet::{parsed_service_config, robot_id};
@@ -77,8 +77,8 @@ impl Sink for Encode {
         self.bytes += black_box(json::to_json_bytes(&json::EventMessage::new(event))).len();
     }
 
-    fn metrics(&mut self, _robot: &Robot, snapshot: &MetricsSnapshot) {
-        self.bytes += black_box(json::MetricsMessage::new(snapshot).to_json_bytes()).len();
+    fn metrics(&mut self, _robot: &Robot, readout: &MetricsReadout) {
+        self.bytes += black_box(json::MetricsMessage::new(readout).to_json_bytes()).len();
     }
 }
 

@@ -304,7 +304,7 @@ impl CumulativeStats {
 
     /// The statistics of every sample added so far.
     #[must_use]
-    pub fn snapshot(&self) -> StatsSet {
+    pub fn readout(&self) -> StatsSet {
         StatsSet::from_sums(
             self.n,
             self.sums.map(CompensatedSum::value),
@@ -689,7 +689,7 @@ struct WindowSample {
 /// accepted double lands on it without rounding; only the chunks the values reach are held). Adding a sample adds its values, evicting one subtracts
 /// the very same values (squares rounded identically), so the state is the exact sum of the window
 /// however many samples have passed: nothing drifts and nothing needs periodic recomputation. A
-/// snapshot rounds each exact sum once. Each maximum is a monotonic deque of the positions of the
+/// readout rounds each exact sum once. Each maximum is a monotonic deque of the positions of the
 /// samples larger than every later one, so its front is the window's maximum.
 ///
 /// Chosen over the two-stack aggregation, which stores prefix sums, sums of squares and maxima with
@@ -701,7 +701,7 @@ struct WindowSample {
 ///
 /// **Cost.** Amortised O(1) per [`add`](Self::add): branch-free integer additions to three chunks
 /// per sum, and each sample enters and leaves each maximum deque once (the deques' data-dependent
-/// branches take most of an add's time). A [`snapshot`](Self::snapshot) rounds the 18 sums.
+/// branches take most of an add's time). A [`readout`](Self::readout) rounds the 18 sums.
 /// Timings: `benches/metrics.rs`, figures in BENCHMARKS.md.
 /// Memory O(samples in the window): 80 bytes per sample (stamp and nine values) plus at most 36
 /// bytes of maximum-deque positions (4 bytes per metric, only while the sample is larger than every
@@ -850,7 +850,7 @@ impl WindowStats {
 
     /// The statistics of the samples now in the window.
     #[must_use]
-    pub fn snapshot(&self) -> StatsSet {
+    pub fn readout(&self) -> StatsSet {
         StatsSet::from_sums(
             self.samples.len() as u64,
             std::array::from_fn(|m| self.sums[m].value()),
@@ -941,9 +941,9 @@ mod tests {
     }
 
     #[test]
-    fn empty_snapshots_are_all_zero() {
-        assert_eq!(CumulativeStats::new().snapshot(), StatsSet::default());
-        assert_eq!(WindowStats::new(1.0, 10).snapshot(), StatsSet::default());
+    fn empty_readouts_are_all_zero() {
+        assert_eq!(CumulativeStats::new().readout(), StatsSet::default());
+        assert_eq!(WindowStats::new(1.0, 10).readout(), StatsSet::default());
         let zero = StatsSet::default();
         assert_eq!(zero.n, 0);
         assert!(zero.stats.iter().all(|s| *s == Stats::default()));
@@ -954,17 +954,17 @@ mod tests {
         let mut stats = CumulativeStats::new();
         assert!(stats.add(&uniform(3.0)));
         assert!(stats.add(&uniform(4.0)));
-        let snap = stats.snapshot();
-        assert_eq!(snap.n, 2);
-        for s in snap.stats {
+        let readout = stats.readout();
+        assert_eq!(readout.n, 2);
+        for s in readout.stats {
             assert_eq!(s.mae, 3.5);
             assert_eq!(s.rmse, 12.5_f64.sqrt());
             assert_eq!(s.max, 4.0);
         }
         stats.reset();
-        assert_eq!(stats.snapshot(), StatsSet::default());
+        assert_eq!(stats.readout(), StatsSet::default());
         assert!(stats.add(&uniform(1.0)));
-        assert_eq!(stats.snapshot().stats[0].max, 1.0);
+        assert_eq!(stats.readout().stats[0].max, 1.0);
     }
 
     #[test]
@@ -979,7 +979,7 @@ mod tests {
         }
         assert!(!window.add(f64::NAN, &uniform(1.0)));
         assert!(!window.add(f64::INFINITY, &uniform(1.0)));
-        assert_eq!(cumulative.snapshot().n, 0);
+        assert_eq!(cumulative.readout().n, 0);
         assert!(window.is_empty());
     }
 
@@ -993,16 +993,16 @@ mod tests {
         // 1.0 − 1.0 = 0.0: the sample stamped 0.0 is exactly window_s old and leaves.
         assert!(window.add(1.0, &uniform(3.0)));
         assert_eq!(window.len(), 3);
-        let snap = window.snapshot();
-        assert_eq!(snap.n, 3);
-        assert_eq!(snap.stats[0].mae, 2.0);
-        assert_eq!(snap.stats[0].max, 3.0);
-        assert_eq!(snap.stats[0].rmse, (14.0_f64 / 3.0).sqrt());
+        let readout = window.readout();
+        assert_eq!(readout.n, 3);
+        assert_eq!(readout.stats[0].mae, 2.0);
+        assert_eq!(readout.stats[0].max, 3.0);
+        assert_eq!(readout.stats[0].rmse, (14.0_f64 / 3.0).sqrt());
         // A gap longer than the window leaves only the new sample.
         assert!(window.add(10.0, &uniform(0.25)));
         assert_eq!(window.len(), 1);
-        assert_eq!(window.snapshot().stats[8].max, 0.25);
-        assert_eq!(window.snapshot().stats[8].mae, 0.25);
+        assert_eq!(window.readout().stats[8].max, 0.25);
+        assert_eq!(window.readout().stats[8].mae, 0.25);
     }
 
     #[test]
@@ -1012,9 +1012,9 @@ mod tests {
             assert!(window.add(i as f64, &uniform(x)));
         }
         assert_eq!(window.len(), 3);
-        let snap = window.snapshot();
-        assert_eq!(snap.stats[3].max, 3.0);
-        assert_eq!(snap.stats[3].mae, 2.0);
+        let readout = window.readout();
+        assert_eq!(readout.stats[3].max, 3.0);
+        assert_eq!(readout.stats[3].mae, 2.0);
     }
 
     #[test]
@@ -1024,7 +1024,7 @@ mod tests {
         let expected_max = [4.0, 4.0, 4.0, 4.0, 3.0, 3.0, 3.0, 0.5];
         for (i, (&x, &max)) in values.iter().zip(&expected_max).enumerate() {
             assert!(window.add(i as f64, &uniform(x)));
-            assert_eq!(window.snapshot().stats[5].max, max, "after sample {i}");
+            assert_eq!(window.readout().stats[5].max, max, "after sample {i}");
         }
     }
 
@@ -1038,11 +1038,11 @@ mod tests {
         // 5.9 evicts nothing: the front (5.0) is still inside; the 2.0 sample waits behind it.
         assert!(window.add(5.9, &uniform(1.0)));
         assert_eq!(window.len(), 3);
-        assert_eq!(window.snapshot().stats[0].max, 7.0);
+        assert_eq!(window.readout().stats[0].max, 7.0);
         // 6.0 evicts 5.0 and then the 2.0 sample behind it.
         assert!(window.add(6.0, &uniform(1.0)));
         assert_eq!(window.len(), 2);
-        assert_eq!(window.snapshot().stats[0].max, 1.0);
+        assert_eq!(window.readout().stats[0].max, 1.0);
     }
 
     #[test]
@@ -1051,7 +1051,7 @@ mod tests {
         assert!(window.add(100.0, &uniform(2.0)));
         window.reset();
         assert!(window.is_empty());
-        assert_eq!(window.snapshot(), StatsSet::default());
+        assert_eq!(window.readout(), StatsSet::default());
         assert!(window.add(0.0, &uniform(1.0)));
         assert!(window.add(0.5, &uniform(1.0)));
         assert_eq!(window.len(), 2);

@@ -113,7 +113,7 @@ pub enum MeasuredStream {
 
 /// A robot's metrics at one instant.
 #[derive(Debug, Clone, PartialEq)]
-pub struct MetricsSnapshot {
+pub struct MetricsReadout {
     /// Robot id.
     pub robot: String,
     /// Newest source time (s) seen for the robot.
@@ -171,7 +171,7 @@ pub struct RobotState<'a> {
     /// Last measured pose (in the output frame): stamp (s) and pose.
     pub last_measured: Option<(f64, &'a PoseReadout)>,
     /// Current metrics.
-    pub metrics: MetricsSnapshot,
+    pub metrics: MetricsReadout,
     /// Which alarms are active.
     pub alarms_active: Alarms,
 }
@@ -306,13 +306,13 @@ impl Pipeline {
 
     /// `robot`'s metrics if it has new results since its last ones, which they then count as
     /// sent: for a caller that sends them itself (the service, outside its lock).
-    pub fn take_due_metrics(&mut self, robot: RobotIndex) -> Option<MetricsSnapshot> {
+    pub fn take_due_metrics(&mut self, robot: RobotIndex) -> Option<MetricsReadout> {
         self.twin_mut(robot)?.take_due_metrics()
     }
 
-    /// Resets `robot`'s statistics and counters; returns (and sends) the final snapshot before
+    /// Resets `robot`'s statistics and counters; returns (and sends) the final metrics before
     /// the reset.
-    pub fn reset(&mut self, robot: RobotIndex, sink: &mut impl Sink) -> Option<MetricsSnapshot> {
+    pub fn reset(&mut self, robot: RobotIndex, sink: &mut impl Sink) -> Option<MetricsReadout> {
         Some(self.twin_mut(robot)?.reset(sink))
     }
 
@@ -329,7 +329,7 @@ impl Pipeline {
     }
 
     /// Replaces `robot`'s model (an applied calibration) and starts a new metrics epoch: the
-    /// old epoch's final snapshot is sent and returned, counters and statistics start afresh
+    /// old epoch's final metrics are sent and returned, counters and statistics start afresh
     /// (deviations of two models must not mix), and an `epoch` event says why. The model must
     /// keep the robot's joint count, against which its inputs are decoded.
     pub fn replace_model(
@@ -337,7 +337,7 @@ impl Pipeline {
         robot: RobotIndex,
         model: Arc<RobotModel>,
         sink: &mut impl Sink,
-    ) -> Result<MetricsSnapshot, ReplaceModelError> {
+    ) -> Result<MetricsReadout, ReplaceModelError> {
         self.twin_mut(robot)
             .ok_or(ReplaceModelError::NotTracked)?
             .replace_model(model, sink)

@@ -114,12 +114,12 @@ proptest! {
         for (i, sample) in samples.iter().enumerate() {
             prop_assert!(stats.add(sample));
             if i % 37 == 0 {
-                check(&stats.snapshot(), &naive(&samples[..=i]), 1e-12)?;
+                check(&stats.readout(), &naive(&samples[..=i]), 1e-12)?;
             }
         }
-        check(&stats.snapshot(), &naive(&samples), 1e-12)?;
+        check(&stats.readout(), &naive(&samples), 1e-12)?;
         stats.reset();
-        check(&stats.snapshot(), &StatsSet::default(), 0.0)?;
+        check(&stats.readout(), &StatsSet::default(), 0.0)?;
     }
 
     #[test]
@@ -139,11 +139,11 @@ proptest! {
             stamped.push((stamp_s, sample));
             let expected = expected_window(&stamped, window_s, max_samples);
             prop_assert_eq!(window.len(), expected.len());
-            check(&window.snapshot(), &naive(&expected), 1e-12)?;
+            check(&window.readout(), &naive(&expected), 1e-12)?;
         }
         window.reset();
         prop_assert!(window.is_empty());
-        check(&window.snapshot(), &StatsSet::default(), 0.0)?;
+        check(&window.readout(), &StatsSet::default(), 0.0)?;
     }
 }
 
@@ -199,11 +199,11 @@ fn cumulative_ten_million_samples_match_exact_sums() {
         }
         assert!(stats.add(&sample));
     }
-    let snapshot = stats.snapshot();
-    assert_eq!(snapshot.n, N);
+    let readout = stats.readout();
+    assert_eq!(readout.n, N);
     for m in 0..METRIC_COUNT {
         let (mean, rms) = exact_mean_and_rms(sum_k[m], sum_k_squared[m], N);
-        let got = snapshot.stats[m];
+        let got = readout.stats[m];
         assert!(close(got.mae, mean, 1e-12), "{got:?} vs {mean}");
         assert!(close(got.rmse, rms, 1e-12), "{got:?} vs {rms}");
         assert_eq!(got.max, max_k[m] as f64 * SCALE);
@@ -248,7 +248,7 @@ fn window_does_not_drift_over_two_million_samples() {
         "the final window should not be trivially small"
     );
     assert_eq!(window.len(), expected.len());
-    let snapshot = window.snapshot();
+    let readout = window.readout();
     let reference = naive(&expected);
     // Dyadic values: the integer sums give the exactly rounded reference too.
     for m in 0..METRIC_COUNT {
@@ -258,7 +258,7 @@ fn window_does_not_drift_over_two_million_samples() {
             ks.iter().map(|k| k * k).sum(),
             expected.len() as u64,
         );
-        let got = snapshot.stats[m];
+        let got = readout.stats[m];
         assert_eq!(got.mae, mean, "{}", METRIC_NAMES[m]);
         // Squares of 40-bit integers round, so the RMS is off the integer one by an ulp or so.
         assert!(close(got.rmse, rms, 1e-15), "{}", METRIC_NAMES[m]);

@@ -5,7 +5,7 @@
 use armtwin_core::identify::{Identification, PoseErrors};
 use armtwin_core::kinematics::PoseReadout;
 use armtwin_core::metrics::{Deviation, METRIC_NAMES, Stats, StatsSet};
-use armtwin_core::pipeline::{Alarms, Event, EventDetail, MetricsSnapshot, RobotState};
+use armtwin_core::pipeline::{Alarms, Event, EventDetail, MetricsReadout, RobotState};
 use armtwin_core::sample::JointState;
 use armtwin_core::self_calibration::{CalibrationBatch, Estimate, FitError};
 use serde::Serialize;
@@ -379,33 +379,33 @@ pub struct MetricsMessage {
 }
 
 impl MetricsMessage {
-    /// The message of a pipeline snapshot.
+    /// The message of a metrics readout.
     #[must_use]
-    pub fn new(snapshot: &MetricsSnapshot) -> Self {
+    pub fn new(readout: &MetricsReadout) -> Self {
         Self {
-            effort: snapshot
+            effort: readout
                 .effort
                 .as_deref()
-                .map(|summary| super::effort_summary_json(&snapshot.robot, summary)),
-            ..Self::without_effort(snapshot)
+                .map(|summary| super::effort_summary_json(&readout.robot, summary)),
+            ..Self::without_effort(readout)
         }
     }
 
-    /// The message of a pipeline snapshot, leaving out its effort (which the state answer shows
+    /// The message of a metrics readout, leaving out its effort (which the state answer shows
     /// beside the metrics).
     #[must_use]
-    pub fn without_effort(snapshot: &MetricsSnapshot) -> Self {
+    pub fn without_effort(readout: &MetricsReadout) -> Self {
         Self {
-            robot: snapshot.robot.clone(),
-            t: snapshot.stamp_s,
-            paired: snapshot.paired,
-            unpaired: snapshot.unpaired,
-            rejected: snapshot.rejected,
-            epoch: snapshot.epoch,
-            cumulative: StatsSetJson::from(&snapshot.cumulative),
+            robot: readout.robot.clone(),
+            t: readout.stamp_s,
+            paired: readout.paired,
+            unpaired: readout.unpaired,
+            rejected: readout.rejected,
+            epoch: readout.epoch,
+            cumulative: StatsSetJson::from(&readout.cumulative),
             window: WindowJson {
-                seconds: snapshot.window_s,
-                stats: StatsSetJson::from(&snapshot.window),
+                seconds: readout.window_s,
+                stats: StatsSetJson::from(&readout.window),
             },
             effort: None,
         }

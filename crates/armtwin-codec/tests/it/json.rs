@@ -11,7 +11,7 @@ use armtwin_core::kinematics::PoseReadout;
 use armtwin_core::metrics::{Deviation, METRIC_NAMES, Stats, StatsSet};
 use armtwin_core::model::RobotModel;
 use armtwin_core::pipeline::{
-    Alarms, Event, EventDetail, EventKind, MetricsSnapshot, Reason, RejectCause, RobotState,
+    Alarms, Event, EventDetail, EventKind, MetricsReadout, Reason, RejectCause, RobotState,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 use serde_json::Value;
@@ -637,8 +637,8 @@ fn stats_set(n: u64, offset: f64) -> StatsSet {
     }
 }
 
-fn snapshot() -> MetricsSnapshot {
-    MetricsSnapshot {
+fn metrics_readout() -> MetricsReadout {
+    MetricsReadout {
         robot: "ur10e_1".to_owned(),
         stamp_s: 12.5,
         paired: 10,
@@ -837,7 +837,7 @@ fn event_message_fields() {
 
 #[test]
 fn metrics_message_fields() {
-    let json = parse(&to_json_bytes(&MetricsMessage::new(&snapshot())));
+    let json = parse(&to_json_bytes(&MetricsMessage::new(&metrics_readout())));
     assert_eq!(
         keys(&json),
         set(&[
@@ -873,7 +873,8 @@ fn metrics_message_fields() {
         assert_eq!(json["window"][name]["mae"], 100.0 + m as f64, "{name}");
     }
     // The window's `seconds` comes first.
-    let text = String::from_utf8(to_json_bytes(&MetricsMessage::new(&snapshot()))).expect("UTF-8");
+    let text =
+        String::from_utf8(to_json_bytes(&MetricsMessage::new(&metrics_readout()))).expect("UTF-8");
     assert!(text.contains(r#""window":{"seconds":5.0,"n":4,"#), "{text}");
 }
 
@@ -896,7 +897,7 @@ fn state_message_fields() {
         last_joints: Some((2.0, &q)),
         last_twin_pose: Some((2.0, &twin)),
         last_measured: None,
-        metrics: snapshot(),
+        metrics: metrics_readout(),
         alarms_active: Alarms {
             position: true,
             angle: false,
@@ -939,7 +940,7 @@ fn state_message_fields() {
     );
     assert_eq!(
         json["metrics"],
-        parse(&to_json_bytes(&MetricsMessage::new(&snapshot())))
+        parse(&to_json_bytes(&MetricsMessage::new(&metrics_readout())))
     );
 }
 

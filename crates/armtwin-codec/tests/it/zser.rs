@@ -13,7 +13,7 @@ use armtwin_core::kinematics::{OutputFrame, PoseReadout};
 use armtwin_core::metrics::Deviation;
 use armtwin_core::model::RobotModel;
 use armtwin_core::pipeline::{
-    AlarmConfig, Event, EventDetail, MeasuredStream, MetricsSnapshot, Pipeline, PipelineConfig,
+    AlarmConfig, Event, EventDetail, MeasuredStream, MetricsReadout, Pipeline, PipelineConfig,
     Robot, RobotDirectory, RobotSettings, Sink,
 };
 use proptest::prelude::*;
@@ -290,7 +290,7 @@ impl Sink for Recorded {
         }
     }
 
-    fn metrics(&mut self, _: &Robot, _: &MetricsSnapshot) {}
+    fn metrics(&mut self, _: &Robot, _: &MetricsReadout) {}
 }
 
 #[test]

@@ -5,7 +5,7 @@
 //! [`Sink::pose`] is required; every other result is defaulted to nothing, so a new kind of
 //! result edits this trait and the sinks that want it, not every sink.
 
-use super::{Event, MetricsSnapshot, Robot};
+use super::{Event, MetricsReadout, Robot};
 use crate::dynamics::monitor::EffortReadout;
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
@@ -67,8 +67,8 @@ pub trait Sink {
         let _ = (robot, readout);
     }
 
-    /// A metrics snapshot of `robot`.
-    fn metrics(&mut self, robot: &Robot, snapshot: &MetricsSnapshot) {
-        let _ = (robot, snapshot);
+    /// A metrics readout of `robot`.
+    fn metrics(&mut self, robot: &Robot, readout: &MetricsReadout) {
+        let _ = (robot, readout);
     }
 }

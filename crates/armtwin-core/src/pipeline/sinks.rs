@@ -5,7 +5,7 @@
 //! own sink. Must not format anything a receiver would want formatted differently: a recorded
 //! event keeps its sentence only because [`Event`] borrows what it says.
 
-use super::{Event, EventDetail, EventKind, MetricsSnapshot, Robot, RobotIndex, Sink};
+use super::{Event, EventDetail, EventKind, MetricsReadout, Robot, RobotIndex, Sink};
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
 
@@ -36,8 +36,8 @@ pub enum Recorded {
     Deviation(RecordedDeviation),
     /// [`Sink::event`].
     Event(RecordedEvent),
-    /// [`Sink::metrics`] (the snapshot names its robot; boxed, as it outweighs the rest).
-    Metrics(Box<MetricsSnapshot>),
+    /// [`Sink::metrics`] (the readout names its robot; boxed, as it outweighs the rest).
+    Metrics(Box<MetricsReadout>),
 }
 
 /// A twin pose as a [`Record`] keeps it.
@@ -121,9 +121,9 @@ impl Record {
     }
 
     /// The metrics snapshots, in order.
-    pub fn metrics(&self) -> impl Iterator<Item = &MetricsSnapshot> {
+    pub fn metrics(&self) -> impl Iterator<Item = &MetricsReadout> {
         self.results.iter().filter_map(|result| match result {
-            Recorded::Metrics(snapshot) => Some(&**snapshot),
+            Recorded::Metrics(readout) => Some(&**readout),
             _ => None,
         })
     }
@@ -178,8 +178,8 @@ impl Sink for Record {
         }));
     }
 
-    fn metrics(&mut self, _robot: &Robot, snapshot: &MetricsSnapshot) {
+    fn metrics(&mut self, _robot: &Robot, readout: &MetricsReadout) {
         self.results
-            .push(Recorded::Metrics(Box::new(snapshot.clone())));
+            .push(Recorded::Metrics(Box::new(readout.clone())));
     }
 }

@@ -15,7 +15,7 @@ use nalgebra::{IsometryMatrix3, Matrix3, Rotation3, Vector3};
 use super::alarm::AlarmStates;
 use super::record::APPLIED_SOURCE_NAME;
 use super::{
-    AppliedModel, Event, EventDetail, EventKind, MeasuredStream, MetricsSnapshot, PipelineConfig,
+    AppliedModel, Event, EventDetail, EventKind, MeasuredStream, MetricsReadout, PipelineConfig,
     Reason, RejectCause, ReplaceModelError, RestoreError, Robot, RobotState, Sink, TwinRecord,
 };
 use crate::align::{self, Aligner, Bracket, Pending, UnpairedReason};
@@ -267,18 +267,18 @@ impl Twin {
 
     /// Its metrics if it has new results since its last ones, which they then count as sent
     /// ([`Pipeline::take_due_metrics`]).
-    pub fn take_due_metrics(&mut self) -> Option<MetricsSnapshot> {
+    pub fn take_due_metrics(&mut self) -> Option<MetricsReadout> {
         if !self.dirty {
             return None;
         }
         self.dirty = false;
-        Some(self.snapshot())
+        Some(self.metrics_readout())
     }
 
-    /// Resets its statistics and counters; returns (and sends) the final snapshot before the
+    /// Resets its statistics and counters; returns (and sends) the final metrics before the
     /// reset.
-    pub fn reset(&mut self, sink: &mut impl Sink) -> MetricsSnapshot {
-        let last = self.snapshot();
+    pub fn reset(&mut self, sink: &mut impl Sink) -> MetricsReadout {
+        let last = self.metrics_readout();
         self.restart_statistics();
         sink.metrics(&self.robot, &last);
         last
@@ -301,7 +301,7 @@ impl Twin {
         &mut self,
         model: Arc<RobotModel>,
         sink: &mut impl Sink,
-    ) -> Result<MetricsSnapshot, ReplaceModelError> {
+    ) -> Result<MetricsReadout, ReplaceModelError> {
         let expected = self.model.joint_count();
         if model.joint_count() != expected {
             return Err(ReplaceModelError::JointCount {
@@ -309,7 +309,7 @@ impl Twin {
                 got: model.joint_count(),
             });
         }
-        let last = self.snapshot();
+        let last = self.metrics_readout();
         sink.metrics(&self.robot, &last);
         self.restart_statistics();
         self.model = model;
@@ -343,7 +343,7 @@ impl Twin {
             last_state: self.last_state.as_ref().map(|(s, state)| (*s, state)),
             last_twin_pose: self.last_pose.as_ref().map(|(s, p)| (*s, p)),
             last_measured: self.last_measured.as_ref().map(|(s, p)| (*s, p)),
-            metrics: self.snapshot(),
+            metrics: self.metrics_readout(),
             alarms_active: self.alarms.active(),
         }
     }
@@ -375,7 +375,7 @@ impl Twin {
             self.unpaired_event(&pending, reason, sink);
         }
         self.dirty = false;
-        sink.metrics(&self.robot, &self.snapshot());
+        sink.metrics(&self.robot, &self.metrics_readout());
     }
 
     /// What an applied calibration changed in its configured model, if one was applied.
@@ -864,8 +864,8 @@ impl Twin {
         transform(&frame_from_measured, pose)
     }
 
-    fn snapshot(&self) -> MetricsSnapshot {
-        MetricsSnapshot {
+    fn metrics_readout(&self) -> MetricsReadout {
+        MetricsReadout {
             robot: self.robot.id().to_owned(),
             stamp_s: if self.newest_s.is_finite() {
                 self.newest_s
@@ -878,12 +878,12 @@ impl Twin {
             cumulative: self
                 .stats
                 .as_ref()
-                .map(|stats| stats.cumulative.snapshot())
+                .map(|stats| stats.cumulative.readout())
                 .unwrap_or_default(),
             window: self
                 .stats
                 .as_ref()
-                .map(|stats| stats.window.snapshot())
+                .map(|stats| stats.window.readout())
                 .unwrap_or_default(),
             window_s: self.window_s,
             epoch: self.epoch,
@@ -1023,8 +1023,8 @@ mod tests {
                 }
                 Input::DueMetrics => {
                     for index in pipeline.robots_with_due_metrics() {
-                        let snapshot = pipeline.take_due_metrics(index).expect("due");
-                        sink.metrics(&r1, &snapshot);
+                        let readout = pipeline.take_due_metrics(index).expect("due");
+                        sink.metrics(&r1, &readout);
                     }
                 }
             }
@@ -1044,8 +1044,8 @@ mod tests {
                     twin.reject("j", stamp_s, RejectCause::NonFinite, &error, sink);
                 }
                 Input::DueMetrics => {
-                    if let Some(snapshot) = twin.take_due_metrics() {
-                        sink.metrics(&r1, &snapshot);
+                    if let Some(readout) = twin.take_due_metrics() {
+                        sink.metrics(&r1, &readout);
                     }
                 }
             }
@@ -1108,8 +1108,8 @@ mod tests {
             pipeline.joints(&r1, "j", f64::from(i), &joints, &mut Discard);
         }
         assert!(!stats(&pipeline), "joints alone need none");
-        let snapshot = metrics(&pipeline);
-        assert_eq!((snapshot.window.n, snapshot.window_s), (0, 10.0));
+        let readout = metrics(&pipeline);
+        assert_eq!((readout.window.n, readout.window_s), (0, 10.0));
 
         let measured = model.pose(&q_rad).expect("valid").readout();
         pipeline.measured(
@@ -1121,12 +1121,12 @@ mod tests {
             &mut Discard,
         );
         assert!(stats(&pipeline));
-        let snapshot = metrics(&pipeline);
-        assert_eq!((snapshot.cumulative.n, snapshot.window.n), (1, 1));
+        let readout = metrics(&pipeline);
+        assert_eq!((readout.cumulative.n, readout.window.n), (1, 1));
         // The window created at t = 4 s knows source time: 10 s later its pair has left.
         pipeline.joints(&r1, "j", 14.0, &joints, &mut Discard);
-        let snapshot = metrics(&pipeline);
-        assert_eq!((snapshot.cumulative.n, snapshot.window.n), (1, 0));
+        let readout = metrics(&pipeline);
+        assert_eq!((readout.cumulative.n, readout.window.n), (1, 0));
     }
 
     #[test]

@@ -698,7 +698,7 @@ mod tests {
     use super::RobotCounts;
     use super::*;
     use crate::metrics::StatsSet;
-    use crate::pipeline::{Alarms, MetricsSnapshot};
+    use crate::pipeline::{Alarms, MetricsReadout};
 
     fn row(id: &str, position_m: f64, paired: u64, alarm: bool) -> FleetRow {
         let mut window = StatsSet {
@@ -708,7 +708,7 @@ mod tests {
         window.stats[Metric::Position.index()].mae = position_m;
         FleetRow {
             id: Arc::from(id),
-            metrics: MetricsSnapshot {
+            metrics: MetricsReadout {
                 robot: id.to_owned(),
                 stamp_s: 1.0,
                 paired,

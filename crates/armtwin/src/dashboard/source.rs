@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use crate::codec::json;
 use crate::model::RobotModel;
-use crate::pipeline::{Alarms, MetricsSnapshot, RejectCause};
+use crate::pipeline::{Alarms, MetricsReadout, RejectCause};
 use crate::sample::JointState;
 
 /// Read access to a running fleet: each call copies what it needs out and holds nothing
@@ -30,7 +30,7 @@ pub struct FleetRow {
     /// The robot id.
     pub id: Arc<str>,
     /// Its metrics at the read (counters and statistics of the current epoch).
-    pub metrics: MetricsSnapshot,
+    pub metrics: MetricsReadout,
     /// Position and angle alarms.
     pub alarms_active: Alarms,
     /// The latest joint state sent beside the angles, if any (temperatures, currents, modes).

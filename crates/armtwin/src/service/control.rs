@@ -6,71 +6,62 @@
 
 use std::collections::VecDeque;
 use std::sync::Arc;
-use std::sync::atomic::Ordering;
 use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, channel};
 use std::time::{Duration, Instant};
 
 use tracing::{debug, info, warn};
 use zenoh::liveliness::LivelinessToken;
 
-use super::fleet::{Fleet, Retired, RobotState};
+use super::error::ServiceError;
+use super::fleet::{CellState, Fleet, Retired};
 use super::memory::give_back_freed_memory;
-use super::publish::{Outputs, RobotPublishers};
+use super::publish::{Outlet, RobotPublishers};
+use super::requests::Request;
 use super::self_calibration::{FitJob, fitting_thread, schedule_fits};
-use super::sink::ZenohSink;
 use super::snapshot::{save_final_snapshot, save_snapshot};
-use super::{ServeReport, ServiceError};
 use crate::codec::json;
 use crate::config::SelfCalibrationConfig;
 use crate::keys::Stream;
 use crate::pipeline::{Robot, Twin};
 use crate::snapshot::SnapshotStore;
 
-/// Publishes the metrics of every robot with new results (and, for a robot whose effort is
-/// watched, its payload message): each robot's snapshot taken under its own lock, then encoded
-/// and sent after it is released, so a robot's samples wait at most for its own snapshot, never
-/// for a metrics message's encoding and sending.
-fn publish_due_metrics(fleet: &Fleet) {
-    fleet.for_each_cell(|cell| {
-        let (snapshot, publisher) = {
-            let mut guard = cell.lock();
-            let state = &mut *guard;
-            let Some(snapshot) = state.twin.as_mut().and_then(Twin::take_due_metrics) else {
-                return;
-            };
-            state.outputs.counts.last_active = Some(Instant::now());
-            let publisher = state
-                .outputs
-                .declared
-                .as_ref()
-                .and_then(|declared| declared.metrics.clone());
-            (snapshot, publisher)
-        };
-        if let Some(effort) = &snapshot.effort {
-            let payload = json::payload_message_bytes(&snapshot.robot, effort);
-            fleet
-                .outputs
-                .publish(None, &snapshot.robot, Stream::Payload, payload);
-        }
-        let payload = json::MetricsMessage::new(&snapshot).to_json_bytes();
-        fleet
-            .outputs
-            .publish_metrics(publisher.as_deref(), &snapshot.robot, payload);
-    });
+/// Totals reported when the service stops.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ServeReport {
+    /// Inputs (samples and queries) processed.
+    pub inputs: u64,
+    /// Twin poses published.
+    pub poses: u64,
+    /// Robots tracked.
+    pub robots: usize,
+    /// Outputs Zenoh refused to send.
+    pub publish_errors: u64,
 }
 
-/// Twin poses a robot publishes on plain keys within [`ROUTE_CACHE_WINDOW_S`] of source time
-/// before the control thread declares the publishers (and input keys) that cache its routes: a
-/// rate, not a count, so a robot that sends now and then never gets them. Zenoh computes the route
-/// of a put on an undeclared key anew every time; a declaration is paid once, costs in proportion
-/// to the keys beside it and holds memory for as long as the robot is tracked. A robot that
-/// streams repays it; one under the rate spends less CPU on its plain keys than the declarations'
-/// memory and their cost to every later declaration are worth (the figures: BENCHMARKS.md, "The
-/// service next to a plain Zenoh echo").
-pub(super) const ROUTE_CACHE_POSES: u32 = 64;
-
-/// The span of source time (s) [`ROUTE_CACHE_POSES`] poses must fall in.
-pub(super) const ROUTE_CACHE_WINDOW_S: f64 = 10.0;
+/// Publishes the metrics of every robot with new results (and, for a robot whose effort is
+/// watched, its payload message): each robot's metrics read out under its own lock, then encoded
+/// and sent after it is released, so a robot's samples wait at most for its own readout, never
+/// for a metrics message's encoding and sending.
+fn publish_due_metrics(fleet: &Fleet) {
+    let outlet = fleet.outlet();
+    fleet.for_each_cell(|cell| {
+        let (readout, publisher) = {
+            let mut state = cell.lock();
+            let Some(readout) = state.twin_mut().and_then(Twin::take_due_metrics) else {
+                return;
+            };
+            let outputs = state.outputs_mut();
+            outputs.counts_mut().last_active = Some(Instant::now());
+            (readout, outputs.metrics_publisher())
+        };
+        if let Some(effort) = &readout.effort {
+            let payload = json::payload_message_bytes(&readout.robot, effort);
+            outlet.publish(None, &readout.robot, Stream::Payload, payload);
+        }
+        let payload = json::MetricsMessage::new(&readout).to_json_bytes();
+        outlet.publish_metrics(publisher.as_deref(), &readout.robot, payload);
+    });
+}
 
 /// Retires the robots idle for `forget_after` ([`Fleet::retire_idle`]), then, without any lock,
 /// finishes each (its final metrics and unpaired measurements go out) and undeclares its
@@ -83,13 +74,13 @@ fn retire_idle(fleet: &Fleet, forget_after: Duration) {
     let count = retired.len();
     let mut declarations = Declarations::default();
     for Retired { robot, mut state } in retired {
-        declarations.finish(&fleet.outputs, robot.shared_id(), &mut state);
+        declarations.finish(fleet, robot.shared_id(), &mut state);
         debug!(
             robot = robot.id(),
             "robot retired: nothing from it for service.forget_after_s"
         );
     }
-    declarations.undeclare(&fleet.outputs);
+    declarations.undeclare(fleet.outlet());
     give_back_freed_memory();
     info!(
         robots = count,
@@ -108,21 +99,22 @@ struct Declarations {
 impl Declarations {
     /// Finishes `state`'s twin, if it has one (its final metrics and unpaired measurements go
     /// out), and takes its publishers and token; whether it had a twin.
-    fn finish(&mut self, outputs: &Outputs, id: &Arc<str>, state: &mut RobotState) -> bool {
-        let finished = state.twin.as_mut().map(|twin| {
-            twin.finish(&mut ZenohSink::of(outputs, &mut state.outputs));
-        });
-        if let Some(publishers) = state.outputs.declared.take() {
+    fn finish(&mut self, fleet: &Fleet, id: &Arc<str>, state: &mut CellState) -> bool {
+        let finished = fleet
+            .twin_and_sink(state)
+            .map(|(twin, mut sink)| twin.finish(&mut sink));
+        let (publishers, token) = state.outputs_mut().take_declared();
+        if let Some(publishers) = publishers {
             self.publishers.push((Arc::clone(id), publishers));
         }
-        if let Some(token) = state.outputs.token.take() {
+        if let Some(token) = token {
             self.tokens.push((Arc::clone(id), token));
         }
         finished.is_some()
     }
 
-    fn undeclare(self, outputs: &Outputs) {
-        outputs.undeclare_all(self.publishers, self.tokens);
+    fn undeclare(self, outlet: &Outlet) {
+        outlet.undeclare_all(self.publishers, self.tokens);
     }
 }
 
@@ -141,16 +133,6 @@ pub(super) struct Periods {
 /// most a quarter late), between 0.1 s and a minute.
 fn sweep_period(forget_after: Duration) -> Duration {
     (forget_after / 4).clamp(Duration::from_millis(100), Duration::from_secs(60))
-}
-
-/// What the control thread is asked to do.
-pub(super) enum Control {
-    /// Declare a newly tracked robot's liveliness token.
-    Track(Robot),
-    /// Declare the publishers and input keys that cache a streaming robot's routes.
-    CacheRoutes(Robot),
-    /// Finish the pipeline, undeclare everything and stop.
-    Stop,
 }
 
 /// When the control thread's periodic duties fall due. Pure: the thread passes the time in.
@@ -257,7 +239,7 @@ fn give_to_live_cell<T>(
     fleet: &Fleet,
     robot: &Robot,
     entity: T,
-    install: impl FnOnce(&mut super::fleet::RobotState, T),
+    install: impl FnOnce(&mut CellState, T),
 ) -> Option<T> {
     let Some(cell) = fleet.live_cell(robot) else {
         return Some(entity);
@@ -273,15 +255,15 @@ fn give_to_live_cell<T>(
 /// Declares `robot`'s publishers and input keys and gives them to its cell; whether it has them
 /// now (not when the declaration failed or the robot was retired meanwhile).
 fn declare_route_caches(fleet: &Fleet, robot: &Robot) -> bool {
-    let outputs = &fleet.outputs;
-    match outputs.declare(robot.id()) {
+    let outlet = fleet.outlet();
+    match outlet.declare(robot.id()) {
         Ok(publishers) => {
             let refused = give_to_live_cell(fleet, robot, publishers, |state, publishers| {
-                state.outputs.declared = Some(publishers);
+                state.outputs_mut().set_publishers(publishers);
             });
             let installed = refused.is_none();
             if let Some(publishers) = refused {
-                outputs.undeclare_all(
+                outlet.undeclare_all(
                     vec![(Arc::clone(robot.shared_id()), publishers)],
                     Vec::new(),
                 );
@@ -298,12 +280,10 @@ fn declare_route_caches(fleet: &Fleet, robot: &Robot) -> bool {
 /// Declares `robot`'s metrics publisher and gives it to its publishers. A robot retired
 /// meanwhile drops it, which undeclares it.
 fn declare_metrics_publisher(fleet: &Fleet, robot: &Robot) {
-    match fleet.outputs.declare_metrics(robot.id()) {
+    match fleet.outlet().declare_metrics(robot.id()) {
         Ok(publisher) => {
             let _dropped = give_to_live_cell(fleet, robot, publisher, |state, publisher| {
-                if let Some(declared) = state.outputs.declared.as_mut() {
-                    declared.metrics = Some(Arc::new(publisher));
-                }
+                state.outputs_mut().set_metrics_publisher(publisher);
             });
         }
         Err(e) => {
@@ -312,141 +292,139 @@ fn declare_metrics_publisher(fleet: &Fleet, robot: &Robot) {
     }
 }
 
-impl Control {
-    /// Starts the thread that declares robots' Zenoh entities (never on Zenoh's own threads),
-    /// publishes the periodic metrics, and finishes the pipeline at the end.
-    pub(super) fn thread(
-        fleet: Arc<Fleet>,
-        rx: Receiver<Self>,
-        periods: Periods,
-        snapshots: Option<(SnapshotStore, Duration)>,
-    ) -> Result<std::thread::JoinHandle<ServeReport>, ServiceError> {
-        let (jobs_tx, jobs_rx) = channel::<FitJob>();
-        let fitting = fitting_thread(Arc::clone(&fleet), jobs_rx, periods.self_calibration)?;
-        std::thread::Builder::new()
-            .name("armtwin-control".to_owned())
-            .spawn(move || {
-                let schedule = Schedule::new(
-                    Instant::now(),
-                    periods.metrics,
-                    periods.self_calibration.refit_period,
-                    (
-                        snapshots.as_ref().map(|(_, period)| *period),
-                        periods.forget_after.map(sweep_period),
-                    ),
-                );
-                let store = snapshots.as_ref().map(|(store, _)| store);
-                let duties = Duties {
-                    jobs: &jobs_tx,
-                    store,
-                    forget_after: periods.forget_after,
-                };
-                let report = Self::run(&fleet, &rx, schedule, &duties);
-                // Closing the queue ends the fitting thread after its current fit.
-                drop(jobs_tx);
-                if fitting.join().is_err() {
-                    warn!("the self-calibration thread panicked");
-                }
-                report
-            })
-            .map_err(|e| ServiceError::Worker(e.to_string()))
-    }
-
-    fn run(
-        fleet: &Fleet,
-        rx: &Receiver<Self>,
-        mut schedule: Schedule,
-        duties: &Duties<'_>,
-    ) -> ServeReport {
-        let outputs = &fleet.outputs;
-        // Streaming robots whose route caches are asked for and not yet declared.
-        let mut undeclared = VecDeque::new();
-        // Streaming robots with route caches and no metrics publisher yet.
-        let mut metrics_undeclared = VecDeque::new();
-        loop {
-            // Every new robot's token before any robot's publishers, and every streaming robot's
-            // publishers of its per-sample outputs before any robot's metrics publisher: each
-            // Zenoh declaration costs in proportion to the keys beside it, and a fleet is
-            // tracked once its tokens are.
-            let wait = schedule.wait(
+/// Starts the control thread: it declares robots' Zenoh entities as `requests` ask (never on
+/// Zenoh's own threads), runs the periodic duties, and finishes the pipeline at the end.
+pub(super) fn spawn(
+    fleet: Arc<Fleet>,
+    requests: Receiver<Request>,
+    periods: Periods,
+    snapshots: Option<(SnapshotStore, Duration)>,
+) -> Result<std::thread::JoinHandle<ServeReport>, ServiceError> {
+    let (jobs_tx, jobs_rx) = channel::<FitJob>();
+    let fitting = fitting_thread(Arc::clone(&fleet), jobs_rx, periods.self_calibration)?;
+    std::thread::Builder::new()
+        .name("armtwin-control".to_owned())
+        .spawn(move || {
+            let schedule = Schedule::new(
                 Instant::now(),
-                !undeclared.is_empty() || !metrics_undeclared.is_empty(),
+                periods.metrics,
+                periods.self_calibration.refit_period,
+                (
+                    snapshots.as_ref().map(|(_, period)| *period),
+                    periods.forget_after.map(sweep_period),
+                ),
             );
-            // Declared without the lock: samples keep flowing meanwhile (their outputs go out
-            // with an undeclared key until the publishers exist).
-            match rx.recv_timeout(wait) {
-                Ok(Self::Stop) | Err(RecvTimeoutError::Disconnected) => break,
-                Ok(Self::Track(robot)) => match outputs.declare_token(robot.id()) {
-                    Ok(token) => {
-                        info!(robot = robot.id(), "tracking robot");
-                        // A robot retired meanwhile: its token goes at once.
-                        if let Some(token) =
-                            give_to_live_cell(fleet, &robot, token, |state, token| {
-                                state.outputs.token = Some(token);
-                            })
-                        {
-                            outputs.undeclare_all(
-                                Vec::new(),
-                                vec![(Arc::clone(robot.shared_id()), token)],
-                            );
-                        }
-                    }
-                    Err(e) => {
-                        warn!(robot = robot.id(), error = %e, "cannot declare the robot's liveliness token");
-                    }
-                },
-                Ok(Self::CacheRoutes(robot)) => undeclared.push_back(robot),
-                Err(RecvTimeoutError::Timeout) => {
-                    if let Some(robot) = undeclared.pop_front() {
-                        if declare_route_caches(fleet, &robot) {
-                            metrics_undeclared.push_back(robot);
-                        }
-                        if undeclared.is_empty() {
-                            debug!("every streaming robot's publishers are declared");
-                        }
-                    } else if let Some(robot) = metrics_undeclared.pop_front() {
-                        declare_metrics_publisher(fleet, &robot);
+            let store = snapshots.as_ref().map(|(store, _)| store);
+            let duties = Duties {
+                jobs: &jobs_tx,
+                store,
+                forget_after: periods.forget_after,
+            };
+            let report = run(&fleet, &requests, schedule, &duties);
+            // Closing the queue ends the fitting thread after its current fit.
+            drop(jobs_tx);
+            if fitting.join().is_err() {
+                warn!("the self-calibration thread panicked");
+            }
+            report
+        })
+        .map_err(|e| ServiceError::Worker(e.to_string()))
+}
+
+/// The control thread's loop: requests as they come, duties as they fall due, until asked to
+/// stop; then every twin finished and everything undeclared.
+fn run(
+    fleet: &Fleet,
+    requests: &Receiver<Request>,
+    mut schedule: Schedule,
+    duties: &Duties<'_>,
+) -> ServeReport {
+    let outlet = fleet.outlet();
+    // Streaming robots whose route caches are asked for and not yet declared.
+    let mut undeclared = VecDeque::new();
+    // Streaming robots with route caches and no metrics publisher yet.
+    let mut metrics_undeclared = VecDeque::new();
+    loop {
+        // Every new robot's token before any robot's publishers, and every streaming robot's
+        // publishers of its per-sample outputs before any robot's metrics publisher: each
+        // Zenoh declaration costs in proportion to the keys beside it, and a fleet is
+        // tracked once its tokens are.
+        let wait = schedule.wait(
+            Instant::now(),
+            !undeclared.is_empty() || !metrics_undeclared.is_empty(),
+        );
+        // Declared without the lock: samples keep flowing meanwhile (their outputs go out
+        // with an undeclared key until the publishers exist).
+        match requests.recv_timeout(wait) {
+            Ok(Request::Stop) | Err(RecvTimeoutError::Disconnected) => break,
+            Ok(Request::Track(robot)) => match outlet.declare_token(robot.id()) {
+                Ok(token) => {
+                    info!(robot = robot.id(), "tracking robot");
+                    // A robot retired meanwhile: its token goes at once.
+                    if let Some(token) = give_to_live_cell(fleet, &robot, token, |state, token| {
+                        state.outputs_mut().set_token(token);
+                    }) {
+                        outlet.undeclare_all(
+                            Vec::new(),
+                            vec![(Arc::clone(robot.shared_id()), token)],
+                        );
                     }
                 }
-            }
-            fleet.tick();
-            let due = schedule.take_due(Instant::now());
-            if due.metrics {
-                publish_due_metrics(fleet);
-            }
-            if due.refit {
-                schedule_fits(fleet, duties.jobs);
-            }
-            if let (true, Some(forget_after)) = (due.sweep, duties.forget_after) {
-                retire_idle(fleet, forget_after);
-            }
-            if let (true, Some(store)) = (due.snapshot, duties.store) {
-                // A failure is counted and logged there; the next period tries again.
-                let _written = save_snapshot(fleet, store);
+                Err(e) => {
+                    warn!(robot = robot.id(), error = %e, "cannot declare the robot's liveliness token");
+                }
+            },
+            Ok(Request::CacheRoutes(robot)) => undeclared.push_back(robot),
+            Err(RecvTimeoutError::Timeout) => {
+                if let Some(robot) = undeclared.pop_front() {
+                    if declare_route_caches(fleet, &robot) {
+                        metrics_undeclared.push_back(robot);
+                    }
+                    if undeclared.is_empty() {
+                        debug!("every streaming robot's publishers are declared");
+                    }
+                } else if let Some(robot) = metrics_undeclared.pop_front() {
+                    declare_metrics_publisher(fleet, &robot);
+                }
             }
         }
-        // Set before any twin is finished: an input that takes a robot's lock after the control
-        // thread finished that robot's twin sees it and is ignored.
-        fleet.stop();
-        let mut robots = 0;
-        let mut declarations = Declarations::default();
-        let counted = fleet.walk(|cell, guard| {
-            if declarations.finish(outputs, cell.robot.shared_id(), guard) {
-                robots += 1;
-            }
-        });
-        let report = ServeReport {
-            inputs: counted.inputs,
-            poses: counted.poses,
-            robots,
-            publish_errors: outputs.publish_errors.load(Ordering::Relaxed),
-        };
-        if let Some(store) = duties.store {
-            save_final_snapshot(fleet, store);
+        fleet.tick();
+        let due = schedule.take_due(Instant::now());
+        if due.metrics {
+            publish_due_metrics(fleet);
         }
-        declarations.undeclare(outputs);
-        report
+        if due.refit {
+            schedule_fits(fleet, duties.jobs);
+        }
+        if let (true, Some(forget_after)) = (due.sweep, duties.forget_after) {
+            retire_idle(fleet, forget_after);
+        }
+        if let (true, Some(store)) = (due.snapshot, duties.store) {
+            // A failure is counted and logged there; the next period tries again.
+            let _written = save_snapshot(fleet, store);
+        }
     }
+    // Set before any twin is finished: an input that takes a robot's lock after the control
+    // thread finished that robot's twin sees it and is ignored.
+    fleet.stop();
+    let mut robots = 0;
+    let mut declarations = Declarations::default();
+    let counted = fleet.walk(|cell, guard| {
+        if declarations.finish(fleet, cell.robot().shared_id(), guard) {
+            robots += 1;
+        }
+    });
+    let report = ServeReport {
+        inputs: counted.inputs,
+        poses: counted.poses,
+        robots,
+        publish_errors: outlet.publish_errors(),
+    };
+    if let Some(store) = duties.store {
+        save_final_snapshot(fleet, store);
+    }
+    declarations.undeclare(outlet);
+    report
 }
 
 #[cfg(test)]

@@ -12,9 +12,9 @@ use std::time::{Duration, Instant};
 
 use zenoh::key_expr::KeyExpr;
 
-use super::publish::Outputs;
-use super::self_calibration::CalibrationSlot;
-use super::sink::{RobotOutputState, ZenohSink};
+use super::calibration_slot::CalibrationSlot;
+use super::publish::Outlet;
+use super::sink::{RobotOutputState, Sinks, ZenohSink};
 use crate::config::ServiceConfig;
 use crate::model::RobotModel;
 use crate::pipeline::{PipelineConfig, Robot, RobotDirectory, Sink, Twin, Untracked};
@@ -58,10 +58,10 @@ use crate::ros2::PublisherSeq;
 pub(super) struct Fleet {
     /// `[service] robots`.
     shard: KeyExpr<'static>,
-    pub(super) pipeline: PipelineConfig,
+    pipeline: PipelineConfig,
     directory: RwLock<Directory>,
-    /// What every robot's outputs share.
-    pub(super) outputs: Outputs,
+    /// What every robot's sink shares.
+    sinks: Sinks,
     /// Inputs that reached no robot's twin (queries, samples of robots refused) and those of
     /// robots since retired: with the robots' own counts, every input processed.
     inputs_elsewhere: AtomicU64,
@@ -73,14 +73,14 @@ pub(super) struct Fleet {
     /// When the snapshot was last written (with `state_dir`). A leaf lock.
     snapshot_written: Mutex<Option<Instant>>,
     /// Samples of new robots refused because the fleet was full.
-    pub(super) refused_full: AtomicU64,
+    refused_full: AtomicU64,
     /// Robots retired for sending nothing for `forget_after`.
-    pub(super) retired: AtomicU64,
+    retired: AtomicU64,
     /// Snapshot writes that failed.
-    pub(super) snapshot_failures: AtomicU64,
+    snapshot_failures: AtomicU64,
     /// Snapshot writes failed since the last one that succeeded: the first is logged as a
     /// warning, the recovery as news, those between only counted.
-    pub(super) snapshot_failing: AtomicU64,
+    snapshot_failing: AtomicU64,
     /// When a refusal for a full fleet was last logged (ms on [`Fleet::clock_ms`]), so a flood of
     /// new ids logs once a minute, not once a sample.
     full_logged_ms: AtomicU64,
@@ -116,9 +116,9 @@ impl Directory {
         Arc::clone(self.cells[index].get_or_insert_with(|| {
             Arc::new(RobotCell {
                 robot: robot.clone(),
-                state: Mutex::new(RobotState {
+                state: Mutex::new(CellState {
                     last_input_ms: now_ms,
-                    ..RobotState::default()
+                    ..CellState::default()
                 }),
             })
         }))
@@ -146,21 +146,22 @@ pub(super) enum Lookup {
 /// One robot's place in the fleet: its handle, readable without a lock, beside the lock of
 /// everything of it that changes.
 pub(super) struct RobotCell {
-    pub(super) robot: Robot,
-    state: Mutex<RobotState>,
+    robot: Robot,
+    state: Mutex<CellState>,
 }
 
-/// A robot's twin, its outputs' state and its self-calibration; behind its [`RobotCell`]'s lock.
+/// What a robot's cell holds under its lock: the robot's twin, its outputs' state and its
+/// self-calibration.
 #[derive(Default)]
-pub(super) struct RobotState {
+pub(super) struct CellState {
     /// `None` until the robot's first input; its creation announces the robot
     /// ([`Sink::tracking`]).
-    pub(super) twin: Option<Twin>,
-    pub(super) outputs: RobotOutputState,
-    pub(super) calibration: CalibrationSlot,
+    twin: Option<Twin>,
+    outputs: RobotOutputState,
+    calibration: CalibrationSlot,
     /// By `[[sources]]` index: how a ROS source's `rmw_zenoh` sequence numbers become gateway
     /// `seq`s (a robot has one or two sources at most: a short list beats a map).
-    pub(super) publisher_seqs: Vec<(usize, PublisherSeq)>,
+    publisher_seqs: Vec<(usize, PublisherSeq)>,
     /// Inputs stepped into the twin.
     inputs: u64,
     /// The robot's last input, on the fleet's clock ([`Fleet::clock_ms`]).
@@ -192,18 +193,18 @@ fn assert_no_cell_held(taking: &str) {
 
 /// A robot's state, locked: the only way to it.
 pub(super) struct CellGuard<'a> {
-    guard: MutexGuard<'a, RobotState>,
+    guard: MutexGuard<'a, CellState>,
 }
 
 impl std::ops::Deref for CellGuard<'_> {
-    type Target = RobotState;
-    fn deref(&self) -> &RobotState {
+    type Target = CellState;
+    fn deref(&self) -> &CellState {
         &self.guard
     }
 }
 
 impl std::ops::DerefMut for CellGuard<'_> {
-    fn deref_mut(&mut self) -> &mut RobotState {
+    fn deref_mut(&mut self) -> &mut CellState {
         &mut self.guard
     }
 }
@@ -216,6 +217,11 @@ impl Drop for CellGuard<'_> {
 }
 
 impl RobotCell {
+    /// The robot this cell is of.
+    pub(super) fn robot(&self) -> &Robot {
+        &self.robot
+    }
+
     /// The robot's state, locked.
     pub(super) fn lock(&self) -> CellGuard<'_> {
         assert_no_cell_held("a robot's cell");
@@ -234,21 +240,51 @@ pub(super) struct Stepping<'a> {
     pub(super) publisher_seqs: &'a mut Vec<(usize, PublisherSeq)>,
 }
 
-impl RobotState {
+impl CellState {
     /// Whether the robot was retired: this state is no longer the fleet's.
     pub(super) fn is_retired(&self) -> bool {
         self.retired
     }
 
+    /// The robot's twin, from its first input on.
+    pub(super) fn twin(&self) -> Option<&Twin> {
+        self.twin.as_ref()
+    }
+
+    /// The same, to change.
+    pub(super) fn twin_mut(&mut self) -> Option<&mut Twin> {
+        self.twin.as_mut()
+    }
+
+    /// The robot's output state: its publishers, token and counts.
+    pub(super) fn outputs(&self) -> &RobotOutputState {
+        &self.outputs
+    }
+
+    /// The same, to change.
+    pub(super) fn outputs_mut(&mut self) -> &mut RobotOutputState {
+        &mut self.outputs
+    }
+
+    /// The robot's self-calibration fits.
+    pub(super) fn calibration(&self) -> &CalibrationSlot {
+        &self.calibration
+    }
+
+    /// The same, to change.
+    pub(super) fn calibration_mut(&mut self) -> &mut CalibrationSlot {
+        &mut self.calibration
+    }
+
     /// The robot's twin (created, and the robot announced, on its first input) and a sink of its
-    /// outputs: the twin and the sink borrow separate parts of the entry.
+    /// outputs: the twin and the sink borrow separate parts of the state.
     fn stepping<'a>(
         &'a mut self,
         robot: &Robot,
         config: &PipelineConfig,
-        outputs: &'a Outputs,
+        sinks: &'a Sinks,
     ) -> Stepping<'a> {
-        let mut sink = ZenohSink::of(outputs, &mut self.outputs);
+        let mut sink = sinks.of(&mut self.outputs);
         let twin = self.twin.get_or_insert_with(|| {
             sink.tracking(robot);
             Twin::new(robot.clone(), config)
@@ -265,7 +301,7 @@ impl RobotState {
 /// any lock.
 pub(super) struct Retired {
     pub(super) robot: Robot,
-    pub(super) state: RobotState,
+    pub(super) state: CellState,
 }
 
 /// Robots retired under one hold of the shared write locks: a bound on how long samples of
@@ -273,8 +309,8 @@ pub(super) struct Retired {
 const RETIRE_BATCH: usize = 1024;
 
 impl Fleet {
-    /// No robot tracked yet; outputs go out through `outputs`.
-    pub(super) fn new(config: &ServiceConfig, outputs: Outputs) -> Self {
+    /// No robot tracked yet; outputs go out through `sinks`.
+    pub(super) fn new(config: &ServiceConfig, sinks: Sinks) -> Self {
         Self {
             shard: config.shard.clone(),
             pipeline: config.pipeline,
@@ -283,7 +319,7 @@ impl Fleet {
                     .limit_to(config.max_robots),
                 cells: Vec::new(),
             }),
-            outputs,
+            sinks,
             inputs_elsewhere: AtomicU64::new(0),
             retired_poses: AtomicU64::new(0),
             stopped: AtomicBool::new(false),
@@ -296,6 +332,38 @@ impl Fleet {
             clock_ms: AtomicU64::new(0),
             started: Instant::now(),
         }
+    }
+
+    /// The outlet every robot's outputs go out through.
+    pub(super) fn outlet(&self) -> &Outlet {
+        self.sinks.outlet()
+    }
+
+    /// `state`'s twin, if it has one, with a sink of its outputs: for a call into the twin off
+    /// the sample path (a reset, a model replaced, the final metrics).
+    pub(super) fn twin_and_sink<'a>(
+        &'a self,
+        state: &'a mut CellState,
+    ) -> Option<(&'a mut Twin, ZenohSink<'a>)> {
+        let twin = state.twin.as_mut()?;
+        Some((twin, self.sinks.of(&mut state.outputs)))
+    }
+
+    /// Gives `state`, `robot`'s locked, the restored `twin`, announcing the robot as its first
+    /// input would ([`Sink::tracking`]), unless the robot has a twin already; whether it did.
+    #[must_use = "a twin not installed is dropped"]
+    pub(super) fn install_twin(&self, robot: &Robot, state: &mut CellState, twin: Twin) -> bool {
+        if state.twin.is_some() {
+            return false;
+        }
+        self.sinks.of(&mut state.outputs).tracking(robot);
+        state.twin = Some(twin);
+        true
+    }
+
+    /// A sink for the rejection of an input of a robot that may not be tracked.
+    pub(super) fn untracked_sink(&self) -> ZenohSink<'_> {
+        self.sinks.untracked()
     }
 
     /// Advances the fleet's coarse clock to now (the control thread, at each turn).
@@ -322,6 +390,16 @@ impl Fleet {
         self.full_logged_ms
             .compare_exchange(last_ms, now_ms, Ordering::Relaxed, Ordering::Relaxed)
             .is_ok()
+    }
+
+    /// Samples of new robots refused because the fleet was full, so far.
+    pub(super) fn robots_refused(&self) -> u64 {
+        self.refused_full.load(Ordering::Relaxed)
+    }
+
+    /// Robots retired for sending nothing for `forget_after`, so far.
+    pub(super) fn robots_retired(&self) -> u64 {
+        self.retired.load(Ordering::Relaxed)
     }
 
     /// Robots in the directory (configured and admitted) and the most it holds.
@@ -441,7 +519,7 @@ impl Fleet {
     pub(super) fn retire_idle(&self, idle: Duration) -> Vec<Retired> {
         let idle_ms = u64::try_from(idle.as_millis()).unwrap_or(u64::MAX);
         let now_ms = self.clock_ms();
-        let is_idle = |state: &RobotState| now_ms.saturating_sub(state.last_input_ms) >= idle_ms;
+        let is_idle = |state: &CellState| now_ms.saturating_sub(state.last_input_ms) >= idle_ms;
         // Found without the write lock (each cell's lock taken alone), checked again under it.
         let mut candidates = self.cells();
         {
@@ -465,11 +543,11 @@ impl Fleet {
                 // the cell for a walk that took the cells before ([`Fleet::walk`]).
                 guard.retired = true;
                 guard.inputs = state.inputs;
-                guard.outputs.counts.poses = state.outputs.counts.poses;
+                guard.outputs.counts_mut().poses = state.outputs.counts().poses;
                 self.inputs_elsewhere
                     .fetch_add(state.inputs, Ordering::Relaxed);
                 self.retired_poses
-                    .fetch_add(state.outputs.counts.poses, Ordering::Relaxed);
+                    .fetch_add(state.outputs.counts().poses, Ordering::Relaxed);
                 retired.push(Retired {
                     robot: cell.robot.clone(),
                     state,
@@ -536,7 +614,7 @@ impl Fleet {
                 visit(cell, &mut guard);
             }
             totals.inputs += guard.inputs;
-            totals.poses += guard.outputs.counts.poses;
+            totals.poses += guard.outputs.counts().poses;
         }
         totals
     }
@@ -572,7 +650,7 @@ impl Fleet {
         }
         guard.inputs += 1;
         guard.last_input_ms = self.clock_ms();
-        input(guard.stepping(&cell.robot, &self.pipeline, &self.outputs));
+        input(guard.stepping(&cell.robot, &self.pipeline, &self.sinks));
         true
     }
 
@@ -586,12 +664,24 @@ impl Fleet {
         true
     }
 
-    /// Notes that the snapshot was written now.
-    pub(super) fn snapshot_written(&self) {
+    /// Notes that the snapshot was written now; the writes that had failed in a row before it.
+    pub(super) fn snapshot_saved(&self) -> u64 {
         *self
             .snapshot_written
             .lock()
             .unwrap_or_else(PoisonError::into_inner) = Some(Instant::now());
+        self.snapshot_failing.swap(0, Ordering::Relaxed)
+    }
+
+    /// Counts a snapshot write that failed; whether it is the first since one succeeded.
+    pub(super) fn snapshot_failed(&self) -> bool {
+        self.snapshot_failures.fetch_add(1, Ordering::Relaxed);
+        self.snapshot_failing.fetch_add(1, Ordering::Relaxed) == 0
+    }
+
+    /// Snapshot writes that failed, so far.
+    pub(super) fn snapshot_failures(&self) -> u64 {
+        self.snapshot_failures.load(Ordering::Relaxed)
     }
 
     /// Seconds since the snapshot was last written, once it has been.
@@ -612,12 +702,13 @@ mod tests {
 
     use std::path::Path;
     use std::sync::Arc;
-    use std::sync::mpsc::channel;
 
+    use super::super::publish::Outlet;
+    use super::super::requests;
+    use super::super::sink::Sinks;
     use super::{Fleet, Lookup};
     use crate::config::{Overrides, ServiceConfig};
     use crate::pipeline::Untracked;
-    use crate::service::publish::Outputs;
 
     /// A fleet on a session that joins nothing: it listens nowhere, scouts nothing and connects
     /// to nobody, so its puts go nowhere.
@@ -633,8 +724,12 @@ mod tests {
             zenoh.insert_json5(key, value).expect("zenoh key");
         }
         let session = zenoh::open(zenoh).await.expect("session");
-        let (control, _) = channel();
-        Arc::new(Fleet::new(&config, Outputs::new(session, &config, control)))
+        let (requests, _) = requests::queue();
+        let outlet = Outlet::new(session, &config);
+        Arc::new(Fleet::new(
+            &config,
+            Sinks::new(outlet, requests, config.event_budget),
+        ))
     }
 
     const SHARDED: &str = r#"

@@ -4,18 +4,16 @@
 //! Must not block in a callback beyond the robot's own lock and its outputs' `put`.
 
 use std::sync::Arc;
-use std::sync::atomic::Ordering;
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use tracing::{debug, info, warn};
 use zenoh::sample::Sample;
 use zenoh::session::Session;
 
-use super::ServiceError;
+use super::error::ServiceError;
 use super::fleet::{Fleet, Lookup, RobotCell, Stepping};
 use super::queries::Queries;
 use super::shard::claim_shard;
-use super::sink::ZenohSink;
 use crate::codec::decoded::{self, Arrival, Decoded, Decoder};
 use crate::codec::gateway::{self, Codec, SourceCodec};
 use crate::codec::{cdr, zser};
@@ -59,9 +57,9 @@ fn service_totals(fleet: &Arc<Fleet>) -> impl Fn() -> serde_json::Value + Send +
         serde_json::json!({
             "robots": robots,
             "max_robots": max_robots,
-            "robots_refused": fleet.refused_full.load(Ordering::Relaxed),
-            "robots_retired": fleet.retired.load(Ordering::Relaxed),
-            "snapshot_failures": fleet.snapshot_failures.load(Ordering::Relaxed),
+            "robots_refused": fleet.robots_refused(),
+            "robots_retired": fleet.robots_retired(),
+            "snapshot_failures": fleet.snapshot_failures(),
         })
     }
 }
@@ -112,10 +110,7 @@ pub(super) async fn declare_intake(
         }
     }
     declare_sources(session, config, &router, &mut subscribers).await?;
-    let queries = Arc::new(Queries {
-        fleet: Arc::clone(fleet),
-        keys: keys.clone(),
-    });
+    let queries = Arc::new(Queries::new(Arc::clone(fleet), keys.clone()));
     for (stream, handler) in Queries::HANDLERS {
         let queries = Arc::clone(&queries);
         queryables.push(
@@ -170,7 +165,7 @@ struct SourceIntake {
 
 impl SourceIntake {
     /// The gateway `seq` of a joint sample of `robot` with `attachment`; `by_source` is the
-    /// robot's [`RobotState::publisher_seqs`], so only the robot's own lock is held.
+    /// robot's [`Stepping::publisher_seqs`], so only the robot's own lock is held.
     fn gateway_seq(
         &self,
         robot: &Robot,
@@ -274,13 +269,13 @@ impl Router {
                             warn!(
                                 robot = id,
                                 max_robots,
-                                refused = self.fleet.refused_full.load(Ordering::Relaxed),
+                                refused = self.fleet.robots_refused(),
                                 "the fleet is full (service.max_robots): samples of new robots are \
                                  refused (logged at most once a minute; counted in \
                                  armtwin_robots_refused_total)"
                             );
                         }
-                        let mut sink = ZenohSink::untracked(&self.fleet.outputs);
+                        let mut sink = self.fleet.untracked_sink();
                         gateway::untracked_robot(
                             id,
                             why,
@@ -311,7 +306,7 @@ impl Router {
     where
         T: FnOnce(&mut Stepping<'_>, &mut Decoded<D::Message, D::Error>),
     {
-        let mut message = Decoded::decode(decoder, &cell.robot, payload, fallback_s);
+        let mut message = Decoded::decode(decoder, cell.robot(), payload, fallback_s);
         let mut transport = Some(transport);
         let stepped = self.fleet.step(cell, |mut locked| {
             if let Some(transport) = transport.take() {

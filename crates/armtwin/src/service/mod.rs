@@ -7,8 +7,9 @@
 //! resolves its robot and decodes against the robot's immutable settings first, then steps that
 //! robot's twin under the robot's own lock, so robots arriving on different links never wait on
 //! each other (see [`fleet::Fleet`]); a control thread declares newly tracked robots' liveliness
-//! tokens (and, once a robot streams, the publishers that cache its routes), publishes the periodic metrics (and the snapshot, with `[service] state_dir`) and finishes
-//! every twin at shutdown, each robot locked in turn.
+//! tokens (and, once a robot streams, the publishers that cache its routes), publishes the
+//! periodic metrics (and writes the snapshot, with `[service] state_dir`) and finishes every twin
+//! at shutdown, each robot locked in turn.
 //!
 //! An instance owns the robots of `[service] robots`: its wildcard subscriptions and queryables
 //! cover those ids alone, and it claims them on the mesh (`<prefix>/shards/<zid>`) before taking
@@ -22,14 +23,22 @@
 //! `wait_before_drop`, and the twin goes on; `block` waits). Metrics, events and query replies
 //! always block: they are few and must arrive; a subscriber that stops reading them is
 //! disconnected after Zenoh's `wait_before_close`. Every output carries its encoding.
+//!
+//! Its files depend one way (`module_graph.rs` holds the order): `error`; the leaves (`events`,
+//! `memory`, `requests`, `calibration_slot`, `shard`, and `publish`, the Zenoh I/O); `sink`;
+//! `fleet`; the duties over the fleet (`queries`, `self_calibration`, `snapshot`, `view`); what
+//! runs them (`intake`, Zenoh's callbacks, and `control`, the control thread); and this file.
 
+mod calibration_slot;
 mod control;
+mod error;
 mod events;
 mod fleet;
 mod intake;
 mod memory;
 mod publish;
 mod queries;
+mod requests;
 mod self_calibration;
 mod shard;
 mod sink;
@@ -38,78 +47,22 @@ mod view;
 
 use std::future::Future;
 use std::sync::Arc;
-use std::sync::mpsc::channel;
 
-use thiserror::Error;
 use tracing::{info, warn};
 
-use self::control::{Control, Periods};
+use self::control::Periods;
+pub use self::control::ServeReport;
+pub use self::error::ServiceError;
 use self::fleet::Fleet;
 use self::intake::declare_intake;
-use self::publish::Outputs;
+use self::publish::Outlet;
+use self::sink::Sinks;
 use self::snapshot::restore_snapshot;
 use crate::config::ServiceConfig;
 use crate::dashboard;
 use crate::keys::Stream;
-use crate::mesh::{MeshError, TEARDOWN_STEP, aggregate_publishers, bounded, zenoh_config_of};
+use crate::mesh::{TEARDOWN_STEP, aggregate_publishers, bounded, zenoh_config_of};
 use crate::snapshot::SnapshotStore;
-
-/// Why the service stopped with an error.
-#[derive(Debug, Error)]
-pub enum ServiceError {
-    /// The Zenoh configuration is invalid.
-    #[error("zenoh configuration: {0}")]
-    ZenohConfig(String),
-    /// Zenoh failed (opening the session, declaring, …).
-    #[error("zenoh: {0}")]
-    Zenoh(#[from] zenoh::Error),
-    /// The control thread failed.
-    #[error("control thread: {0}")]
-    Worker(String),
-    /// Another instance on the mesh already owns some of this instance's robots.
-    #[error(
-        "service.robots '{own}' overlaps '{other}', owned by the armtwin instance {zid}: a robot \
-         must belong to one instance (give each a disjoint key expression)"
-    )]
-    ShardOverlap {
-        /// This instance's `[service] robots`.
-        own: String,
-        /// The other instance's.
-        other: String,
-        /// The other instance's Zenoh id.
-        zid: String,
-    },
-    /// The dashboard's address cannot be listened on.
-    #[error("http: cannot listen on {address}")]
-    HttpListen {
-        /// The `[http] listen` address.
-        address: std::net::SocketAddr,
-        /// Why.
-        source: std::io::Error,
-    },
-}
-
-/// Totals reported when the service stops.
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
-pub struct ServeReport {
-    /// Inputs (samples and queries) processed.
-    pub inputs: u64,
-    /// Twin poses published.
-    pub poses: u64,
-    /// Robots tracked.
-    pub robots: usize,
-    /// Outputs Zenoh refused to send.
-    pub publish_errors: u64,
-}
-
-impl From<MeshError> for ServiceError {
-    fn from(error: MeshError) -> Self {
-        match error {
-            MeshError::Config(message) => Self::ZenohConfig(message),
-            MeshError::Zenoh(error) => Self::Zenoh(error),
-        }
-    }
-}
 
 /// Runs the service until `shutdown` completes, then tears down in order: stop intake, finish
 /// every twin (final metrics for every robot), undeclare, close the session.
@@ -139,18 +92,19 @@ pub async fn serve(
         prefix = keys.prefix(),
         "armtwin serving"
     );
-    let (control_tx, control_rx) = channel::<Control>();
-    let outputs = Outputs::new(session.clone(), &config, control_tx.clone());
-    let fleet = Arc::new(Fleet::new(&config, outputs));
+    let (requests, received) = requests::queue();
+    let outlet = Outlet::new(session.clone(), &config);
+    let sinks = Sinks::new(outlet, requests.clone(), config.event_budget);
+    let fleet = Arc::new(Fleet::new(&config, sinks));
     let snapshots = config.snapshots.as_ref().map(|settings| {
         (
             SnapshotStore::new(&settings.state_dir, keys.prefix()),
             settings.period,
         )
     });
-    let control = Control::thread(
+    let control = control::spawn(
         fleet.clone(),
-        control_rx,
+        received,
         Periods {
             metrics: config.metrics_period,
             self_calibration: config.self_calibration,
@@ -165,7 +119,7 @@ pub async fn serve(
     let intake = match declare_intake(&session, &config, &fleet).await {
         Ok(intake) => intake,
         Err(e) => {
-            let _ = control_tx.send(Control::Stop);
+            requests.stop();
             bounded(
                 "stopping the control thread",
                 TEARDOWN_STEP * 4,
@@ -188,7 +142,7 @@ pub async fn serve(
     info!("shutting down: stopping intake");
     intake.undeclare().await;
     // Samples that arrive after this are ignored: the control thread finishes the pipeline.
-    let _ = control_tx.send(Control::Stop);
+    requests.stop();
     let report = match bounded(
         "finishing the pipeline and undeclaring the robots' outputs",
         TEARDOWN_STEP * 4,

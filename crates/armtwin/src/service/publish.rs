@@ -1,13 +1,13 @@
-//! Publishing a robot's outputs: its keys, encodings and congestion control, the publishers
-//! and input keys that cache a streaming robot's routes, its liveliness token, and their
-//! undeclaration.
+//! The session's publishing side: every robot output's key, encoding and congestion control, every
+//! `put` (the twin pose for ROS tools among them) and the count of those Zenoh refused, the
+//! publishers and input keys that cache a streaming robot's routes, its liveliness token, and
+//! their undeclaration.
 //!
-//! Must not lock a robot's cell: callers publish with the cell they hold, or none.
+//! Zenoh I/O only: must not encode a result, decide what is published, or lock a robot's cell
+//! (callers publish with the cell they hold, or none).
 
+use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::mpsc::Sender;
-use std::sync::{Arc, Mutex};
-use std::time::Instant;
 
 use tracing::warn;
 use zenoh::Wait;
@@ -19,29 +19,26 @@ use zenoh::qos::CongestionControl;
 use zenoh::sample::Locality;
 use zenoh::session::Session;
 
-use super::control::Control;
-use super::events::EventBucket;
 use crate::codec::zser;
-use crate::config::{Congestion, EventBudget, OutputEncoding, ServiceConfig};
+use crate::config::{Congestion, OutputEncoding, ServiceConfig};
 use crate::keys::{KeySpace, Stream};
-use crate::ros2::PoseOutputs;
+use crate::ros2::{self, PoseOutput, PoseOutputs};
 
 /// A streaming robot's publishers of its outputs at the sample rate, and its input keys:
-/// declared so Zenoh caches their routes, once the robot streams at the rate
-/// [`ROUTE_CACHE_POSES`](super::control::ROUTE_CACHE_POSES) sets; then, once every streaming
-/// robot has those, its metrics publisher (one message per metrics period: worth a route cache in
-/// a large fleet, but never ahead of another robot's poses, which would slow a fleet's first
-/// contact: BENCHMARKS.md, "The per-sample path"). Events and calibration go out without a
-/// publisher: every declaration costs in proportion to the keys beside it, on this side and on
-/// every subscriber's.
+/// declared so Zenoh caches their routes, once the robot streams at the rate the sink's route
+/// demand sets; then, once every streaming robot has those, its metrics publisher (one message
+/// per metrics period: worth a route cache in a large fleet, but never ahead of another robot's
+/// poses, which would slow a fleet's first contact: BENCHMARKS.md, "The per-sample path").
+/// Events and calibration go out without a publisher: every declaration costs in proportion to
+/// the keys beside it, on this side and on every subscriber's.
 pub(super) struct RobotPublishers {
     pose: Publisher<'static>,
     deviation: Publisher<'static>,
     /// The twin pose as a ROS 2 `PoseStamped`, if the robot has `ros2_pose`.
-    pub(super) ros2_pose: Option<Publisher<'static>>,
+    ros2_pose: Option<Publisher<'static>>,
     /// Declared after the others (see above); shared so that the metrics period can publish
     /// through it after releasing the robot's lock.
-    pub(super) metrics: Option<Arc<Publisher<'static>>>,
+    metrics: Option<Arc<Publisher<'static>>>,
     inputs: Vec<KeyExpr<'static>>,
 }
 
@@ -55,36 +52,39 @@ impl RobotPublishers {
             _ => None,
         }
     }
+
+    /// The metrics publisher, once declared: shared, to publish through after the robot's lock
+    /// is released.
+    pub(super) fn metrics(&self) -> Option<Arc<Publisher<'static>>> {
+        self.metrics.clone()
+    }
+
+    /// Gives these publishers the metrics publisher, declared after them.
+    pub(super) fn set_metrics(&mut self, publisher: Publisher<'static>) {
+        self.metrics = Some(Arc::new(publisher));
+    }
 }
 
-/// What every robot's outputs share: the session's publishing side, the control thread's queue
-/// and the service's output totals. Per-robot output state lives in each robot's cell
-/// ([`RobotOutputState`]).
-pub(super) struct Outputs {
-    pub(super) session: Session,
+/// The session's publishing side, shared by every robot: keys, encodings and congestion control,
+/// and the count of outputs Zenoh refused. Per-robot publishers live in each robot's cell.
+pub(super) struct Outlet {
+    session: Session,
     keys: KeySpace,
     /// The format of poses and deviations.
-    pub(super) encoding: OutputEncoding,
+    encoding: OutputEncoding,
     /// Of poses and deviations.
-    pub(super) pose_congestion: CongestionControl,
+    pose_congestion: CongestionControl,
     pose_encoding: Encoding,
     deviation_encoding: Encoding,
     /// Which robots publish their twin pose for ROS tools, and where.
-    pub(super) ros2_pose: PoseOutputs,
-    /// Asks the control thread to declare newly tracked robots.
-    pub(super) control: Sender<Control>,
-    pub(super) event_budget: EventBudget,
-    /// Shared by the robots that may not be tracked, so a flood of made-up ids cannot grow the
-    /// buckets. A leaf lock: held for a bucket's arithmetic only, never across a `put`.
-    pub(super) untracked_bucket: Mutex<EventBucket>,
+    ros2_pose: PoseOutputs,
     /// Outputs Zenoh refused to send.
-    pub(super) publish_errors: AtomicU64,
+    publish_errors: AtomicU64,
 }
 
-impl Outputs {
-    /// The outputs of `config`'s robots on `session`; new robots are handed to the control
-    /// thread through `control`.
-    pub(super) fn new(session: Session, config: &ServiceConfig, control: Sender<Control>) -> Self {
+impl Outlet {
+    /// The outputs of `config`'s robots on `session`.
+    pub(super) fn new(session: Session, config: &ServiceConfig) -> Self {
         let (pose_encoding, deviation_encoding) = match config.encoding {
             OutputEncoding::Json => (Encoding::APPLICATION_JSON, Encoding::APPLICATION_JSON),
             OutputEncoding::ZenohSerialized => (
@@ -103,11 +103,29 @@ impl Outputs {
             pose_encoding,
             deviation_encoding,
             ros2_pose: config.ros2_pose.clone(),
-            control,
-            event_budget: config.event_budget,
-            untracked_bucket: Mutex::new(EventBucket::full(config.event_budget, Instant::now())),
             publish_errors: AtomicU64::new(0),
         }
+    }
+
+    /// The format poses and deviations are published in.
+    pub(super) fn encoding(&self) -> OutputEncoding {
+        self.encoding
+    }
+
+    /// Outputs Zenoh refused to send, so far.
+    pub(super) fn publish_errors(&self) -> u64 {
+        self.publish_errors.load(Ordering::Relaxed)
+    }
+
+    /// Where `robot` publishes its twin pose for ROS tools, if it does.
+    pub(super) fn ros2_pose_of(&self, robot: &str) -> Option<&PoseOutput> {
+        self.ros2_pose.of(robot)
+    }
+
+    /// The publisher gid of `robot`'s twin pose for ROS tools, as `rmw_zenoh` attachments carry
+    /// it: the same for the robot from this session, whether declared or not.
+    pub(super) fn ros2_publisher_gid(&self, robot: &str) -> [u8; 16] {
+        ros2::publisher_gid(&self.session.zid().to_le_bytes(), robot)
     }
 
     /// The congestion control and encoding of `stream`: poses and deviations as configured,
@@ -124,7 +142,7 @@ impl Outputs {
     /// Publishes `payload` on `robot`'s `stream`: through its declared publisher, or, until the
     /// control thread has declared it (and for robots that are not tracked), on the plain key.
     /// Returns whether Zenoh took it; a failure is logged here, and counted by the caller.
-    pub(super) fn put(
+    fn put(
         &self,
         outputs: Option<&RobotPublishers>,
         robot: &str,
@@ -252,9 +270,9 @@ impl Outputs {
             }
         }
     }
-    /// Publishes `payload` on `robot`'s `stream` ([`Declarer::put`], through `declared`, the
-    /// robot's publishers, when they exist), counting a refusal: every robot output but the
-    /// twin pose for ROS tools goes out here.
+
+    /// Publishes `payload` on `robot`'s `stream` ([`put`](Self::put), through `declared`, the
+    /// robot's publishers, when they exist), counting a refusal.
     pub(super) fn publish(
         &self,
         declared: Option<&RobotPublishers>,
@@ -276,6 +294,35 @@ impl Outputs {
         payload: impl Into<ZBytes>,
     ) {
         if !self.put_through(publisher, robot, Stream::Metrics, payload.into()) {
+            self.publish_errors.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Publishes `robot`'s twin pose for ROS tools (`payload` a CDR `PoseStamped`, with
+    /// `rmw_zenoh`'s `attachment` for that scheme) on `key`: through its publisher among
+    /// `declared` once declared, else on the plain key, never delivered back into this session's
+    /// sources; a refusal is logged and counted.
+    pub(super) fn publish_ros2_pose(
+        &self,
+        declared: Option<&RobotPublishers>,
+        robot: &str,
+        key: &str,
+        payload: Vec<u8>,
+        attachment: Option<Vec<u8>>,
+    ) {
+        let publisher = declared.and_then(|publishers| publishers.ros2_pose.as_ref());
+        let result = match publisher {
+            Some(publisher) => publisher.put(payload).attachment(attachment).wait(),
+            None => self
+                .session
+                .put(key, payload)
+                .attachment(attachment)
+                .congestion_control(self.pose_congestion)
+                .allowed_destination(Locality::Remote)
+                .wait(),
+        };
+        if let Err(e) = result {
+            warn!(error = %e, %robot, %key, "publish failed");
             self.publish_errors.fetch_add(1, Ordering::Relaxed);
         }
     }

@@ -13,9 +13,8 @@ use zenoh::bytes::Encoding;
 use zenoh::key_expr::KeyExpr;
 use zenoh::query::Query;
 
+use super::calibration_slot::CalibrationStatus;
 use super::fleet::{Fleet, RobotCell};
-use super::self_calibration::{CalibrationStatus, calibration_status};
-use super::sink::ZenohSink;
 use crate::codec::ik::{IkAnswerJson, IkRequest};
 use crate::codec::json;
 use crate::keys::{KeySpace, Stream};
@@ -28,11 +27,16 @@ pub(super) type QueryHandler = fn(&Queries, &Query);
 /// The queryables' side of the fleet. Each handler takes the robots it answers about one at a
 /// time, each under its own lock, and replies once that lock is released.
 pub(super) struct Queries {
-    pub(super) fleet: Arc<Fleet>,
-    pub(super) keys: KeySpace,
+    fleet: Arc<Fleet>,
+    keys: KeySpace,
 }
 
 impl Queries {
+    /// The queries about `fleet`'s robots, on `keys`.
+    pub(super) fn new(fleet: Arc<Fleet>, keys: KeySpace) -> Self {
+        Self { fleet, keys }
+    }
+
     /// The handlers, by the stream their queryable is declared on.
     pub(super) const HANDLERS: [(Stream, QueryHandler); 7] = [
         (Stream::State, Self::state),
@@ -63,11 +67,11 @@ impl Queries {
             .cells()
             .into_iter()
             .filter_map(|cell| {
-                let key = KeyExpr::try_from(self.keys.key(stream, cell.robot.id())).ok()?;
+                let key = KeyExpr::try_from(self.keys.key(stream, cell.robot().id())).ok()?;
                 query.key_expr().intersects(&key).then_some((cell, key))
             })
             .collect();
-        robots.sort_by(|a, b| a.0.robot.id().cmp(b.0.robot.id()));
+        robots.sort_by(|a, b| a.0.robot().id().cmp(b.0.robot().id()));
         robots
     }
 
@@ -107,8 +111,7 @@ impl Queries {
         for (cell, key) in self.matching_robots(query, Stream::State) {
             let payload = cell
                 .lock()
-                .twin
-                .as_ref()
+                .twin()
                 .map(|twin| json::to_json_bytes(&json::StateMessage::new(&twin.state())));
             if let Some(payload) = payload {
                 Self::reply(query, &key, payload);
@@ -130,17 +133,19 @@ impl Queries {
         }
         let mut replies = Vec::new();
         for (cell, key) in self.matching_robots(query, Stream::Reset) {
-            let Some(mut guard) = self.fleet.unless_stopped(&cell) else {
+            let Some(mut state) = self.fleet.unless_stopped(&cell) else {
                 return;
             };
-            let state = &mut *guard;
-            let Some(twin) = &mut state.twin else {
+            let Some((twin, mut sink)) = self.fleet.twin_and_sink(&mut state) else {
                 continue;
             };
-            let snapshot = twin.reset(&mut ZenohSink::of(&self.fleet.outputs, &mut state.outputs));
-            drop(guard);
-            info!(robot = cell.robot.id(), "metrics reset");
-            replies.push((key, json::MetricsMessage::new(&snapshot).to_json_bytes()));
+            let final_metrics = twin.reset(&mut sink);
+            drop(state);
+            info!(robot = cell.robot().id(), "metrics reset");
+            replies.push((
+                key,
+                json::MetricsMessage::new(&final_metrics).to_json_bytes(),
+            ));
         }
         if replies.is_empty() {
             Self::reply_err(query, "no tracked robot matches this key expression");
@@ -212,12 +217,10 @@ impl Queries {
     /// the one its settings give it.
     fn current_model(&self, id: &str) -> Option<Arc<RobotModel>> {
         let configured = self.fleet.configured_model(id);
-        let twin_model = self.fleet.existing_cell_of(id).and_then(|cell| {
-            cell.lock()
-                .twin
-                .as_ref()
-                .map(|twin| Arc::clone(twin.model()))
-        });
+        let twin_model = self
+            .fleet
+            .existing_cell_of(id)
+            .and_then(|cell| cell.lock().twin().map(|twin| Arc::clone(twin.model())));
         twin_model.or(configured)
     }
 
@@ -305,14 +308,16 @@ impl Queries {
         match action.as_str() {
             "" | "status" => {
                 let status = match &cell {
-                    Some(cell) => calibration_status(&robot, Some(&*cell.lock())),
-                    None => calibration_status(&robot, None),
+                    Some(cell) => {
+                        let state = cell.lock();
+                        CalibrationStatus::of(&robot, state.twin(), Some(state.calibration()))
+                    }
+                    None => CalibrationStatus::of(&robot, None, None),
                 };
                 Self::reply(query, &reply_key, json::to_json_bytes(&status));
             }
             "discard" => {
-                let discarded =
-                    cell.is_some_and(|cell| cell.lock().calibration.pending.take().is_some());
+                let discarded = cell.is_some_and(|cell| cell.lock().calibration_mut().discard());
                 let body = serde_json::json!({ "robot": id, "discarded": discarded });
                 Self::reply(query, &reply_key, body.to_string().into_bytes());
             }
@@ -365,7 +370,7 @@ impl Queries {
         let Some(mut guard) = self.fleet.unless_stopped(&cell) else {
             return;
         };
-        let Some(twin) = guard.twin.as_mut() else {
+        let Some(twin) = guard.twin_mut() else {
             drop(guard);
             Self::reply_err(query, &format!("robot '{id}' has sent nothing yet"));
             return;
@@ -411,24 +416,20 @@ impl Queries {
         &self,
         cell: &RobotCell,
     ) -> Option<Result<CalibrationStatus, ReplaceModelError>> {
-        let mut guard = self.fleet.unless_stopped(cell)?;
-        let state = &mut *guard;
-        let pending = state.calibration.pending.take()?;
-        let model = Arc::clone(&pending.estimate.model);
-        let Some(twin) = &mut state.twin else {
+        let mut state = self.fleet.unless_stopped(cell)?;
+        let estimate = state.calibration_mut().take_estimate()?;
+        let model = Arc::clone(&estimate.model);
+        let Some((twin, mut sink)) = self.fleet.twin_and_sink(&mut state) else {
             return Some(Err(ReplaceModelError::NotTracked));
         };
-        let replaced = twin.replace_model(
-            model,
-            &mut ZenohSink::of(&self.fleet.outputs, &mut state.outputs),
-        );
+        let replaced = twin.replace_model(model, &mut sink);
         Some(replaced.map(|_| {
             info!(
-                robot = cell.robot.id(),
-                improvement = pending.estimate.improvement(),
+                robot = cell.robot().id(),
+                improvement = estimate.improvement(),
                 "self-calibration applied"
             );
-            calibration_status(&cell.robot, Some(&*state))
+            CalibrationStatus::of(cell.robot(), state.twin(), Some(state.calibration()))
         }))
     }
 }

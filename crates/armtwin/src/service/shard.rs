@@ -12,7 +12,7 @@ use zenoh::key_expr::KeyExpr;
 use zenoh::sample::Locality;
 use zenoh::session::Session;
 
-use super::ServiceError;
+use super::error::ServiceError;
 use crate::keys::KeySpace;
 
 /// How long an instance waits for the others' shard claims at start.

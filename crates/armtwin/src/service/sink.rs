@@ -1,49 +1,147 @@
-//! The service's [`Sink`]: one robot's results published on Zenoh, its event budget applied,
-//! and the totals the dashboard reads counted.
+//! The service's [`Sink`]: one robot's results encoded and published through the [`Outlet`], its
+//! event budget applied, the totals the dashboard reads counted, and the rule that decides when a
+//! robot streams enough for route caches (asked of the control thread).
 //!
 //! Must not take any lock but the untracked robots' event bucket: it runs under the robot's cell.
 
-use std::sync::Arc;
-use std::sync::PoisonError;
-use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
 use tracing::{debug, info, warn};
-use zenoh::Wait;
 use zenoh::bytes::ZBytes;
-use zenoh::sample::Locality;
+use zenoh::liveliness::LivelinessToken;
+use zenoh::pubsub::Publisher;
 
-use super::control::{Control, ROUTE_CACHE_POSES, ROUTE_CACHE_WINDOW_S};
 use super::events::EventBucket;
-use super::publish::{Outputs, RobotPublishers};
+use super::publish::{Outlet, RobotPublishers};
+use super::requests::Requests;
 use crate::codec::{PoseFields, cdr, json, zser};
-use crate::config::OutputEncoding;
+use crate::config::{EventBudget, OutputEncoding};
 use crate::dashboard::RobotCounts;
 use crate::dynamics::monitor::EffortReadout;
 use crate::keys::Stream;
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
-use crate::pipeline::{Event, EventDetail, EventKind, MetricsSnapshot, Robot, Sink};
+use crate::pipeline::{Event, EventDetail, EventKind, MetricsReadout, Robot, Sink};
 use crate::ros2;
 
 /// Events kept per robot for the dashboard's robot page.
 const RECENT_EVENTS: usize = 10;
 
+/// Twin poses a robot publishes on plain keys within [`ROUTE_CACHE_WINDOW_S`] of source time
+/// before the control thread is asked to declare the publishers (and input keys) that cache its
+/// routes: a rate, not a count, so a robot that sends now and then never gets them. Zenoh
+/// computes the route of a put on an undeclared key anew every time; a declaration is paid once,
+/// costs in proportion to the keys beside it and holds memory for as long as the robot is
+/// tracked. A robot that streams repays it; one under the rate spends less CPU on its plain keys
+/// than the declarations' memory and their cost to every later declaration are worth (the
+/// figures: BENCHMARKS.md, "The service next to a plain Zenoh echo").
+const ROUTE_CACHE_POSES: u32 = 64;
+
+/// The span of source time (s) [`ROUTE_CACHE_POSES`] poses must fall in.
+const ROUTE_CACHE_WINDOW_S: f64 = 10.0;
+
+/// What every robot's sink shares, and where sinks are made: the outlet results go out
+/// through, the control thread's requests, and the event budget (with the one bucket of the
+/// robots that may not be tracked).
+pub(super) struct Sinks {
+    outlet: Outlet,
+    requests: Requests,
+    event_budget: EventBudget,
+    /// Shared by the robots that may not be tracked, so a flood of made-up ids cannot grow the
+    /// buckets. A leaf lock: held for a bucket's arithmetic only, never across a `put`.
+    untracked_bucket: Mutex<EventBucket>,
+}
+
+impl Sinks {
+    /// Sinks that publish through `outlet`, ask the control thread through `requests` and keep
+    /// each robot's events within `event_budget`.
+    pub(super) fn new(outlet: Outlet, requests: Requests, event_budget: EventBudget) -> Self {
+        Self {
+            outlet,
+            requests,
+            event_budget,
+            untracked_bucket: Mutex::new(EventBucket::full(event_budget, Instant::now())),
+        }
+    }
+
+    /// The outlet every sink publishes through.
+    pub(super) fn outlet(&self) -> &Outlet {
+        &self.outlet
+    }
+
+    /// The sink of one robot, for one call into its twin, with `robot`, the robot's output
+    /// state, borrowed from its locked cell.
+    pub(super) fn of<'a>(&'a self, robot: &'a mut RobotOutputState) -> ZenohSink<'a> {
+        ZenohSink {
+            sinks: self,
+            robot: Some(robot),
+        }
+    }
+
+    /// The sink of the rejection of a robot that may not be tracked.
+    pub(super) fn untracked(&self) -> ZenohSink<'_> {
+        ZenohSink {
+            sinks: self,
+            robot: None,
+        }
+    }
+}
+
 /// A robot's output state: its publishers, event bucket, twin pose for ROS tools and totals.
 #[derive(Default)]
 pub(super) struct RobotOutputState {
     /// Once the control thread has declared them.
-    pub(super) declared: Option<RobotPublishers>,
+    declared: Option<RobotPublishers>,
     /// The robot's liveliness token, once the control thread has declared it.
-    pub(super) token: Option<zenoh::liveliness::LivelinessToken>,
+    token: Option<LivelinessToken>,
     /// From tracking on.
     event_bucket: Option<EventBucket>,
     /// From tracking on: the twin pose for ROS tools.
     ros2_pose: Option<Ros2PoseState>,
     /// What the dashboard and `/metrics` read beyond the twin's own state.
-    pub(super) counts: RobotCounts,
+    counts: RobotCounts,
     /// Whether the robot streams fast enough for route caches.
     route_demand: RouteDemand,
+}
+
+impl RobotOutputState {
+    /// What the dashboard and `/metrics` read beyond the twin's own state.
+    pub(super) fn counts(&self) -> &RobotCounts {
+        &self.counts
+    }
+
+    /// The same, to change.
+    pub(super) fn counts_mut(&mut self) -> &mut RobotCounts {
+        &mut self.counts
+    }
+
+    /// The robot's metrics publisher, once the control thread has declared it.
+    pub(super) fn metrics_publisher(&self) -> Option<Arc<Publisher<'static>>> {
+        self.declared.as_ref().and_then(RobotPublishers::metrics)
+    }
+
+    /// Gives the robot the publishers the control thread declared for it.
+    pub(super) fn set_publishers(&mut self, publishers: RobotPublishers) {
+        self.declared = Some(publishers);
+    }
+
+    /// Gives the robot's publishers their metrics publisher (declared after them).
+    pub(super) fn set_metrics_publisher(&mut self, publisher: Publisher<'static>) {
+        if let Some(declared) = self.declared.as_mut() {
+            declared.set_metrics(publisher);
+        }
+    }
+
+    /// Gives the robot the liveliness token the control thread declared for it.
+    pub(super) fn set_token(&mut self, token: LivelinessToken) {
+        self.token = Some(token);
+    }
+
+    /// The robot's publishers and token, taken out to be undeclared.
+    pub(super) fn take_declared(&mut self) -> (Option<RobotPublishers>, Option<LivelinessToken>) {
+        (self.declared.take(), self.token.take())
+    }
 }
 
 /// A robot's twin poses in its current span of source time, until they make it worth its route
@@ -87,43 +185,28 @@ struct Ros2PoseState {
     next_seq: i64,
 }
 
-/// Publishes one robot's results on Zenoh: made for one call into the twin, from the shared
-/// [`Outputs`] and the robot's own [`RobotOutputState`] (borrowed from the robot's locked entry),
-/// or without one for inputs of robots that may not be tracked.
+/// Publishes one robot's results on Zenoh: made for one call into the twin ([`Sinks::of`]), from
+/// what every sink shares and the robot's own [`RobotOutputState`] (borrowed from the robot's
+/// locked cell), or without one for inputs of robots that may not be tracked.
 pub(super) struct ZenohSink<'a> {
-    outputs: &'a Outputs,
+    sinks: &'a Sinks,
     robot: Option<&'a mut RobotOutputState>,
 }
 
-impl<'a> ZenohSink<'a> {
-    pub(super) fn of(outputs: &'a Outputs, robot: &'a mut RobotOutputState) -> Self {
-        Self {
-            outputs,
-            robot: Some(robot),
-        }
-    }
-
-    /// For the rejection of a robot that may not be tracked.
-    pub(super) fn untracked(outputs: &'a Outputs) -> Self {
-        Self {
-            outputs,
-            robot: None,
-        }
-    }
-
-    /// Publishes `payload` on `robot`'s `stream` ([`Outputs::publish`]).
+impl ZenohSink<'_> {
+    /// Publishes `payload` on `robot`'s `stream` ([`Outlet::publish`]).
     fn put(&self, robot: &str, stream: Stream, payload: impl Into<ZBytes>) {
         let declared = self
             .robot
             .as_deref()
             .and_then(|state| state.declared.as_ref());
-        self.outputs.publish(declared, robot, stream, payload);
+        self.sinks.outlet.publish(declared, robot, stream, payload);
     }
 
     /// Prepares `robot`'s twin pose output for ROS tools, if it has one.
     fn track_ros2_pose(&mut self, robot: &Robot) {
-        let outputs = &self.outputs;
-        let Some(output) = outputs.ros2_pose.of(robot.id()) else {
+        let outlet = &self.sinks.outlet;
+        let Some(output) = outlet.ros2_pose_of(robot.id()) else {
             return;
         };
         if output.namespace.is_none()
@@ -136,7 +219,7 @@ impl<'a> ZenohSink<'a> {
             frame_id: cdr::frame_id(&output.tf_prefix, robot.settings().model.frame()),
             gid: output
                 .attaches()
-                .then(|| ros2::publisher_gid(&outputs.session.zid().to_le_bytes(), robot.id())),
+                .then(|| outlet.ros2_publisher_gid(robot.id())),
             next_seq: 1,
         };
         if let Some(robot_state) = self.robot.as_deref_mut() {
@@ -159,36 +242,23 @@ impl<'a> ZenohSink<'a> {
             state.next_seq += 1;
             ros2::encode_attachment(seq, unix_now_ns(), &gid)
         });
-        let publisher = robot_state
-            .declared
-            .as_ref()
-            .and_then(|publishers| publishers.ros2_pose.as_ref());
-        let outputs = &self.outputs;
-        let result = match publisher {
-            Some(publisher) => publisher.put(payload).attachment(attachment).wait(),
-            None => outputs
-                .session
-                .put(&state.key, payload)
-                .attachment(attachment)
-                .congestion_control(outputs.pose_congestion)
-                .allowed_destination(Locality::Remote)
-                .wait(),
-        };
-        if let Err(e) = result {
-            warn!(error = %e, robot = robot.id(), key = %state.key, "publish failed");
-            self.outputs.publish_errors.fetch_add(1, Ordering::Relaxed);
-        }
+        self.sinks.outlet.publish_ros2_pose(
+            robot_state.declared.as_ref(),
+            robot.id(),
+            &state.key,
+            payload,
+            attachment,
+        );
     }
 }
 
 impl Sink for ZenohSink<'_> {
     fn tracking(&mut self, robot: &Robot) {
         if let Some(state) = self.robot.as_deref_mut() {
-            state.event_bucket = Some(EventBucket::full(self.outputs.event_budget, Instant::now()));
+            state.event_bucket = Some(EventBucket::full(self.sinks.event_budget, Instant::now()));
         }
         self.track_ros2_pose(robot);
-        // Fails only once the control thread has stopped, when nothing is declared any more.
-        let _ = self.outputs.control.send(Control::Track(robot.clone()));
+        self.sinks.requests.track(robot);
     }
 
     fn pose(
@@ -200,7 +270,7 @@ impl Sink for ZenohSink<'_> {
         pose: &PoseReadout,
     ) {
         let fields = PoseFields::from(pose);
-        let payload: ZBytes = match self.outputs.encoding {
+        let payload: ZBytes = match self.sinks.outlet.encoding() {
             OutputEncoding::Json => {
                 json::pose_json_bytes(robot.id(), stamp_s, seq, frame.as_str(), &fields).into()
             }
@@ -210,11 +280,7 @@ impl Sink for ZenohSink<'_> {
         if let Some(state) = self.robot.as_deref_mut() {
             state.counts.poses += 1;
             if state.route_demand.pose(stamp_s) {
-                // Fails only once the control thread has stopped.
-                let _ = self
-                    .outputs
-                    .control
-                    .send(Control::CacheRoutes(robot.clone()));
+                self.sinks.requests.cache_routes(robot);
             }
         }
         self.put_ros2_pose(robot, stamp_s, pose);
@@ -227,7 +293,7 @@ impl Sink for ZenohSink<'_> {
         _measured: &PoseReadout,
         deviation: &Deviation,
     ) {
-        let payload: ZBytes = match self.outputs.encoding {
+        let payload: ZBytes = match self.sinks.outlet.encoding() {
             OutputEncoding::Json => {
                 json::deviation_json_bytes(robot.id(), stamp_s, deviation).into()
             }
@@ -253,14 +319,14 @@ impl Sink for ZenohSink<'_> {
             }
         }
         let now = Instant::now();
-        let budget = self.outputs.event_budget;
+        let budget = self.sinks.event_budget;
         let tracked = robot_state
             .as_mut()
             .and_then(|state| state.event_bucket.as_mut());
         let passed = match tracked {
             Some(bucket) => bucket.pass(budget, now, always),
             None => self
-                .outputs
+                .sinks
                 .untracked_bucket
                 .lock()
                 .unwrap_or_else(PoisonError::into_inner)
@@ -314,8 +380,8 @@ impl Sink for ZenohSink<'_> {
         );
     }
 
-    fn metrics(&mut self, robot: &Robot, snapshot: &MetricsSnapshot) {
-        let message = json::MetricsMessage::new(snapshot);
+    fn metrics(&mut self, robot: &Robot, readout: &MetricsReadout) {
+        let message = json::MetricsMessage::new(readout);
         self.put(robot.id(), Stream::Metrics, message.to_json_bytes());
     }
 }

@@ -3,14 +3,11 @@
 //!
 //! Must not hold more than one robot's cell at a time; the file format is [`crate::snapshot`]'s.
 
-use std::sync::atomic::Ordering;
-
 use tracing::{debug, info, warn};
 
 use super::fleet::Fleet;
-use super::sink::ZenohSink;
 use crate::config::ServiceConfig;
-use crate::pipeline::{RestoreError, Robot, Sink, Twin, TwinRecord, Untracked};
+use crate::pipeline::{RestoreError, Robot, Twin, TwinRecord, Untracked};
 use crate::snapshot::{SnapshotError, SnapshotStore};
 
 /// Restores the twins of the snapshot in `store`, if there is one, before any input arrives.
@@ -97,17 +94,13 @@ pub(super) fn restore_snapshot(store: &SnapshotStore, fleet: &Fleet, config: &Se
         let Some(cell) = fleet.live_cell(restored.robot()) else {
             continue;
         };
-        let mut guard = cell.lock();
-        let state = &mut *guard;
-        if state.twin.is_some() {
+        let robot = cell.robot();
+        if !fleet.install_twin(robot, &mut cell.lock(), restored) {
             let error = RestoreError::AlreadyTracked {
-                robot: cell.robot.id().to_owned(),
+                robot: robot.id().to_owned(),
             };
-            warn!(robot = cell.robot.id(), %error, "twin not restored");
-            continue;
+            warn!(robot = robot.id(), %error, "twin not restored");
         }
-        ZenohSink::of(&fleet.outputs, &mut state.outputs).tracking(&cell.robot);
-        state.twin = Some(restored);
     }
     info!(%path, robots = count, "twins restored from the snapshot");
 }
@@ -118,12 +111,11 @@ pub(super) fn save_snapshot(fleet: &Fleet, store: &SnapshotStore) -> bool {
     let records: Vec<TwinRecord> = fleet
         .cells()
         .iter()
-        .filter_map(|cell| cell.lock().twin.as_ref().map(Twin::record))
+        .filter_map(|cell| cell.lock().twin().map(Twin::record))
         .collect();
     match store.save(&records) {
         Ok(()) => {
-            fleet.snapshot_written();
-            let failed = fleet.snapshot_failing.swap(0, Ordering::Relaxed);
+            let failed = fleet.snapshot_saved();
             if failed > 0 {
                 info!(
                     robots = records.len(),
@@ -135,8 +127,7 @@ pub(super) fn save_snapshot(fleet: &Fleet, store: &SnapshotStore) -> bool {
             true
         }
         Err(e) => {
-            fleet.snapshot_failures.fetch_add(1, Ordering::Relaxed);
-            if fleet.snapshot_failing.fetch_add(1, Ordering::Relaxed) == 0 {
+            if fleet.snapshot_failed() {
                 warn!(error = %e, "snapshot not written: twinning goes on, tried again every period");
             } else {
                 debug!(error = %e, "snapshot not written again");

@@ -5,7 +5,6 @@
 
 use std::collections::VecDeque;
 use std::sync::Arc;
-use std::sync::atomic::Ordering;
 
 use super::fleet::Fleet;
 use crate::codec::json;
@@ -27,18 +26,18 @@ impl FleetSource for FleetView {
         let fleet = &self.fleet;
         let mut rows: Vec<FleetRow> = Vec::new();
         let counted = fleet.walk(|cell, guard| {
-            let Some(twin) = guard.twin.as_ref() else {
+            let Some(twin) = guard.twin() else {
                 return;
             };
             let state = twin.state();
             rows.push(FleetRow {
-                id: Arc::clone(cell.robot.shared_id()),
+                id: Arc::clone(cell.robot().shared_id()),
                 metrics: state.metrics,
                 alarms_active: state.alarms_active,
                 joint_state: state.last_state.map(|(_, joint_state)| joint_state.clone()),
                 counts: RobotCounts {
                     recent_events: VecDeque::new(),
-                    ..guard.outputs.counts.clone()
+                    ..guard.outputs().counts().clone()
                 },
             });
         });
@@ -46,13 +45,13 @@ impl FleetSource for FleetView {
         let totals = ServiceTotals {
             inputs: counted.inputs,
             poses: counted.poses,
-            publish_errors: fleet.outputs.publish_errors.load(Ordering::Relaxed),
+            publish_errors: fleet.outlet().publish_errors(),
             robots: rows.len(),
             max_robots: fleet.occupancy().1,
-            robots_refused: fleet.refused_full.load(Ordering::Relaxed),
-            robots_retired: fleet.retired.load(Ordering::Relaxed),
+            robots_refused: fleet.robots_refused(),
+            robots_retired: fleet.robots_retired(),
             snapshot_age_s: fleet.snapshot_age_s(),
-            snapshot_failures: fleet.snapshot_failures.load(Ordering::Relaxed),
+            snapshot_failures: fleet.snapshot_failures(),
         };
         (totals, rows)
     }
@@ -60,18 +59,18 @@ impl FleetSource for FleetView {
     fn robot(&self, id: &str) -> Option<RobotDetail> {
         let cell = self.fleet.existing_cell_of(id)?;
         let guard = cell.lock();
-        let twin = guard.twin.as_ref()?;
+        let twin = guard.twin()?;
         Some(RobotDetail {
             state: json::StateMessage::new(&twin.state()),
             model: Arc::clone(twin.model()),
-            counts: guard.outputs.counts.clone(),
+            counts: guard.outputs().counts().clone(),
         })
     }
 
     fn poses_of(&self, id: &str) -> Option<u64> {
         let cell = self.fleet.existing_cell_of(id)?;
         let guard = cell.lock();
-        guard.twin.as_ref()?;
-        Some(guard.outputs.counts.poses)
+        guard.twin()?;
+        Some(guard.outputs().counts().poses)
     }
 }

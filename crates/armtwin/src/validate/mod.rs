@@ -20,8 +20,8 @@ use crate::keys::{KeySpace, Stream};
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::{Deviation, StatsSet};
 use crate::pipeline::{
-    Event, EventDetail, EventKind, MetricsSnapshot, Pipeline, PipelineConfig, Robot,
-    RobotDirectory, RobotSettings, Sink, Untracked,
+    Event, EventDetail, EventKind, MetricsReadout, Pipeline, PipelineConfig, Robot, RobotDirectory,
+    RobotSettings, Sink, Untracked,
 };
 
 /// One recording row's outcome.
@@ -83,7 +83,7 @@ pub struct Validation {
     /// Other events.
     pub events: EventCounts,
     /// Final metrics, exactly as the service publishes them at the end of a stream.
-    pub metrics: MetricsSnapshot,
+    pub metrics: MetricsReadout,
 }
 
 impl Validation {
@@ -105,7 +105,7 @@ struct Collector {
     row_of_stamp: HashMap<u64, usize>,
     rejections: Vec<Rejection>,
     events: EventCounts,
-    metrics: Option<MetricsSnapshot>,
+    metrics: Option<MetricsReadout>,
 }
 
 impl Collector {
@@ -165,8 +165,8 @@ impl Sink for Collector {
         }
     }
 
-    fn metrics(&mut self, _robot: &Robot, snapshot: &MetricsSnapshot) {
-        self.metrics = Some(snapshot.clone());
+    fn metrics(&mut self, _robot: &Robot, readout: &MetricsReadout) {
+        self.metrics = Some(readout.clone());
     }
 }
 
@@ -266,7 +266,7 @@ pub fn validate(
     }
     pipeline.finish(&mut collector);
     // A recording without data lines never tracks the robot: its metrics are all zero.
-    let metrics = collector.metrics.take().unwrap_or_else(|| MetricsSnapshot {
+    let metrics = collector.metrics.take().unwrap_or_else(|| MetricsReadout {
         robot: ROBOT_ID.to_owned(),
         stamp_s: 0.0,
         paired: 0,

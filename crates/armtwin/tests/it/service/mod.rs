@@ -184,7 +184,7 @@ async fn several_robots_are_twinned_side_by_side() {
         assert!((number(pose, &["z"]) - expected.position_m[2]).abs() < 1e-12);
         let bad_fk = h.get("twin/fk/r3", Some(json!({"q": [1, 2]}))).await;
         assert!(bad_fk[0].is_err(), "{bad_fk:?}");
-        // Reset replies with the final snapshot, then counts start again.
+        // Reset replies with the final metrics, then counts start again.
         let reset = h.get("twin/admin/reset/plant-a/cell-1/r2", None).await;
         let (_, last) = reset[0].as_ref().expect("reset reply");
         assert_eq!(number(last, &["paired"]), 50.0);

@@ -12,12 +12,30 @@
 //! observer estimates the same quantity without differentiating anything. With `p = M(q) q̇`,
 //! `ṗ = τ_drives − τ_f(q̇) − τ_e + C(q, q̇)ᵀ q̇ − g(q)` where `τ_e` is what the drives spend
 //! beyond the model, so `r = K (p − ∫ (τ_drives − τ_f + Cᵀq̇ − g − r) dt)` settles on `−τ_e`
-//! with time constant `1/K`; the readout gives `−r`, in the residual's sign.
+//! with time constant `1/K`; the readout gives `−r`, in the residual's sign.//!
+//! Here: the monitor, its step and its summary; `types` (settings, readouts, alarms),
+//! `observer` (the momentum observer and collisions), `friction` (the friction fits and their
+//! baselines), `payload` (the payload modelled and identified) and `window` (the residual
+//! statistics).
+
+mod friction;
+mod observer;
+mod payload;
+mod types;
+mod window;
+
+pub use types::{
+    EffortAlarm, EffortConfig, EffortError, EffortReadout, EffortSummary, FrictionReadout,
+    PayloadReadout, PayloadSource, ResidualStats, StateSource,
+};
 
 use super::payload::{AT_REST_RAD_S, AT_REST_RAD_S2, PayloadEstimate, PayloadIdentifier};
-use super::{ArmDynamics, ControllerMode, DynamicsError, JointFriction, Payload, ur};
+use super::{ArmDynamics, ControllerMode, JointFriction, Payload, ur};
 use crate::model::ArmDescription;
 use crate::sample::{JointQuantity, JointState};
+use friction::{FrictionFit, TEMPERATURE_BINS, temperature_bin};
+use observer::Observer;
+use window::{Block, WINDOW_BLOCKS};
 
 /// The joints an effort monitor handles (every arm whose dynamics the catalog publishes).
 pub const EFFORT_JOINTS: usize = 6;
@@ -25,338 +43,6 @@ const J: usize = EFFORT_JOINTS;
 
 /// Longest step (s) the observer integrates across: a longer silence starts it afresh.
 const MAX_STEP_S: f64 = 0.1;
-/// Observer time constants (`1/K`) of steady program-mode input before its alarms are armed:
-/// it starts from zero and needs a few to settle.
-const ARMING_TIME_CONSTANTS: f64 = 5.0;
-/// Joint speed (rad/s) above which a sample tells the joint's friction apart from its sign.
-const MOVING_RAD_S: f64 = 0.05;
-/// Moving samples (weighted by forgetting) a joint's friction fit needs before it is used.
-const MIN_FRICTION_WEIGHT: f64 = 200.0;
-/// Moving samples (weighted) a joint's friction fit needs before it becomes a temperature bin's
-/// baseline: a wear reference must not be a first rough fit.
-const MIN_BASELINE_WEIGHT: f64 = 2000.0;
-/// Temperature bins (°C) of the friction baselines: `[0, 5)`, `[5, 10)`, … `[95, 100)`, and one
-/// for samples with no temperature.
-const TEMPERATURE_BIN_C: f64 = 5.0;
-const TEMPERATURE_BINS: usize = 20;
-/// Rest samples between two payload estimates (an estimate solves a 4×4 eigenproblem).
-const PAYLOAD_ESTIMATE_EVERY: u32 = 50;
-/// Blocks the residual window is kept in: its statistics cover the window to one block.
-const WINDOW_BLOCKS: usize = 8;
-
-/// How a robot's effort is watched.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct EffortConfig {
-    /// The momentum observer's gain `K` (1/s): its time constant is `1/K`.
-    pub observer_gain_per_s: f64,
-    /// Per joint, the observer output (N·m) beyond which a collision is reported; `None` for the
-    /// arm's default ([`ur::default_collision_threshold_nm`]).
-    pub collision_threshold_nm: Option<[f64; J]>,
-    /// Identified minus modelled payload mass (kg) beyond which a mismatch is reported.
-    pub payload_tolerance_kg: f64,
-    /// Time constant (s) of the payload identifier's forgetting.
-    pub payload_window_s: f64,
-    /// Time constant (s) of the friction fits' forgetting.
-    pub friction_window_s: f64,
-    /// Time constant (s) of each joint's observer baseline: a collision is the observer leaving
-    /// its baseline, so that what changes slowly (a payload heavier than modelled, friction not
-    /// yet learned) raises none while an impact, over in milliseconds, does.
-    pub collision_baseline_s: f64,
-    /// The payload modelled while the robot's own messages name none.
-    pub payload: Option<Payload>,
-}
-
-impl Default for EffortConfig {
-    fn default() -> Self {
-        Self {
-            observer_gain_per_s: 50.0,
-            collision_threshold_nm: None,
-            payload_tolerance_kg: 0.5,
-            payload_window_s: 300.0,
-            friction_window_s: 600.0,
-            collision_baseline_s: 1.0,
-            payload: None,
-        }
-    }
-}
-
-/// Why an arm's effort cannot be watched.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum EffortError {
-    /// Its dynamics cannot be built.
-    #[error(transparent)]
-    Dynamics(#[from] DynamicsError),
-    /// No collision thresholds are configured and the arm has no default.
-    #[error(
-        "arm '{model}' has no default collision thresholds (its joint sizes are not public): \
-         set collision_threshold_nm"
-    )]
-    NoThresholds {
-        /// The arm.
-        model: String,
-    },
-    /// A setting is out of range.
-    #[error("{field} = {value} must be a positive number")]
-    Setting {
-        /// The setting.
-        field: &'static str,
-        /// Its value.
-        value: f64,
-    },
-}
-
-/// Which state the model's torques are computed for.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum StateSource {
-    /// The controller's target state (q, q̇, q̈), as its own torque model uses.
-    Target,
-    /// The actual state, q̈ (and q̇ when absent) from differences.
-    Actual,
-}
-
-impl StateSource {
-    /// The wire name.
-    #[must_use]
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Target => "target",
-            Self::Actual => "actual",
-        }
-    }
-}
-
-/// Where the modelled payload comes from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum PayloadSource {
-    /// None is known: no payload.
-    None,
-    /// The robot's configuration.
-    Config,
-    /// The controller's own, sent with the joint state.
-    Controller,
-    /// An identified payload an operator applied.
-    Applied,
-}
-
-impl PayloadSource {
-    /// The wire name.
-    #[must_use]
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::None => "none",
-            Self::Config => "config",
-            Self::Controller => "controller",
-            Self::Applied => "applied",
-        }
-    }
-}
-
-/// One joint sample's effort.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct EffortReadout {
-    /// The sample's stamp (s).
-    pub stamp_s: f64,
-    /// What the controller's torque model contains now.
-    pub mode: ControllerMode,
-    /// The state the model ran on.
-    pub state_source: StateSource,
-    /// The model's torques (N·m): like the controller's own (rigid body and rotor inertia in a
-    /// program, gravity in freedrive), with the payload in use.
-    pub model_nm: [f64; J],
-    /// The drives' torques (N·m): reported torques, else currents times the arm's torque factors.
-    pub measured_nm: Option<[f64; J]>,
-    /// `measured − model − friction` (N·m), friction as fitted so far.
-    pub residual_nm: Option<[f64; J]>,
-    /// The momentum observer's estimate of the same (N·m), low-passed by `1/K`; `None` until it
-    /// has a measured torque and a velocity.
-    pub observer_nm: Option<[f64; J]>,
-}
-
-/// Residual statistics per joint.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct ResidualStats {
-    /// Samples counted.
-    pub n: u64,
-    /// Root mean square (N·m).
-    pub rms_nm: [f64; J],
-    /// Largest magnitude (N·m).
-    pub max_nm: [f64; J],
-}
-
-/// One joint's friction as fitted.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct FrictionReadout {
-    /// Coulomb friction (N·m).
-    pub coulomb_nm: f64,
-    /// Viscous friction (N·m·s/rad).
-    pub viscous_nm_s_rad: f64,
-    /// The joint's latest temperature (°C).
-    pub temperature_c: Option<f64>,
-    /// The Coulomb friction first fitted at this temperature (N·m): the wear signal's reference.
-    pub baseline_coulomb_nm: Option<f64>,
-    /// `coulomb_nm − baseline_coulomb_nm`: friction grown at the same temperature.
-    pub drift_nm: Option<f64>,
-}
-
-/// The payload: configured, identified, applied, in use.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PayloadReadout {
-    /// What the controller or the configuration says, and which.
-    pub configured: Option<(Payload, PayloadSource)>,
-    /// The latest identification.
-    pub estimate: Option<PayloadEstimate>,
-    /// An identified payload an operator applied.
-    pub applied: Option<Payload>,
-    /// The one the model uses, and where it comes from.
-    pub in_use: (Payload, PayloadSource),
-}
-
-/// Everything the monitor shows of a robot.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct EffortSummary {
-    /// The latest sample's readout.
-    pub latest: Option<EffortReadout>,
-    /// Residuals (program mode) since the start or the last reset.
-    pub cumulative: ResidualStats,
-    /// Residuals over the last window.
-    pub window: ResidualStats,
-    /// The window's length (s).
-    pub window_s: f64,
-    /// Per joint, its friction once fitted.
-    pub friction: [Option<FrictionReadout>; J],
-    /// The payload.
-    pub payload: PayloadReadout,
-    /// Per joint, the collision threshold (N·m).
-    pub collision_threshold_nm: [f64; J],
-    /// Per joint, whether a collision alarm is on.
-    pub collision: [bool; J],
-    /// Collisions reported since the start.
-    pub collisions: u64,
-    /// Whether a payload mismatch is reported.
-    pub payload_mismatch: bool,
-}
-
-/// A change of an effort alarm.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum EffortAlarm {
-    /// A joint's observer output left its baseline by more than its threshold (`on`), or came
-    /// back within half of it.
-    Collision {
-        /// The joint, from 0.
-        joint: usize,
-        /// The observer's output less its baseline (N·m).
-        value_nm: f64,
-        /// The threshold (N·m).
-        threshold_nm: f64,
-        /// Raised or cleared.
-        on: bool,
-    },
-    /// The identified payload left the modelled one by more than the tolerance (`on`), or came
-    /// back within it.
-    Payload {
-        /// Identified mass (kg).
-        estimated_kg: f64,
-        /// Its standard deviation (kg).
-        std_kg: f64,
-        /// The mass the model uses (kg).
-        modelled_kg: f64,
-        /// The tolerance (kg).
-        tolerance_kg: f64,
-        /// Raised or cleared.
-        on: bool,
-    },
-}
-
-/// A joint's friction fit `y = coulomb · sign(q̇) + viscous · q̇`, with forgetting.
-#[derive(Debug, Clone, Copy, Default)]
-struct FrictionFit {
-    /// Normal equations: Σ s·q̇, Σ q̇², Σ s·y, Σ q̇·y (s = sign(q̇)); Σ s² is `weight`, the
-    /// samples taken (|s| = 1 on a moving sample), both forgotten alike.
-    sv: f64,
-    vv: f64,
-    sy: f64,
-    vy: f64,
-    weight: f64,
-}
-
-impl FrictionFit {
-    fn forget(&mut self, keep: f64) {
-        self.sv *= keep;
-        self.vv *= keep;
-        self.sy *= keep;
-        self.vy *= keep;
-        self.weight *= keep;
-    }
-
-    fn add(&mut self, qd_rad_s: f64, torque_nm: f64) {
-        let sign = qd_rad_s.signum();
-        self.sv += sign * qd_rad_s;
-        self.vv += qd_rad_s * qd_rad_s;
-        self.sy += sign * torque_nm;
-        self.vy += qd_rad_s * torque_nm;
-        self.weight += 1.0;
-    }
-
-    /// The fitted friction, once enough motion in both directions and at several speeds is in.
-    fn estimate(&self) -> Option<JointFriction> {
-        if self.weight < MIN_FRICTION_WEIGHT {
-            return None;
-        }
-        let det = self.weight * self.vv - self.sv * self.sv;
-        if det <= 1e-9 * self.weight * self.vv {
-            return None;
-        }
-        Some(JointFriction {
-            coulomb_nm: (self.vv * self.sy - self.sv * self.vy) / det,
-            viscous_nm_s_rad: (self.weight * self.vy - self.sv * self.sy) / det,
-        })
-    }
-}
-
-/// One block of the residual window.
-#[derive(Debug, Clone, Copy, Default)]
-struct Block {
-    start_s: f64,
-    n: u64,
-    sum_squares: [f64; J],
-    max_nm: [f64; J],
-}
-
-impl Block {
-    fn add(&mut self, residual_nm: &[f64; J]) {
-        self.n += 1;
-        for ((sum, max), residual) in self
-            .sum_squares
-            .iter_mut()
-            .zip(&mut self.max_nm)
-            .zip(residual_nm)
-        {
-            *sum += residual * residual;
-            *max = max.max(residual.abs());
-        }
-    }
-
-    fn merge(&mut self, other: &Self) {
-        self.n += other.n;
-        for k in 0..J {
-            self.sum_squares[k] += other.sum_squares[k];
-            self.max_nm[k] = self.max_nm[k].max(other.max_nm[k]);
-        }
-    }
-
-    #[allow(
-        clippy::cast_precision_loss,
-        reason = "counts below 2⁵³ are exact in f64"
-    )]
-    fn stats(&self) -> ResidualStats {
-        let n = self.n.max(1) as f64;
-        ResidualStats {
-            n: self.n,
-            rms_nm: std::array::from_fn(|k| (self.sum_squares[k] / n).sqrt()),
-            max_nm: self.max_nm,
-        }
-    }
-}
 
 /// The previous sample, for differences.
 #[derive(Debug, Clone, Copy)]
@@ -364,22 +50,6 @@ struct Previous {
     stamp_s: f64,
     q_rad: [f64; J],
     qd_rad_s: [f64; J],
-}
-
-/// The momentum observer's state.
-#[derive(Debug, Clone, Copy, Default)]
-struct Observer {
-    /// `p(0) + ∫ (…) dt`: what the momentum would be without external torques.
-    expected_nms: [f64; J],
-    /// Its output `r`.
-    r_nm: [f64; J],
-    /// Per joint, the output low-passed by `collision_baseline_s`, held while the joint's
-    /// collision alarm is on (in the readout's sign).
-    baseline_nm: [f64; J],
-    /// Stamp of the last step.
-    last_s: Option<f64>,
-    /// Alarms are armed from this stamp on.
-    armed_from_s: f64,
 }
 
 /// One robot's effort monitor (6 joints).
@@ -595,82 +265,6 @@ impl EffortMonitor {
         Some(readout)
     }
 
-    /// One observer step; returns its output in the residual's sign.
-    #[allow(clippy::too_many_arguments, reason = "one sample's parts, named")]
-    fn observe(
-        &mut self,
-        stamp_s: f64,
-        step_s: Option<f64>,
-        mode: ControllerMode,
-        q: &[f64; J],
-        qd: &[f64; J],
-        measured_nm: &[f64; J],
-        friction_nm: &[f64; J],
-        on_alarm: &mut impl FnMut(EffortAlarm),
-    ) -> [f64; J] {
-        let gain = self.config.observer_gain_per_s;
-        let terms = self.loaded.momentum(q, qd);
-        let observer = &mut self.observer;
-        let continues = observer.last_s.is_some() && step_s.is_some();
-        if continues && let Some(dt) = step_s {
-            let gravity_nm = self.loaded.gravity_nm(q);
-            for k in 0..J {
-                let drive = measured_nm[k] - friction_nm[k];
-                let partial = observer.expected_nms[k]
-                    + (drive + terms.coriolis_transpose_qd_nm[k] - gravity_nm[k]) * dt;
-                // Implicit in r: stable for any K·dt.
-                let r = gain * (terms.momentum_nms[k] - partial) / (1.0 + gain * dt);
-                observer.expected_nms[k] = partial + r * dt;
-                observer.r_nm[k] = r;
-            }
-        } else {
-            observer.expected_nms = terms.momentum_nms;
-            observer.r_nm = [0.0; J];
-            observer.baseline_nm = [0.0; J];
-            observer.armed_from_s = stamp_s + ARMING_TIME_CONSTANTS / gain;
-        }
-        observer.last_s = Some(stamp_s);
-        if mode == ControllerMode::Freedrive {
-            // A person moves the arm: that is the point, not a collision.
-            observer.armed_from_s = stamp_s + ARMING_TIME_CONSTANTS / gain;
-        }
-        let output: [f64; J] = observer.r_nm.map(|r| -r);
-        let armed = stamp_s >= observer.armed_from_s;
-        let follow = step_s.map_or(1.0, |dt| {
-            1.0 - (-dt / self.config.collision_baseline_s).exp()
-        });
-        for (k, output_nm) in output.iter().enumerate() {
-            if !armed {
-                // Settling (a start, a gap, freedrive): what the observer shows is the arm's
-                // steady state, a payload or model error included, not an impact.
-                observer.baseline_nm[k] = *output_nm;
-            }
-            let value_nm = output_nm - observer.baseline_nm[k];
-            if armed && !self.collision[k] {
-                observer.baseline_nm[k] += follow * (output_nm - observer.baseline_nm[k]);
-            }
-            let threshold_nm = self.thresholds_nm[k];
-            let on = if self.collision[k] {
-                value_nm.abs() > threshold_nm / 2.0
-            } else {
-                armed && value_nm.abs() > threshold_nm
-            };
-            if on != self.collision[k] {
-                self.collision[k] = on;
-                if on {
-                    self.collisions += 1;
-                }
-                on_alarm(EffortAlarm::Collision {
-                    joint: k,
-                    value_nm,
-                    threshold_nm,
-                    on,
-                });
-            }
-        }
-        output
-    }
-
     /// The state the model runs on: the controller's target when it sends one whole, else the
     /// actual state with q̈ from differences of q̇.
     fn model_state(
@@ -696,109 +290,6 @@ impl EffortMonitor {
         (StateSource::Actual, *q, *qd, qdd)
     }
 
-    /// Friction: fitted on moving program-mode samples (`measured − model`), used by the
-    /// residual and the observer; `keep` is what forgetting leaves of the past.
-    fn learn_friction(
-        &mut self,
-        keep: f64,
-        program: bool,
-        qd: &[f64; J],
-        measured_nm: &[f64; J],
-        model_nm: &[f64; J],
-    ) {
-        for (k, fit) in self.friction.iter_mut().enumerate() {
-            fit.forget(keep);
-            if program && qd[k].abs() > MOVING_RAD_S {
-                fit.add(qd[k], measured_nm[k] - model_nm[k]);
-            }
-            self.fitted[k] = fit.estimate();
-        }
-        self.update_baselines();
-    }
-
-    /// Adds a program-mode sample at rest to the payload identification; estimates every
-    /// [`PAYLOAD_ESTIMATE_EVERY`] of them.
-    fn identify_at_rest(
-        &mut self,
-        q: &[f64; J],
-        measured_nm: &[f64; J],
-        on_alarm: &mut impl FnMut(EffortAlarm),
-    ) {
-        let arm_nm = self.arm_only.gravity_nm(q);
-        let beyond: [f64; J] = std::array::from_fn(|k| measured_nm[k] - arm_nm[k]);
-        self.identifier
-            .add_static_sample(&self.arm_only, q, &beyond);
-        self.rest_since_estimate += 1;
-        if self.rest_since_estimate >= PAYLOAD_ESTIMATE_EVERY {
-            self.rest_since_estimate = 0;
-            self.estimate = self.identifier.estimate();
-            self.check_payload(on_alarm);
-        }
-    }
-
-    /// The payload the model uses: applied, else the controller's, else the configured one.
-    fn update_payload_in_use(&mut self) {
-        let wanted = if let Some(applied) = self.applied {
-            (applied, PayloadSource::Applied)
-        } else if let Some(controller) = self.controller_payload {
-            (controller, PayloadSource::Controller)
-        } else if let Some(config) = self.config.payload {
-            (config, PayloadSource::Config)
-        } else {
-            (Payload::NONE, PayloadSource::None)
-        };
-        if wanted == self.in_use {
-            return;
-        }
-        // A payload the dynamics refuse (a negative mass from a gateway) is modelled as none.
-        self.loaded = self
-            .arm_only
-            .clone()
-            .with_payload(wanted.0)
-            .unwrap_or_else(|_| self.arm_only.clone());
-        self.in_use = wanted;
-    }
-
-    fn check_payload(&mut self, on_alarm: &mut impl FnMut(EffortAlarm)) {
-        let Some(estimate) = self.estimate else {
-            return;
-        };
-        let modelled_kg = self.in_use.0.mass_kg;
-        let tolerance_kg = self.config.payload_tolerance_kg;
-        let difference = (estimate.mass_kg - modelled_kg).abs();
-        let on = if self.payload_mismatch {
-            difference > tolerance_kg
-        } else {
-            difference > tolerance_kg + 3.0 * estimate.mass_std_kg
-        };
-        if on != self.payload_mismatch {
-            self.payload_mismatch = on;
-            on_alarm(EffortAlarm::Payload {
-                estimated_kg: estimate.mass_kg,
-                std_kg: estimate.mass_std_kg,
-                modelled_kg,
-                tolerance_kg,
-                on,
-            });
-        }
-    }
-
-    /// Applies the latest identified payload to the model; returns it, or `None` when there is
-    /// none (or it has no centre of gravity). The alarm is cleared at the next estimate.
-    pub fn apply_estimate(&mut self) -> Option<Payload> {
-        let estimate = self.estimate?;
-        let payload = Payload::point_mass(estimate.mass_kg, estimate.cog_flange_m?);
-        self.applied = Some(payload);
-        self.update_payload_in_use();
-        Some(payload)
-    }
-
-    /// Returns to the controller's (or configured) payload.
-    pub fn discard_applied(&mut self) {
-        self.applied = None;
-        self.update_payload_in_use();
-    }
-
     /// The stamp went back (a restarted clock): differences and the observer start afresh.
     pub fn restart_clock(&mut self) {
         self.previous = None;
@@ -810,59 +301,6 @@ impl EffortMonitor {
     pub fn reset_statistics(&mut self) {
         self.cumulative = Block::default();
         self.window = [Block::default(); WINDOW_BLOCKS];
-    }
-
-    fn add_residual(&mut self, stamp_s: f64, residual_nm: &[f64; J]) {
-        self.cumulative.add(residual_nm);
-        #[allow(clippy::cast_precision_loss, reason = "a handful of blocks")]
-        let block_s = self.window_s / WINDOW_BLOCKS as f64;
-        let newest = self
-            .window
-            .iter()
-            .enumerate()
-            .filter(|(_, block)| block.n > 0)
-            .max_by(|a, b| a.1.start_s.total_cmp(&b.1.start_s))
-            .map(|(index, block)| (index, block.start_s));
-        let index = match newest {
-            Some((index, start_s)) if stamp_s < start_s + block_s && stamp_s >= start_s => index,
-            Some((index, _)) => {
-                let next = (index + 1) % WINDOW_BLOCKS;
-                self.window[next] = Block {
-                    start_s: stamp_s,
-                    ..Block::default()
-                };
-                next
-            }
-            None => {
-                self.window[0] = Block {
-                    start_s: stamp_s,
-                    ..Block::default()
-                };
-                0
-            }
-        };
-        self.window[index].add(residual_nm);
-    }
-
-    /// Keeps, per joint, the first friction fitted in each temperature bin.
-    fn update_baselines(&mut self) {
-        for k in 0..J {
-            if self.friction[k].weight < MIN_BASELINE_WEIGHT {
-                continue;
-            }
-            let Some(JointFriction {
-                coulomb_nm: coulomb,
-                ..
-            }) = self.fitted[k]
-            else {
-                continue;
-            };
-            let bin = temperature_bin(self.temperature_c[k]);
-            let baseline = &mut self.baselines[k][bin];
-            if baseline.is_none() {
-                *baseline = Some(coulomb);
-            }
-        }
     }
 
     /// What the monitor shows now.
@@ -925,22 +363,6 @@ fn joint_values(state: &JointState, quantity: JointQuantity) -> Option<[f64; J]>
     state
         .get(quantity)
         .and_then(|values| values.try_into().ok())
-}
-
-#[allow(
-    clippy::cast_possible_truncation,
-    clippy::cast_sign_loss,
-    reason = "clamped to the bins first"
-)]
-fn temperature_bin(temperature_c: Option<f64>) -> usize {
-    match temperature_c {
-        Some(t) if t.is_finite() => {
-            ((t / TEMPERATURE_BIN_C)
-                .floor()
-                .clamp(0.0, (TEMPERATURE_BINS - 1) as f64)) as usize
-        }
-        _ => TEMPERATURE_BINS,
-    }
 }
 
 #[cfg(test)]

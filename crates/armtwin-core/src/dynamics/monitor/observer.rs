@@ -1,0 +1,104 @@
+//! The momentum observer: an estimate of what the drives spend beyond the model, without
+//! differentiating anything (the sign convention is in the module's documentation), and the
+//! collision alarms on it, armed once it has settled and measured against a slow baseline.
+
+use super::{EffortAlarm, EffortMonitor, J};
+use crate::dynamics::ControllerMode;
+
+/// Observer time constants (`1/K`) of steady program-mode input before its alarms are armed:
+/// it starts from zero and needs a few to settle.
+const ARMING_TIME_CONSTANTS: f64 = 5.0;
+
+/// The momentum observer's state.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Observer {
+    /// `p(0) + ∫ (…) dt`: what the momentum would be without external torques.
+    pub(super) expected_nms: [f64; J],
+    /// Its output `r`.
+    pub(super) r_nm: [f64; J],
+    /// Per joint, the output low-passed by `collision_baseline_s`, held while the joint's
+    /// collision alarm is on (in the readout's sign).
+    pub(super) baseline_nm: [f64; J],
+    /// Stamp of the last step.
+    pub(super) last_s: Option<f64>,
+    /// Alarms are armed from this stamp on.
+    pub(super) armed_from_s: f64,
+}
+
+impl EffortMonitor {
+    /// One observer step; returns its output in the residual's sign.
+    #[allow(clippy::too_many_arguments, reason = "one sample's parts, named")]
+    pub(super) fn observe(
+        &mut self,
+        stamp_s: f64,
+        step_s: Option<f64>,
+        mode: ControllerMode,
+        q: &[f64; J],
+        qd: &[f64; J],
+        measured_nm: &[f64; J],
+        friction_nm: &[f64; J],
+        on_alarm: &mut impl FnMut(EffortAlarm),
+    ) -> [f64; J] {
+        let gain = self.config.observer_gain_per_s;
+        let terms = self.loaded.momentum(q, qd);
+        let observer = &mut self.observer;
+        let continues = observer.last_s.is_some() && step_s.is_some();
+        if continues && let Some(dt) = step_s {
+            let gravity_nm = self.loaded.gravity_nm(q);
+            for k in 0..J {
+                let drive = measured_nm[k] - friction_nm[k];
+                let partial = observer.expected_nms[k]
+                    + (drive + terms.coriolis_transpose_qd_nm[k] - gravity_nm[k]) * dt;
+                // Implicit in r: stable for any K·dt.
+                let r = gain * (terms.momentum_nms[k] - partial) / (1.0 + gain * dt);
+                observer.expected_nms[k] = partial + r * dt;
+                observer.r_nm[k] = r;
+            }
+        } else {
+            observer.expected_nms = terms.momentum_nms;
+            observer.r_nm = [0.0; J];
+            observer.baseline_nm = [0.0; J];
+            observer.armed_from_s = stamp_s + ARMING_TIME_CONSTANTS / gain;
+        }
+        observer.last_s = Some(stamp_s);
+        if mode == ControllerMode::Freedrive {
+            // A person moves the arm: that is the point, not a collision.
+            observer.armed_from_s = stamp_s + ARMING_TIME_CONSTANTS / gain;
+        }
+        let output: [f64; J] = observer.r_nm.map(|r| -r);
+        let armed = stamp_s >= observer.armed_from_s;
+        let follow = step_s.map_or(1.0, |dt| {
+            1.0 - (-dt / self.config.collision_baseline_s).exp()
+        });
+        for (k, output_nm) in output.iter().enumerate() {
+            if !armed {
+                // Settling (a start, a gap, freedrive): what the observer shows is the arm's
+                // steady state, a payload or model error included, not an impact.
+                observer.baseline_nm[k] = *output_nm;
+            }
+            let value_nm = output_nm - observer.baseline_nm[k];
+            if armed && !self.collision[k] {
+                observer.baseline_nm[k] += follow * (output_nm - observer.baseline_nm[k]);
+            }
+            let threshold_nm = self.thresholds_nm[k];
+            let on = if self.collision[k] {
+                value_nm.abs() > threshold_nm / 2.0
+            } else {
+                armed && value_nm.abs() > threshold_nm
+            };
+            if on != self.collision[k] {
+                self.collision[k] = on;
+                if on {
+                    self.collisions += 1;
+                }
+                on_alarm(EffortAlarm::Collision {
+                    joint: k,
+                    value_nm,
+                    threshold_nm,
+                    on,
+                });
+            }
+        }
+        output
+    }
+}

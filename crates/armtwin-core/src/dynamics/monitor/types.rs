@@ -1,0 +1,230 @@
+//! What the effort monitor is told and what it shows: its settings and errors, the readout of
+//! one sample, the summary (residual statistics, friction, payload, alarm states) and the alarm
+//! changes. Types only; the monitor and its parts fill them.
+
+use super::J;
+use crate::dynamics::payload::PayloadEstimate;
+use crate::dynamics::{ControllerMode, DynamicsError, Payload};
+
+/// How a robot's effort is watched.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EffortConfig {
+    /// The momentum observer's gain `K` (1/s): its time constant is `1/K`.
+    pub observer_gain_per_s: f64,
+    /// Per joint, the observer output (N·m) beyond which a collision is reported; `None` for the
+    /// arm's default ([`ur::default_collision_threshold_nm`](crate::dynamics::ur::default_collision_threshold_nm)).
+    pub collision_threshold_nm: Option<[f64; J]>,
+    /// Identified minus modelled payload mass (kg) beyond which a mismatch is reported.
+    pub payload_tolerance_kg: f64,
+    /// Time constant (s) of the payload identifier's forgetting.
+    pub payload_window_s: f64,
+    /// Time constant (s) of the friction fits' forgetting.
+    pub friction_window_s: f64,
+    /// Time constant (s) of each joint's observer baseline: a collision is the observer leaving
+    /// its baseline, so that what changes slowly (a payload heavier than modelled, friction not
+    /// yet learned) raises none while an impact, over in milliseconds, does.
+    pub collision_baseline_s: f64,
+    /// The payload modelled while the robot's own messages name none.
+    pub payload: Option<Payload>,
+}
+
+impl Default for EffortConfig {
+    fn default() -> Self {
+        Self {
+            observer_gain_per_s: 50.0,
+            collision_threshold_nm: None,
+            payload_tolerance_kg: 0.5,
+            payload_window_s: 300.0,
+            friction_window_s: 600.0,
+            collision_baseline_s: 1.0,
+            payload: None,
+        }
+    }
+}
+
+/// Why an arm's effort cannot be watched.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum EffortError {
+    /// Its dynamics cannot be built.
+    #[error(transparent)]
+    Dynamics(#[from] DynamicsError),
+    /// No collision thresholds are configured and the arm has no default.
+    #[error(
+        "arm '{model}' has no default collision thresholds (its joint sizes are not public): \
+         set collision_threshold_nm"
+    )]
+    NoThresholds {
+        /// The arm.
+        model: String,
+    },
+    /// A setting is out of range.
+    #[error("{field} = {value} must be a positive number")]
+    Setting {
+        /// The setting.
+        field: &'static str,
+        /// Its value.
+        value: f64,
+    },
+}
+
+/// Which state the model's torques are computed for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StateSource {
+    /// The controller's target state (q, q̇, q̈), as its own torque model uses.
+    Target,
+    /// The actual state, q̈ (and q̇ when absent) from differences.
+    Actual,
+}
+
+impl StateSource {
+    /// The wire name.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Target => "target",
+            Self::Actual => "actual",
+        }
+    }
+}
+
+/// Where the modelled payload comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PayloadSource {
+    /// None is known: no payload.
+    None,
+    /// The robot's configuration.
+    Config,
+    /// The controller's own, sent with the joint state.
+    Controller,
+    /// An identified payload an operator applied.
+    Applied,
+}
+
+impl PayloadSource {
+    /// The wire name.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Config => "config",
+            Self::Controller => "controller",
+            Self::Applied => "applied",
+        }
+    }
+}
+
+/// One joint sample's effort.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EffortReadout {
+    /// The sample's stamp (s).
+    pub stamp_s: f64,
+    /// What the controller's torque model contains now.
+    pub mode: ControllerMode,
+    /// The state the model ran on.
+    pub state_source: StateSource,
+    /// The model's torques (N·m): like the controller's own (rigid body and rotor inertia in a
+    /// program, gravity in freedrive), with the payload in use.
+    pub model_nm: [f64; J],
+    /// The drives' torques (N·m): reported torques, else currents times the arm's torque factors.
+    pub measured_nm: Option<[f64; J]>,
+    /// `measured − model − friction` (N·m), friction as fitted so far.
+    pub residual_nm: Option<[f64; J]>,
+    /// The momentum observer's estimate of the same (N·m), low-passed by `1/K`; `None` until it
+    /// has a measured torque and a velocity.
+    pub observer_nm: Option<[f64; J]>,
+}
+
+/// Residual statistics per joint.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ResidualStats {
+    /// Samples counted.
+    pub n: u64,
+    /// Root mean square (N·m).
+    pub rms_nm: [f64; J],
+    /// Largest magnitude (N·m).
+    pub max_nm: [f64; J],
+}
+
+/// One joint's friction as fitted.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrictionReadout {
+    /// Coulomb friction (N·m).
+    pub coulomb_nm: f64,
+    /// Viscous friction (N·m·s/rad).
+    pub viscous_nm_s_rad: f64,
+    /// The joint's latest temperature (°C).
+    pub temperature_c: Option<f64>,
+    /// The Coulomb friction first fitted at this temperature (N·m): the wear signal's reference.
+    pub baseline_coulomb_nm: Option<f64>,
+    /// `coulomb_nm − baseline_coulomb_nm`: friction grown at the same temperature.
+    pub drift_nm: Option<f64>,
+}
+
+/// The payload: configured, identified, applied, in use.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PayloadReadout {
+    /// What the controller or the configuration says, and which.
+    pub configured: Option<(Payload, PayloadSource)>,
+    /// The latest identification.
+    pub estimate: Option<PayloadEstimate>,
+    /// An identified payload an operator applied.
+    pub applied: Option<Payload>,
+    /// The one the model uses, and where it comes from.
+    pub in_use: (Payload, PayloadSource),
+}
+
+/// Everything the monitor shows of a robot.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EffortSummary {
+    /// The latest sample's readout.
+    pub latest: Option<EffortReadout>,
+    /// Residuals (program mode) since the start or the last reset.
+    pub cumulative: ResidualStats,
+    /// Residuals over the last window.
+    pub window: ResidualStats,
+    /// The window's length (s).
+    pub window_s: f64,
+    /// Per joint, its friction once fitted.
+    pub friction: [Option<FrictionReadout>; J],
+    /// The payload.
+    pub payload: PayloadReadout,
+    /// Per joint, the collision threshold (N·m).
+    pub collision_threshold_nm: [f64; J],
+    /// Per joint, whether a collision alarm is on.
+    pub collision: [bool; J],
+    /// Collisions reported since the start.
+    pub collisions: u64,
+    /// Whether a payload mismatch is reported.
+    pub payload_mismatch: bool,
+}
+
+/// A change of an effort alarm.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum EffortAlarm {
+    /// A joint's observer output left its baseline by more than its threshold (`on`), or came
+    /// back within half of it.
+    Collision {
+        /// The joint, from 0.
+        joint: usize,
+        /// The observer's output less its baseline (N·m).
+        value_nm: f64,
+        /// The threshold (N·m).
+        threshold_nm: f64,
+        /// Raised or cleared.
+        on: bool,
+    },
+    /// The identified payload left the modelled one by more than the tolerance (`on`), or came
+    /// back within it.
+    Payload {
+        /// Identified mass (kg).
+        estimated_kg: f64,
+        /// Its standard deviation (kg).
+        std_kg: f64,
+        /// The mass the model uses (kg).
+        modelled_kg: f64,
+        /// The tolerance (kg).
+        tolerance_kg: f64,
+        /// Raised or cleared.
+        on: bool,
+    },
+}

@@ -22,13 +22,14 @@
 //! back or repeats rejects the sample.
 //!
 //! Layout: this file holds the settings, the result types and [`Pipeline`] (the twins of many
-//! robots, offline); `twin` the one stepping path ([`Twin`]); `alarm` the alarm thresholds and
-//! hold timers ([`Alarms`]); `record` what outlives the process ([`TwinRecord`]); `sink` the
-//! [`Sink`] trait and [`sinks`] the ready-made ones; `directory` the robot ids; `event` the
-//! events.
+//! robots, offline); `twin` the one stepping path ([`Twin`]), with `effort` its effort monitor's
+//! glue; `alarm` the alarm thresholds and hold timers ([`Alarms`]); `record` what outlives the
+//! process ([`TwinRecord`]) and a twin restored from it; `sink` the [`Sink`] trait and [`sinks`]
+//! the ready-made ones; `directory` the robot ids; `event` the events.
 
 mod alarm;
 mod directory;
+mod effort;
 mod event;
 mod record;
 mod sink;

@@ -1,13 +1,18 @@
-//! What of a robot's twin outlives the process ([`TwinRecord`]), and why a record is refused.
+//! What of a robot's twin outlives the process ([`TwinRecord`]), why a record is refused, and
+//! the twin's side of it: [`Twin::record`] writes a record, [`Twin::restored`] builds a twin
+//! from one.
 //!
-//! Owns the record's plain data. Must not choose a file format (the caller serializes it) nor
-//! build a twin from it: [`Twin::restored`](super::Twin::restored) does, beside the twin's own
-//! fields.
+//! Owns the record's plain data and its mapping to and from a twin. Must not choose a file
+//! format: the caller serializes the record.
 
-use super::Alarms;
+use std::sync::Arc;
+
+use super::alarm::AlarmStates;
+use super::twin::{DeviationStats, Twin};
+use super::{Alarms, PipelineConfig, Robot};
 use crate::kinematics::TcpOffset;
-use crate::metrics::CumulativeParts;
-use crate::model::MountingDeltas;
+use crate::metrics::{CumulativeParts, CumulativeStats, WindowStats};
+use crate::model::{CalibrationForm, MountingDeltas};
 
 /// What of a robot's twin outlives the process: the cumulative metrics and counters of its
 /// epoch, the pose `seq` to go on from, the last gateway `seq` (so that samples lost while the
@@ -50,7 +55,7 @@ pub struct AppliedModel {
 }
 
 /// The calibration source name of a model rebuilt from a [`TwinRecord`].
-pub(super) const APPLIED_SOURCE_NAME: &str = "applied calibration (restored)";
+const APPLIED_SOURCE_NAME: &str = "applied calibration (restored)";
 
 /// Why a [`TwinRecord`] was not restored.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -87,4 +92,102 @@ pub enum RestoreError {
         /// Why.
         problem: String,
     },
+}
+
+impl Twin {
+    /// The twin of `robot` continued from `record`: counters, cumulative statistics, pose
+    /// `seq`, gateway `seq` and alarms as recorded, with new results due (its metrics go out
+    /// at the next periodic publication). Tells no sink ([`Twin::new`]).
+    pub fn restored(
+        robot: Robot,
+        config: &PipelineConfig,
+        record: &TwinRecord,
+    ) -> Result<Self, RestoreError> {
+        let configured = &robot.settings().model.arm().name;
+        if *configured != record.arm {
+            return Err(RestoreError::Arm {
+                robot: robot.id().to_owned(),
+                recorded: record.arm.clone(),
+                configured: configured.clone(),
+            });
+        }
+        let cumulative = CumulativeStats::from_parts(&record.cumulative).ok_or_else(|| {
+            RestoreError::Statistics {
+                robot: robot.id().to_owned(),
+            }
+        })?;
+        let applied = match &record.applied {
+            None => None,
+            Some(applied) => {
+                let model = robot
+                    .settings()
+                    .model
+                    .with_deltas(applied.deltas, applied.tool, APPLIED_SOURCE_NAME)
+                    .map_err(|e| RestoreError::Applied {
+                        robot: robot.id().to_owned(),
+                        problem: e.to_string(),
+                    })?;
+                Some(Arc::new(model))
+            }
+        };
+        let mut twin = Self::new(robot, config);
+        if let Some(model) = applied {
+            twin.model = model;
+        }
+        twin.epoch = record.epoch;
+        twin.paired = record.paired;
+        twin.unpaired = record.unpaired;
+        twin.rejected = record.rejected;
+        twin.next_pose_seq = record.next_pose_seq;
+        twin.last_gateway_seq = record.last_gateway_seq;
+        if record.cumulative.n > 0 {
+            twin.stats = Some(Box::new(DeviationStats {
+                cumulative,
+                window: WindowStats::new(twin.window_s, twin.window_max_samples),
+            }));
+        }
+        twin.alarms = AlarmStates::restored(record.alarms_active);
+        twin.dirty = true;
+        Ok(twin)
+    }
+    /// What of it outlives the process.
+    #[must_use]
+    pub fn record(&self) -> TwinRecord {
+        TwinRecord {
+            robot: self.robot.id().to_owned(),
+            arm: self.model.arm().name.clone(),
+            epoch: self.epoch,
+            paired: self.paired,
+            unpaired: self.unpaired,
+            rejected: self.rejected,
+            next_pose_seq: self.next_pose_seq,
+            last_gateway_seq: self.last_gateway_seq,
+            cumulative: self.stats.as_ref().map_or_else(
+                || CumulativeStats::new().to_parts(),
+                |stats| stats.cumulative.to_parts(),
+            ),
+            alarms_active: self.alarms.active(),
+            applied: self.applied_model(),
+        }
+    }
+    /// What an applied calibration changed in its configured model, if one was applied.
+    fn applied_model(&self) -> Option<AppliedModel> {
+        if Arc::ptr_eq(&self.model, &self.robot.settings().model) {
+            return None;
+        }
+        let deltas = match self
+            .model
+            .calibration()
+            .map(|calibration| &calibration.form)
+        {
+            Some(CalibrationForm::MountingDeltas(deltas)) => *deltas,
+            // Applied models are identified as deltas: any other form is the configured one.
+            Some(_) => return None,
+            None => MountingDeltas::ZERO,
+        };
+        Some(AppliedModel {
+            deltas,
+            tool: *self.model.tool(),
+        })
+    }
 }

@@ -6,6 +6,10 @@
 //! robot's lock, [`Pipeline`](super::Pipeline) steps it offline; neither adds logic of its own.
 //! Must not decode bytes, await, or touch the network, the filesystem or a clock: results go to
 //! a [`Sink`], time comes in as source stamps.
+//!
+//! Two parts of the twin live beside it: `effort` (its effort monitor, stepped with each joint
+//! sample) and `record` (what of it outlives the process, and a twin restored from that). The
+//! fields they use are `pub(super)`; the rest of the pipeline reaches a twin by its methods.
 
 use std::error::Error;
 use std::sync::Arc;
@@ -13,17 +17,16 @@ use std::sync::Arc;
 use nalgebra::{IsometryMatrix3, Matrix3, Rotation3, Vector3};
 
 use super::alarm::AlarmStates;
-use super::record::APPLIED_SOURCE_NAME;
+use super::effort::effort_monitor;
 use super::{
-    AppliedModel, Event, EventDetail, EventKind, MeasuredStream, MetricsReadout, PipelineConfig,
-    Reason, RejectCause, ReplaceModelError, RestoreError, Robot, RobotState, Sink, TwinRecord,
+    Event, EventDetail, EventKind, MeasuredStream, MetricsReadout, PipelineConfig, Reason,
+    RejectCause, ReplaceModelError, Robot, RobotState, Sink,
 };
 use crate::align::{self, Aligner, Bracket, Pending, UnpairedReason};
-use crate::dynamics::Payload;
-use crate::dynamics::monitor::{EffortAlarm, EffortMonitor, EffortSummary};
+use crate::dynamics::monitor::EffortMonitor;
 use crate::kinematics::{KinematicsError, OutputFrame, PoseReadout};
 use crate::metrics::{CumulativeStats, Deviation, WindowStats};
-use crate::model::{CalibrationForm, MountingDeltas, RobotModel};
+use crate::model::RobotModel;
 use crate::orientation;
 use crate::sample::{JointSample, JointState};
 use crate::self_calibration::PairReservoir;
@@ -50,9 +53,9 @@ struct Waiting {
 }
 
 /// A robot's deviation statistics.
-struct DeviationStats {
-    cumulative: CumulativeStats,
-    window: WindowStats,
+pub(super) struct DeviationStats {
+    pub(super) cumulative: CumulativeStats,
+    pub(super) window: WindowStats,
 }
 
 /// One robot's twin: everything the pipeline keeps for it, stepped by that robot's inputs alone.
@@ -64,24 +67,24 @@ struct DeviationStats {
 /// creates one calls [`Sink::tracking`].
 pub struct Twin {
     /// Its index, id and settings (shared with the directory).
-    robot: Robot,
+    pub(super) robot: Robot,
     /// The model its FK runs: the configured one until [`Twin::replace_model`].
-    model: Arc<RobotModel>,
+    pub(super) model: Arc<RobotModel>,
     /// Pairs kept for self-calibration, when the robot's settings ask for it.
     reservoir: Option<Box<PairReservoir>>,
-    epoch: u64,
+    pub(super) epoch: u64,
     aligner: Aligner<Waiting>,
     /// Created by the first paired measurement (the window's ring buffers are most of a twin's
     /// memory): a robot that only streams joints never needs them.
-    stats: Option<Box<DeviationStats>>,
+    pub(super) stats: Option<Box<DeviationStats>>,
     /// The metrics window's length (s) and cap on samples.
-    window_s: f64,
-    window_max_samples: usize,
-    paired: u64,
-    unpaired: u64,
-    rejected: u64,
-    next_pose_seq: u64,
-    last_gateway_seq: Option<u64>,
+    pub(super) window_s: f64,
+    pub(super) window_max_samples: usize,
+    pub(super) paired: u64,
+    pub(super) unpaired: u64,
+    pub(super) rejected: u64,
+    pub(super) next_pose_seq: u64,
+    pub(super) last_gateway_seq: Option<u64>,
     last_joint_s: Option<f64>,
     last_joints: Vec<f64>,
     /// The latest of each part of the joint state sources sent beside the angles, and the stamp
@@ -93,11 +96,11 @@ pub struct Twin {
     last_measured_s: Vec<Option<f64>>,
     last_measured: Option<(f64, PoseReadout)>,
     newest_s: f64,
-    alarms: AlarmStates,
+    pub(super) alarms: AlarmStates,
     /// Its effort monitor, when the robot's settings ask for one.
-    effort: Option<Box<EffortMonitor>>,
+    pub(super) effort: Option<Box<EffortMonitor>>,
     /// New results since the last periodic metrics.
-    dirty: bool,
+    pub(super) dirty: bool,
     scratch_q: Vec<f64>,
 }
 
@@ -136,62 +139,6 @@ impl Twin {
             scratch_q: Vec::with_capacity(joint_count),
             robot,
         }
-    }
-
-    /// The twin of `robot` continued from `record`: counters, cumulative statistics, pose
-    /// `seq`, gateway `seq` and alarms as recorded, with new results due (its metrics go out
-    /// at the next periodic publication). Tells no sink ([`Twin::new`]).
-    pub fn restored(
-        robot: Robot,
-        config: &PipelineConfig,
-        record: &TwinRecord,
-    ) -> Result<Self, RestoreError> {
-        let configured = &robot.settings().model.arm().name;
-        if *configured != record.arm {
-            return Err(RestoreError::Arm {
-                robot: robot.id().to_owned(),
-                recorded: record.arm.clone(),
-                configured: configured.clone(),
-            });
-        }
-        let cumulative = CumulativeStats::from_parts(&record.cumulative).ok_or_else(|| {
-            RestoreError::Statistics {
-                robot: robot.id().to_owned(),
-            }
-        })?;
-        let applied = match &record.applied {
-            None => None,
-            Some(applied) => {
-                let model = robot
-                    .settings()
-                    .model
-                    .with_deltas(applied.deltas, applied.tool, APPLIED_SOURCE_NAME)
-                    .map_err(|e| RestoreError::Applied {
-                        robot: robot.id().to_owned(),
-                        problem: e.to_string(),
-                    })?;
-                Some(Arc::new(model))
-            }
-        };
-        let mut twin = Self::new(robot, config);
-        if let Some(model) = applied {
-            twin.model = model;
-        }
-        twin.epoch = record.epoch;
-        twin.paired = record.paired;
-        twin.unpaired = record.unpaired;
-        twin.rejected = record.rejected;
-        twin.next_pose_seq = record.next_pose_seq;
-        twin.last_gateway_seq = record.last_gateway_seq;
-        if record.cumulative.n > 0 {
-            twin.stats = Some(Box::new(DeviationStats {
-                cumulative,
-                window: WindowStats::new(twin.window_s, twin.window_max_samples),
-            }));
-        }
-        twin.alarms = AlarmStates::restored(record.alarms_active);
-        twin.dirty = true;
-        Ok(twin)
     }
 
     /// Its robot.
@@ -348,27 +295,6 @@ impl Twin {
         }
     }
 
-    /// What of it outlives the process.
-    #[must_use]
-    pub fn record(&self) -> TwinRecord {
-        TwinRecord {
-            robot: self.robot.id().to_owned(),
-            arm: self.model.arm().name.clone(),
-            epoch: self.epoch,
-            paired: self.paired,
-            unpaired: self.unpaired,
-            rejected: self.rejected,
-            next_pose_seq: self.next_pose_seq,
-            last_gateway_seq: self.last_gateway_seq,
-            cumulative: self.stats.as_ref().map_or_else(
-                || CumulativeStats::new().to_parts(),
-                |stats| stats.cumulative.to_parts(),
-            ),
-            alarms_active: self.alarms.active(),
-            applied: self.applied_model(),
-        }
-    }
-
     /// End of input: waiting measured poses become unpaired, and its final metrics go out.
     pub fn finish(&mut self, sink: &mut impl Sink) {
         for (pending, reason) in self.aligner.finish() {
@@ -378,28 +304,8 @@ impl Twin {
         sink.metrics(&self.robot, &self.metrics_readout());
     }
 
-    /// What an applied calibration changed in its configured model, if one was applied.
-    fn applied_model(&self) -> Option<AppliedModel> {
-        if Arc::ptr_eq(&self.model, &self.robot.settings().model) {
-            return None;
-        }
-        let deltas = match self
-            .model
-            .calibration()
-            .map(|calibration| &calibration.form)
-        {
-            Some(CalibrationForm::MountingDeltas(deltas)) => *deltas,
-            // Applied models are identified as deltas: any other form is the configured one.
-            Some(_) => return None,
-            None => MountingDeltas::ZERO,
-        };
-        Some(AppliedModel {
-            deltas,
-            tool: *self.model.tool(),
-        })
-    }
     /// An event of this robot.
-    fn event<'a>(
+    pub(super) fn event<'a>(
         &'a self,
         stamp_s: f64,
         kind: EventKind,
@@ -530,88 +436,6 @@ impl Twin {
         self.last_pose = Some((stamp_s, pose));
         self.step_effort(key, stamp_s, sample, sink);
         Ok(pose)
-    }
-
-    /// Steps the effort monitor, if the robot has one: its readout to the sink, its alarms as
-    /// events.
-    fn step_effort(&mut self, key: &str, stamp_s: f64, sample: &JointSample, sink: &mut impl Sink) {
-        let Some(monitor) = &mut self.effort else {
-            return;
-        };
-        let empty = JointState::default();
-        let state = sample.state.as_deref().unwrap_or(&empty);
-        // At most one change per joint and one of the payload per sample.
-        let mut alarms = [None; 8];
-        let mut count = 0;
-        let readout = monitor.step(stamp_s, &sample.q_rad, state, |alarm| {
-            if let Some(slot) = alarms.get_mut(count) {
-                *slot = Some(alarm);
-                count += 1;
-            }
-        });
-        if let Some(readout) = readout {
-            sink.effort(&self.robot, &readout);
-        }
-        for alarm in alarms.into_iter().flatten() {
-            let (kind, detail) = match alarm {
-                EffortAlarm::Collision {
-                    joint,
-                    value_nm,
-                    threshold_nm,
-                    on,
-                } => (
-                    on,
-                    EventDetail::Collision {
-                        joint: joint + 1,
-                        value_nm,
-                        threshold_nm,
-                    },
-                ),
-                EffortAlarm::Payload {
-                    estimated_kg,
-                    std_kg,
-                    modelled_kg,
-                    tolerance_kg,
-                    on,
-                } => (
-                    on,
-                    EventDetail::Payload {
-                        estimated_kg,
-                        std_kg,
-                        modelled_kg,
-                        tolerance_kg,
-                    },
-                ),
-            };
-            let kind = if kind {
-                EventKind::Alarm
-            } else {
-                EventKind::Recovered
-            };
-            sink.event(&self.event(stamp_s, kind, Some(key), detail, Reason::Effort));
-        }
-    }
-
-    /// What its effort monitor shows, if it has one.
-    #[must_use]
-    pub fn effort(&self) -> Option<EffortSummary> {
-        self.effort.as_ref().map(|monitor| monitor.summary())
-    }
-
-    /// Applies the identified payload to its effort model; `None` without an effort monitor or
-    /// an estimate.
-    pub fn apply_payload_estimate(&mut self) -> Option<Payload> {
-        self.dirty = true;
-        self.effort.as_mut()?.apply_estimate()
-    }
-
-    /// Drops an applied payload; `false` without an effort monitor.
-    pub fn discard_applied_payload(&mut self) -> bool {
-        self.dirty = true;
-        self.effort
-            .as_mut()
-            .map(|monitor| monitor.discard_applied())
-            .is_some()
     }
 
     /// Measured stamps must increase strictly; rejects (and returns false) otherwise.
@@ -921,24 +745,17 @@ fn transform(target_from_source: &IsometryMatrix3<f64>, pose: &PoseReadout) -> P
     PoseReadout::from_position_quaternion(position.coords.into(), &quaternion)
 }
 
-/// The effort monitor `robot`'s settings ask for. The configuration checked the arm when it was
-/// loaded; an arm that still cannot be watched (a model replaced by one of another size) is
-/// watched by none.
-fn effort_monitor(robot: &Robot, config: &PipelineConfig) -> Option<Box<EffortMonitor>> {
-    let effort = robot.settings().effort.as_ref()?;
-    EffortMonitor::new(robot.settings().model.arm(), effort, config.window_s)
-        .ok()
-        .map(Box::new)
-}
-
 #[cfg(test)]
 mod tests {
     use std::collections::HashMap;
 
     use super::*;
     use crate::kinematics::TcpOffset;
+    use crate::model::MountingDeltas;
     use crate::pipeline::sinks::{Discard, Record};
-    use crate::pipeline::{AlarmConfig, Pipeline, RobotDirectory, RobotSettings};
+    use crate::pipeline::{
+        AlarmConfig, AppliedModel, Pipeline, RestoreError, RobotDirectory, RobotSettings,
+    };
     use crate::sample::JointAngles;
 
     /// One input of a test run, given to a pipeline or to a twin alone.

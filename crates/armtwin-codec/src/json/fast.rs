@@ -13,7 +13,9 @@
 //! general decoder skips them.
 
 use super::MAX_PAYLOAD_BYTES;
-use super::decode::{DecodedJoints, OrientationForm, joint_index, pose_of};
+use super::decode::DecodedJoints;
+use super::pose::{OrientationForm, pose_of};
+use super::slots::joint_index;
 use armtwin_core::kinematics::PoseReadout;
 use armtwin_core::sample::{JointAngles, JointSample, MeasuredSample};
 

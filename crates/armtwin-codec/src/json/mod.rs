@@ -22,9 +22,11 @@
 //! round-trip form; a non-finite number would become `null`, `serde_json`'s rule), and the live
 //! self-calibration's [`EstimateMessage`].
 //!
-//! Files by concern: `decode` (the general decoder, one pass of `serde_json`'s parser) with
-//! `fast` (the usual shapes, held equal to it by the tests), `encode` (the fixed-layout writer)
-//! and `messages` (the output messages).
+//! Files by concern: `decode` (the entry points and the general decoder's checks) over `slots`
+//! (its one pass of `serde_json`'s parser into fixed slots), with `fast` (the usual shapes, held
+//! equal to it by the tests); `state` (the `state` object's own decoder, on a parsed value) and
+//! `pose` (a measured pose's orientation forms, shared with the binary codecs); `encode` (the
+//! fixed-layout writer), `messages` (the output messages) and `effort` (the effort outputs).
 
 use armtwin_core::pipeline::RejectCause;
 use thiserror::Error;
@@ -36,8 +38,10 @@ mod effort;
 mod encode;
 mod fast;
 mod messages;
+mod pose;
+mod slots;
+mod state;
 
-pub(crate) use decode::pose_from_quaternion;
 pub use decode::{
     DecodedJoints, decode_joints, decode_measured, read_joints, read_measured, stamp_hint,
 };
@@ -52,6 +56,7 @@ pub use messages::{
     StatsSetJson, WindowJson, deviation_json_bytes, joint_state_json, not_identifiable,
     parameters_json, pose_json_bytes,
 };
+pub(crate) use pose::pose_from_quaternion;
 
 /// Largest accepted payload (bytes); larger ones are rejected before parsing.
 pub const MAX_PAYLOAD_BYTES: usize = 64 * 1024;
@@ -279,6 +284,7 @@ pub type Undecodable = Refused<WireError>;
 /// one takes: not an interface.
 #[doc(hidden)]
 pub mod paths {
-    pub use super::decode::{general_joints, general_measured, joint_index};
+    pub use super::decode::{general_joints, general_measured};
     pub use super::fast::{joints as fast_joints, measured as fast_measured};
+    pub use super::slots::joint_index;
 }

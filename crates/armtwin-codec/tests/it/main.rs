@@ -8,6 +8,7 @@
 
 mod causes;
 mod json;
+mod json_messages;
 mod json_paths;
 mod ros2_cdr;
 mod zser;

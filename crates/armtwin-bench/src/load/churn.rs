@@ -19,7 +19,9 @@ use std::time::{Duration, Instant};
 use serde::{Deserialize, Serialize};
 use zenoh::Wait;
 
-use super::{Load, LoadError, Outgoing, RobotKeys, SETTLE, percentile_us};
+use super::robots::{Outgoing, RobotKeys};
+use super::trials::{SETTLE, percentile_us};
+use super::{Load, LoadError};
 
 /// How long after an interval ends its poses are counted and it is reported.
 const GRACE: Duration = Duration::from_secs(2);

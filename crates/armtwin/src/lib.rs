@@ -39,6 +39,8 @@ pub use armtwin_core::{
 pub mod calibrate;
 pub mod config;
 pub mod dashboard;
+#[cfg(test)]
+mod file_sizes;
 pub mod fmu_package;
 pub mod gateway;
 pub mod ingest;

@@ -1,16 +1,26 @@
 """A slow subscriber must not stall the twin (docs/protocol.md, "Delivery").
 
 Two robots stream joint messages (with embedded measured poses) into the real ``armtwin serve``
-while one subscriber, in a session of its own on a link with a small receive buffer, sleeps 10 s
-in its callback on robot ``a``'s poses and deviations. Another subscriber, in another session, must
-still get the poses of both robots without a stall; the service must twin every input (its final
-metrics pair every sample); the slow subscriber must have missed poses (so the congestion really
-happened), be able to count them from the gaps in ``seq``, and get fresh poses once it wakes.
+while one subscriber, in a process and session of its own on a link with a small receive buffer,
+sleeps 8 s in its callback on robot ``a``'s poses and deviations. Another subscriber, in another
+session, must still get the poses of both robots without a stall; the service must twin every
+input (its final metrics pair every sample); the slow subscriber must have missed poses (so the
+congestion really happened), be able to count them from the gaps in ``seq``, and get fresh poses
+once it wakes.
 
 Both robots are tracked (their liveliness tokens visible) before the subscribers are declared:
 a robot's declarations are reliable Zenoh messages that wait for a congested link, and Zenoh
 closes a link on which one waited longer than its ``wait_before_close``; the test is about the
 poses, not about a robot appearing while a subscriber sleeps.
+
+The sleeper runs in a process of its own, as a dashboard would: Zenoh's receive threads (two per
+process) and Python's interpreter lock are shared by every session of a process, so a sleeper
+beside the gateway held one of the gateway's two receive threads for the whole sleep; the gateway,
+which also subscribes to the blocking metrics, was seen to fall behind until the service closed
+its link after ``wait_before_close``, and the twin lost its input. It sleeps less than the lease
+(10 s, Zenoh's default): a callback that holds its session's receive thread for a whole lease
+makes that session itself close the link as expired, dropping what the link held; with a sleep of
+exactly the lease that happened or not by a millisecond.
 
 Run: ``.venv/bin/python -m pytest tests/python/test_slow_subscriber.py -q -s``.
 """
@@ -18,6 +28,8 @@ Run: ``.venv/bin/python -m pytest tests/python/test_slow_subscriber.py -q -s``.
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import threading
 import time
 
@@ -36,7 +48,9 @@ metrics_period_ms = 50
 model = "ur10e"
 """
 WATCHDOG_S = 180.0
-SLEEP_S = 10.0
+# Less than the service's lease (10 s) with a margin; long enough for the link to fill (its
+# receive buffer, the service's send buffer and Zenoh's queue hold a few seconds of poses).
+SLEEP_S = 8.0
 STREAM_S = 14.0
 RATE_HZ = 1500  # per robot
 ROBOTS = ("a", "b")
@@ -79,20 +93,11 @@ def session_on(endpoint: str) -> zenoh.Session:
 class PoseLog:
     """(arrival time, robot, seq) of every pose, from a Zenoh callback."""
 
-    def __init__(self, sleep_first_s: float = 0.0):
+    def __init__(self):
         self.lock = threading.Lock()
         self.items: list[tuple[float, str, int]] = []
-        self.sleep_first_s = sleep_first_s
-        self.slept = False
-        self.woke_at: float | None = None
 
     def __call__(self, sample: zenoh.Sample) -> None:
-        # Once, in whichever of the session's receiving threads comes first.
-        with self.lock:
-            sleep, self.slept = self.sleep_first_s and not self.slept, True
-        if sleep:
-            time.sleep(self.sleep_first_s)
-            self.woke_at = time.monotonic()
         _, stream, robot = str(sample.key_expr).split("/", 2)
         if stream != "pose":
             return
@@ -105,10 +110,109 @@ class PoseLog:
             return [(at, seq) for at, r, seq in self.items if r == robot]
 
 
-def test_a_subscriber_asleep_in_its_callback_stalls_nothing(twin):
+# The slow subscriber's process: subscribes to robot a's poses and deviations, sleeps SLEEP_S in
+# whichever of its session's receiving threads calls first, prints "ready" once the service knows
+# its subscribers, and on a line on stdin writes {"woke_at", "poses": [[at, seq], ...]} to a file
+# (time.monotonic(): one clock for every process of the machine). Zenoh's log, if RUST_LOG asks for
+# one, goes to its stdout too.
+SLEEPER = """
+import json, sys, threading, time
+import zenoh
+
+endpoint, prefix, sleep_s, result_path = sys.argv[1], sys.argv[2], float(sys.argv[3]), sys.argv[4]
+zenoh.init_log_from_env_or("error")
+conf = zenoh.Config()
+conf.insert_json5("mode", '"peer"')
+conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+conf.insert_json5("listen/endpoints", "[]")
+conf.insert_json5("scouting/multicast/enabled", "false")
+session = zenoh.open(conf)
+lock = threading.Lock()
+poses, slept, woke = [], [False], threading.Event()
+woke_at = [None]
+
+def on_sample(sample):
+    with lock:
+        sleep, slept[0] = not slept[0], True
+    if sleep:
+        time.sleep(sleep_s)
+        woke_at[0] = time.monotonic()
+        woke.set()
+    _, stream, _ = str(sample.key_expr).split("/", 2)
+    if stream == "pose":
+        seq = json.loads(sample.payload.to_bytes())["seq"]
+        with lock:
+            poses.append((time.monotonic(), seq))
+
+subs = [session.declare_subscriber(f"{prefix}/{stream}/a", on_sample) for stream in ("pose", "deviation")]
+list(session.get(f"{prefix}/state/**", timeout=10))
+print("ready", flush=True)
+sys.stdin.readline()
+woke.wait(30)
+time.sleep(1.0)  # what its link still holds
+for sub in subs:
+    sub.undeclare()
+with lock:
+    result = {"woke_at": woke_at[0], "poses": poses}
+session.close()
+with open(result_path, "w") as f:
+    json.dump(result, f)
+"""
+
+
+class Sleeper:
+    """The slow subscriber's process; its output read as it comes, so its log never blocks it."""
+
+    def __init__(self, endpoint: str, workdir):
+        self.result_path = workdir / "sleeper.json"
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", SLEEPER, endpoint, PREFIX, str(SLEEP_S), str(self.result_path)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        self.lines: list[str] = []
+        self.ready = threading.Event()
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
+
+    def _read(self) -> None:
+        for line in self.proc.stdout:
+            self.lines.append(line)
+            if line.strip() == "ready":
+                self.ready.set()
+
+    def output(self) -> str:
+        return "".join(self.lines)
+
+    def wait_ready(self, timeout: float) -> None:
+        """Until the service knows its subscribers."""
+        if not self.ready.wait(timeout):
+            self.kill()
+            raise RuntimeError(f"the slow subscriber's process did not get ready:\n{self.output()}")
+
+    def result(self) -> tuple[float | None, list[tuple[float, int]]]:
+        """When it woke, and (arrival time, seq) of each pose of robot a it got."""
+        self.proc.stdin.write("stop\n")
+        self.proc.stdin.close()
+        code = self.proc.wait(60)
+        self.reader.join(10)
+        if code != 0 or not self.result_path.exists():
+            raise RuntimeError(f"the slow subscriber's process exited with {code}:\n{self.output()}")
+        result = json.loads(self.result_path.read_text())
+        return result["woke_at"], [(at, seq) for at, seq in result["poses"]]
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+
+def test_a_subscriber_asleep_in_its_callback_stalls_nothing(twin, tmp_path):
     gateway = TwinClient(twin.endpoint)  # also the fast subscriber's session: twin/** minus inputs
-    slow_session = session_on(f"{twin.endpoint}#so_rcvbuf={SLOW_RCVBUF}")
     fast_session = session_on(twin.endpoint)
+    sleeper = None
     try:
         q, meas = load_fmpy()
         pubs = {r: gateway.joints(r) for r in ROBOTS}
@@ -123,13 +227,12 @@ def test_a_subscriber_asleep_in_its_callback_stalls_nothing(twin):
         }
         assert wait_until(lambda: alive() == {f"{PREFIX}/alive/{r}" for r in ROBOTS}, 30), alive()
 
-        slow = PoseLog(sleep_first_s=SLEEP_S)
         fast = PoseLog()
-        slow_subs = [slow_session.declare_subscriber(f"{PREFIX}/{stream}/a", slow) for stream in ("pose", "deviation")]
+        sleeper = Sleeper(f"{twin.endpoint}#so_rcvbuf={SLOW_RCVBUF}", tmp_path)
+        sleeper.wait_ready(30)
         fast_sub = fast_session.declare_subscriber(f"{PREFIX}/pose/*", fast)
-        # Each session's subscriber is known to the service once a query from it came back.
-        for session in (slow_session, fast_session):
-            list(session.get(f"{PREFIX}/state/**", timeout=10))
+        # A session's subscriber is known to the service once a query from it came back.
+        list(fast_session.get(f"{PREFIX}/state/**", timeout=10))
 
         sent = 1
         started = time.monotonic()
@@ -152,14 +255,12 @@ def test_a_subscriber_asleep_in_its_callback_stalls_nothing(twin):
         finals = {r: gateway.collector.wait_message("metrics", r, done(r), 60) for r in ROBOTS}
         last_seq = lambda r: max((seq for _, seq in fast.of(r)), default=None)  # noqa: E731
         wait_until(lambda: all(last_seq(r) == sent - 1 for r in ROBOTS), 30)
-        wait_until(lambda: slow.woke_at is not None, 30)
-        time.sleep(1.0)  # what the slow subscriber's link still holds
-        for sub in slow_subs:
-            sub.undeclare()
+        woke_at, slow_poses = sleeper.result()
         fast_sub.undeclare()
     finally:
-        for s in (slow_session, fast_session):
-            s.close()
+        if sleeper is not None:
+            sleeper.kill()
+        fast_session.close()
         gateway.close()
 
     failures = []
@@ -183,7 +284,7 @@ def test_a_subscriber_asleep_in_its_callback_stalls_nothing(twin):
         )
         if worst > STALL_S:
             failures.append(f"{r}: the fast subscriber waited {worst:.2f} s between two poses: the twin stalled")
-    slow_seqs = [s for _, s in slow.of("a")]
+    slow_seqs = [s for _, s in slow_poses]
     missed = (slow_seqs[-1] - len(slow_seqs)) if slow_seqs else sent - 1
     print(
         f"[a] slow subscriber: {len(slow_seqs)} poses, missed {missed} (from the gaps in seq); "
@@ -195,11 +296,12 @@ def test_a_subscriber_asleep_in_its_callback_stalls_nothing(twin):
         failures.append("slow subscriber missed nothing: its link never congested, the test proved nothing")
     # Still connected after its sleep: it gets poses published after it woke (how many depends on
     # how fast this machine lets it drain its backlog; those it cannot take are dropped for it).
-    woke_at = slow.woke_at if slow.woke_at is not None else float("inf")
+    woke_at = woke_at if woke_at is not None else float("inf")
     sent_when_woke = max(n for at, n in sent_by if at <= woke_at)
     if not slow_seqs or slow_seqs[-1] < sent_when_woke:
         failures.append(
             f"slow subscriber got nothing published after it woke (last seq {slow_seqs[-1:]}, "
             f"{sent_when_woke} sent when it woke, of {sent})"
         )
-    assert not failures, "\n".join(failures) + "\n" + twin.logs()
+    (tmp_path / "sleeper.out").write_text(sleeper.output())
+    assert not failures, "\n".join(failures) + "\n" + twin.logs() + "\nslow subscriber's process:\n" + sleeper.output()

@@ -71,12 +71,12 @@ pub struct Twin {
     reservoir: Option<Box<PairReservoir>>,
     epoch: u64,
     aligner: Aligner<Waiting>,
-    /// Created by the first paired measurement (the window's ring buffers are most of a twin's
+    /// Created by the first paired measurement (the window's slices are most of a twin's
     /// memory): a robot that only streams joints never needs them.
     stats: Option<Box<DeviationStats>>,
-    /// The metrics window's length (s) and cap on samples.
+    /// The metrics window's length (s) and slices.
     window_s: f64,
-    window_max_samples: usize,
+    window_slices: usize,
     paired: u64,
     unpaired: u64,
     rejected: u64,
@@ -117,7 +117,7 @@ impl Twin {
             aligner: Aligner::new(config.align),
             stats: None,
             window_s: config.window_s,
-            window_max_samples: config.window_max_samples,
+            window_slices: config.window_slices,
             paired: 0,
             unpaired: 0,
             rejected: 0,
@@ -186,7 +186,7 @@ impl Twin {
         if record.cumulative.n > 0 {
             twin.stats = Some(Box::new(DeviationStats {
                 cumulative,
-                window: WindowStats::new(twin.window_s, twin.window_max_samples),
+                window: WindowStats::new(twin.window_s, twin.window_slices),
             }));
         }
         twin.alarms = AlarmStates::restored(record.alarms_active);
@@ -810,7 +810,7 @@ impl Twin {
         }
         sink.deviation(&self.robot, stamp_s, &measured, &deviation);
         let stats = self.stats.get_or_insert_with(|| {
-            let mut window = WindowStats::new(self.window_s, self.window_max_samples);
+            let mut window = WindowStats::new(self.window_s, self.window_slices);
             // As if it had followed source time all along.
             window.advance_to(self.newest_s);
             Box::new(DeviationStats {

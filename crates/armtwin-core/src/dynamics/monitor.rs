@@ -16,6 +16,7 @@
 
 use super::payload::{AT_REST_RAD_S, AT_REST_RAD_S2, PayloadEstimate, PayloadIdentifier};
 use super::{ArmDynamics, ControllerMode, DynamicsError, JointFriction, Payload, ur};
+use crate::metrics::SlicedWindow;
 use crate::model::ArmDescription;
 use crate::sample::{JointQuantity, JointState};
 
@@ -41,8 +42,8 @@ const TEMPERATURE_BIN_C: f64 = 5.0;
 const TEMPERATURE_BINS: usize = 20;
 /// Rest samples between two payload estimates (an estimate solves a 4×4 eigenproblem).
 const PAYLOAD_ESTIMATE_EVERY: u32 = 50;
-/// Blocks the residual window is kept in: its statistics cover the window to one block.
-const WINDOW_BLOCKS: usize = 8;
+/// Slices the residual window is kept in: its edge moves in steps of an eighth of the window.
+const WINDOW_SLICES: usize = 8;
 
 /// How a robot's effort is watched.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -313,10 +314,9 @@ impl FrictionFit {
     }
 }
 
-/// One block of the residual window.
+/// Residual statistics since the start or the last reset.
 #[derive(Debug, Clone, Copy, Default)]
 struct Block {
-    start_s: f64,
     n: u64,
     sum_squares: [f64; J],
     max_nm: [f64; J],
@@ -336,25 +336,22 @@ impl Block {
         }
     }
 
-    fn merge(&mut self, other: &Self) {
-        self.n += other.n;
-        for k in 0..J {
-            self.sum_squares[k] += other.sum_squares[k];
-            self.max_nm[k] = self.max_nm[k].max(other.max_nm[k]);
-        }
-    }
-
-    #[allow(
-        clippy::cast_precision_loss,
-        reason = "counts below 2⁵³ are exact in f64"
-    )]
     fn stats(&self) -> ResidualStats {
-        let n = self.n.max(1) as f64;
-        ResidualStats {
-            n: self.n,
-            rms_nm: std::array::from_fn(|k| (self.sum_squares[k] / n).sqrt()),
-            max_nm: self.max_nm,
-        }
+        residual_stats(self.n, &self.sum_squares, self.max_nm)
+    }
+}
+
+/// RMS and maximum of `n` residuals from their sums of squares and maxima (0 when `n` is 0).
+#[allow(
+    clippy::cast_precision_loss,
+    reason = "counts below 2⁵³ are exact in f64"
+)]
+fn residual_stats(n: u64, sum_squares: &[f64; J], max_nm: [f64; J]) -> ResidualStats {
+    let count = n.max(1) as f64;
+    ResidualStats {
+        n,
+        rms_nm: std::array::from_fn(|k| (sum_squares[k] / count).sqrt()),
+        max_nm,
     }
 }
 
@@ -405,8 +402,8 @@ pub struct EffortMonitor {
     baselines: [[Option<f64>; TEMPERATURE_BINS + 1]; J],
     temperature_c: [Option<f64>; J],
     cumulative: Block,
-    window: [Block; WINDOW_BLOCKS],
-    window_s: f64,
+    /// Residual magnitudes over the last `window_s`.
+    window: SlicedWindow<J>,
     latest: Option<EffortReadout>,
     collision: [bool; J],
     collisions: u64,
@@ -472,8 +469,7 @@ impl EffortMonitor {
             baselines: [[None; TEMPERATURE_BINS + 1]; J],
             temperature_c: [None; J],
             cumulative: Block::default(),
-            window: [Block::default(); WINDOW_BLOCKS],
-            window_s,
+            window: SlicedWindow::new(window_s, WINDOW_SLICES),
             latest: None,
             collision: [false; J],
             collisions: 0,
@@ -591,6 +587,8 @@ impl EffortMonitor {
             residual_nm,
             observer_nm,
         };
+        // The window follows source time, so it empties when program-mode residuals stop.
+        self.window.advance_to(stamp_s);
         self.latest = Some(readout);
         Some(readout)
     }
@@ -803,45 +801,18 @@ impl EffortMonitor {
     pub fn restart_clock(&mut self) {
         self.previous = None;
         self.observer.last_s = None;
-        self.window = [Block::default(); WINDOW_BLOCKS];
+        self.window.reset();
     }
 
     /// Residual statistics start afresh (a reset); fits and alarms stay.
     pub fn reset_statistics(&mut self) {
         self.cumulative = Block::default();
-        self.window = [Block::default(); WINDOW_BLOCKS];
+        self.window.reset();
     }
 
     fn add_residual(&mut self, stamp_s: f64, residual_nm: &[f64; J]) {
         self.cumulative.add(residual_nm);
-        #[allow(clippy::cast_precision_loss, reason = "a handful of blocks")]
-        let block_s = self.window_s / WINDOW_BLOCKS as f64;
-        let newest = self
-            .window
-            .iter()
-            .enumerate()
-            .filter(|(_, block)| block.n > 0)
-            .max_by(|a, b| a.1.start_s.total_cmp(&b.1.start_s))
-            .map(|(index, block)| (index, block.start_s));
-        let index = match newest {
-            Some((index, start_s)) if stamp_s < start_s + block_s && stamp_s >= start_s => index,
-            Some((index, _)) => {
-                let next = (index + 1) % WINDOW_BLOCKS;
-                self.window[next] = Block {
-                    start_s: stamp_s,
-                    ..Block::default()
-                };
-                next
-            }
-            None => {
-                self.window[0] = Block {
-                    start_s: stamp_s,
-                    ..Block::default()
-                };
-                0
-            }
-        };
-        self.window[index].add(residual_nm);
+        self.window.add(stamp_s, &residual_nm.map(f64::abs));
     }
 
     /// Keeps, per joint, the first friction fitted in each temperature bin.
@@ -868,15 +839,7 @@ impl EffortMonitor {
     /// What the monitor shows now.
     #[must_use]
     pub fn summary(&self) -> EffortSummary {
-        let newest_s = self
-            .latest
-            .map_or(f64::NEG_INFINITY, |latest| latest.stamp_s);
-        let mut window = Block::default();
-        for block in &self.window {
-            if block.n > 0 && block.start_s > newest_s - self.window_s {
-                window.merge(block);
-            }
-        }
+        let window = self.window.totals();
         let friction = std::array::from_fn(|k| {
             let JointFriction {
                 coulomb_nm,
@@ -903,8 +866,8 @@ impl EffortMonitor {
         EffortSummary {
             latest: self.latest,
             cumulative: self.cumulative.stats(),
-            window: window.stats(),
-            window_s: self.window_s,
+            window: residual_stats(window.n, &window.sums_of_squares, window.maxima),
+            window_s: self.window.window_s(),
             friction,
             payload: PayloadReadout {
                 configured,

@@ -48,15 +48,16 @@ impl Deviation {
     pub fn between(twin: &PoseReadout, measured: &PoseReadout) -> Self {
         let [dx_m, dy_m, dz_m] =
             std::array::from_fn(|axis| twin.position_m[axis] - measured.position_m[axis]);
-        let (twin_q, measured_q) = (twin.quaternion(), measured.quaternion());
+        let angle_rad =
+            orientation::rotation_angle_between(&twin.quaternion(), &measured.quaternion());
         let rpy = orientation::rpy_difference(twin.rpy, measured.rpy);
         Self {
             dx_m,
             dy_m,
             dz_m,
             position_m: (dx_m * dx_m + dy_m * dy_m + dz_m * dz_m).sqrt(),
-            quat_distance: orientation::quaternion_distance(&twin_q, &measured_q),
-            angle_rad: orientation::rotation_angle_between(&twin_q, &measured_q),
+            quat_distance: orientation::quaternion_distance_of_angle(angle_rad),
+            angle_rad,
             droll_rad: rpy.roll_rad,
             dpitch_rad: rpy.pitch_rad,
             dyaw_rad: rpy.yaw_rad,

@@ -88,6 +88,8 @@ pub struct Twin {
     /// of the last joint sample that brought any.
     last_state: Option<(f64, JointState)>,
     last_pose: Option<(f64, PoseReadout)>,
+    /// The metrics epoch whose model computed `last_pose`.
+    last_pose_epoch: u64,
     /// Last accepted measured stamp per stream: index 0 the robot's own (controller) stream,
     /// `i + 1` sensor `i`.
     last_measured_s: Vec<Option<f64>>,
@@ -127,6 +129,7 @@ impl Twin {
             last_joints: Vec::with_capacity(joint_count),
             last_state: None,
             last_pose: None,
+            last_pose_epoch: 0,
             last_measured_s: Vec::new(),
             last_measured: None,
             newest_s: f64::NEG_INFINITY,
@@ -528,6 +531,7 @@ impl Twin {
             }
         }
         self.last_pose = Some((stamp_s, pose));
+        self.last_pose_epoch = self.epoch;
         self.step_effort(key, stamp_s, sample, sink);
         Ok(pose)
     }
@@ -747,9 +751,17 @@ impl Twin {
                 return;
             }
         }
-        // Recomputed rather than kept for every sample of history: the same pure function of the
-        // same angles, so the same pose: one FK costs less than keeping a pose per sample.
-        let twin_pose = self.model.chain().pose_unchecked(&self.scratch_q).readout();
+        // The newest joint sample's pose when the measured stamp is its own (the common case: a
+        // joint message, then its measured pose), else recomputed rather than kept for every
+        // sample of history: the same pure function of the same angles, so the same pose.
+        let twin_pose = match self.last_pose {
+            Some((joint_s, pose))
+                if joint_s.to_bits() == stamp_s.to_bits() && self.last_pose_epoch == self.epoch =>
+            {
+                pose
+            }
+            _ => self.model.chain().pose_unchecked(&self.scratch_q).readout(),
+        };
         if self.pair(key, stamp_s, &twin_pose, pose, sink)
             && let Some(reservoir) = &mut self.reservoir
         {

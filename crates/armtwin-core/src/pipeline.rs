@@ -40,7 +40,7 @@ use std::sync::Arc;
 
 use nalgebra::IsometryMatrix3;
 
-pub use self::alarm::{AlarmConfig, Alarms};
+pub use self::alarm::{AlarmChange, AlarmConfig, AlarmStates, Alarms};
 pub use self::directory::{Robot, RobotDirectory, RobotIndex, Untracked};
 pub use self::event::{Event, EventDetail, EventKind, Reason, RejectCause};
 pub use self::record::{AppliedModel, RestoreError, TwinRecord};

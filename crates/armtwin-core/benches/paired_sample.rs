@@ -1,9 +1,9 @@
-//! A paired sample's arithmetic, part by part, in ns per call: the FK of a calibrated arm, the
-//! deviation of two poses, the aligner's bracket of a measured stamp, the cumulative statistics,
-//! the sliced window (an add into a full window at 100 and at 500 Hz, moving time on, a
-//! snapshot), the alarms; and the twin's whole step for one decoded joint sample and its measured
-//! pose, as `armtwin-bench load` sends them (a joint message, then the measured pose 0.54 mm off),
-//! the window full. The codecs are `armtwin-bench`'s `benches/ingest.rs`.
+//! A paired sample's arithmetic, part by part, in ns per call: the deviation of two poses, the
+//! aligner's bracket of a measured stamp, the cumulative statistics, the sliced window (an add
+//! into a full window at 100 and at 500 Hz, moving time on, a snapshot), the alarms; and the
+//! twin's whole step for one decoded joint sample and its measured pose, as `armtwin-bench load`
+//! sends them (a joint message, then the measured pose 0.54 mm off), the window full. The FK is `armtwin-bench`'s `benches/fk.rs` (`parts/pose_only_calibrated`
+//! for a calibrated arm, `parts/readout_only`), the codecs its `benches/ingest.rs`.
 //!
 //! `cargo bench -p armtwin-core --bench paired_sample`
 #![allow(
@@ -16,11 +16,11 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use armtwin_core::align::{AlignConfig, Aligner};
-use armtwin_core::kinematics::{OutputFrame, PoseReadout, TcpOffset};
+use armtwin_core::kinematics::PoseReadout;
 use armtwin_core::metrics::{
     CumulativeStats, DEFAULT_WINDOW_SLICES, Deviation, METRIC_COUNT, WindowStats,
 };
-use armtwin_core::model::{Calibration, RobotModel, catalog};
+use armtwin_core::model::RobotModel;
 use armtwin_core::pipeline::{
     AlarmConfig, AlarmStates, Discard, MeasuredStream, Pipeline, PipelineConfig, Robot,
     RobotDirectory, RobotSettings,
@@ -86,23 +86,6 @@ fn statistics(c: &mut Criterion) {
     });
 }
 
-/// The example `ur_calibration.yaml`'s UR10e with a tool, output in `base_link`.
-fn calibrated_ur10e() -> RobotModel {
-    RobotModel::new(
-        catalog::arm("ur10e").expect("catalog"),
-        Some(
-            Calibration::parse(
-                include_str!("../../../config/examples/ur_calibration.yaml"),
-                "ur_calibration.yaml",
-            )
-            .expect("example calibration"),
-        ),
-        TcpOffset::from_ur_pose([0.0, 0.02, 0.15, 0.0, 0.0, 0.5]).expect("finite"),
-        OutputFrame::BaseLink,
-    )
-    .expect("model")
-}
-
 /// `pose` moved 0.54 mm along x and turned 0.2 mrad about z, as a measured pose would be.
 fn measured_near(pose: &PoseReadout) -> PoseReadout {
     let turn = nalgebra::UnitQuaternion::from_scaled_axis(nalgebra::Vector3::new(0.0, 0.0, 2e-4));
@@ -112,15 +95,8 @@ fn measured_near(pose: &PoseReadout) -> PoseReadout {
 }
 
 fn parts(c: &mut Criterion) {
-    let calibrated = calibrated_ur10e();
-    c.bench_function("fk/pose_calibrated", |b| {
-        b.iter(|| calibrated.chain().pose_unchecked(black_box(&Q)));
-    });
-    let pose = calibrated.chain().pose_unchecked(&Q);
-    c.bench_function("fk/readout", |b| {
-        b.iter(|| black_box(&pose).readout());
-    });
-    let twin = pose.readout();
+    let model = RobotModel::nominal("ur10e").expect("catalog");
+    let twin = model.pose(&Q).expect("within limits").readout();
     let measured = measured_near(&twin);
     c.bench_function("deviation/between", |b| {
         b.iter(|| Deviation::between(black_box(&twin), black_box(&measured)));

@@ -337,7 +337,9 @@ fn window_does_not_drift_over_two_million_samples() {
         assert_eq!(window.add(stamp_s, &sample), taken);
         if reference.taken.len() > 4000 {
             let newest = reference.newest.expect("samples were taken");
-            reference.taken.retain(|s| s.slice > newest - reference.slices);
+            reference
+                .taken
+                .retain(|s| s.slice > newest - reference.slices);
         }
     }
     let expected: Vec<Magnitudes> = reference.window().iter().map(|s| s.values).collect();

@@ -116,14 +116,16 @@ fn acceptable<const M: usize>(magnitudes: &[f64; M]) -> bool {
         .all(|&x| (0.0..=MAGNITUDE_LIMIT).contains(&x))
 }
 
+/// A test's sample: the same magnitude for every metric.
+#[cfg(test)]
+fn uniform(x: f64) -> [f64; METRIC_COUNT] {
+    [x; METRIC_COUNT]
+}
+
 #[cfg(test)]
 #[allow(clippy::float_cmp, reason = "exact results are expected where tested")]
 mod tests {
     use super::*;
-
-    fn uniform(x: f64) -> [f64; METRIC_COUNT] {
-        [x; METRIC_COUNT]
-    }
 
     #[test]
     fn every_metric_is_named_at_its_index() {

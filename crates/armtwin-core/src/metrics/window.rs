@@ -470,10 +470,7 @@ impl SlicedWindow<METRIC_COUNT> {
 #[allow(clippy::float_cmp, reason = "exact results are expected where tested")]
 mod tests {
     use super::*;
-
-    fn uniform(x: f64) -> [f64; METRIC_COUNT] {
-        [x; METRIC_COUNT]
-    }
+    use crate::metrics::uniform;
 
     #[test]
     fn window_boundary_is_exclusive_of_exactly_window_s_ago() {

@@ -1,7 +1,7 @@
 //! FK cost: one pose with position, quaternion and roll/pitch/yaw (what the service computes per
 //! joint sample), its parts (`pose_only` takes the UR closed form, `pose_only_link_by_link` the
-//! general chain), and the platform's scalar `sin_cos` / `atan2` as in-run baselines for the
-//! batched trig.
+//! general chain, `pose_only_calibrated` the calibrated arm's, link by link), and the platform's
+//! scalar `sin_cos` / `atan2` as in-run baselines for the batched trig.
 //!
 //! `cargo bench -p armtwin-bench --bench fk`; `examples/fk_min_time.rs` times the same calls.
 #![allow(
@@ -24,6 +24,9 @@ fn fk(c: &mut Criterion) {
     let calibrated = calibrated_ur10e();
     c.bench_function("fk_readout/ur10e_yaml_calibration_tool_base_link", |b| {
         b.iter(|| calibrated.pose(black_box(&Q)).expect("valid").readout());
+    });
+    c.bench_function("parts/pose_only_calibrated", |b| {
+        b.iter(|| calibrated.chain().pose_unchecked(black_box(&Q)));
     });
     c.bench_function("parts/pose_only", |b| {
         b.iter(|| model.chain().pose_unchecked(black_box(&Q)));

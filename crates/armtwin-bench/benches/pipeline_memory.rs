@@ -4,8 +4,9 @@
 //! (`ingest::joint_message` / `ingest::measured_message`, JSON payloads) into a sink that drops
 //! everything, with a counting global allocator.
 //!
-//! `cargo bench -p armtwin-bench --bench pipeline_memory [-- ROBOTS [SAMPLES]]`
-//! (defaults: 10 000 robots, 4 samples each).
+//! `cargo bench -p armtwin-bench --bench pipeline_memory [-- ROBOTS [SAMPLES [RATE_HZ]]]`
+//! (defaults: 10 000 robots, 4 samples each, 100 Hz); e.g. `-- 1000 1100` for robots streaming
+//! with full windows, `-- 1000 5500 500` the same at 500 Hz.
 #![allow(
     clippy::expect_used,
     reason = "a measuring binary whose fixtures are the checkout's own constants"
@@ -80,6 +81,7 @@ fn live_bytes() -> isize {
 /// (a millimetre off), as `armtwin-bench load` sends them.
 struct Messages {
     model: RobotModel,
+    rate_hz: f64,
 }
 
 impl Messages {
@@ -107,7 +109,8 @@ impl Messages {
     }
 }
 
-/// Feeds robots `range` samples `samples` (joint, then measured unless `joints_only`, 100 Hz).
+/// Feeds robots `range` samples `samples` (joint, then measured unless `joints_only`) at
+/// `messages.rate_hz`.
 fn feed(
     (robots, pipeline): (&mut RobotDirectory, &mut Pipeline),
     messages: &Messages,
@@ -116,7 +119,7 @@ fn feed(
 ) {
     let mut sink = Discard;
     for sample in samples {
-        let stamp_s = 1000.0 + sample as f64 * 0.01;
+        let stamp_s = 1000.0 + sample as f64 / messages.rate_hz;
         let joints = Messages::joints(sample, stamp_s);
         let measured = messages.measured(sample, stamp_s);
         for index in range.clone() {
@@ -171,11 +174,13 @@ fn main() {
         .collect();
     let robots = arguments.first().copied().unwrap_or(10_000).max(11);
     let samples = arguments.get(1).copied().unwrap_or(4).max(1);
+    let rate_hz = arguments.get(2).copied().unwrap_or(100).max(1) as f64;
 
     let (config_bytes, config) =
         heap_of(|| parsed_service_config(robots).expect("generated configuration"));
     let messages = Messages {
         model: RobotModel::nominal("ur10e").expect("catalog"),
+        rate_hz,
     };
     let mut directory = RobotDirectory::new(config.default_robot, config.robots);
     let mut pipeline = Pipeline::new(config.pipeline);
@@ -205,7 +210,9 @@ fn main() {
     let tracked = (robots - FIRST) as f64;
     let per_robot = |bytes: isize| bytes as f64 / tracked;
 
-    println!("pipeline memory: {robots} ur10e robots configured, {samples} samples each (100 Hz)");
+    println!(
+        "pipeline memory: {robots} ur10e robots configured, {samples} samples each ({rate_hz} Hz)"
+    );
     println!(
         "  configuration (parsed settings of every listed robot): {:.0} bytes per robot",
         config_bytes as f64 / robots as f64
@@ -244,15 +251,15 @@ fn main() {
         per_robot(live_bytes() - base)
     );
 
-    print_parts(&config.pipeline, samples);
+    print_parts(&config.pipeline, samples, rate_hz);
     drop(pipeline);
 }
 
 /// The main parts' inline sizes and heap after `samples` samples, each built alone.
-fn print_parts(pipeline: &PipelineConfig, samples: usize) {
+fn print_parts(pipeline: &PipelineConfig, samples: usize, rate_hz: f64) {
     let model = RobotModel::nominal("ur10e").expect("catalog");
     let (window_bytes, window) = heap_of(|| {
-        let mut window = WindowStats::new(pipeline.window_s, pipeline.window_max_samples);
+        let mut window = WindowStats::new(pipeline.window_s, pipeline.window_slices);
         for sample in 0..samples {
             let pose = model
                 .pose(&Messages::q_rad(sample))
@@ -261,14 +268,14 @@ fn print_parts(pipeline: &PipelineConfig, samples: usize) {
             let mut measured = pose;
             measured.position_m[0] += 0.001;
             let deviation = Deviation::between(&pose, &measured);
-            window.add(sample as f64 * 0.01, &deviation.magnitudes());
+            window.add(sample as f64 / rate_hz, &deviation.magnitudes());
         }
         window
     });
     let (aligner_bytes, aligner) = heap_of(|| {
         let mut aligner = Aligner::<PoseReadout>::new(pipeline.align);
         for sample in 0..samples {
-            aligner.push_joints(sample as f64 * 0.01, &Messages::q_rad(sample));
+            aligner.push_joints(sample as f64 / rate_hz, &Messages::q_rad(sample));
         }
         aligner
     });

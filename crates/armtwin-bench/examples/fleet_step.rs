@@ -5,8 +5,11 @@
 //! Timed once every robot's 10-s window is full, when a streaming robot's state is largest: what
 //! the state's layout costs once it no longer fits the CPU's caches is the ratio to 1 robot.
 //!
-//! `cargo run --release -p armtwin-bench --example fleet_step [-- ROBOTS,...]` (default
-//! 1,10,100,1000); prints, per robot count, the fastest and the median pass in ns per sample.
+//! `cargo run --release -p armtwin-bench --example fleet_step [-- ROBOTS,... [json|decoded]]`
+//! (default 1,10,100,1000, json); prints, per robot count, the fastest and the median pass in ns
+//! per sample. `decoded` feeds the same samples decoded ahead of time into the pipeline's own
+//! entry points (`Pipeline::joints` / `Pipeline::measured`): the twin's own work per paired
+//! sample, without the codec.
 #![allow(
     clippy::expect_used,
     reason = "a measuring binary whose fixtures are the checkout's own constants"
@@ -15,9 +18,56 @@
 
 use std::time::Instant;
 
+use armtwin::codec::json::{self, DecodedJoints};
 use armtwin::ingest::Codec;
-use armtwin::pipeline::Discard;
+use armtwin::pipeline::{Discard, MeasuredStream, Pipeline, Robot};
+use armtwin::sample::MeasuredSample;
 use armtwin_bench::ingest_fixture::{Load, RENDERED, RobotKeys, Twin, feed};
+
+/// How the samples enter the pipeline.
+#[derive(Clone, Copy, PartialEq)]
+enum Mode {
+    /// JSON payloads through the service's entry points, decoded there.
+    Json,
+    /// Decoded ahead of time, into the pipeline's own entry points.
+    Decoded,
+}
+
+/// The load's samples, decoded once.
+struct Decoded {
+    samples: Vec<(f64, DecodedJoints, MeasuredSample)>,
+}
+
+impl Decoded {
+    fn of(load: &Load) -> Self {
+        let samples = load
+            .samples
+            .iter()
+            .map(|(stamp_s, joints, measured)| {
+                (
+                    *stamp_s,
+                    json::read_joints(joints.as_bytes(), 6).expect("a valid joint message"),
+                    json::read_measured(measured.as_bytes()).expect("a valid measured pose"),
+                )
+            })
+            .collect();
+        Self { samples }
+    }
+
+    /// Sample `index` of `robot` into `pipeline`: its joints, then its measured pose.
+    fn feed(&self, pipeline: &mut Pipeline, (robot, keys): (&Robot, &RobotKeys), index: usize) {
+        let (stamp_s, joints, measured) = &self.samples[index];
+        pipeline.joints(robot, &keys.joints, *stamp_s, &joints.sample, &mut Discard);
+        pipeline.measured(
+            robot,
+            &keys.measured,
+            MeasuredStream::Robot,
+            *stamp_s,
+            &measured.pose,
+            &mut Discard,
+        );
+    }
+}
 
 /// Samples per robot before the timing starts: more than the 10-s window holds at 100 Hz.
 const WARM_UP: usize = 1100;
@@ -25,7 +75,7 @@ const WARM_UP: usize = 1100;
 const TIMED: usize = 400_000;
 
 /// A fresh pipeline of `robots` robots, warmed up, then `TIMED` samples: ns per sample.
-fn pass(load: &Load, robots: usize) -> f64 {
+fn pass(load: &Load, decoded: Option<&Decoded>, robots: usize) -> f64 {
     let Twin {
         robots: directory,
         mut pipeline,
@@ -37,6 +87,10 @@ fn pass(load: &Load, robots: usize) -> f64 {
         let (stamp_s, joints, measured) = &load.samples[index];
         for keys in &keys {
             let robot = directory.find(&keys.id).expect("a configured robot");
+            if let Some(decoded) = decoded {
+                decoded.feed(pipeline, (robot, keys), index);
+                continue;
+            }
             feed(
                 pipeline,
                 (robot, keys),
@@ -66,15 +120,24 @@ fn main() {
                 .collect()
         },
     );
+    let mode = match std::env::args().nth(2).as_deref() {
+        None | Some("json") => Mode::Json,
+        Some("decoded") => Mode::Decoded,
+        Some(other) => panic!("mode {other}: json or decoded"),
+    };
     let load = Load::starting_at(0);
+    let decoded = (mode == Mode::Decoded).then(|| Decoded::of(&load));
+    let decoded = decoded.as_ref();
     // Untimed: a process's first pass runs slower (the rendered payloads' first reads).
-    let _ = pass(&load, 1);
+    let _ = pass(&load, decoded, 1);
     println!("| robots | fastest pass ns/sample | median pass ns/sample | median / 1 robot's |");
     println!("| ---: | ---: | ---: | ---: |");
     let mut one_robot = None;
     for robots in counts {
         let passes = if robots >= 1000 { 3 } else { 7 };
-        let mut ns: Vec<f64> = (0..passes).map(|_| pass(&load, robots.max(1))).collect();
+        let mut ns: Vec<f64> = (0..passes)
+            .map(|_| pass(&load, decoded, robots.max(1)))
+            .collect();
         ns.sort_by(f64::total_cmp);
         let median = ns[ns.len() / 2];
         if robots == 1 {

@@ -277,8 +277,15 @@ impl<T> Aligner<T> {
                 oldest_joint_s: oldest,
             });
         }
-        // First joint sample at or after the stamp.
-        let after = self.stamps_s.partition_point(|&s| s < stamp_s);
+        // First joint sample at or after the stamp: the newest one for nearly every measured
+        // pose (its own joint sample, or just before it), so looked at first; a search of the
+        // history would read a cache line per step.
+        let len = self.stamps_s.len();
+        let after = if len < 2 || stamp_s > self.stamps_s[len - 2] {
+            len - 1
+        } else {
+            self.stamps_s.partition_point(|&s| s < stamp_s)
+        };
         #[allow(
             clippy::float_cmp,
             reason = "an exact stamp match is the defined pairing"

@@ -23,7 +23,8 @@
 //!   (`calibration.conf`, `ur_calibration` YAML) and [`model::RobotModel`].
 //! - [`pose_fields`]: a pose as the named output fields every mode writes.
 //! - [`sample`]: decoded joint and measured-pose samples, whatever their source.
-//! - [`metrics`]: deviation of one paired sample; cumulative and exact sliding-window statistics.
+//! - [`metrics`]: deviation of one paired sample; cumulative statistics and a sliding window of
+//!   source time kept in time slices.
 //! - [`align`]: pairing measured poses with joint samples in source time.
 //! - [`self_calibration`]: a live robot's reservoir of pairs and the re-fit of its kinematics
 //!   from them, judged on held-out time blocks.

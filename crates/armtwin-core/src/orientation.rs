@@ -243,7 +243,14 @@ pub fn rotation_angle_between(a: &UnitQuaternion<f64>, b: &UnitQuaternion<f64>) 
 /// and free of the cancellation in `1 − |⟨a, b⟩|` for nearby rotations.
 #[must_use]
 pub fn quaternion_distance(a: &UnitQuaternion<f64>, b: &UnitQuaternion<f64>) -> f64 {
-    let s = (0.25 * rotation_angle_between(a, b)).sin();
+    quaternion_distance_of_angle(rotation_angle_between(a, b))
+}
+
+/// [`quaternion_distance`] of two rotations `angle_rad` apart (the [`rotation_angle_between`]
+/// them): `2·sin²(θ/4)`, for a caller that has the angle already.
+#[must_use]
+pub fn quaternion_distance_of_angle(angle_rad: f64) -> f64 {
+    let s = (0.25 * angle_rad).sin();
     2.0 * s * s
 }
 

@@ -41,7 +41,7 @@ use std::sync::Arc;
 
 use nalgebra::IsometryMatrix3;
 
-pub use self::alarm::{AlarmConfig, Alarms};
+pub use self::alarm::{AlarmChange, AlarmConfig, AlarmStates, Alarms};
 pub use self::directory::{Robot, RobotDirectory, RobotIndex, Untracked};
 pub use self::event::{Event, EventDetail, EventKind, Reason, RejectCause};
 pub use self::record::{AppliedModel, RestoreError, TwinRecord};
@@ -51,7 +51,7 @@ pub use self::twin::Twin;
 use crate::align::AlignConfig;
 use crate::dynamics::monitor::{EffortConfig, EffortSummary};
 use crate::kinematics::PoseReadout;
-use crate::metrics::StatsSet;
+use crate::metrics::{DEFAULT_WINDOW_SLICES, StatsSet};
 use crate::model::RobotModel;
 use crate::sample::{JointSample, JointState};
 use crate::self_calibration::{PairReservoir, ReservoirConfig};
@@ -87,8 +87,10 @@ pub struct RobotSettings {
 pub struct PipelineConfig {
     /// Length of the metrics window (s of source time).
     pub window_s: f64,
-    /// Most samples one robot's window holds, whatever the rate (bounds memory).
-    pub window_max_samples: usize,
+    /// Time slices the metrics window is kept in ([`crate::metrics::SlicedWindow`]): its edge
+    /// moves in steps of `window_s / window_slices`, and a robot's window holds this many slices
+    /// whatever the rate.
+    pub window_slices: usize,
     /// Time alignment limits.
     pub align: AlignConfig,
 }
@@ -97,7 +99,7 @@ impl Default for PipelineConfig {
     fn default() -> Self {
         Self {
             window_s: 10.0,
-            window_max_samples: 100_000,
+            window_slices: DEFAULT_WINDOW_SLICES,
             align: AlignConfig::default(),
         }
     }

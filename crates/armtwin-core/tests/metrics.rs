@@ -1,4 +1,5 @@
-//! Streaming metrics against naive two-pass and exact-integer recomputations, and deviations by hand.
+//! Streaming metrics against naive two-pass and exact-integer recomputations over the same
+//! samples (the window's: the same slices), and deviations by hand.
 #![allow(
     clippy::expect_used,
     clippy::unwrap_used,
@@ -66,10 +67,12 @@ fn check(got: &StatsSet, expected: &StatsSet, relative: f64) -> Result<(), TestC
     Ok(())
 }
 
-/// A magnitude spanning twelve orders of magnitude, sometimes exactly zero.
+/// A magnitude spanning twelve orders of magnitude, sometimes exactly zero, sometimes one of two
+/// values that recur (ties for the maximum).
 fn magnitude() -> impl Strategy<Value = f64> {
     prop_oneof![
         1 => Just(0.0),
+        2 => prop_oneof![Just(1e-3), Just(2e-3)],
         9 => (1.0..10.0f64, -9..3i32).prop_map(|(mantissa, exponent)| mantissa * 10f64.powi(exponent)),
     ]
 }
@@ -88,21 +91,80 @@ fn gap_s() -> impl Strategy<Value = f64> {
     ]
 }
 
-/// The samples a window of `window_s` capped at `max_samples` holds, from the definition.
-fn expected_window(
-    stamped: &[(f64, Magnitudes)],
+/// A sample as the window's oracle sees it: stamp, values, and the slice the window puts it in.
+struct Stamped {
+    stamp_s: f64,
+    slice: i64,
+    values: Magnitudes,
+}
+
+/// The window's contract kept by hand: every sample it took, and the newest slice.
+struct Reference {
+    slices: i64,
+    newest: Option<i64>,
+    taken: Vec<Stamped>,
+}
+
+impl Reference {
+    fn new(slices: usize) -> Self {
+        Self {
+            slices: i64::try_from(slices).expect("a window's slices"),
+            newest: None,
+            taken: Vec::new(),
+        }
+    }
+
+    fn inside(&self, slice: i64) -> bool {
+        self.newest
+            .is_none_or(|newest| slice > newest - self.slices)
+    }
+
+    /// A sample at `stamp_s` in `slice`: taken unless its slice has left the window.
+    fn add(&mut self, stamp_s: f64, slice: i64, values: Magnitudes) -> bool {
+        if !self.inside(slice) {
+            return false;
+        }
+        self.advance(slice);
+        self.taken.push(Stamped {
+            stamp_s,
+            slice,
+            values,
+        });
+        true
+    }
+
+    fn advance(&mut self, slice: i64) {
+        self.newest = Some(self.newest.map_or(slice, |newest| newest.max(slice)));
+    }
+
+    /// The samples in the window now, by the definition: those of its last `slices` slices.
+    fn window(&self) -> Vec<&Stamped> {
+        self.taken.iter().filter(|s| self.inside(s.slice)).collect()
+    }
+}
+
+/// The window's edge in source time: nothing `window_s` old or older is in it, and everything
+/// taken that is less than `window_s − window_s / slices` old is (a margin of 1e-9 relative
+/// keeps stamps that sit on a slice bound out of the question).
+fn check_edge(
+    reference: &Reference,
     window_s: f64,
-    max_samples: usize,
-) -> Vec<Magnitudes> {
-    let Some(newest_s) = stamped.iter().map(|(stamp_s, _)| *stamp_s).reduce(f64::max) else {
-        return Vec::new();
-    };
-    let inside: Vec<Magnitudes> = stamped
-        .iter()
-        .filter(|(stamp_s, _)| *stamp_s > newest_s - window_s)
-        .map(|(_, m)| *m)
-        .collect();
-    inside[inside.len().saturating_sub(max_samples)..].to_vec()
+    slices: usize,
+    newest_s: f64,
+) -> Result<(), TestCaseError> {
+    let in_window: Vec<f64> = reference.window().iter().map(|s| s.stamp_s).collect();
+    let margin = 1e-9 * (newest_s.abs() + window_s);
+    for sample in &reference.taken {
+        let age_s = newest_s - sample.stamp_s;
+        let inside = in_window.contains(&sample.stamp_s);
+        if age_s >= window_s + margin {
+            prop_assert!(!inside, "{} s old in a {window_s} s window", age_s);
+        }
+        if age_s < window_s - window_s / slices as f64 - margin {
+            prop_assert!(inside, "{} s old left a {window_s} s window", age_s);
+        }
+    }
+    Ok(())
 }
 
 proptest! {
@@ -123,28 +185,57 @@ proptest! {
     }
 
     #[test]
-    fn window_matches_naive(
+    fn window_matches_naive_over_the_same_slices(
         start_s in -1e3..1e4f64,
-        stream in prop::collection::vec((gap_s(), magnitudes()), 1..400),
+        stream in prop::collection::vec((gap_s(), lateness(), magnitudes()), 1..400),
         window_exponent in -3.0..1.0f64,
-        max_samples in prop_oneof![1..50usize, Just(usize::MAX)],
+        slices in prop_oneof![1..8usize, Just(100usize), 8..300usize],
+        loud_until in 0..400usize,
     ) {
         let window_s = 10f64.powf(window_exponent);
-        let mut window = WindowStats::new(window_s, max_samples);
-        let mut stamped = Vec::with_capacity(stream.len());
-        let mut stamp_s = start_s;
-        for (gap_s, sample) in stream {
-            stamp_s += gap_s;
-            prop_assert!(window.add(stamp_s, &sample));
-            stamped.push((stamp_s, sample));
-            let expected = expected_window(&stamped, window_s, max_samples);
-            prop_assert_eq!(window.len(), expected.len());
+        let mut window = WindowStats::new(window_s, slices);
+        let mut reference = Reference::new(slices);
+        let (mut now_s, mut newest_s) = (start_s, f64::NEG_INFINITY);
+        for (i, (gap_s, late, sample)) in stream.into_iter().enumerate() {
+            now_s += gap_s;
+            // Loud samples first, then quiet ones: what the loud ones leave behind when they go
+            // must not show in the quiet ones' statistics.
+            let sample = if i < loud_until { sample.map(|x| x * 1e6) } else { sample };
+            // Every fifth step only moves time on, as a joint sample without a pair does.
+            if i % 5 == 4 {
+                window.advance_to(now_s);
+                reference.advance(window.slice_of(now_s));
+                newest_s = newest_s.max(now_s);
+                continue;
+            }
+            let stamp_s = now_s - late * window_s;
+            let slice = window.slice_of(stamp_s);
+            let taken = reference.add(stamp_s, slice, sample);
+            prop_assert_eq!(window.add(stamp_s, &sample), taken, "at {} s", stamp_s);
+            if taken {
+                newest_s = newest_s.max(stamp_s);
+            }
+            prop_assert_eq!(window.newest_slice(), reference.newest);
+            let expected: Vec<Magnitudes> =
+                reference.window().iter().map(|s| s.values).collect();
+            prop_assert_eq!(window.len(), expected.len() as u64);
             check(&window.readout(), &naive(&expected), 1e-12)?;
+            check_edge(&reference, window_s, slices, newest_s)?;
         }
         window.reset();
         prop_assert!(window.is_empty());
         check(&window.readout(), &StatsSet::default(), 0.0)?;
     }
+}
+
+/// How late a sample is stamped, in windows: mostly on time, sometimes within the window,
+/// sometimes beyond it.
+fn lateness() -> impl Strategy<Value = f64> {
+    prop_oneof![
+        6 => Just(0.0),
+        3 => 0.0..1.0f64,
+        1 => 0.9..2.0f64,
+    ]
 }
 
 /// `SplitMix64`: a reproducible stream without another dependency.
@@ -214,18 +305,24 @@ fn cumulative_ten_million_samples_match_exact_sums() {
 fn window_does_not_drift_over_two_million_samples() {
     const N: u64 = 2_000_000;
     const WINDOW_S: f64 = 0.25;
-    const MAX_SAMPLES: usize = 200;
+    const SLICES: usize = 100;
     let mut rng = SplitMix64(11);
-    let mut window = WindowStats::new(WINDOW_S, MAX_SAMPLES);
-    let mut stamped: Vec<(f64, Magnitudes)> = Vec::new();
-    let mut stamp_s = 0.0;
+    let mut window = WindowStats::new(WINDOW_S, SLICES);
+    let mut reference = Reference::new(SLICES);
+    let mut now_s = 0.0;
     for i in 0..N {
-        // 500 Hz with jitter and the odd outage; values of every size, ending with a quiet tail so
-        // that large values which have left would show up as residue if anything drifted.
-        stamp_s += match rng.next() % 1000 {
+        // 500 Hz with jitter, the odd outage and the odd late sample; values of every size, ending
+        // with a quiet tail so that large values which have left would show up as residue if
+        // anything drifted.
+        now_s += match rng.next() % 1000 {
             0 => 3.0,
             1..=100 => 0.0,
             _ => 0.002 * (0.5 + (rng.next() % 1000) as f64 / 1000.0),
+        };
+        let stamp_s = if rng.next().is_multiple_of(50) {
+            now_s - WINDOW_S * (rng.next() % 1000) as f64 / 800.0
+        } else {
+            now_s
         };
         let quiet = i > N - 1000;
         let sample: Magnitudes = std::array::from_fn(|_| {
@@ -236,18 +333,21 @@ fn window_does_not_drift_over_two_million_samples() {
                 k as f64 * SCALE
             }
         });
-        assert!(window.add(stamp_s, &sample));
-        stamped.push((stamp_s, sample));
-        if stamped.len() > 4 * MAX_SAMPLES {
-            stamped.drain(..2 * MAX_SAMPLES);
+        let taken = reference.add(stamp_s, window.slice_of(stamp_s), sample);
+        assert_eq!(window.add(stamp_s, &sample), taken);
+        if reference.taken.len() > 4000 {
+            let newest = reference.newest.expect("samples were taken");
+            reference
+                .taken
+                .retain(|s| s.slice > newest - reference.slices);
         }
     }
-    let expected = expected_window(&stamped, WINDOW_S, MAX_SAMPLES);
+    let expected: Vec<Magnitudes> = reference.window().iter().map(|s| s.values).collect();
     assert!(
         expected.len() > 10,
         "the final window should not be trivially small"
     );
-    assert_eq!(window.len(), expected.len());
+    assert_eq!(window.len(), expected.len() as u64);
     let readout = window.readout();
     let reference = naive(&expected);
     // Dyadic values: the integer sums give the exactly rounded reference too.
@@ -259,9 +359,8 @@ fn window_does_not_drift_over_two_million_samples() {
             expected.len() as u64,
         );
         let got = readout.stats[m];
-        assert_eq!(got.mae, mean, "{}", METRIC_NAMES[m]);
-        // Squares of 40-bit integers round, so the RMS is off the integer one by an ulp or so.
-        assert!(close(got.rmse, rms, 1e-15), "{}", METRIC_NAMES[m]);
+        assert!(close(got.mae, mean, 1e-12), "{}", METRIC_NAMES[m]);
+        assert!(close(got.rmse, rms, 1e-12), "{}", METRIC_NAMES[m]);
         assert!(close(got.mae, reference.stats[m].mae, 1e-12));
         assert!(close(got.rmse, reference.stats[m].rmse, 1e-12));
         assert_eq!(got.max, reference.stats[m].max);

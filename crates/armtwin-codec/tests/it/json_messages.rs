@@ -289,7 +289,8 @@ fn metrics_message_fields() {
         assert_eq!(json["window"][name]["mae"], 100.0 + m as f64, "{name}");
     }
     // The window's `seconds` comes first.
-    let text = String::from_utf8(to_json_bytes(&MetricsMessage::new(&metrics_readout()))).expect("UTF-8");
+    let text =
+        String::from_utf8(to_json_bytes(&MetricsMessage::new(&metrics_readout()))).expect("UTF-8");
     assert!(text.contains(r#""window":{"seconds":5.0,"n":4,"#), "{text}");
 }
 

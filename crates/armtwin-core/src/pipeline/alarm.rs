@@ -62,7 +62,7 @@ impl Alarms {
 
 /// An alarm that fired (`active`) or recovered at the deviation that decided it.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub(super) struct AlarmChange {
+pub struct AlarmChange {
     /// The metric the alarm watches.
     pub metric: Metric,
     /// Whether it is active from now on.
@@ -104,14 +104,15 @@ impl AlarmState {
 
 /// A robot's two alarms.
 #[derive(Debug, Clone, Copy, Default)]
-pub(super) struct AlarmStates {
+pub struct AlarmStates {
     position: AlarmState,
     angle: AlarmState,
 }
 
 impl AlarmStates {
     /// Alarms continued from a record: active as recorded, with no hold timer running.
-    pub(super) fn restored(active: Alarms) -> Self {
+    #[must_use]
+    pub fn restored(active: Alarms) -> Self {
         let state = |active| AlarmState {
             active,
             since_s: None,
@@ -123,7 +124,8 @@ impl AlarmStates {
     }
 
     /// Which are active.
-    pub(super) fn active(&self) -> Alarms {
+    #[must_use]
+    pub fn active(&self) -> Alarms {
         Alarms {
             position: self.position.active,
             angle: self.angle.active,
@@ -132,14 +134,14 @@ impl AlarmStates {
 
     /// Forgets the hold timers (the source clock restarted: a timer started on the old clock
     /// would wait for the new one to catch up); active alarms stay active.
-    pub(super) fn stop_hold_timers(&mut self) {
+    pub fn stop_hold_timers(&mut self) {
         self.position.since_s = None;
         self.angle.since_s = None;
     }
 
     /// One paired `deviation` at `stamp_s` against `config`: the alarms that changed state,
     /// position first.
-    pub(super) fn update(
+    pub fn update(
         &mut self,
         config: &AlarmConfig,
         stamp_s: f64,

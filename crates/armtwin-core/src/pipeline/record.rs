@@ -143,7 +143,7 @@ impl Twin {
         if record.cumulative.n > 0 {
             twin.stats = Some(Box::new(DeviationStats {
                 cumulative,
-                window: WindowStats::new(twin.window_s, twin.window_max_samples),
+                window: WindowStats::new(twin.window_s, twin.window_slices),
             }));
         }
         twin.alarms = AlarmStates::restored(record.alarms_active);

@@ -74,12 +74,12 @@ pub struct Twin {
     reservoir: Option<Box<PairReservoir>>,
     pub(super) epoch: u64,
     aligner: Aligner<Waiting>,
-    /// Created by the first paired measurement (the window's ring buffers are most of a twin's
+    /// Created by the first paired measurement (the window's slices are most of a twin's
     /// memory): a robot that only streams joints never needs them.
     pub(super) stats: Option<Box<DeviationStats>>,
-    /// The metrics window's length (s) and cap on samples.
+    /// The metrics window's length (s) and slices.
     pub(super) window_s: f64,
-    pub(super) window_max_samples: usize,
+    pub(super) window_slices: usize,
     pub(super) paired: u64,
     pub(super) unpaired: u64,
     pub(super) rejected: u64,
@@ -91,6 +91,8 @@ pub struct Twin {
     /// of the last joint sample that brought any.
     last_state: Option<(f64, JointState)>,
     last_pose: Option<(f64, PoseReadout)>,
+    /// The metrics epoch whose model computed `last_pose`.
+    last_pose_epoch: u64,
     /// Last accepted measured stamp per stream: index 0 the robot's own (controller) stream,
     /// `i + 1` sensor `i`.
     last_measured_s: Vec<Option<f64>>,
@@ -120,7 +122,7 @@ impl Twin {
             aligner: Aligner::new(config.align),
             stats: None,
             window_s: config.window_s,
-            window_max_samples: config.window_max_samples,
+            window_slices: config.window_slices,
             paired: 0,
             unpaired: 0,
             rejected: 0,
@@ -130,6 +132,7 @@ impl Twin {
             last_joints: Vec::with_capacity(joint_count),
             last_state: None,
             last_pose: None,
+            last_pose_epoch: 0,
             last_measured_s: Vec::new(),
             last_measured: None,
             newest_s: f64::NEG_INFINITY,
@@ -434,6 +437,7 @@ impl Twin {
             }
         }
         self.last_pose = Some((stamp_s, pose));
+        self.last_pose_epoch = self.epoch;
         self.step_effort(key, stamp_s, sample, sink);
         Ok(pose)
     }
@@ -571,9 +575,17 @@ impl Twin {
                 return;
             }
         }
-        // Recomputed rather than kept for every sample of history: the same pure function of the
-        // same angles, so the same pose: one FK costs less than keeping a pose per sample.
-        let twin_pose = self.model.chain().pose_unchecked(&self.scratch_q).readout();
+        // The newest joint sample's pose when the measured stamp is its own (the common case: a
+        // joint message, then its measured pose), else recomputed rather than kept for every
+        // sample of history: the same pure function of the same angles, so the same pose.
+        let twin_pose = match self.last_pose {
+            Some((joint_s, pose))
+                if joint_s.to_bits() == stamp_s.to_bits() && self.last_pose_epoch == self.epoch =>
+            {
+                pose
+            }
+            _ => self.model.chain().pose_unchecked(&self.scratch_q).readout(),
+        };
         if self.pair(key, stamp_s, &twin_pose, pose, sink)
             && let Some(reservoir) = &mut self.reservoir
         {
@@ -634,7 +646,7 @@ impl Twin {
         }
         sink.deviation(&self.robot, stamp_s, &measured, &deviation);
         let stats = self.stats.get_or_insert_with(|| {
-            let mut window = WindowStats::new(self.window_s, self.window_max_samples);
+            let mut window = WindowStats::new(self.window_s, self.window_slices);
             // As if it had followed source time all along.
             window.advance_to(self.newest_s);
             Box::new(DeviationStats {

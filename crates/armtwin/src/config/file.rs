@@ -130,7 +130,10 @@ pub(super) struct ServiceSection {
     pub(super) key_prefix: String,
     pub(super) metrics_period_ms: u64,
     pub(super) window_s: f64,
-    pub(super) window_max_samples: usize,
+    pub(super) window_slices: usize,
+    /// No longer read: the window keeps `window_slices` slices whatever the rate. Kept so that a
+    /// file still setting it is told why, rather than that the key is unknown.
+    pub(super) window_max_samples: Option<toml::Value>,
     pub(super) reject_unknown: bool,
     pub(super) encoding: OutputEncoding,
     pub(super) pose_congestion: Congestion,
@@ -150,7 +153,8 @@ impl Default for ServiceSection {
             key_prefix: crate::keys::DEFAULT_PREFIX.to_owned(),
             metrics_period_ms: 100,
             window_s: pipeline.window_s,
-            window_max_samples: pipeline.window_max_samples,
+            window_slices: pipeline.window_slices,
+            window_max_samples: None,
             reject_unknown: false,
             encoding: OutputEncoding::Json,
             pose_congestion: Congestion::Drop,

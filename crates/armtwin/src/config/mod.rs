@@ -39,6 +39,10 @@ use crate::self_calibration::ReservoirConfig;
 /// The embedded default configuration (`config/armtwin.toml`).
 pub const DEFAULT_CONFIG_TOML: &str = include_str!("../../../../config/armtwin.toml");
 
+/// Most slices `[service] window_slices` may ask for: a slice of the metrics window is 224
+/// bytes per streaming robot, so this bounds a robot's window at 2.2 MB.
+const MAX_WINDOW_SLICES: usize = 10_000;
+
 /// Why a configuration cannot be used.
 #[derive(Debug, Error)]
 pub enum ConfigError {
@@ -286,7 +290,7 @@ impl ServiceConfig {
                 .then(|| Duration::from_secs_f64(service.forget_after_s)),
             pipeline: PipelineConfig {
                 window_s: service.window_s,
-                window_max_samples: service.window_max_samples,
+                window_slices: service.window_slices,
                 align,
             },
             default_robot: if service.reject_unknown {
@@ -475,10 +479,18 @@ fn check_service_and_align(
                 "must be at least 1".to_owned(),
             ));
         }
-        if service.window_max_samples == 0 {
+        if service.window_max_samples.is_some() {
             return Err(invalid(
                 "service.window_max_samples",
-                "must be at least 1".to_owned(),
+                "is no longer used: the window is kept in `window_slices` time slices, so its \
+                 memory does not depend on the rate; remove the key"
+                    .to_owned(),
+            ));
+        }
+        if !(1..=MAX_WINDOW_SLICES).contains(&service.window_slices) {
+            return Err(invalid(
+                "service.window_slices",
+                format!("must be 1 to {MAX_WINDOW_SLICES}"),
             ));
         }
         if service.max_robots == 0 {
@@ -533,6 +545,39 @@ mod tests {
         assert!(!Arc::ptr_eq(&model("c"), &default));
         assert!(!Arc::ptr_eq(&model("e"), &default));
         assert_eq!(model("e").arm().name, "ur5e");
+    }
+
+    #[test]
+    fn the_window_is_set_in_slices_and_its_old_cap_is_refused_with_why() {
+        let parse =
+            |text: &str| ServiceConfig::parse(text, "test", Path::new(""), &Overrides::default());
+        let config = parse("[service]\nwindow_s = 5.0\nwindow_slices = 50\n").expect("valid");
+        assert_eq!(
+            (config.pipeline.window_s, config.pipeline.window_slices),
+            (5.0, 50)
+        );
+        assert_eq!(
+            parse("").expect("valid").pipeline.window_slices,
+            crate::metrics::DEFAULT_WINDOW_SLICES
+        );
+        for (text, expected) in [
+            (
+                "[service]\nwindow_max_samples = 100000\n",
+                "service.window_max_samples: is no longer used: the window is kept in \
+                 `window_slices` time slices",
+            ),
+            (
+                "[service]\nwindow_slices = 0\n",
+                "service.window_slices: must be 1 to 10000",
+            ),
+            (
+                "[service]\nwindow_slices = 10001\n",
+                "service.window_slices: must be 1 to 10000",
+            ),
+        ] {
+            let error = parse(text).expect_err(text).to_string();
+            assert!(error.contains(expected), "{error}");
+        }
     }
 
     #[test]

@@ -12,7 +12,8 @@
 //! observer estimates the same quantity without differentiating anything. With `p = M(q) q̇`,
 //! `ṗ = τ_drives − τ_f(q̇) − τ_e + C(q, q̇)ᵀ q̇ − g(q)` where `τ_e` is what the drives spend
 //! beyond the model, so `r = K (p − ∫ (τ_drives − τ_f + Cᵀq̇ − g − r) dt)` settles on `−τ_e`
-//! with time constant `1/K`; the readout gives `−r`, in the residual's sign.//!
+//! with time constant `1/K`; the readout gives `−r`, in the residual's sign.
+//!
 //! Here: the monitor, its step and its summary; `types` (settings, readouts, alarms),
 //! `observer` (the momentum observer and collisions), `friction` (the friction fits and their
 //! baselines), `payload` (the payload modelled and identified) and `window` (the residual
@@ -31,11 +32,12 @@ pub use types::{
 
 use super::payload::{AT_REST_RAD_S, AT_REST_RAD_S2, PayloadEstimate, PayloadIdentifier};
 use super::{ArmDynamics, ControllerMode, JointFriction, Payload, ur};
+use crate::metrics::SlicedWindow;
 use crate::model::ArmDescription;
 use crate::sample::{JointQuantity, JointState};
 use friction::{FrictionFit, TEMPERATURE_BINS, temperature_bin};
 use observer::Observer;
-use window::{Block, WINDOW_BLOCKS};
+use window::{Block, WINDOW_SLICES, residual_stats};
 
 /// The joints an effort monitor handles (every arm whose dynamics the catalog publishes).
 pub const EFFORT_JOINTS: usize = 6;
@@ -75,8 +77,8 @@ pub struct EffortMonitor {
     baselines: [[Option<f64>; TEMPERATURE_BINS + 1]; J],
     temperature_c: [Option<f64>; J],
     cumulative: Block,
-    window: [Block; WINDOW_BLOCKS],
-    window_s: f64,
+    /// Residual magnitudes over the last `window_s`.
+    window: SlicedWindow<J>,
     latest: Option<EffortReadout>,
     collision: [bool; J],
     collisions: u64,
@@ -142,8 +144,7 @@ impl EffortMonitor {
             baselines: [[None; TEMPERATURE_BINS + 1]; J],
             temperature_c: [None; J],
             cumulative: Block::default(),
-            window: [Block::default(); WINDOW_BLOCKS],
-            window_s,
+            window: SlicedWindow::new(window_s, WINDOW_SLICES),
             latest: None,
             collision: [false; J],
             collisions: 0,
@@ -261,6 +262,8 @@ impl EffortMonitor {
             residual_nm,
             observer_nm,
         };
+        // The window follows source time, so it empties when program-mode residuals stop.
+        self.window.advance_to(stamp_s);
         self.latest = Some(readout);
         Some(readout)
     }
@@ -294,27 +297,19 @@ impl EffortMonitor {
     pub fn restart_clock(&mut self) {
         self.previous = None;
         self.observer.last_s = None;
-        self.window = [Block::default(); WINDOW_BLOCKS];
+        self.window.reset();
     }
 
     /// Residual statistics start afresh (a reset); fits and alarms stay.
     pub fn reset_statistics(&mut self) {
         self.cumulative = Block::default();
-        self.window = [Block::default(); WINDOW_BLOCKS];
+        self.window.reset();
     }
 
     /// What the monitor shows now.
     #[must_use]
     pub fn summary(&self) -> EffortSummary {
-        let newest_s = self
-            .latest
-            .map_or(f64::NEG_INFINITY, |latest| latest.stamp_s);
-        let mut window = Block::default();
-        for block in &self.window {
-            if block.n > 0 && block.start_s > newest_s - self.window_s {
-                window.merge(block);
-            }
-        }
+        let window = self.window.totals();
         let friction = std::array::from_fn(|k| {
             let JointFriction {
                 coulomb_nm,
@@ -341,8 +336,8 @@ impl EffortMonitor {
         EffortSummary {
             latest: self.latest,
             cumulative: self.cumulative.stats(),
-            window: window.stats(),
-            window_s: self.window_s,
+            window: residual_stats(window.n, &window.sums_of_squares, window.maxima),
+            window_s: self.window.window_s(),
             friction,
             payload: PayloadReadout {
                 configured,

@@ -1,6 +1,7 @@
 """TLS, mutual TLS and access control on a fleet's router, with the shipped example configurations
-(config/router-tls-acl.json5, config/zenoh-client-tls.json5) and certificates this test makes
-with the openssl CLI: only gateways put joints, only armtwin publishes outputs, dashboards only
+(config/router-tls-acl.json5, its access control generated from config/fleet.toml,
+config/zenoh-client-tls.json5) and certificates this test makes with the openssl CLI: only
+gateways put joints (gateway g1 for robot r1), only armtwin publishes outputs, dashboards only
 subscribe and read, operators may also change a twin (reset, apply or discard a calibration), and
 a client without a certificate of the fleet's CA cannot connect."""
 
@@ -58,7 +59,8 @@ def certs(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("pki") / "certs"
     folder.mkdir()
     make_ca(folder, "ca")
-    for name in ("router", "armtwin", "gateway", "dashboard", "operator"):
+    # The names config/fleet.toml gives roles: gateways g1 (robot r1) and g2 (r2), REST's `rest`.
+    for name in ("router", "armtwin", "g1", "g2", "rest", "dashboard", "operator"):
         make_cert(folder, name)
     # A certificate named like a gateway, signed by a CA the router does not trust.
     make_ca(folder, "stranger-ca")
@@ -88,6 +90,28 @@ def tls_router_and_twin(tmp_path, certs, armtwin_bin) -> tuple[Router, Armtwin]:
     return router, twin
 
 
+def open_as(router: Router, certs: Path, name: str) -> zenoh.Session:
+    """A client session of ``router`` with the certificate ``name``."""
+    return zenoh.open(_client(router.endpoint, tls_of(certs, name)))
+
+
+def send(gateway: Gateway, router: Router, count: int = 20) -> None:
+    """Waits until ``gateway``'s publisher knows armtwin's subscriber, then sends ``count`` samples."""
+    assert wait_until(lambda: gateway.pub.matching_status.matching, 20), router.log()
+    for _ in range(count):
+        gateway.send_one()
+        time.sleep(0.005)
+
+
+def denied(router: Router, name: str, action: str, key: str) -> bool:
+    """Whether the router's log (access control at trace level) names a denial of ``action``
+    (``Put (ingress)``, ``Query``) on ``key`` to the certificate ``name``."""
+    return any(
+        f"CertCommonName({name})" in line and f"is unauthorized to {action}" in line and key in line
+        for line in router.log(10**9).splitlines()
+    )
+
+
 def test_only_gateways_put_joints_only_armtwin_publishes_and_strangers_cannot_connect(
     tmp_path, certs, armtwin_bin
 ):
@@ -96,20 +120,16 @@ def test_only_gateways_put_joints_only_armtwin_publishes_and_strangers_cannot_co
     try:
         router.start()
         twin.start()
-        gateway_session = zenoh.open(_client(router.endpoint, tls_of(certs, "gateway")))
-        dashboard = zenoh.open(_client(router.endpoint, tls_of(certs, "dashboard")))
-        watcher = zenoh.open(_client(router.endpoint, tls_of(certs, "dashboard")))
+        gateway_session = open_as(router, certs, "g1")
+        dashboard = open_as(router, certs, "dashboard")
+        watcher = open_as(router, certs, "dashboard")
         sessions += [gateway_session, dashboard, watcher]
         poses = []
         watcher.declare_subscriber("twin/pose/**", lambda s: poses.append(json.loads(s.payload.to_bytes())))
         assert wait_queryable(dashboard, "twin/state/**"), router.log()
         assert wait_queryable(watcher, "twin/state/**"), router.log()
 
-        gateway = Gateway(gateway_session, "r1")
-        assert wait_until(lambda: gateway.pub.matching_status.matching, 20), router.log()
-        for _ in range(20):
-            gateway.send_one()
-            time.sleep(0.005)
+        send(Gateway(gateway_session, "r1"), router)
         assert wait_until(lambda: len(poses) == 20, 15), (len(poses), router.log())
         [(_, state)] = get_json(dashboard, "twin/state/r1")
         assert state["metrics"]["paired"] == 20
@@ -126,14 +146,9 @@ def test_only_gateways_put_joints_only_armtwin_publishes_and_strangers_cannot_co
         assert after["metrics"]["paired"] == 20 and after["joints"]["t"] == state["joints"]["t"]
         assert [p["seq"] for p in poses] == list(range(20)), "only armtwin's poses arrive"
         # The router's log names each denial (access control at trace level).
-        def denied(name: str, key: str) -> bool:
-            return any(
-                f"CertCommonName({name})" in line and f"is unauthorized to Put (ingress) on {key}" in line
-                for line in router.log(10**9).splitlines()
-            )
-
-        assert wait_until(lambda: denied("dashboard", "twin/joints/r1"), 10)
-        assert denied("dashboard", "twin/pose/r1") and denied("gateway", "twin/pose/r1")
+        assert wait_until(lambda: denied(router, "dashboard", "Put (ingress) on", "twin/joints/r1"), 10)
+        assert denied(router, "dashboard", "Put (ingress) on", "twin/pose/r1")
+        assert denied(router, "g1", "Put (ingress) on", "twin/pose/r1")
 
         # Without a certificate, or with one of another CA, no session opens.
         for name in (None, "stranger"):
@@ -170,17 +185,13 @@ def test_a_dashboard_reads_a_twin_but_cannot_change_it_and_an_operator_can(tmp_p
     try:
         router.start()
         twin.start()
-        gateway_session = zenoh.open(_client(router.endpoint, tls_of(certs, "gateway")))
-        dashboard = zenoh.open(_client(router.endpoint, tls_of(certs, "dashboard")))
-        operator = zenoh.open(_client(router.endpoint, tls_of(certs, "operator")))
+        gateway_session = open_as(router, certs, "g1")
+        dashboard = open_as(router, certs, "dashboard")
+        operator = open_as(router, certs, "operator")
         sessions += [gateway_session, dashboard, operator]
         assert wait_queryable(dashboard, "twin/state/**"), router.log()
         assert wait_queryable(operator, "twin/admin/reset/**"), router.log()
-        gateway = Gateway(gateway_session, "r1")
-        assert wait_until(lambda: gateway.pub.matching_status.matching, 20), router.log()
-        for _ in range(20):
-            gateway.send_one()
-            time.sleep(0.005)
+        send(Gateway(gateway_session, "r1"), router)
         assert wait_until(lambda: paired_of(dashboard, "r1") == 20, 15)
 
         # The dashboard reads, and every change it asks for is dropped at the router or refused.
@@ -194,14 +205,8 @@ def test_a_dashboard_reads_a_twin_but_cannot_change_it_and_an_operator_can(tmp_p
         [(_, state)] = get_json(dashboard, "twin/state/r1")
         assert state["metrics"]["paired"] == 20, "the dashboard changed nothing"
 
-        def denied(name: str, key: str) -> bool:
-            return any(
-                f"CertCommonName({name})" in line and "is unauthorized to Query" in line and key in line
-                for line in router.log(10**9).splitlines()
-            )
-
-        assert wait_until(lambda: denied("dashboard", "twin/admin/reset/r1"), 10), router.log()
-        assert denied("dashboard", "twin/admin/calibrate/r1")
+        assert wait_until(lambda: denied(router, "dashboard", "Query", "twin/admin/reset/r1"), 10), router.log()
+        assert denied(router, "dashboard", "Query", "twin/admin/calibrate/r1")
 
         # The operator reads and changes.
         [(_, by_operator)] = get_json(operator, "twin/state/r1")

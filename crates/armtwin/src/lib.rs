@@ -13,6 +13,7 @@
 //! - [`ros2`]: ROS 2 on Zenoh: `rmw_zenoh` and bridge key layouts, the robot a key names, the
 //!   twin pose output's key.
 //! - [`ingest`]: the codec a Zenoh sample's encoding selects.
+//! - [`acl`]: a fleet description (who speaks for which robots) as a router's access control.
 //! - [`keys`]: armtwin's key space on Zenoh: every key built and read, the robot-id grammar,
 //!   armtwin's own streams.
 //! - [`config`]: the service's TOML configuration and command-line overrides.
@@ -36,6 +37,7 @@ pub use armtwin_core::{
     pose_fields, sample, self_calibration, trig,
 };
 
+pub mod acl;
 pub mod calibrate;
 pub mod config;
 pub mod dashboard;

@@ -9,6 +9,7 @@
     reason = "the command line reports progress and problems to its user"
 )]
 
+mod acl;
 mod calibrate;
 mod fk;
 mod fmu;
@@ -51,6 +52,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Gateway(GatewayArgs {
             command: GatewayCommand::Rtde(args),
         }) => gateway::rtde(&args),
+        Command::Acl(args) => acl::run(&args),
     }
 }
 

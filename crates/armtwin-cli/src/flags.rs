@@ -47,6 +47,20 @@ pub enum Command {
     /// for which robots; which are armtwin, dashboards, operators), printed as JSON5 or written
     /// into a router configuration between its `armtwin acl` marks.
     Acl(AclArgs),
+    /// A new token for the dashboard: the secret (shown once) and the `[[http.tokens]]` entry
+    /// that holds its salted digest.
+    HttpToken(HttpTokenArgs),
+}
+
+/// `armtwin http-token` arguments.
+#[derive(Debug, Args)]
+pub struct HttpTokenArgs {
+    /// The token's name: the user name of HTTP Basic authentication, and what logs call it.
+    pub name: String,
+    /// What it may read: `viewer` (every page, stream and /metrics) or `metrics` (/metrics only,
+    /// for Prometheus).
+    #[arg(long, default_value = "viewer", value_parser = ["viewer", "metrics"])]
+    pub role: String,
 }
 
 /// `armtwin acl` arguments.

@@ -14,6 +14,7 @@ mod calibrate;
 mod fk;
 mod fmu;
 mod gateway;
+mod http_token;
 mod ik;
 mod models;
 mod replay;
@@ -53,6 +54,7 @@ pub fn run(cli: Cli) -> Result<()> {
             command: GatewayCommand::Rtde(args),
         }) => gateway::rtde(&args),
         Command::Acl(args) => acl::run(&args),
+        Command::HttpToken(args) => http_token::run(&args),
     }
 }
 

@@ -10,22 +10,13 @@ import subprocess
 import time
 
 from armtwin_service import wait_until
-from fleet import Gateway, get_json, paired_of, wait_queryable
-from test_security import REPO, ROUTER_CONFIG, certs, denied, open_as, send, tls_router_and_twin  # noqa: F401
+from fleet import Gateway, get_json, paired_of
+from test_security import REPO, ROUTER_CONFIG, certs, denied, secured_fleet, send  # noqa: F401
 
 
 def test_a_gateway_puts_its_own_robots_joints_only(tmp_path, certs, armtwin_bin):
-    router, twin = tls_router_and_twin(tmp_path, certs, armtwin_bin)
-    sessions = []
-    try:
-        router.start()
-        twin.start()
-        g1 = open_as(router, certs, "g1")
-        g2 = open_as(router, certs, "g2")
-        dashboard = open_as(router, certs, "dashboard")
-        sessions += [g1, g2, dashboard]
-        assert wait_queryable(dashboard, "twin/state/**"), router.log()
-
+    with secured_fleet(tmp_path, certs, armtwin_bin, ["g1", "g2", "dashboard"]) as (router, sessions):
+        g1, g2, dashboard = sessions["g1"], sessions["g2"], sessions["dashboard"]
         send(Gateway(g1, "r1"), router)
         send(Gateway(g1, "r2"), router)
         assert wait_until(lambda: paired_of(dashboard, "r1") == 20, 15), router.log()
@@ -38,11 +29,6 @@ def test_a_gateway_puts_its_own_robots_joints_only(tmp_path, certs, armtwin_bin)
         assert wait_until(lambda: paired_of(dashboard, "r2") == 10, 15), router.log()
         assert not denied(router, "g2", "Put (ingress) on", "twin/joints/r2")
         assert not denied(router, "g1", "Put (ingress) on", "twin/joints/r1")
-    finally:
-        for session in sessions:
-            session.close()
-        twin.stop()
-        router.stop()
 
 
 def test_the_generator_prints_the_shipped_section(armtwin_bin):

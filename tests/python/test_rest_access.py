@@ -14,20 +14,14 @@ import urllib.request
 from pathlib import Path
 
 from armtwin_service import free_port, wait_until
-from fleet import Gateway, Router, get_json, paired_of, router_path, wait_queryable
-from test_security import ROUTER_CONFIG, certs, denied, open_as, send, tls_router_and_twin  # noqa: F401
+from fleet import Gateway, Router, get_json, paired_of, router_path
+from test_security import ROUTER_CONFIG, certs, denied, secured_fleet, send  # noqa: F401
 
 STATE_TIMEOUT_S = 15.0
 
 
-def with_rest_identity(router: Router) -> Router:
-    """``router`` with REST on a loopback port, speaking as the certificate ``rest``."""
-    router.rest_port = free_port()
-    router.argv += [
-        "--rest-http-port", f"127.0.0.1:{router.rest_port}",
-        "--rest-certificate", "certs/rest.pem", "--rest-private-key", "certs/rest.key",
-    ]
-    return router
+# REST on a loopback port, speaking as the certificate `rest` (a dashboard in config/fleet.toml).
+REST_IDENTITY = ["--rest-certificate", "certs/rest.pem", "--rest-private-key", "certs/rest.key"]
 
 
 def rest(router: Router, method: str, path: str, body: bytes | None = None,
@@ -44,17 +38,9 @@ def rest(router: Router, method: str, path: str, body: bytes | None = None,
 
 
 def test_an_anonymous_rest_client_reads_but_can_neither_reset_nor_forge(tmp_path, certs, armtwin_bin):
-    router, twin = tls_router_and_twin(tmp_path, certs, armtwin_bin)
-    with_rest_identity(router)
-    sessions = []
-    try:
-        router.start()
-        twin.start()
-        gateway_session = open_as(router, certs, "g1")
-        dashboard = open_as(router, certs, "dashboard")
-        sessions += [gateway_session, dashboard]
-        assert wait_queryable(dashboard, "twin/state/**"), router.log()
-        send(Gateway(gateway_session, "r1"), router)
+    with secured_fleet(tmp_path, certs, armtwin_bin, ["g1", "dashboard"], rest=REST_IDENTITY) as (router, sessions):
+        dashboard = sessions["dashboard"]
+        send(Gateway(sessions["g1"], "r1"), router)
         assert wait_until(lambda: paired_of(dashboard, "r1") == 20, STATE_TIMEOUT_S)
 
         # REST reads, as a dashboard does.
@@ -84,11 +70,6 @@ def test_an_anonymous_rest_client_reads_but_can_neither_reset_nor_forge(tmp_path
         assert wait_until(lambda: denied(router, "rest", "Put (ingress) on", "twin/pose/r1"), 10), router.log()
         [(_, state)] = get_json(dashboard, "twin/state/r1")
         assert state["metrics"]["paired"] == 20
-    finally:
-        for session in sessions:
-            session.close()
-        twin.stop()
-        router.stop()
 
 
 def run_router(armtwin_bin: Path, workdir: Path, *args: str) -> subprocess.CompletedProcess:

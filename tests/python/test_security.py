@@ -10,12 +10,13 @@ from __future__ import annotations
 import json
 import subprocess
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
 import zenoh
 
-from armtwin_service import wait_until
+from armtwin_service import free_port, wait_until
 from fleet import Armtwin, Gateway, Router, get_json, paired_of, router_path, wait_queryable
 
 REPO = Path(__file__).resolve().parents[2]
@@ -101,6 +102,29 @@ def send(gateway: Gateway, router: Router, count: int = 20) -> None:
     for _ in range(count):
         gateway.send_one()
         time.sleep(0.005)
+
+
+@contextmanager
+def secured_fleet(tmp_path, certs, armtwin_bin, names: list[str], rest: list[str] | None = None):
+    """The shipped secured router (with ``rest``, REST flags, if given) and armtwin behind it,
+    started, with a session per certificate name in ``names`` and a dashboard's view of armtwin's
+    queryables; yields the router and the sessions by name; stops everything after."""
+    router, twin = tls_router_and_twin(tmp_path, certs, armtwin_bin)
+    if rest is not None:
+        router.rest_port = free_port()
+        router.argv += ["--rest-http-port", f"127.0.0.1:{router.rest_port}", *rest]
+    sessions = {}
+    try:
+        router.start()
+        twin.start()
+        sessions = {name: open_as(router, certs, name) for name in names}
+        assert wait_queryable(sessions["dashboard"], "twin/state/**"), router.log()
+        yield router, sessions
+    finally:
+        for session in sessions.values():
+            session.close()
+        twin.stop()
+        router.stop()
 
 
 def denied(router: Router, name: str, action: str, key: str) -> bool:

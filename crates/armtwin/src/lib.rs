@@ -22,6 +22,7 @@
 //! - [`service`]: `armtwin serve`, the fleet of twins on a Zenoh mesh, one file per concern.
 //! - [`snapshot`]: the service's snapshot file, each twin's cumulative state across restarts.
 //! - [`dashboard`]: the service's HTTP side: fleet and robot pages, live streams, `/metrics`.
+//! - [`http_access`]: who may reach it: its TLS identity, tokens and their roles.
 //! - [`replay`]: `armtwin replay`, a recording published as a gateway would.
 //! - [`gateway`]: `armtwin gateway rtde`, Universal Robots controllers streamed over RTDE.
 //! - [`validate`]: `armtwin validate`, a recording through the pipeline offline, with its report
@@ -43,6 +44,7 @@ pub mod config;
 pub mod dashboard;
 pub mod fmu_package;
 pub mod gateway;
+pub mod http_access;
 pub mod ingest;
 pub mod keys;
 pub mod mesh;

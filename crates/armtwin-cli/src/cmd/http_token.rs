@@ -1,12 +1,12 @@
 //! `armtwin http-token`: a new dashboard token on the first line of stdout, then the
 //! configuration entry that holds its digest; what to do with each on stderr.
 //!
-//! Owns the output only; the token and its digest come from the library's dashboard.
+//! Owns the output only; the token and its digest come from the library's `http_access`.
 
 use std::io::{self, Write};
 
 use anyhow::Result;
-use armtwin::dashboard::new_token;
+use armtwin::http_access::new_token;
 
 use crate::flags::HttpTokenArgs;
 

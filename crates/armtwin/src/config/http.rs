@@ -11,7 +11,7 @@ use std::path::Path;
 
 use super::ConfigError;
 use super::file::HttpSection;
-use crate::dashboard::{HttpAccess, Role, Token, server_config};
+use crate::http_access::{HttpAccess, Role, Token, server_config};
 
 /// The dashboard's address (`--http` replaces `listen`) and access, or why they cannot be.
 pub(super) fn load_http(
@@ -108,7 +108,7 @@ pub(super) fn load_http(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dashboard::new_token;
+    use crate::http_access::new_token;
 
     fn section(text: &str) -> HttpSection {
         toml::from_str(text).expect("an [http] section")

@@ -193,7 +193,7 @@ pub struct ServiceConfig {
     /// `[http] listen` (or `--http`): where the dashboard and `/metrics` listen; `None`, no HTTP.
     pub http_listen: Option<SocketAddr>,
     /// `[http]`'s TLS and tokens (none of either on the embedded default).
-    pub http_access: crate::dashboard::HttpAccess,
+    pub http_access: crate::http_access::HttpAccess,
 }
 
 impl ServiceConfig {

@@ -13,11 +13,7 @@ mod exposition;
 mod source;
 mod tls;
 
-pub use access::{
-    Decision, HashFormatError, NewToken, RandomError, Role, Token, decide, new_token,
-};
 pub use source::{FleetRow, FleetSource, RobotCounts, RobotDetail, ServiceTotals};
-pub use tls::server_config;
 
 use std::collections::BTreeMap;
 use std::convert::Infallible;
@@ -38,6 +34,7 @@ use tracing::{info, warn};
 use zenoh::key_expr::OwnedKeyExpr;
 
 use crate::config::without_source_location;
+use crate::http_access::{HttpAccess, Token};
 use crate::mesh::{TEARDOWN_STEP, bounded};
 use crate::metrics::Metric;
 
@@ -54,15 +51,6 @@ const ROBOT_IDLE_PERIOD: Duration = Duration::from_secs(1);
 const MAX_PAGE_ROWS: usize = 1000;
 /// The longest key expression a fleet filter may be.
 const MAX_FILTER_BYTES: usize = 1024;
-
-/// Who may reach the dashboard, and how (`[http]`): TLS or plain HTTP, tokens or open.
-#[derive(Debug, Clone, Default)]
-pub struct HttpAccess {
-    /// The server's TLS configuration; `None`, plain HTTP.
-    pub tls: Option<Arc<rustls::ServerConfig>>,
-    /// The tokens taken; none, every request is served (the single-machine default).
-    pub tokens: Vec<Token>,
-}
 
 /// The running HTTP server.
 pub(crate) struct Dashboard {

@@ -1,19 +1,14 @@
-//! The dashboard over TLS (`[http] tls_certificate`, `tls_private_key`): the server's
-//! certificate chain and key read from PEM into a rustls configuration on the ring provider
-//! (the one Zenoh's TLS links use, so the process carries one TLS stack), and a listener whose
+//! The dashboard over TLS (`[http] tls_certificate`, `tls_private_key`): a listener whose
 //! handshakes run beside each other, so a slow or silent client delays nobody else's.
 //!
 //! Must not know the twin nor HTTP: `axum::serve` takes [`TlsListener`] as it takes a
 //! `TcpListener`.
 
 use std::net::SocketAddr;
-use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
 
 use rustls::ServerConfig;
-use rustls::pki_types::pem::PemObject as _;
-use rustls::pki_types::{CertificateDer, PrivateKeyDer};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Semaphore, mpsc};
 use tokio_rustls::TlsAcceptor;
@@ -24,35 +19,6 @@ use tracing::debug;
 const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 /// Handshakes in progress at once; more connections wait in the kernel's backlog.
 const MAX_HANDSHAKES: usize = 64;
-
-/// The rustls configuration of a certificate chain and its key, both PEM files; the reason when
-/// they cannot be read or do not belong together.
-pub fn server_config(certificate: &Path, private_key: &Path) -> Result<Arc<ServerConfig>, String> {
-    let chain = CertificateDer::pem_file_iter(certificate)
-        .and_then(Iterator::collect::<Result<Vec<_>, _>>)
-        .map_err(|e| format!("cannot read the certificate {}: {e}", certificate.display()))?;
-    if chain.is_empty() {
-        return Err(format!("{} holds no certificate", certificate.display()));
-    }
-    let key = PrivateKeyDer::from_pem_file(private_key)
-        .map_err(|e| format!("cannot read the private key {}: {e}", private_key.display()))?;
-    let mut config =
-        ServerConfig::builder_with_provider(Arc::new(rustls::crypto::ring::default_provider()))
-            .with_safe_default_protocol_versions()
-            .map_err(|e| e.to_string())?
-            .with_no_client_auth()
-            .with_single_cert(chain, key)
-            .map_err(|e| {
-                format!(
-                    "{} and {} do not make a server identity: {e}",
-                    certificate.display(),
-                    private_key.display()
-                )
-            })?;
-    // The server speaks HTTP/1.1 (axum's `http1`); saying so lets clients skip asking for h2.
-    config.alpn_protocols = vec![b"http/1.1".to_vec()];
-    Ok(Arc::new(config))
-}
 
 /// TLS connections of a TCP listener, each handshake on a task of its own.
 pub(super) struct TlsListener {

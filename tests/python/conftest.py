@@ -18,6 +18,7 @@ if HERE not in sys.path:
     sys.path.insert(0, HERE)
 
 from support.paths import require_armtwin, router_path  # noqa: E402
+from support.pki import make_ca, make_cert  # noqa: E402
 
 
 @pytest.fixture(scope="session")
@@ -54,3 +55,19 @@ def sessions():
             session.close()
         except Exception:
             pass
+
+
+@pytest.fixture(scope="module")
+def certs(tmp_path_factory) -> Path:
+    """A fleet's certificate authority and a certificate for each name config/fleet.toml gives a
+    role, and one of another authority."""
+    folder = tmp_path_factory.mktemp("pki") / "certs"
+    folder.mkdir()
+    make_ca(folder, "ca")
+    # The names config/fleet.toml gives roles: gateways g1 (robot r1) and g2 (r2), REST's `rest`.
+    for name in ("router", "armtwin", "g1", "g2", "rest", "dashboard", "operator"):
+        make_cert(folder, name)
+    # A certificate named like a gateway, signed by a CA the router does not trust.
+    make_ca(folder, "stranger-ca")
+    make_cert(folder, "stranger", ca="stranger-ca")
+    return folder

@@ -13,12 +13,11 @@ from __future__ import annotations
 import json
 import re
 import subprocess
-import urllib.parse
 
-from support.dashboard import DashboardService, http_get, http_json, prometheus_path
+from support.dashboard import DashboardService, Prometheus, http_get, http_json
 from support.gateway import Gateway
 from support.paths import REPO_ROOT
-from support.process import Process, free_port, wait_until
+from support.process import wait_until
 
 CONFIG = """\
 [service]
@@ -30,42 +29,6 @@ model = "ur10e"
 ROBOTS = ("cell-1/ur10e-a", "cell-2/ur10e-b")
 ROWS = 4000
 DASHBOARD = REPO_ROOT / "config" / "grafana" / "dashboards" / "armtwin.json"
-
-
-class Prometheus(Process):
-    """A Prometheus scraping ``target`` every second, its data in ``workdir``."""
-
-    def __init__(self, workdir, target: str):
-        self.binary = prometheus_path()
-        self.port = free_port()
-        self.config = workdir / "prometheus.yml"
-        self.config.write_text(
-            "global:\n  scrape_interval: 1s\n  evaluation_interval: 1s\n"
-            "scrape_configs:\n  - job_name: armtwin\n    static_configs:\n"
-            f"      - targets: ['{target}']\n"
-        )
-        self.data = workdir / "prometheus-data"
-        argv = [self.binary, f"--config.file={self.config}", f"--storage.tsdb.path={self.data}",
-                f"--web.listen-address=127.0.0.1:{self.port}"]
-        super().__init__("prometheus", argv, workdir)
-
-    def __enter__(self) -> Prometheus:
-        self.start()
-        self.wait_port(self.port, f"listen on {self.port}")
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
-
-    def query(self, expr: str) -> dict:
-        url = f"http://127.0.0.1:{self.port}/api/v1/query?" + urllib.parse.urlencode({"query": expr})
-        answer = http_json(url)
-        assert answer["status"] == "success", answer
-        return answer["data"]
-
-    def value(self, expr: str) -> float | None:
-        result = self.query(expr)["result"]
-        return float(result[0]["value"][1]) if len(result) == 1 else None
 
 
 def dashboard_queries() -> list[str]:

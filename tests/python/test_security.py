@@ -1,93 +1,23 @@
 """TLS, mutual TLS and access control on a fleet's router, with the shipped example configurations
-(config/router-tls-acl.json5, config/zenoh-client-tls.json5) and certificates this test makes
-with the openssl CLI: only gateways put joints, only armtwin publishes outputs, dashboards only
+(config/router-tls-acl.json5, its access control generated from config/fleet.toml,
+config/zenoh-client-tls.json5) and certificates this test makes with the openssl CLI: only
+gateways put joints (gateway g1 for robot r1), only armtwin publishes outputs, dashboards only
 subscribe and read, operators may also change a twin (reset, apply or discard a calibration), and
 a client without a certificate of the fleet's CA cannot connect."""
 
 from __future__ import annotations
 
 import json
-import subprocess
 import time
-from pathlib import Path
 
 import pytest
 import zenoh
 
 from support.gateway import Gateway
-from support.paths import router_path
-from support.process import Armtwin, Router, wait_until
+from support.pki import tls_of
+from support.process import wait_until
+from support.secured_fleet import denied, open_as, send, tls_client_config, tls_router_and_twin
 from support.zenoh_clients import get_json, paired_of, wait_queryable
-
-REPO = Path(__file__).resolve().parents[2]
-ROUTER_CONFIG = REPO / "config" / "router-tls-acl.json5"
-CLIENT_CONFIG = REPO / "config" / "zenoh-client-tls.json5"
-ACL_LOG = "z=info,zenoh::net::routing::interceptor::access_control=trace"
-
-
-def openssl(*args: str, cwd: Path) -> None:
-    subprocess.run(["openssl", *args], cwd=cwd, check=True, capture_output=True, timeout=60)
-
-
-def make_ca(folder: Path, name: str) -> None:
-    openssl(
-        "req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes",
-        "-keyout", f"{name}.key", "-out", f"{name}.pem", "-days", "2", "-subj", f"/CN={name}",
-        "-addext", "basicConstraints=critical,CA:TRUE", "-addext", "keyUsage=keyCertSign,cRLSign",
-        cwd=folder,
-    )
-
-
-def make_cert(folder: Path, name: str, ca: str = "ca") -> None:
-    extensions = folder / f"{name}.ext"
-    extensions.write_text(
-        "subjectAltName=DNS:localhost,IP:127.0.0.1\nbasicConstraints=CA:FALSE\n"
-        "keyUsage=digitalSignature\nextendedKeyUsage=serverAuth,clientAuth\n"
-    )
-    openssl(
-        "req", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes",
-        "-keyout", f"{name}.key", "-out", f"{name}.csr", "-subj", f"/CN={name}", cwd=folder,
-    )
-    openssl(
-        "x509", "-req", "-in", f"{name}.csr", "-CA", f"{ca}.pem", "-CAkey", f"{ca}.key",
-        "-CAcreateserial", "-out", f"{name}.pem", "-days", "2", "-extfile", extensions.name,
-        cwd=folder,
-    )
-
-
-@pytest.fixture(scope="module")
-def certs(tmp_path_factory) -> Path:
-    folder = tmp_path_factory.mktemp("pki") / "certs"
-    folder.mkdir()
-    make_ca(folder, "ca")
-    for name in ("router", "armtwin", "gateway", "dashboard", "operator"):
-        make_cert(folder, name)
-    # A certificate named like a gateway, signed by a CA the router does not trust.
-    make_ca(folder, "stranger-ca")
-    make_cert(folder, "stranger", ca="stranger-ca")
-    return folder
-
-
-def tls_of(certs: Path, name: str | None) -> dict:
-    tls = {"root_ca_certificate": str(certs / "ca.pem"), "enable_mtls": True,
-           "verify_name_on_connect": True}
-    if name is not None:
-        tls["connect_private_key"] = str(certs / f"{name}.key")
-        tls["connect_certificate"] = str(certs / f"{name}.pem")
-    return tls
-
-
-def tls_router_and_twin(tmp_path, certs, armtwin_bin) -> tuple[Router, Armtwin]:
-    """The shipped TLS + ACL router and armtwin behind it with its certificate, not started."""
-    (tmp_path / "certs").symlink_to(certs)
-    router = Router(router_path(armtwin_bin), tmp_path, config=ROUTER_CONFIG, scheme="tls", env={"RUST_LOG": ACL_LOG})
-    twin = Armtwin(
-        armtwin_bin, tmp_path, "twin",
-        f'[zenoh]\nfile = "{CLIENT_CONFIG}"\n[service]\npose_congestion = "block"\n',
-        router.endpoint,
-    )
-    (tmp_path / "twin" / "certs").symlink_to(certs)
-    return router, twin
 
 
 def test_access_control_lets_each_role_do_only_its_part(
@@ -98,20 +28,16 @@ def test_access_control_lets_each_role_do_only_its_part(
     try:
         router.start()
         twin.start()
-        gateway_session = zenoh.open(_client(router.endpoint, tls_of(certs, "gateway")))
-        dashboard = zenoh.open(_client(router.endpoint, tls_of(certs, "dashboard")))
-        watcher = zenoh.open(_client(router.endpoint, tls_of(certs, "dashboard")))
+        gateway_session = open_as(router, certs, "g1")
+        dashboard = open_as(router, certs, "dashboard")
+        watcher = open_as(router, certs, "dashboard")
         sessions += [gateway_session, dashboard, watcher]
         poses = []
         watcher.declare_subscriber("twin/pose/**", lambda s: poses.append(json.loads(s.payload.to_bytes())))
         assert wait_queryable(dashboard, "twin/state/**"), router.logs()
         assert wait_queryable(watcher, "twin/state/**"), router.logs()
 
-        gateway = Gateway(gateway_session, "r1")
-        assert wait_until(lambda: gateway.pub.matching_status.matching, 20), router.logs()
-        for _ in range(20):
-            gateway.send_one()
-            time.sleep(0.005)
+        send(Gateway(gateway_session, "r1"), router)
         assert wait_until(lambda: len(poses) == 20, 15), (len(poses), router.logs())
         [(_, state)] = get_json(dashboard, "twin/state/r1")
         assert state["metrics"]["paired"] == 20
@@ -128,14 +54,9 @@ def test_access_control_lets_each_role_do_only_its_part(
         assert after["metrics"]["paired"] == 20 and after["joints"]["t"] == state["joints"]["t"]
         assert [p["seq"] for p in poses] == list(range(20)), "only armtwin's poses arrive"
         # The router's log names each denial (access control at trace level).
-        def denied(name: str, key: str) -> bool:
-            return any(
-                f"CertCommonName({name})" in line and f"is unauthorized to Put (ingress) on {key}" in line
-                for line in router.logs(10**9).splitlines()
-            )
-
-        assert wait_until(lambda: denied("dashboard", "twin/joints/r1"), 10)
-        assert denied("dashboard", "twin/pose/r1") and denied("gateway", "twin/pose/r1")
+        assert wait_until(lambda: denied(router, "dashboard", "Put (ingress) on", "twin/joints/r1"), 10)
+        assert denied(router, "dashboard", "Put (ingress) on", "twin/pose/r1")
+        assert denied(router, "g1", "Put (ingress) on", "twin/pose/r1")
 
         # Without a certificate, or with one of another CA, no session opens.
         for name in (None, "stranger"):
@@ -144,10 +65,10 @@ def test_access_control_lets_each_role_do_only_its_part(
                 tls["connect_private_key"] = str(certs / f"{name}.key")
                 tls["connect_certificate"] = str(certs / f"{name}.pem")
             with pytest.raises(zenoh.ZError):
-                zenoh.open(_client(router.endpoint, tls)).close()
+                zenoh.open(tls_client_config(router.endpoint, tls)).close()
         # Plain TCP to the TLS port does not open a session either.
         with pytest.raises(zenoh.ZError):
-            zenoh.open(_client(f"tcp/127.0.0.1:{router.port}", None)).close()
+            zenoh.open(tls_client_config(f"tcp/127.0.0.1:{router.port}", None)).close()
     finally:
         for session in sessions:
             session.close()
@@ -172,17 +93,13 @@ def test_only_an_operator_may_reset_a_twin(tmp_path, certs, armtwin_bin):
     try:
         router.start()
         twin.start()
-        gateway_session = zenoh.open(_client(router.endpoint, tls_of(certs, "gateway")))
-        dashboard = zenoh.open(_client(router.endpoint, tls_of(certs, "dashboard")))
-        operator = zenoh.open(_client(router.endpoint, tls_of(certs, "operator")))
+        gateway_session = open_as(router, certs, "g1")
+        dashboard = open_as(router, certs, "dashboard")
+        operator = open_as(router, certs, "operator")
         sessions += [gateway_session, dashboard, operator]
         assert wait_queryable(dashboard, "twin/state/**"), router.logs()
         assert wait_queryable(operator, "twin/admin/reset/**"), router.logs()
-        gateway = Gateway(gateway_session, "r1")
-        assert wait_until(lambda: gateway.pub.matching_status.matching, 20), router.logs()
-        for _ in range(20):
-            gateway.send_one()
-            time.sleep(0.005)
+        send(Gateway(gateway_session, "r1"), router)
         assert wait_until(lambda: paired_of(dashboard, "r1") == 20, 15)
 
         # The dashboard reads, and every change it asks for is dropped at the router or refused.
@@ -196,14 +113,8 @@ def test_only_an_operator_may_reset_a_twin(tmp_path, certs, armtwin_bin):
         [(_, state)] = get_json(dashboard, "twin/state/r1")
         assert state["metrics"]["paired"] == 20, "the dashboard changed nothing"
 
-        def denied(name: str, key: str) -> bool:
-            return any(
-                f"CertCommonName({name})" in line and "is unauthorized to Query" in line and key in line
-                for line in router.logs(10**9).splitlines()
-            )
-
-        assert wait_until(lambda: denied("dashboard", "twin/admin/reset/r1"), 10), router.logs()
-        assert denied("dashboard", "twin/admin/calibrate/r1")
+        assert wait_until(lambda: denied(router, "dashboard", "Query", "twin/admin/reset/r1"), 10), router.logs()
+        assert denied(router, "dashboard", "Query", "twin/admin/calibrate/r1")
 
         # The operator reads and changes.
         [(_, by_operator)] = get_json(operator, "twin/state/r1")
@@ -219,14 +130,3 @@ def test_only_an_operator_may_reset_a_twin(tmp_path, certs, armtwin_bin):
             session.close()
         twin.stop()
         router.stop()
-
-
-def _client(endpoint: str, tls: dict | None) -> zenoh.Config:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"client"')
-    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("connect/timeout_ms", "3000")
-    for key, value in (tls or {}).items():
-        conf.insert_json5(f"transport/link/tls/{key}", json.dumps(value))
-    return conf

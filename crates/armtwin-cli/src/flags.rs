@@ -43,6 +43,35 @@ pub enum Command {
     Calibrate(CalibrateArgs),
     /// Stream robot controllers into the mesh as a gateway: `gateway rtde` for Universal Robots.
     Gateway(GatewayArgs),
+    /// The router's access control from a fleet description (TOML: which certificate name speaks
+    /// for which robots; which are armtwin, dashboards, operators), printed as JSON5 or written
+    /// into a router configuration between its `armtwin acl` marks.
+    Acl(AclArgs),
+    /// A new token for the dashboard: the secret (shown once) and the `[[http.tokens]]` entry
+    /// that holds its salted digest.
+    HttpToken(HttpTokenArgs),
+}
+
+/// `armtwin http-token` arguments.
+#[derive(Debug, Args)]
+pub struct HttpTokenArgs {
+    /// The token's name: the user name of HTTP Basic authentication, and what logs call it.
+    pub name: String,
+    /// What it may read: `viewer` (every page, stream and /metrics) or `metrics` (/metrics only,
+    /// for Prometheus).
+    #[arg(long, default_value = "viewer", value_parser = ["viewer", "metrics"])]
+    pub role: String,
+}
+
+/// `armtwin acl` arguments.
+#[derive(Debug, Args)]
+pub struct AclArgs {
+    /// The fleet description (config/fleet.toml is a commented example).
+    pub fleet: PathBuf,
+    /// Write the section into this router configuration, between its `// BEGIN access_control`
+    /// and `// END access_control` lines, instead of printing it.
+    #[arg(long, value_name = "ROUTER_CONFIG")]
+    pub update: Option<PathBuf>,
 }
 
 /// `armtwin gateway` arguments.

@@ -7,13 +7,19 @@
 //! ROS 2 ⇄ Zenoh bridge in the same process.
 //!
 //! It takes a Zenoh JSON5 configuration (`-c`), `zenohd`'s flags for endpoints and the REST port,
-//! and `--cfg KEY:VALUE` for any other setting; it owns no armtwin logic.
+//! and `--cfg KEY:VALUE` for any other setting; it owns no armtwin logic. Unlike `zenohd`, a bare
+//! `--rest-http-port PORT` binds loopback, and beside access control REST runs as an identity the
+//! rules name, or not at all unless trusted on loopback ([`rest`]).
+
+mod rest;
 
 use anyhow::{Context, Result};
 use clap::Parser;
 use zenoh::Config;
 use zenoh::internal::plugins::PluginsManager;
-use zenoh::internal::runtime::RuntimeBuilder;
+use zenoh::internal::runtime::{Runtime, RuntimeBuilder};
+
+use crate::rest::{RestDoor, RestFlags};
 
 /// A Zenoh router (`zenohd` 1.10) with the REST plugin (and, built with the feature `ros2dds`,
 /// the ROS 2 DDS bridge) built in.
@@ -30,10 +36,23 @@ struct Args {
     /// Endpoints of other routers to connect to (replace the file's).
     #[arg(short = 'e', long, value_name = "ENDPOINT")]
     connect: Vec<String>,
-    /// Serve the REST API on this port or `ADDRESS:PORT` (e.g. `127.0.0.1:8000`); `none` to
-    /// leave it off even if the file configures it.
+    /// Serve the REST API on this port of loopback (`8000`) or on `ADDRESS:PORT`
+    /// (`0.0.0.0:8000`); `none` to leave it off even if the file configures it. Beside access
+    /// control it needs --rest-certificate/--rest-private-key, or --rest-trusted on loopback.
     #[arg(long, value_name = "PORT")]
     rest_http_port: Option<String>,
+    /// REST speaks as this certificate (PEM; its subject CN is what the access control's
+    /// subjects name): a Zenoh client of this router over mutual TLS, so every HTTP request is
+    /// allowed or dropped by the same rules as any session of that name.
+    #[arg(long, value_name = "FILE", requires = "rest_private_key")]
+    rest_certificate: Option<std::path::PathBuf>,
+    /// The private key of --rest-certificate (PEM).
+    #[arg(long, value_name = "FILE", requires = "rest_certificate")]
+    rest_private_key: Option<std::path::PathBuf>,
+    /// Run REST inside the router, past its access control, as `zenohd` does: whoever reaches
+    /// the REST port may put any input and change any twin. Loopback addresses only.
+    #[arg(long)]
+    rest_trusted: bool,
     /// Turn multicast scouting off (routers find each other through `--connect`).
     #[arg(long)]
     no_multicast_scouting: bool,
@@ -52,16 +71,9 @@ fn json_list(items: &[String]) -> String {
     format!("[{}]", quoted.join(","))
 }
 
-/// The REST plugin's `http_port` value: a bare port or `ADDRESS:PORT`, as `zenohd` takes it.
-fn rest_port_json(value: &str) -> String {
-    if value.parse::<u16>().is_ok() {
-        value.to_owned()
-    } else {
-        format!("{value:?}")
-    }
-}
-
-fn config_from(args: &Args) -> Result<Config> {
+/// The router's configuration, with the REST plugin's section set for where REST runs (and
+/// removed unless it runs inside the router).
+fn config_from(args: &Args) -> Result<(Config, RestDoor)> {
     let mut config = match &args.config {
         Some(path) => Config::from_file(path)
             .map_err(|e| anyhow::anyhow!("{e}"))
@@ -78,13 +90,6 @@ fn config_from(args: &Args) -> Result<Config> {
     if args.no_multicast_scouting {
         inserts.push(("scouting/multicast/enabled".to_owned(), "false".to_owned()));
     }
-    match args.rest_http_port.as_deref() {
-        None => {}
-        Some("none") => inserts.push(("plugins/rest".to_owned(), "null".to_owned())),
-        Some(port) => {
-            inserts.push(("plugins/rest/http_port".to_owned(), rest_port_json(port)));
-        }
-    }
     if args.ros2dds && config.plugin("ros2dds").is_none() {
         inserts.push(("plugins/ros2dds".to_owned(), "{}".to_owned()));
     }
@@ -100,15 +105,71 @@ fn config_from(args: &Args) -> Result<Config> {
             .map_err(|e| anyhow::anyhow!("{e}"))
             .with_context(|| format!("cannot set Zenoh configuration {key} to {value}"))?;
     }
+    let door = rest::door(
+        rest::access_control_enabled(&config),
+        config.plugin("rest").and_then(|rest| rest.get("http_port")),
+        &RestFlags {
+            http_port: args.rest_http_port.clone(),
+            trusted: args.rest_trusted,
+            certificate: args.rest_certificate.clone(),
+            private_key: args.rest_private_key.clone(),
+        },
+    )?;
+    match &door {
+        RestDoor::Inside { address } => config
+            .insert_json5(
+                "plugins/rest/http_port",
+                &serde_json::to_string(&address.to_string())?,
+            )
+            .map_err(|e| anyhow::anyhow!("{e}"))?,
+        // REST as an identity runs in a client of its own, never in the router itself.
+        RestDoor::Off | RestDoor::Identity { .. } if config.plugin("rest").is_some() => config
+            .remove("plugins/rest")
+            .map_err(|e| anyhow::anyhow!("{e}"))?,
+        RestDoor::Off | RestDoor::Identity { .. } => {}
+    }
     // The admin space serves the plugin's status under @/…; plugins are linked in, so loading is
     // only the declaration below (no library is searched for).
-    config
-        .insert_json5("adminspace/enabled", "true")
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
-    config
-        .insert_json5("plugins_loading/enabled", "true")
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
-    Ok(config)
+    for key in ["adminspace/enabled", "plugins_loading/enabled"] {
+        config
+            .insert_json5(key, "true")
+            .map_err(|e| anyhow::anyhow!("{e}"))
+            .with_context(|| format!("cannot set Zenoh configuration {key} to true"))?;
+    }
+    Ok((config, door))
+}
+
+/// Starts the Zenoh client that serves REST as an identity (after the router listens).
+async fn start_rest_client(router: &Config, door: &RestDoor) -> Result<Option<Runtime>> {
+    let RestDoor::Identity {
+        address,
+        certificate,
+        private_key,
+    } = door
+    else {
+        return Ok(None);
+    };
+    let config = rest::identity_client_config(router, *address, certificate, private_key)?;
+    let mut plugins = PluginsManager::static_plugins_only();
+    plugins.declare_static_plugin::<zenoh_plugin_rest::RestPlugin, &str>("rest", true);
+    let mut runtime = RuntimeBuilder::new(config)
+        .plugins_manager(plugins)
+        .build()
+        .await
+        .map_err(|e| anyhow::anyhow!("{e}"))
+        .context("cannot start REST (is its port taken?)")?;
+    runtime
+        .start()
+        .await
+        .map_err(|e| anyhow::anyhow!("{e}"))
+        .with_context(|| {
+            format!(
+                "REST's client cannot join the router with {}: is it a certificate of the \
+                 router's CA?",
+                certificate.display()
+            )
+        })?;
+    Ok(Some(runtime))
 }
 
 async fn shutdown_signal() -> Result<()> {
@@ -146,7 +207,7 @@ fn declare_ros2dds(_plugins: &mut PluginsManager) -> Result<()> {
 async fn main() -> Result<()> {
     zenoh::init_log_from_env_or("z=info,armtwin_router=info");
     let args = Args::parse();
-    let config = config_from(&args)?;
+    let (config, door) = config_from(&args)?;
     let mut plugins = PluginsManager::static_plugins_only();
     if config.plugin("rest").is_some() {
         plugins.declare_static_plugin::<zenoh_plugin_rest::RestPlugin, &str>("rest", true);
@@ -155,7 +216,7 @@ async fn main() -> Result<()> {
     if bridge {
         declare_ros2dds(&mut plugins)?;
     }
-    let mut runtime = RuntimeBuilder::new(config)
+    let mut runtime = RuntimeBuilder::new(config.clone())
         .plugins_manager(plugins)
         .build()
         .await
@@ -167,8 +228,31 @@ async fn main() -> Result<()> {
         .map_err(|e| anyhow::anyhow!("{e}"))
         .context("cannot start the Zenoh router (is a listen port taken?)")?;
     tracing::info!(zid = %runtime.zid(), "armtwin-router started");
+    let rest_client = start_rest_client(&config, &door).await?;
+    match &door {
+        RestDoor::Off => {}
+        RestDoor::Inside { address } => {
+            tracing::info!(%address, "REST inside the router, past any access control");
+        }
+        RestDoor::Identity {
+            address,
+            certificate,
+            ..
+        } => tracing::info!(
+            %address,
+            certificate = %certificate.display(),
+            "REST as the certificate's subject, through the access control"
+        ),
+    }
     shutdown_signal().await?;
     tracing::info!("armtwin-router stopping");
+    if let Some(client) = rest_client {
+        client
+            .close()
+            .await
+            .map_err(|e| anyhow::anyhow!("{e}"))
+            .context("cannot close REST's client")?;
+    }
     if bridge {
         // Zenoh 1.10.2 panics in its routing tables when a closing runtime still holds the
         // bridge's queryables (and then aborts on a second panic in a destructor);

@@ -13,6 +13,7 @@
 //! - [`ros2`]: ROS 2 on Zenoh: `rmw_zenoh` and bridge key layouts, the robot a key names, the
 //!   twin pose output's key.
 //! - [`ingest`]: the codec a Zenoh sample's encoding selects.
+//! - [`acl`]: a fleet description (who speaks for which robots) as a router's access control.
 //! - [`keys`]: armtwin's key space on Zenoh: every key built and read, the robot-id grammar,
 //!   armtwin's own streams.
 //! - [`config`]: the service's TOML configuration and command-line overrides.
@@ -21,6 +22,7 @@
 //! - [`service`]: `armtwin serve`, the fleet of twins on a Zenoh mesh, one file per concern.
 //! - [`snapshot`]: the service's snapshot file, each twin's cumulative state across restarts.
 //! - [`dashboard`]: the service's HTTP side: fleet and robot pages, live streams, `/metrics`.
+//! - [`http_access`]: who may reach it: its TLS identity, tokens and their roles.
 //! - [`replay`]: `armtwin replay`, a recording published as a gateway would.
 //! - [`gateway`]: `armtwin gateway rtde`, Universal Robots controllers streamed over RTDE.
 //! - [`validate`]: `armtwin validate`, a recording through the pipeline offline, with its report
@@ -36,6 +38,7 @@ pub use armtwin_core::{
     pose_fields, sample, self_calibration, trig,
 };
 
+pub mod acl;
 pub mod calibrate;
 pub mod config;
 pub mod dashboard;
@@ -43,6 +46,7 @@ pub mod dashboard;
 mod file_sizes;
 pub mod fmu_package;
 pub mod gateway;
+pub mod http_access;
 pub mod ingest;
 pub mod keys;
 pub mod mesh;

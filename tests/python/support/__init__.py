@@ -6,7 +6,11 @@
 * ``zenoh_clients``: Python Zenoh sessions (a peer of one armtwin, a client of a router), the
   output collector, bounded queries.
 * ``gateway``: the one gateway, streaming joint messages at a fixed rate.
-* ``dashboard``: the service with its HTTP side on, and the tools the dashboard tests drive.
+* ``dashboard``: the service with its HTTP side on, and the tools the dashboard tests drive
+  (headless Chromium, a Prometheus scraping it).
+* ``pki``: a certificate authority and certificates (openssl), a client's TLS settings;
+  ``secured_fleet``: the shipped router with TLS and access control, armtwin behind it, sessions
+  per certificate, and the router's denials read from its log.
 * ``checks``, ``twin_reference``, ``fk_csv``: soft checks, and outputs checked against the
   references ``ur_reference`` (numpy FK) and ``ur_dynamics`` (Pinocchio).
 * Generators of test inputs: ``effort_recording``, ``rtde_recording``, ``ros2_fixtures``.

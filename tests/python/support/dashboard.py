@@ -11,13 +11,14 @@ import json
 import os
 import shutil
 import urllib.error
+import urllib.parse
 import urllib.request
 from pathlib import Path
 
 import pytest
 
 from support.paths import REPO_ROOT
-from support.process import ArmtwinProcess, free_port, port_accepts, wait_until
+from support.process import ArmtwinProcess, Process, free_port, port_accepts, wait_until
 from support.zenoh_clients import TwinClient
 
 HTTP_TIMEOUT_S = 10.0
@@ -88,3 +89,39 @@ class DashboardService:
         values = [json.loads(r.ok.payload.to_string()) for r in replies if r.ok is not None]
         assert len(values) == 1, f"state of {robot}: {len(values)} replies"
         return values[0]
+
+
+class Prometheus(Process):
+    """A Prometheus scraping ``target`` every second, its data in ``workdir``."""
+
+    def __init__(self, workdir, target: str):
+        self.binary = prometheus_path()
+        self.port = free_port()
+        self.config = workdir / "prometheus.yml"
+        self.config.write_text(
+            "global:\n  scrape_interval: 1s\n  evaluation_interval: 1s\n"
+            "scrape_configs:\n  - job_name: armtwin\n    static_configs:\n"
+            f"      - targets: ['{target}']\n"
+        )
+        self.data = workdir / "prometheus-data"
+        argv = [self.binary, f"--config.file={self.config}", f"--storage.tsdb.path={self.data}",
+                f"--web.listen-address=127.0.0.1:{self.port}"]
+        super().__init__("prometheus", argv, workdir)
+
+    def __enter__(self) -> Prometheus:
+        self.start()
+        self.wait_port(self.port, f"listen on {self.port}")
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def query(self, expr: str) -> dict:
+        url = f"http://127.0.0.1:{self.port}/api/v1/query?" + urllib.parse.urlencode({"query": expr})
+        answer = http_json(url)
+        assert answer["status"] == "success", answer
+        return answer["data"]
+
+    def value(self, expr: str) -> float | None:
+        result = self.query(expr)["result"]
+        return float(result[0]["value"][1]) if len(result) == 1 else None

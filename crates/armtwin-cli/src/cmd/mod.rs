@@ -9,10 +9,12 @@
     reason = "the command line reports progress and problems to its user"
 )]
 
+mod acl;
 mod calibrate;
 mod fk;
 mod fmu;
 mod gateway;
+mod http_token;
 mod ik;
 mod models;
 mod replay;
@@ -51,6 +53,8 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Gateway(GatewayArgs {
             command: GatewayCommand::Rtde(args),
         }) => gateway::rtde(&args),
+        Command::Acl(args) => acl::run(&args),
+        Command::HttpToken(args) => http_token::run(&args),
     }
 }
 

@@ -39,11 +39,26 @@ pub(super) struct File {
     pub(super) http: HttpSection,
 }
 
-/// `[http]`: the dashboard and `/metrics` (off unless `listen` is set).
+/// `[http]`: the dashboard and `/metrics` (off unless `listen` is set), its TLS and tokens.
 #[derive(Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct HttpSection {
     pub(super) listen: Option<String>,
+    pub(super) tls_certificate: Option<PathBuf>,
+    pub(super) tls_private_key: Option<PathBuf>,
+    #[serde(default)]
+    pub(super) anonymous: bool,
+    #[serde(default)]
+    pub(super) tokens: Vec<TokenSection>,
+}
+
+/// `[[http.tokens]]`: one token the dashboard accepts.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct TokenSection {
+    pub(super) name: String,
+    pub(super) role: String,
+    pub(super) hash: String,
 }
 
 /// `[self_calibration]`: how robots with `self_calibrate = true` keep their pairs and re-fit.

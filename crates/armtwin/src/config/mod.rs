@@ -9,6 +9,7 @@
 //! session: the service does, with what this module checked.
 
 mod file;
+mod http;
 mod robots;
 mod sources;
 mod zenoh_section;
@@ -195,6 +196,8 @@ pub struct ServiceConfig {
     pub snapshots: Option<SnapshotSettings>,
     /// `[http] listen` (or `--http`): where the dashboard and `/metrics` listen; `None`, no HTTP.
     pub http_listen: Option<SocketAddr>,
+    /// `[http]`'s TLS and tokens (none of either on the embedded default).
+    pub http_access: crate::http_access::HttpAccess,
 }
 
 impl ServiceConfig {
@@ -253,15 +256,8 @@ impl ServiceConfig {
         )?;
         let ros2_pose = load_pose_outputs(&file.robots, source_name, &keys)?;
         let (shard, snapshots) = check_deployment(&service, &robots, (source_name, base_dir))?;
-        let http_listen = match (overrides.http_listen, &file.http.listen) {
-            (Some(address), _) => Some(address),
-            (None, None) => None,
-            (None, Some(text)) => Some(text.parse().map_err(|e| ConfigError::Invalid {
-                source_name: source_name.to_owned(),
-                field: "http.listen".to_owned(),
-                problem: format!("'{text}' is not an IP address and port: {e}"),
-            })?),
-        };
+        let (http_listen, http_access) =
+            http::load_http(&file.http, overrides.http_listen, (source_name, base_dir))?;
         let sources = load_sources(
             &file.sources,
             &SourceContext {
@@ -305,6 +301,7 @@ impl ServiceConfig {
             shard,
             snapshots,
             http_listen,
+            http_access,
         })
     }
 

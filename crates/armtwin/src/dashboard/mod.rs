@@ -8,8 +8,10 @@
 //! client's socket takes more, so a slow or stalled browser costs the twin nothing. The pages and
 //! three.js are embedded in the binary: nothing is fetched from elsewhere at run time.
 
+mod access;
 mod exposition;
 mod source;
+mod tls;
 
 pub use source::{FleetRow, FleetSource, RobotCounts, RobotDetail, ServiceTotals};
 
@@ -32,6 +34,7 @@ use tracing::{info, warn};
 use zenoh::key_expr::OwnedKeyExpr;
 
 use crate::config::without_source_location;
+use crate::http_access::{HttpAccess, Token};
 use crate::mesh::{TEARDOWN_STEP, bounded};
 use crate::metrics::Metric;
 
@@ -56,30 +59,41 @@ pub(crate) struct Dashboard {
 }
 
 impl Dashboard {
-    /// Serves the dashboard on `listener` (already bound) until [`Dashboard::stop`].
-    pub(crate) fn start(listener: tokio::net::TcpListener, view: Arc<dyn FleetSource>) -> Self {
+    /// Serves the dashboard on `listener` (already bound), as `access` says, until
+    /// [`Dashboard::stop`].
+    pub(crate) fn start(
+        listener: tokio::net::TcpListener,
+        access: &HttpAccess,
+        view: Arc<dyn FleetSource>,
+    ) -> Self {
         let (stopping, stop_rx) = watch::channel(false);
         let address = listener
             .local_addr()
             .map_or_else(|_| "?".to_owned(), |address| address.to_string());
-        info!(%address, "dashboard listening");
-        let app = router(AppState {
+        info!(
+            %address,
+            tls = access.tls.is_some(),
+            tokens = access.tokens.len(),
+            "dashboard listening"
+        );
+        let mut app = router(AppState {
             view,
             fleet: Arc::new(Mutex::new(None)),
             fleet_reading: Arc::new(tokio::sync::Mutex::new(())),
             stopping: stop_rx.clone(),
         });
-        let task = tokio::spawn(async move {
-            let mut stop = stop_rx;
-            let served = axum::serve(listener, app)
-                .with_graceful_shutdown(async move {
-                    let _ = stop.wait_for(|stopping| *stopping).await;
-                })
-                .await;
-            if let Err(e) = served {
-                warn!(error = %e, "the dashboard stopped");
-            }
-        });
+        if !access.tokens.is_empty() {
+            let tokens: Arc<[Token]> = access.tokens.clone().into();
+            app = app.layer(axum::middleware::from_fn_with_state(tokens, access::guard));
+        }
+        let task = match &access.tls {
+            None => serve(listener, app, stop_rx),
+            Some(config) => serve(
+                tls::TlsListener::new(listener, config.clone()),
+                app,
+                stop_rx,
+            ),
+        };
         Self { stopping, task }
     }
 
@@ -89,6 +103,25 @@ impl Dashboard {
         let _ = self.stopping.send(true);
         bounded("stopping the dashboard", TEARDOWN_STEP, self.task).await;
     }
+}
+
+/// Serves `app` on `listener` until `stop` turns true.
+fn serve<L>(listener: L, app: Router, stop: watch::Receiver<bool>) -> tokio::task::JoinHandle<()>
+where
+    L: axum::serve::Listener,
+    L::Addr: std::fmt::Debug,
+{
+    tokio::spawn(async move {
+        let mut stop = stop;
+        let served = axum::serve(listener, app)
+            .with_graceful_shutdown(async move {
+                let _ = stop.wait_for(|stopping| *stopping).await;
+            })
+            .await;
+        if let Err(e) = served {
+            warn!(error = %e, "the dashboard stopped");
+        }
+    })
 }
 
 /// One read of the fleet, shared by the fleet pages and `/metrics` for a moment.

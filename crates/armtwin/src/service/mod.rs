@@ -132,7 +132,11 @@ pub async fn serve(
     };
 
     let dashboard = http_listener.map(|listener| {
-        dashboard::Dashboard::start(listener, Arc::new(view::FleetView::new(Arc::clone(&fleet))))
+        dashboard::Dashboard::start(
+            listener,
+            &config.http_access,
+            Arc::new(view::FleetView::new(Arc::clone(&fleet))),
+        )
     });
 
     shutdown.await;

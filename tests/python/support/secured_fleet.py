@@ -1,0 +1,95 @@
+"""The shipped secured fleet: the router with TLS and access control (config/router-tls-acl.json5,
+its access control generated from config/fleet.toml), armtwin behind it with its certificate
+(config/zenoh-client-tls.json5), and sessions that present the certificates of
+``support.pki``."""
+
+from __future__ import annotations
+
+import json
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import zenoh
+
+from support.gateway import Gateway
+from support.paths import REPO_ROOT, router_path
+from support.pki import tls_of
+from support.process import Armtwin, Router, free_port, wait_until
+from support.zenoh_clients import wait_queryable
+
+ROUTER_CONFIG = REPO_ROOT / "config" / "router-tls-acl.json5"
+CLIENT_CONFIG = REPO_ROOT / "config" / "zenoh-client-tls.json5"
+ACL_LOG = "z=info,zenoh::net::routing::interceptor::access_control=trace"
+
+
+def tls_router_and_twin(tmp_path, certs, armtwin_bin) -> tuple[Router, Armtwin]:
+    """The shipped TLS + ACL router and armtwin behind it with its certificate, not started."""
+    (tmp_path / "certs").symlink_to(certs)
+    router = Router(router_path(armtwin_bin), tmp_path, config=ROUTER_CONFIG, scheme="tls", env={"RUST_LOG": ACL_LOG})
+    twin = Armtwin(
+        armtwin_bin, tmp_path, "twin",
+        f'[zenoh]\nfile = "{CLIENT_CONFIG}"\n[service]\npose_congestion = "block"\n',
+        router.endpoint,
+    )
+    (tmp_path / "twin" / "certs").symlink_to(certs)
+    return router, twin
+
+
+def open_as(router: Router, certs: Path, name: str) -> zenoh.Session:
+    """A client session of ``router`` with the certificate ``name``."""
+    return zenoh.open(tls_client_config(router.endpoint, tls_of(certs, name)))
+
+
+def send(gateway: Gateway, router: Router, count: int = 20) -> None:
+    """Waits until ``gateway``'s publisher knows armtwin's subscriber, then sends ``count`` samples."""
+    assert wait_until(lambda: gateway.pub.matching_status.matching, 20), router.logs()
+    for _ in range(count):
+        gateway.send_one()
+        time.sleep(0.005)
+
+
+@contextmanager
+def secured_fleet(tmp_path, certs, armtwin_bin, names: list[str], rest: list[str] | None = None):
+    """The shipped secured router (with ``rest``, REST flags, if given) and armtwin behind it,
+    started, with a session per certificate name in ``names`` and a dashboard's view of armtwin's
+    queryables; yields the router and the sessions by name; stops everything after."""
+    router, twin = tls_router_and_twin(tmp_path, certs, armtwin_bin)
+    if rest is not None:
+        router.rest_port = free_port()
+        router.argv += ["--rest-http-port", f"127.0.0.1:{router.rest_port}", *rest]
+    sessions = {}
+    try:
+        router.start()
+        twin.start()
+        sessions = {name: open_as(router, certs, name) for name in names}
+        assert wait_queryable(sessions["dashboard"], "twin/state/**"), router.logs()
+        yield router, sessions
+    finally:
+        for session in sessions.values():
+            session.close()
+        twin.stop()
+        router.stop()
+
+
+def denied(router: Router, name: str, action: str, key: str) -> bool:
+    """Whether the router's log (access control at trace level) names a denial of ``action``
+    (``Put (ingress)``, ``Query``) on ``key`` to the certificate ``name``."""
+    return any(
+        f"CertCommonName({name})" in line and f"is unauthorized to {action}" in line and key in line
+        for line in router.logs(10**9).splitlines()
+    )
+
+
+
+def tls_client_config(endpoint: str, tls: dict | None) -> zenoh.Config:
+    """A client configuration of ``endpoint`` presenting ``tls`` (no certificate if None), which
+    gives up connecting after 3 s."""
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/timeout_ms", "3000")
+    for key, value in (tls or {}).items():
+        conf.insert_json5(f"transport/link/tls/{key}", json.dumps(value))
+    return conf

@@ -1,6 +1,7 @@
 //! Inverse dynamics cost: one six-joint recursive Newton–Euler call (what a torque residual needs
 //! per sample), gravity torques, the mass matrix and the momentum terms an observer needs, with
-//! the nominal FK of the same arm as an in-run baseline (`BENCHMARKS.md` has its history).
+//! the nominal FK of the same arm as an in-run baseline (figures: BENCHMARKS.md, "Inverse
+//! dynamics").
 //!
 //! `cargo bench -p armtwin-core --bench dynamics`.
 #![allow(

@@ -1,8 +1,25 @@
 // Pinocchio's C++ `rnea` on the arm and state of `benches/dynamics.rs` (UR10e, 5 kg payload, rotor
 // inertia as armature), timed exactly as `examples/dynamics_min_time.rs` times armtwin's: 3 000
 // rounds of 200 calls, per-call time of each round, reporting the fastest round and the median.
-// Build and run: see BENCHMARKS.md ("Inverse dynamics"). Prints the torques so that they can be
-// compared with armtwin's for the same state.
+// Prints the torques so that they can be compared with armtwin's for the same state; the figures
+// are in BENCHMARKS.md ("Inverse dynamics").
+
+/* Build from the workspace root with the headers and libpinocchio of the test venv's `pin` wheel
+   (tests/run_all.sh), Eigen 3.4 headers from PyPI's cmeel-eigen and g++ 12; the defines are those
+   of pinocchio's CMake targets. Two builds: header-only (the templates compiled here), and linked
+   to the wheel's own build (what `pin.rnea` runs).
+
+pip install --target .cache/cmeel-eigen "cmeel-eigen<4"
+P=.venv/lib/python3.11/site-packages/cmeel.prefix
+E=.cache/cmeel-eigen/cmeel.prefix/include/eigen3
+DEFS="-DBOOST_MPL_LIMIT_LIST_SIZE=30 -DBOOST_MPL_LIMIT_VECTOR_SIZE=30 -DBOOST_MPL_CFG_NO_PREPROCESSED_HEADERS -DBOOST_FUSION_INVOKE_MAX_ARITY=12"
+g++ -O3 -DNDEBUG -std=c++17 $DEFS -I$E -I$P/include \
+  crates/armtwin-core/benches/pinocchio_rnea.cpp -o target/pinocchio_rnea_header_only
+g++ -O3 -DNDEBUG -std=c++17 $DEFS -DPINOCCHIO_ENABLE_TEMPLATE_INSTANTIATION -I$E -I$P/include \
+  crates/armtwin-core/benches/pinocchio_rnea.cpp -o target/pinocchio_rnea_linked \
+  -L$P/lib -lpinocchio_default -Wl,-rpath,$P/lib
+target/pinocchio_rnea_header_only && target/pinocchio_rnea_linked
+*/
 #include <algorithm>
 #include <chrono>
 #include <cmath>

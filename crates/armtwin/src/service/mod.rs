@@ -147,7 +147,28 @@ pub async fn serve(
     intake.undeclare().await;
     // Samples that arrive after this are ignored: the control thread finishes the pipeline.
     requests.stop();
-    let report = match bounded(
+    let report = finish(control).await;
+    // Closed even when the control thread failed: the session's links go down either way.
+    if let Some(Err(e)) = bounded("closing the session", TEARDOWN_STEP, session.close()).await {
+        warn!(error = %e, "closing the session failed");
+    }
+    let report = report?;
+    info!(
+        inputs = report.inputs,
+        poses = report.poses,
+        robots = report.robots,
+        publish_errors = report.publish_errors,
+        "armtwin stopped"
+    );
+    Ok(report)
+}
+
+/// Waits, bounded, for the control thread to finish the pipeline and undeclare the robots'
+/// outputs; its report.
+async fn finish(
+    control: std::thread::JoinHandle<ServeReport>,
+) -> Result<ServeReport, ServiceError> {
+    match bounded(
         "finishing the pipeline and undeclaring the robots' outputs",
         TEARDOWN_STEP * 4,
         tokio::task::spawn_blocking(move || control.join()),
@@ -162,20 +183,7 @@ pub async fn serve(
         None => Err(ServiceError::Worker(
             "the control thread did not stop in time".to_owned(),
         )),
-    };
-    // Closed even when the control thread failed: the session's links go down either way.
-    if let Some(Err(e)) = bounded("closing the session", TEARDOWN_STEP, session.close()).await {
-        warn!(error = %e, "closing the session failed");
     }
-    let report = report?;
-    info!(
-        inputs = report.inputs,
-        poses = report.poses,
-        robots = report.robots,
-        publish_errors = report.publish_errors,
-        "armtwin stopped"
-    );
-    Ok(report)
 }
 
 /// The dashboard's listener, if `[http] listen` asks for one.

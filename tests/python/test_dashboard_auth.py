@@ -85,7 +85,7 @@ def basic(user: str, secret: str) -> str:
 
 def test_plain_clients_need_a_token_over_tls_and_healthz_is_open(armtwin_bin, tmp_path, pki):
     with SecuredDashboard(armtwin_bin, tmp_path, pki) as service:
-        gateway = Gateway(service.client, [ROBOT], rate_hz=200.0, rows=200)
+        gateway = Gateway(service.client, [ROBOT], rate_hz=200.0, recording=True, rows=200)
         gateway.start()
         gateway.join(timeout=30)
         viewer, scraper = f"Bearer {service.viewer}", f"Bearer {service.scraper}"
@@ -127,7 +127,7 @@ def test_plain_clients_need_a_token_over_tls_and_healthz_is_open(armtwin_bin, tm
 
 def test_a_browser_is_refused_without_credentials_and_served_with_them(armtwin_bin, tmp_path, pki):
     with SecuredDashboard(armtwin_bin, tmp_path, pki) as service, sync_playwright() as playwright:
-        gateway = Gateway(service.client, [ROBOT], rate_hz=200.0)
+        gateway = Gateway(service.client, [ROBOT], rate_hz=200.0, recording=True)
         gateway.start()
         chromium = playwright.chromium.launch(executable_path=chromium_path(), args=["--no-sandbox"])
         try:
@@ -159,7 +159,7 @@ def test_a_browser_is_refused_without_credentials_and_served_with_them(armtwin_b
 
 def test_prometheus_scrapes_metrics_with_its_token(armtwin_bin, tmp_path, pki):
     with SecuredDashboard(armtwin_bin, tmp_path, pki) as service:
-        gateway = Gateway(service.client, [ROBOT], rate_hz=200.0)
+        gateway = Gateway(service.client, [ROBOT], rate_hz=200.0, recording=True)
         gateway.start()
         prometheus = Prometheus(tmp_path, f"127.0.0.1:{service.http_port}")
         prometheus.config.write_text(

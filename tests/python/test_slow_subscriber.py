@@ -38,7 +38,7 @@ import zenoh
 
 from support.process import ArmtwinProcess, wait_until
 from support.twin_reference import joint_message, load_fmpy
-from support.zenoh_clients import PREFIX, TwinClient
+from support.zenoh_clients import PREFIX, TwinClient, open_session
 
 CONFIG = """\
 [service]
@@ -79,15 +79,6 @@ def twin(armtwin_bin, tmp_path):
         pytest.fail(f"watchdog: armtwin killed after {WATCHDOG_S} s\n{proc.logs()}")
     if code != 0:
         pytest.fail(f"armtwin exited with code {code} after SIGINT\n{proc.logs()}")
-
-
-def session_on(endpoint: str) -> zenoh.Session:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    conf.insert_json5("listen/endpoints", "[]")
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(conf)
 
 
 class PoseLog:
@@ -211,7 +202,7 @@ class Sleeper:
 
 def test_a_subscriber_asleep_in_its_callback_stalls_nothing(twin, tmp_path):
     gateway = TwinClient(twin.endpoint)  # also the fast subscriber's session: twin/** minus inputs
-    fast_session = session_on(twin.endpoint)
+    fast_session = open_session(twin.endpoint)
     sleeper = None
     try:
         q, meas = load_fmpy()

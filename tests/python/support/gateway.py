@@ -57,7 +57,8 @@ class Gateway:
         self.sent = 0  # messages sent to each robot
         self.sent_at: list[tuple[float, int]] = []  # (monotonic, seq)
         self.data = lasttest_rows() if recording else None
-        self.rows = None if self.data is None else len(self.data) if rows is None else min(rows, len(self.data))
+        # Messages per robot before it stops by itself: ``rows``, at most the recording's length.
+        self.rows = rows if self.data is None else len(self.data) if rows is None else min(rows, len(self.data))
         self.offsets = measured_offset_m or {}
         if isinstance(session, TwinClient):
             self.publishers = {robot: session.joints(robot) for robot in self.robots}

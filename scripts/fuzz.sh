@@ -9,15 +9,20 @@
 #                                            then the inputs that add coverage merged into
 #                                            fuzz/corpus/<target>/
 #   scripts/fuzz.sh cmin [TARGET…]           minimise the committed corpora
+#   scripts/fuzz.sh build                    only build every target (tests/run_all.sh builds
+#                                            them beside its main build, then runs `short`)
 #
-# cargo-fuzz is installed once into .cache/cargo-fuzz-<version>/. A finding stops the script
+# cargo-fuzz is installed once into $ARMTWIN_CACHE/cargo-fuzz-<version>/ (~/.cache/armtwin unless
+# set, shared by every clone on the machine). A finding stops the script
 # with the input under fuzz/artifacts/<target>/; `cargo fuzz run -s none <target> <file>`
 # (from fuzz/) replays it.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 cargo_fuzz_version=0.13.2
-dir=".cache/cargo-fuzz-$cargo_fuzz_version"
+cache=${ARMTWIN_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/armtwin}
+mkdir -p "$cache"
+dir="$(cd "$cache" && pwd)/cargo-fuzz-$cargo_fuzz_version"
 if [ "$(cargo fuzz --version 2>/dev/null)" != "cargo-fuzz $cargo_fuzz_version" ]; then
   if [ ! -x "$dir/bin/cargo-fuzz" ]; then
     rm -rf "$dir.partial"
@@ -26,7 +31,7 @@ if [ "$(cargo fuzz --version 2>/dev/null)" != "cargo-fuzz $cargo_fuzz_version" ]
     rm -rf "$dir"
     mv "$dir.partial" "$dir"
   fi
-  PATH="$PWD/$dir/bin:$PATH"
+  PATH="$dir/bin:$PATH"
 fi
 
 mode=${1:-short}
@@ -34,8 +39,8 @@ shift || true
 case "$mode" in
   short) seconds=${1:-15}; shift || true ;;
   long) seconds=${1:?"usage: scripts/fuzz.sh long SECONDS [TARGET…]"}; shift ;;
-  cmin) ;;
-  *) echo "usage: scripts/fuzz.sh short [SECONDS] | long SECONDS [TARGET…] | cmin [TARGET…]" >&2; exit 2 ;;
+  cmin | build) ;;
+  *) echo "usage: scripts/fuzz.sh short [SECONDS] | long SECONDS [TARGET…] | cmin [TARGET…] | build" >&2; exit 2 ;;
 esac
 targets=("$@")
 cd fuzz
@@ -48,6 +53,7 @@ fi
 libfuzzer_flags=(-timeout=10 -rss_limit_mb=2048 -print_final_stats=1)
 
 cargo fuzz build -s none
+[ "$mode" != build ] || exit 0
 scratch=$(mktemp -d)
 trap 'rm -rf "$scratch"' EXIT
 for target in "${targets[@]}"; do

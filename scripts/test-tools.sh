@@ -2,10 +2,14 @@
 # Installs the tools the tests drive, idempotently: `ip` (iproute2), `cmake` and libclang (which
 # build the ROS 2 bridge's CycloneDDS into armtwin-router's feature `ros2dds`), Debian's `chromium`
 # (a headless browser for the page tests) and Debian's `prometheus` unpacked into
-# .cache/prometheus-<version>/ (no system install, no service started). Prints the paths it settled
-# on as shell assignments.
+# $ARMTWIN_CACHE/prometheus-<version>/ (no system install, no service started; the cache is
+# ~/.cache/armtwin unless set, so every clone on the machine shares it). Prints the paths it
+# settled on as shell assignments.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+cache=${ARMTWIN_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/armtwin}
+mkdir -p "$cache"
+cache=$(cd "$cache" && pwd)
 
 apt_updated=0
 apt_update_once() {
@@ -37,7 +41,7 @@ if [ -z "$version" ] || [ "$version" = "(none)" ]; then
   apt_update_once
   version=$(apt-cache policy prometheus | awk '/Candidate:/ {print $2}')
 fi
-dir=".cache/prometheus-${version//[:~]/_}"
+dir="$cache/prometheus-${version//[:~]/_}"
 if [ ! -x "$dir/usr/bin/prometheus" ]; then
   rm -rf "$dir.partial"
   mkdir -p "$dir.partial"
@@ -47,4 +51,4 @@ if [ ! -x "$dir/usr/bin/prometheus" ]; then
 fi
 
 printf 'ARMTWIN_CHROMIUM=%q\n' "$(command -v chromium)"
-printf 'ARMTWIN_PROMETHEUS=%q\n' "$PWD/$dir/usr/bin/prometheus"
+printf 'ARMTWIN_PROMETHEUS=%q\n' "$dir/usr/bin/prometheus"

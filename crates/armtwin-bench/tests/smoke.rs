@@ -91,6 +91,24 @@ fn assert_paced(paced: &Value) {
     number(paced, "/p99_ratio");
 }
 
+/// Memory per streaming robot, 4 robots at 20 Hz for 11 s of source time, each sample answered
+/// by both systems (the load fails otherwise); then 5 robots streaming at the same rate.
+fn assert_streaming(report: &Value) {
+    let streaming = report["streaming_memory"]
+        .as_array()
+        .expect("streaming_memory");
+    assert_eq!(streaming.len(), 1, "one rate");
+    let row = &streaming[0];
+    assert_eq!(row["hz_per_robot"], 20.0);
+    assert_eq!(row["armtwin"]["samples_per_robot"], 220);
+    assert_eq!(row["armtwin"]["stream_hz"], 20.0);
+    assert_eq!(row["armtwin"]["robots"], 4);
+    assert_eq!(row["echo"]["robots"], 4);
+    number(row, "/added_bytes_per_robot");
+    assert_eq!(report["streaming_fleet"]["robots"], 5);
+    assert!(number(report, "/streaming_fleet/rss_full_kib") > 0.0);
+}
+
 #[test]
 fn a_quick_run_reports_every_figure_and_loses_nothing() {
     let bench = PathBuf::from(env!("CARGO_BIN_EXE_armtwin-bench"));
@@ -108,6 +126,8 @@ fn a_quick_run_reports_every_figure_and_loses_nothing() {
             "--memory-base-robots",
             "2",
         ])
+        .args(["--memory-stream-robots", "4", "--memory-stream-hz", "20"])
+        .args(["--memory-stream-fleet-robots", "5"])
         .args(["--encodings", "json,zenoh-serialized", "--gateways", "1,2"])
         .args([
             "--start-rate",
@@ -198,6 +218,8 @@ fn a_quick_run_reports_every_figure_and_loses_nothing() {
     assert!(number(&report, "/restart_s") > 0.0);
     number(&report, "/echo_bytes_per_robot");
 
+    assert_streaming(&report);
+
     let targets = report["targets"].as_array().expect("targets");
     assert!(targets.len() >= by_robots.len() + 8, "{targets:#?}");
     assert!(number(&report, "/wall_s") > 0.0);
@@ -218,7 +240,8 @@ fn a_quick_zenoh_serialized_run_loses_nothing_and_raises_no_event() {
         .args(["--encoding", "zenoh-serialized", "--robots", "2"])
         .args(["--gateways", "2", "--first-contact-robots", "0"])
         .args(["--memory-robots", "0", "--fleet-duration", "0"])
-        .args(["--paced-duration", "0"])
+        .args(["--paced-duration", "0", "--memory-stream-robots", "0"])
+        .args(["--memory-stream-fleet-robots", "0"])
         .args([
             "--start-rate",
             "40",
@@ -261,6 +284,8 @@ fn a_quick_zenoh_serialized_run_loses_nothing_and_raises_no_event() {
         report["paced"].is_null(),
         "the paced comparison was skipped"
     );
+    assert_eq!(report["streaming_memory"], serde_json::json!([]));
+    assert!(report["streaming_fleet"].is_null());
 }
 
 /// Far above what armtwin needs for a few robots: a bound that only a leak of megabytes per

@@ -28,7 +28,8 @@
 //! the highest sustained rate (doubling until a rate fails, then bisecting; a failed trial is run
 //! again before its rate counts as failed); a check at one fixed rate (`--check-embedded`: with
 //! embedded measured poses). Or, alone: the memory measurement of a system under test (which
-//! also times how long the system takes to declare the robots new to it); a first-contact trial
+//! also times how long the system takes to declare the robots new to it; `--memory-stream-hz`:
+//! each robot streams until its window is full); a first-contact trial
 //! (`--first-contact-rate`: full rate to robots the system has never seen, no warm-up); the
 //! wait for a restarted armtwin's liveliness tokens (`--await-tokens`); or a soak with churn
 //! (`--soak-duration`, in `churn`: a JSON line per interval as it goes). Results go to standard
@@ -175,6 +176,11 @@ pub struct LoadArgs {
     /// Memory measurement: samples each robot sends.
     #[arg(long, default_value_t = 4)]
     pub memory_samples: u64,
+    /// Memory measurement: after each robot's first sample, stream the rest stamped this many
+    /// per second of source time apart, as fast as the system under test answers them, instead
+    /// of in rounds stamped as sent (the windows fill in source time, not in wall time).
+    #[arg(long)]
+    pub memory_stream_hz: Option<f64>,
     /// The format of the samples (armtwin must be configured with the same `encoding`).
     #[arg(long, value_enum, default_value_t = WireEncoding::Json)]
     pub encoding: WireEncoding,

@@ -94,6 +94,9 @@ pub struct Memory {
     pub robots: usize,
     /// Samples each robot sent.
     pub samples_per_robot: u64,
+    /// Source rate the samples after each robot's first were stamped at, streamed as fast as
+    /// they were answered (null: a few samples in rounds, stamped as sent).
+    pub stream_hz: Option<f64>,
     /// RSS before any sample (KiB).
     pub rss_start_kib: u64,
     /// RSS with `base_robots` tracked (KiB).

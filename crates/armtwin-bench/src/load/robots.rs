@@ -168,13 +168,17 @@ impl Load {
     /// Sends one sample of `robot`: a joint and a measured message with the same stamp, or one
     /// joint message with the measured pose embedded.
     pub(super) fn send(&mut self, robot: usize) -> Result<(), LoadError> {
-        let now_s = self.replies.now_s();
+        self.send_stamped(robot, self.replies.now_s())
+    }
+
+    /// [`Load::send`] stamped `stamp_s` (or just after the robot's last stamp).
+    pub(super) fn send_stamped(&mut self, robot: usize, stamp_s: f64) -> Result<(), LoadError> {
         let outgoing = Outgoing {
             workload: &self.workload,
             encoding: self.args.encoding,
             embedded: self.embedded,
         };
-        outgoing.put(&mut self.robots[robot], now_s)
+        outgoing.put(&mut self.robots[robot], stamp_s)
     }
 
     /// Deviations expected per sample: one, except from the echo when the measured pose is

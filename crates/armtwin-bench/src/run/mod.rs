@@ -4,13 +4,14 @@
 //! on the same machine within minutes. Then robots new to a fresh echo and armtwin at full rate
 //! (first contact); `armtwin serve` once more for resident memory at fleet size, timing how long
 //! it takes to declare the robots and, restarted on its snapshot, to declare them again; the
-//! echo's memory. Prints the ratios and every target met or not, and writes them, with every
+//! echo's memory; memory per robot streaming until its window is full, armtwin's and the
+//! echo's, at each rate, and armtwin's RSS with the whole fleet streaming. Prints the ratios and every target met or not, and writes them, with every
 //! trial, to `bench.json`.
 //!
 //! Owns process lifetimes, the generated service configuration and the report; measures
 //! nothing itself (the load generator does). Here: the flags, the settings and the run in order;
 //! `trials` (the systems started and compared under load, first contact), `memory` (resident
-//! memory at fleet size, the declaration and the restart), `system` (a subprocess under test),
+//! memory at fleet size, the declaration and the restart, streaming), `system` (a subprocess under test),
 //! `report` (`bench.json`'s types, the tables and the targets).
 #![allow(
     clippy::print_stdout,
@@ -24,7 +25,8 @@ pub(crate) mod system;
 pub(crate) mod trials;
 
 pub use report::{
-    Comparison, EchoMemory, FirstContact, Fleet, Host, LatencySummary, Report, TargetRow,
+    Comparison, EchoMemory, FirstContact, Fleet, Host, LatencySummary, Report, StreamingMemory,
+    TargetRow,
 };
 
 use std::path::PathBuf;
@@ -81,6 +83,22 @@ pub struct RunArgs {
     /// Skip the restart after the memory measurement.
     #[arg(long)]
     pub no_restart: bool,
+    /// Robots of the streaming memory measurement at each `--memory-stream-hz`, every robot's
+    /// window full, armtwin against the echo (default 1000; quick 6; 0 skips it).
+    #[arg(long)]
+    pub memory_stream_robots: Option<usize>,
+    /// Per-robot rates of the streaming memory measurement, Hz of source time (default 100,500;
+    /// quick 10,50); the fleet's RSS is measured at the first.
+    #[arg(long, value_delimiter = ',')]
+    pub memory_stream_hz: Vec<f64>,
+    /// Seconds of source time each robot streams: more than `window_s` (10 s), so that its
+    /// window and the aligner's history are full (default 11).
+    #[arg(long, default_value_t = 11.0)]
+    pub memory_stream_seconds: f64,
+    /// Robots streaming at the first `--memory-stream-hz` for armtwin's RSS at fleet size
+    /// (default 10000; quick 8; 0 skips it).
+    #[arg(long)]
+    pub memory_stream_fleet_robots: Option<usize>,
     /// Seconds per throughput trial (default 1; quick 0.25).
     #[arg(long)]
     pub duration: Option<f64>,
@@ -170,6 +188,14 @@ pub struct Settings {
     pub memory_samples: u64,
     /// A restart after the memory measurement.
     pub restart: bool,
+    /// Robots of the streaming memory measurement (0: none).
+    pub memory_stream_robots: usize,
+    /// Its per-robot rates, Hz of source time.
+    pub memory_stream_hz: Vec<f64>,
+    /// Seconds of source time each robot streams.
+    pub memory_stream_seconds: f64,
+    /// Robots streaming at the first rate for the RSS at fleet size (0: none).
+    pub memory_stream_fleet_robots: usize,
     /// Seconds per throughput trial.
     pub duration_s: f64,
     /// First rate of the echo's search.
@@ -241,6 +267,24 @@ impl Settings {
             memory_base_robots: args.memory_base_robots,
             memory_samples: args.memory_samples,
             restart: !args.no_restart,
+            memory_stream_robots: args
+                .memory_stream_robots
+                .unwrap_or(if quick { 6 } else { 1000 }),
+            memory_stream_hz: if args.memory_stream_hz.is_empty() {
+                if quick {
+                    vec![10.0, 50.0]
+                } else {
+                    vec![100.0, 500.0]
+                }
+            } else {
+                args.memory_stream_hz.clone()
+            },
+            memory_stream_seconds: args.memory_stream_seconds,
+            memory_stream_fleet_robots: args.memory_stream_fleet_robots.unwrap_or(if quick {
+                8
+            } else {
+                10_000
+            }),
             duration_s: pick(args.duration, 1.0, 0.25),
             start_rate: pick(args.start_rate, 40_000.0, 200.0),
             max_rate: pick(args.max_rate, 2_000_000.0, 800.0),
@@ -274,6 +318,11 @@ impl Settings {
     fn most_gateways(&self) -> u16 {
         self.gateways.iter().copied().max().unwrap_or(1)
     }
+
+    /// Samples each robot streams at `hz`: `memory_stream_seconds` of source time.
+    fn stream_samples(&self, hz: f64) -> u64 {
+        ((hz * self.memory_stream_seconds).round() as u64).max(2)
+    }
 }
 
 pub(crate) fn unix_now_s() -> f64 {
@@ -303,7 +352,9 @@ pub(crate) fn bench_and_armtwin(given: Option<&PathBuf>) -> Result<(PathBuf, Pat
 /// In order: each robot count in each encoding over the first gateway count; the largest robot
 /// count in the last encoding over each further gateway count (the fleet check rides on the row
 /// of the most gateways); first contact at the echo's sustained rate of the largest robot count;
-/// the paced comparison; armtwin's memory at fleet size, with the declaration time and the restart; the echo's memory.
+/// the paced comparison; armtwin's memory at fleet size, with the declaration time and the restart; the echo's memory;
+/// memory per streaming robot at each rate, armtwin's then the echo's; armtwin's RSS with the
+/// fleet streaming.
 pub fn run(args: &RunArgs) -> Result<Report> {
     let wall = Instant::now();
     let settings = Settings::of(args);
@@ -356,6 +407,8 @@ pub fn run(args: &RunArgs) -> Result<Report> {
         None
     };
     let (memory, restart_s, echo_memory) = orchestrator.fleet_size();
+    let streaming_memory = orchestrator.streaming_memory();
+    let streaming_fleet = orchestrator.streaming_fleet();
     let _ = std::fs::remove_dir_all(&work_dir);
     let fleet_comparison = by_robots
         .iter()
@@ -390,6 +443,8 @@ pub fn run(args: &RunArgs) -> Result<Report> {
         memory,
         echo_bytes_per_robot: echo_memory.as_ref().map(|m| m.bytes_per_robot),
         echo_memory,
+        streaming_memory,
+        streaming_fleet,
         first_contact: first_contact.into_iter().collect(),
         by_robots,
         targets: Vec::new(),

@@ -130,11 +130,11 @@ cargo fmt --all -- --check
 cargo fmt --manifest-path fuzz/Cargo.toml -- --check
 [ -x "$clippy_driver" ] || { echo "clippy-driver not found: rustup component add clippy" >&2; exit 1; }
 
-# apt and pip wait on the network. The fuzz targets' instrumented build (a target dir of its own,
-# nothing shared) takes only the CPU the steps below leave idle, then fuzzes each target 15 s.
+# apt and pip wait on the network; the fuzz targets' instrumented build (a target dir of its own,
+# nothing shared) takes only the CPU the build below leaves idle.
 beside "test tools" sh -c 'bash scripts/test-tools.sh > "$1"' sh "$scratch/tools.env"
 beside "virtualenvs" venvs
-beside "fuzz every decoder briefly" sh -c 'nice -n 19 bash scripts/fuzz.sh build && nice -n 10 bash scripts/fuzz.sh short'
+beside "fuzz build" nice -n 19 bash scripts/fuzz.sh build
 
 step build "clippy and build, every target (pedantic, warnings are errors; no ROS 2 bridge)"
 # The targets of `cargo clippy --all-targets`, compiled: lib, bins, tests, benches, examples.
@@ -146,25 +146,24 @@ collect "test tools"
 # shellcheck disable=SC1091
 . "$scratch/tools.env"
 export ARMTWIN_CHROMIUM ARMTWIN_PROMETHEUS
+# The Rust tests run with nothing beside them: their services stream at full rate, and a
+# compiler or a fuzzer on the other core made them miss samples.
+collect "fuzz build"
 
-# `cargo test` compiles nothing more (only its doc tests), and its tests mostly wait on sockets
-# and timers: the bridge's build runs beside them. Cargo locks the target dir while it builds,
-# not while tests run, so the bridge starts once `cargo test` has begun running them.
-beside "cargo test" linted cargo test --locked --workspace
-while ! grep -qs '^ *Running ' "$scratch/cargo test.log" && kill -0 "${beside_pids[cargo test]}" 2>/dev/null; do
-  sleep 1
-done
+step test "cargo test (compiles only the doc tests)"
+linted cargo test --locked --workspace
 
-step bridge "clippy and build armtwin-router with the ROS 2 bridge (beside cargo test)"
+step bridge "clippy and build armtwin-router with the ROS 2 bridge"
 # The same build with `ros2dds` on: only armtwin-router and the bridge's own crates (CycloneDDS,
 # compiled by cmake) are new, since armtwin-router's `regex` keeps every other crate's features
 # as they were. Leaves the bridge's router in target/debug for the Python tests.
-linted nice -n 19 cargo build --locked --workspace --all-targets --features armtwin-router/ros2dds
+linted cargo build --locked --workspace --all-targets --features armtwin-router/ros2dds
 export ARMTWIN_BIN="$PWD/target/debug/armtwin"
-end_step
 
-collect "cargo test"
 collect "virtualenvs"
+# The fuzzing pass (8 targets × 15 s) beside the Python tests, which mostly wait on sockets and
+# timers; niced, it takes only what they leave.
+beside "fuzz every decoder briefly" nice -n 10 bash scripts/fuzz.sh short
 
 step pytest "pytest tests/python"
 .venv/bin/python -m pytest tests/python -q --ignore=tests/python/test_ros2_real.py

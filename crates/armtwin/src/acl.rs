@@ -204,19 +204,30 @@ impl Fleet {
     /// one subject per role (one per gateway), and the policies joining them.
     #[must_use]
     pub fn access_control(&self) -> Value {
-        let keys = &self.keys;
-        let every = |streams: &[Stream]| -> Vec<String> {
-            streams.iter().map(|s| keys.every_robot(*s)).collect()
-        };
-        let everything = format!("{}/**", keys.prefix());
-        let mut rules = Vec::new();
-        let mut subjects = Vec::new();
-        let mut policies = Vec::new();
+        let mut section = Section::default();
+        self.armtwin_rules(&mut section);
+        self.watcher_rules(&mut section);
+        self.gateway_rules(&mut section);
+        json!({
+            "enabled": true,
+            "default_permission": "deny",
+            "rules": section.rules,
+            "subjects": section.subjects,
+            "policies": section.policies,
+        })
+    }
 
+    /// `<prefix>/<stream>/**` of each of `streams`.
+    fn every(&self, streams: &[Stream]) -> Vec<String> {
+        streams.iter().map(|s| self.keys.every_robot(*s)).collect()
+    }
+
+    /// What armtwin instances may do.
+    fn armtwin_rules(&self, section: &mut Section) {
         if !self.armtwin.is_empty() {
-            let mut declared = every(&ARMTWIN_DECLARES);
-            declared.push(keys.every_shard_claim());
-            rules.extend([
+            let mut declared = self.every(&ARMTWIN_DECLARES);
+            declared.push(self.keys.every_shard_claim());
+            section.rules.extend([
                 rule(
                     "armtwin-publish",
                     &["ingress"],
@@ -227,20 +238,20 @@ impl Fleet {
                     "armtwin-take-inputs",
                     &["ingress"],
                     &["declare_subscriber"],
-                    &every(&INPUTS),
+                    &self.every(&INPUTS),
                 ),
                 rule(
                     "armtwin-receive-inputs",
                     &["egress"],
                     &["put"],
-                    &every(&INPUTS),
+                    &self.every(&INPUTS),
                 ),
                 // Each instance asks the others which robots they own (`[service] robots`).
                 rule(
                     "armtwin-shard-claims",
                     &["ingress", "egress"],
                     &["query", "reply"],
-                    &[keys.every_shard_claim()],
+                    &[self.keys.every_shard_claim()],
                 ),
                 // Queries reach armtwin's queryables, and its publishers learn who subscribes
                 // (a publisher that knows of no subscriber sends nothing).
@@ -248,11 +259,11 @@ impl Fleet {
                     "armtwin-be-queried-and-subscribed",
                     &["egress"],
                     &["query", "declare_subscriber"],
-                    std::slice::from_ref(&everything),
+                    &[self.keys.everything()],
                 ),
             ]);
-            subjects.push(subject("armtwin", &self.armtwin));
-            policies.push(policy(
+            section.subjects.push(subject("armtwin", &self.armtwin));
+            section.policies.push(policy(
                 &[
                     "armtwin-publish",
                     "armtwin-take-inputs",
@@ -263,9 +274,12 @@ impl Fleet {
                 "armtwin",
             ));
         }
+    }
 
+    /// What dashboards and operators may do.
+    fn watcher_rules(&self, section: &mut Section) {
         if !self.dashboards.is_empty() || !self.operators.is_empty() {
-            rules.extend([
+            section.rules.extend([
                 rule(
                     "watch",
                     &["ingress"],
@@ -274,48 +288,60 @@ impl Fleet {
                         "declare_liveliness_subscriber",
                         "liveliness_query",
                     ],
-                    std::slice::from_ref(&everything),
+                    &[self.keys.everything()],
                 ),
-                rule("read", &["ingress"], &["query"], &every(&READS)),
+                rule("read", &["ingress"], &["query"], &self.every(&READS)),
                 // Outputs, replies and tokens reach watchers, and so do queryables'
                 // declarations (a querier sees that something answers).
                 rule(
                     "receive",
                     &["egress"],
                     &["put", "reply", "liveliness_token", "declare_queryable"],
-                    std::slice::from_ref(&everything),
+                    &[self.keys.everything()],
                 ),
             ]);
         }
         if !self.dashboards.is_empty() {
-            subjects.push(subject("dashboards", &self.dashboards));
-            policies.push(policy(&["watch", "read", "receive"], "dashboards"));
+            section
+                .subjects
+                .push(subject("dashboards", &self.dashboards));
+            section
+                .policies
+                .push(policy(&["watch", "read", "receive"], "dashboards"));
         }
         if !self.operators.is_empty() {
-            rules.push(rule("operate", &["ingress"], &["query"], &every(&CHANGES)));
-            subjects.push(subject("operators", &self.operators));
-            policies.push(policy(
+            section.rules.push(rule(
+                "operate",
+                &["ingress"],
+                &["query"],
+                &self.every(&CHANGES),
+            ));
+            section.subjects.push(subject("operators", &self.operators));
+            section.policies.push(policy(
                 &["watch", "read", "operate", "receive"],
                 "operators",
             ));
         }
+    }
 
+    /// What each gateway may do, for its own robots.
+    fn gateway_rules(&self, section: &mut Section) {
         if !self.gateways.is_empty() {
             // Declarations only, no data: a gateway's publisher sends nothing until it knows of
             // a subscriber, and the subscriber it must see (`<prefix>/joints/**`, a shard's
             // `<prefix>/joints/site-a/**`) is wider than any one gateway's robots.
-            rules.push(rule(
+            section.rules.push(rule(
                 "gateway-see-subscribers",
                 &["egress"],
                 &["declare_subscriber"],
-                &every(&INPUTS),
+                &self.every(&INPUTS),
             ));
         }
         for (gateway, robots) in &self.gateways {
             let of = |streams: &[Stream]| -> Vec<String> {
                 robots
                     .iter()
-                    .flat_map(|robot| streams.iter().map(move |s| keys.key(*s, robot)))
+                    .flat_map(|robot| streams.iter().map(move |s| self.keys.key(*s, robot)))
                     .collect()
             };
             let id = format!("gateway:{gateway}");
@@ -323,7 +349,7 @@ impl Fleet {
             let tokens = format!("{id}:tokens");
             let ask = format!("{id}:ask-state");
             let hear = format!("{id}:hear-state");
-            rules.extend([
+            section.rules.extend([
                 rule(&inputs, &["ingress"], &["put"], &of(&INPUTS)),
                 rule(
                     &tokens,
@@ -336,20 +362,14 @@ impl Fleet {
                 rule(&ask, &["ingress"], &["query"], &of(&[Stream::State])),
                 rule(&hear, &["egress"], &["reply"], &of(&[Stream::State])),
             ]);
-            subjects.push(subject(&id, std::slice::from_ref(gateway)));
-            policies.push(policy(
+            section
+                .subjects
+                .push(subject(&id, std::slice::from_ref(gateway)));
+            section.policies.push(policy(
                 &[&inputs, &tokens, &ask, &hear, "gateway-see-subscribers"],
                 &id,
             ));
         }
-
-        json!({
-            "enabled": true,
-            "default_permission": "deny",
-            "rules": rules,
-            "subjects": subjects,
-            "policies": policies,
-        })
     }
 
     /// Every certificate name the description gives a role, each with its role's field.
@@ -379,6 +399,14 @@ fn check_robots(entry: &str) -> Result<(), String> {
     } else {
         Err(format!("its canonical form is '{key}'"))
     }
+}
+
+/// The parts of an `access_control` section, as the roles add them.
+#[derive(Default)]
+struct Section {
+    rules: Vec<Value>,
+    subjects: Vec<Value>,
+    policies: Vec<Value>,
 }
 
 fn rule(id: &str, flows: &[&str], messages: &[&str], key_exprs: &[String]) -> Value {

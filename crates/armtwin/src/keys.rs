@@ -264,6 +264,12 @@ impl KeySpace {
         format!("{}/{SHARDS}/{zid}", self.prefix)
     }
 
+    /// `<prefix>/**`: every key of this key space.
+    #[must_use]
+    pub fn everything(&self) -> String {
+        format!("{}/**", self.prefix)
+    }
+
     /// `<prefix>/shards/**`: every instance's shard claim.
     #[must_use]
     pub fn every_shard_claim(&self) -> String {

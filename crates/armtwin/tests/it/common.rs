@@ -83,9 +83,8 @@ pub fn free_port() -> u16 {
         .expect("a free loopback port")
 }
 
-/// A client peer of the service at `endpoint` (loopback, no scouting), with its collector of
-/// armtwin's outputs.
-pub async fn connect_client(endpoint: &str) -> (zenoh::Session, Outputs) {
+/// A test client's Zenoh configuration: a peer of `endpoint` alone.
+pub fn client_config(endpoint: &str) -> zenoh::Config {
     let mut config = zenoh::Config::default();
     for (key, value) in [
         ("mode", "\"peer\"".to_owned()),
@@ -95,7 +94,15 @@ pub async fn connect_client(endpoint: &str) -> (zenoh::Session, Outputs) {
     ] {
         config.insert_json5(key, &value).expect("client config");
     }
-    let client = zenoh::open(config).await.expect("client session");
+    config
+}
+
+/// A client peer of the service at `endpoint` (loopback, no scouting), with its collector of
+/// armtwin's outputs.
+pub async fn connect_client(endpoint: &str) -> (zenoh::Session, Outputs) {
+    let client = zenoh::open(client_config(endpoint))
+        .await
+        .expect("client session");
     let subscriber = client
         .declare_subscriber("twin/**")
         .with(zenoh::handlers::FifoChannel::new(200_000))

@@ -7,7 +7,7 @@
 //! `PoseStamped` to `armtwin serve` and subscribes the twin's `PoseStamped`. Where the two agree
 //! and where they do not is asserted, so a change on either side shows.
 
-use crate::common::{Service, connect_client, wait_for_subscriber};
+use crate::common::{Service, client_config, connect_client, wait_for_subscriber};
 use std::path::Path;
 use std::time::Duration;
 
@@ -149,15 +149,7 @@ async fn ros2_client_publishes_to_the_twin_and_takes_its_pose() {
         )
         .await;
 
-        let mut zenoh_config = zenoh::Config::default();
-        for (key, value) in [
-            ("mode", "\"peer\"".to_owned()),
-            ("connect/endpoints", format!("[\"{}\"]", service.endpoint)),
-            ("listen/endpoints", "[]".to_owned()),
-            ("scouting/multicast/enabled", "false".to_owned()),
-        ] {
-            zenoh_config.insert_json5(key, &value).expect("config");
-        }
+        let zenoh_config = client_config(&service.endpoint);
         let context = Context::with_options(
             ContextOptions::new()
                 .domain_id(0)

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Installs the tools the tests drive, idempotently: `ip` (iproute2), `cmake` and libclang (which
+# Installs the tools the tests drive, idempotently: `ip` (iproute2), `curl`, `cmake` and libclang (which
 # build the ROS 2 bridge's CycloneDDS into armtwin-router's feature `ros2dds`), Debian's `chromium`
 # (a headless browser for the page tests) and Debian's `prometheus` unpacked into
 # $ARMTWIN_CACHE/prometheus-<version>/ (no system install, no service started; the cache is
@@ -29,6 +29,12 @@ fi
 if ! command -v cmake >/dev/null 2>&1 || ! ls /usr/lib/llvm-*/lib/libclang.so* >/dev/null 2>&1; then
   apt_update_once
   DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends cmake libclang-dev >&2
+fi
+
+# The documentation's commands (tests/python/test_docs_commands.py) read HTTP with curl.
+if ! command -v curl >/dev/null 2>&1; then
+  apt_update_once
+  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends curl >&2
 fi
 
 if ! command -v chromium >/dev/null 2>&1; then

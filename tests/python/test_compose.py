@@ -1,7 +1,10 @@
-"""docker/compose.yaml without a Docker engine: its structure (services, images, commands, mounts,
-volumes; shards whose robot key expressions are disjoint and cover the gateway's robot), then the
-same topology run natively from the file's own commands: the router with REST, both shards, the
-replay gateway, and the fleet's state read over REST."""
+"""docker/compose.yaml and the image without a Docker engine: the compose file's structure
+(services, images, commands, mounts, volumes; shards whose robot key expressions are disjoint and
+cover the gateway's robot; Prometheus scraping each shard's dashboard port, with the alert rules
+mounted where its configuration names them), the image's command (the dashboard on the port it
+exposes, with a configuration the service accepts there), then the same topology run natively
+from the file's own commands: the router with REST, both shards with their dashboards, the replay
+gateway, and the fleet's state read over REST and /metrics."""
 
 from __future__ import annotations
 
@@ -47,10 +50,13 @@ def shard_config(service: dict) -> tuple[Path, dict]:
 def test_the_compose_file_describes_a_router_two_disjoint_shards_and_a_gateway():
     spec = compose()
     services = spec["services"]
-    assert set(services) == {"router", "shard-a", "shard-b", "gateway"}
+    assert set(services) == {"router", "shard-a", "shard-b", "gateway", "prometheus"}
     assert services["router"]["build"]["dockerfile"] == "docker/Dockerfile"
     assert (DOCKER / services["router"]["build"]["context"] / "docker" / "Dockerfile").is_file()
-    assert all(service["image"] == "armtwin" for service in services.values())
+    assert all(
+        service["image"] == "armtwin" for name, service in services.items() if name != "prometheus"
+    )
+    assert "ROUTER_FEATURES" in services["router"]["build"]["args"]
 
     router = services["router"]
     assert router["entrypoint"] == ["armtwin-router"]
@@ -71,6 +77,12 @@ def test_the_compose_file_describes_a_router_two_disjoint_shards_and_a_gateway()
         state_dir = config["service"]["state_dir"]
         named = [v.split(":")[0] for v in service["volumes"] if v.split(":")[1] == state_dir]
         assert named and named[0] in spec["volumes"], f"{name}: state_dir {state_dir} is not a volume"
+        # The dashboard on the container's interfaces, published on the host's loopback only,
+        # which the shard's configuration allows without tokens.
+        http = command[command.index("--http") + 1]
+        assert http == "0.0.0.0:8080"
+        assert any(port.startswith("127.0.0.1:") and port.endswith(":8080") for port in service["ports"])
+        assert config["http"]["anonymous"] is True
     a, b = robots.values()
     assert not a.intersects(b), f"the shards overlap: {a} and {b}"
 
@@ -85,19 +97,83 @@ def test_the_compose_file_describes_a_router_two_disjoint_shards_and_a_gateway()
     [(data, mounted)] = bind_mounts(services["gateway"])
     assert (data / Path(recording).relative_to(mounted)).is_file()
 
+    # Prometheus scrapes every shard's dashboard and loads config/prometheus/alerts.yml (the rules
+    # shipped beside config/prometheus.yml) through its mounts.
+    prometheus = services["prometheus"]
+    assert set(prometheus["depends_on"]) == set(shards)
+    mounts = dict((target, source) for source, target in bind_mounts(prometheus))
+    config_file = prometheus_config_path(prometheus)
+    scrape = YAML(typ="safe").load(mounts[config_file].read_text())
+    [job] = scrape["scrape_configs"]
+    assert job["metrics_path"] == "/metrics"
+    [targets] = [group["targets"] for group in job["static_configs"]]
+    assert sorted(targets) == [f"{name}:8080" for name in sorted(shards)]
+    [rules] = scrape["rule_files"]
+    assert mounted_source(mounts, rules) == REPO / "config" / "prometheus" / "alerts.yml"
+
+
+def prometheus_config_path(service: dict) -> str:
+    [flag] = [arg for arg in service["command"] if arg.startswith("--config.file=")]
+    return flag.split("=", 1)[1]
+
+
+def mounted_source(mounts: dict[str, Path], path: str) -> Path:
+    """The host path behind `path` inside a container with these bind mounts."""
+    for target, source in mounts.items():
+        if path == target or path.startswith(target.rstrip("/") + "/"):
+            return (source / Path(path).relative_to(target)).resolve()
+    raise AssertionError(f"{path} is on no mount: {mounts}")
+
+
+def dockerfile_instructions() -> dict[str, list[str]]:
+    """Each instruction of the runtime stage (the last FROM), continuation lines joined."""
+    text = re.sub(r"\\\n", " ", (DOCKER / "Dockerfile").read_text())
+    stage = text.rsplit("\nFROM ", 1)[1]
+    instructions: dict[str, list[str]] = {}
+    for line in stage.splitlines()[1:]:
+        if line.strip() and not line.startswith("#"):
+            word, _, rest = line.partition(" ")
+            instructions.setdefault(word, []).append(rest.strip())
+    return instructions
+
+
+def test_the_image_serves_the_dashboard_on_the_port_it_exposes(tmp_path, armtwin_bin):
+    instructions = dockerfile_instructions()
+    [cmd] = instructions["CMD"]
+    command = json.loads(cmd)
+    http = command[command.index("--http") + 1]
+    host, port = http.rsplit(":", 1)
+    assert host == "0.0.0.0" and port in instructions["EXPOSE"][0].split()
+    config_in_image = command[command.index("-c") + 1]
+    [copied] = [
+        line.split()[0] for line in instructions["COPY"] if line.split()[-1] == config_in_image
+    ]
+    # The image's configuration, with the command's --http written in, is one the service
+    # accepts: `config show` checks it as `serve` does, binding nothing.
+    config = tmp_path / "image.toml"
+    config.write_text(f'{(REPO / copied).read_text()}\nlisten = "{http}"\n')
+    shown = subprocess.run([str(armtwin_bin), "config", "show", "-c", str(config)],
+                           capture_output=True, text=True, timeout=30)
+    assert shown.returncode == 0, shown.stderr
+    assert tomllib.loads(shown.stdout)["http"]["listen"] == http
+
 
 def test_the_compose_topology_runs_natively(tmp_path, armtwin_bin):
     services = compose()["services"]
     router_port, rest_port = free_port(), free_port()
     endpoint = f"tcp/127.0.0.1:{router_port}"
+    http_ports = {}
 
-    def native(argv: list[str]) -> list[str]:
+    def native(argv: list[str], name: str = "") -> list[str]:
         text = [
             arg.replace("tcp/0.0.0.0:7447", endpoint).replace(ROUTER_ENDPOINT, endpoint)
             for arg in argv
         ]
         if "--rest-http-port" in text:
             text[text.index("--rest-http-port") + 1] = f"127.0.0.1:{rest_port}"
+        if "--http" in text:
+            http_ports[name] = free_port()
+            text[text.index("--http") + 1] = f"127.0.0.1:{http_ports[name]}"
         return text
 
     started = []
@@ -110,7 +186,7 @@ def test_the_compose_topology_runs_natively(tmp_path, armtwin_bin):
             state = tmp_path / f"{name}-state"
             config = tmp_path / f"{name}.toml"
             config.write_text(re.sub(r'state_dir = ".*"', f'state_dir = "{state}"', source.read_text()))
-            argv = native(services[name]["command"])
+            argv = native(services[name]["command"], name)
             argv[argv.index("-c") + 1] = str(config)
             shard = Process(name, [armtwin_bin, *argv], tmp_path, {"RUST_LOG": "armtwin=info"})
             started.append(shard.start())
@@ -127,6 +203,14 @@ def test_the_compose_topology_runs_natively(tmp_path, armtwin_bin):
         state = fleet[0]["value"]
         assert state["joints"] is not None and state["metrics"]["paired"] > 0
         assert "site-a/ur10e" in started[1].logs(10**9) and "site-a/ur10e" not in started[2].logs(10**9)
+        # Each shard's /metrics, what the compose file's Prometheus scrapes, has its own robots.
+        metrics = {}
+        for name in ("shard-a", "shard-b"):
+            url = f"http://127.0.0.1:{http_ports[name]}/metrics"
+            with urllib.request.urlopen(url, timeout=10) as response:
+                metrics[name] = response.read().decode()
+        assert 'robot="site-a/ur10e"' in metrics["shard-a"]
+        assert 'robot="site-a/ur10e"' not in metrics["shard-b"]
     finally:
         for process in reversed(started):
             process.stop()

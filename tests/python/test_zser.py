@@ -286,20 +286,20 @@ def test_bad_binary_input_is_rejected_like_bad_json(twin):
     checks.done(proc.logs())
 
 
-def readme_gateway_example() -> str:
-    """The README's binary gateway example, exactly as a user would copy it."""
-    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text(encoding="utf-8")
-    blocks = re.findall(r"```python\n(.*?)```", readme, re.DOTALL)
+def guide_gateway_example() -> str:
+    """The fleet guide's binary gateway example (docs/fleet.md), exactly as a user would copy it."""
+    guide = (Path(__file__).resolve().parents[2] / "docs" / "fleet.md").read_text(encoding="utf-8")
+    blocks = re.findall(r"```python\n(.*?)```", guide, re.DOTALL)
     example = [b for b in blocks if "z_serialize((time.time()" in b]
-    assert len(example) == 1, "the README has one binary gateway example"
+    assert len(example) == 1, "the fleet guide has one binary gateway example"
     return example[0]
 
 
-def test_readme_gateway_example_run_twice_gets_all_its_poses(twin, tmp_path):
+def test_guide_gateway_example_run_twice_gets_all_its_poses(twin, tmp_path):
     """A gateway that restarts counts ``seq`` from 0 again: the second run is taken at once, with one
     ``restart`` event, not refused until its ``seq`` passes the first run's."""
     proc, client = twin
-    example = readme_gateway_example()
+    example = guide_gateway_example()
     default_endpoint = "tcp/127.0.0.1:7447"
     assert default_endpoint in example
     script = tmp_path / "gateway.py"

@@ -51,7 +51,7 @@ pub fn robot_of(key: &str, stream: Stream) -> Option<&str> {
 
 /// The Zenoh configuration of armtwin's `-m/-l/-e/--cfg` flags over Zenoh's and armtwin's
 /// defaults (a peer, multicast scouting off), built as `armtwin serve` builds its own, with the
-/// publishers of every stream aggregated as the README advises a gateway of many robots (the
+/// publishers of every stream aggregated as docs/fleet.md advises a gateway of many robots (the
 /// load publishes inputs, the echo outputs), unless `--cfg` says otherwise.
 pub fn config_of(zenoh: &ZenohArgs) -> Result<zenoh::Config, MeshError> {
     let mut config = zenoh_config_of(&ZenohSection::default().overridden(&zenoh.overrides()))?;

@@ -50,6 +50,33 @@ pub enum Command {
     /// A new token for the dashboard: the secret (shown once) and the `[[http.tokens]]` entry
     /// that holds its salted digest.
     HttpToken(HttpTokenArgs),
+    /// The service's configuration: `config show` prints the effective one.
+    Config(ConfigArgs),
+}
+
+/// `armtwin config` arguments.
+#[derive(Debug, Args)]
+pub struct ConfigArgs {
+    /// What to do with it.
+    #[command(subcommand)]
+    pub command: ConfigCommand,
+}
+
+/// `armtwin config` subcommands.
+#[derive(Debug, Subcommand)]
+pub enum ConfigCommand {
+    /// Print the effective configuration as TOML: the file layered over the built-in default,
+    /// every default filled in, each robot completed from `[robots.default]`, checked as `serve`
+    /// checks it.
+    Show(ConfigShowArgs),
+}
+
+/// `armtwin config show` arguments.
+#[derive(Debug, Args)]
+pub struct ConfigShowArgs {
+    /// The configuration file (TOML); without it, the built-in `config/armtwin.toml`.
+    #[arg(short = 'c', long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
 }
 
 /// `armtwin http-token` arguments.
@@ -112,7 +139,8 @@ pub struct RtdeArgs {
     /// `record`; one connection each, one Zenoh session.
     #[arg(short = 'c', long, value_name = "FILE")]
     pub config: Option<PathBuf>,
-    /// Key prefix of the service.
+    /// The key prefix of the service to feed: its `[service] key_prefix` (keys
+    /// `<prefix>/joints/<robot>`, …).
     #[arg(long, default_value = armtwin::keys::DEFAULT_PREFIX)]
     pub prefix: String,
     /// How to join the mesh; without flags, as `armtwin replay` (a peer connecting to where a
@@ -241,7 +269,8 @@ pub struct ReplayArgs {
     /// Publish as fast as the transport takes it.
     #[arg(long)]
     pub max_rate: bool,
-    /// Key prefix of the service.
+    /// The key prefix of the service to feed: its `[service] key_prefix` (keys
+    /// `<prefix>/joints/<robot>`, …).
     #[arg(long, default_value = armtwin::keys::DEFAULT_PREFIX)]
     pub prefix: String,
     /// How to join the mesh; without flags, as the default `armtwin serve` configuration says

@@ -11,6 +11,7 @@
 
 mod acl;
 mod calibrate;
+mod config;
 mod fk;
 mod fmu;
 mod gateway;
@@ -33,8 +34,8 @@ use armtwin::rosbag::{self, BagOptions, BagTopics};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::flags::{
-    Cli, Command, FmuArgs, FmuCommand, GatewayArgs, GatewayCommand, PoseFormArg, RecordingArgs,
-    RobotArgs, TimeUnit,
+    Cli, Command, ConfigArgs, ConfigCommand, FmuArgs, FmuCommand, GatewayArgs, GatewayCommand,
+    PoseFormArg, RecordingArgs, RobotArgs, TimeUnit,
 };
 
 /// Runs one parsed command line.
@@ -55,6 +56,9 @@ pub fn run(cli: Cli) -> Result<()> {
         }) => gateway::rtde(&args),
         Command::Acl(args) => acl::run(&args),
         Command::HttpToken(args) => http_token::run(&args),
+        Command::Config(ConfigArgs {
+            command: ConfigCommand::Show(args),
+        }) => config::show(&args),
     }
 }
 

@@ -17,6 +17,14 @@ pub(super) fn run(args: &ServeArgs) -> Result<()> {
     };
     let config = ServiceConfig::load(args.config.as_deref(), &overrides)?;
     tracing::info!(config = %config.source_name, "configuration loaded");
+    if !config.zenoh.reaches_anyone() {
+        tracing::warn!(
+            config = %config.source_name,
+            mode = %config.zenoh.mode,
+            "listening nowhere and connecting nowhere, with multicast scouting off: no gateway \
+             or client can reach this service (set [zenoh] listen or connect, or -l / -e)"
+        );
+    }
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()

@@ -4,12 +4,16 @@
 //! robot's model, calibration and tool, so that a bad file fails at start with the file, the
 //! field and the problem named, never later. The embedded default is `config/armtwin.toml`.
 //!
-//! The file's sections as written are in `file`; robots in `robots`; `[[sources]]` in
-//! `sources`; `[zenoh]` and the command line's Zenoh flags in `zenoh_section`. Must not open a
-//! session: the service does, with what this module checked.
+//! A user's file is layered over the embedded default (`layers`): a key it leaves out keeps the
+//! default's value. The file's sections as written are in `file`; robots in `robots`;
+//! `[[sources]]` in `sources`; `[zenoh]` and the command line's Zenoh flags in `zenoh_section`.
+//! Must not open a session: the service does, with what this module checked.
 
+#[cfg(test)]
+mod documented_keys;
 mod file;
 mod http;
+mod layers;
 mod robots;
 mod sources;
 mod zenoh_section;
@@ -200,38 +204,79 @@ pub struct ServiceConfig {
     pub http_access: crate::http_access::HttpAccess,
 }
 
+/// The text of the configuration at `path` (the embedded default when `None`), its name for
+/// messages, and the folder its relative paths start from.
+fn read_source(path: Option<&Path>) -> Result<(String, String, PathBuf), ConfigError> {
+    Ok(match path {
+        Some(path) => (
+            std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+                path: path.display().to_string(),
+                source,
+            })?,
+            path.display().to_string(),
+            path.parent().map(Path::to_path_buf).unwrap_or_default(),
+        ),
+        None => (
+            DEFAULT_CONFIG_TOML.to_owned(),
+            "embedded default config".to_owned(),
+            PathBuf::new(),
+        ),
+    })
+}
+
+/// `text` layered over the embedded default, with the command line's mode: the table the
+/// sections are read from.
+fn effective_table(
+    text: &str,
+    source_name: &str,
+    mode_flag: Option<ZenohMode>,
+) -> Result<toml::Table, ConfigError> {
+    let syntax = |name: &str, e: &toml::de::Error| ConfigError::Syntax {
+        source_name: name.to_owned(),
+        message: e.to_string(),
+    };
+    // The user's text on its own first, so that its errors name its own lines and fields.
+    toml::from_str::<File>(text).map_err(|e| syntax(source_name, &e))?;
+    let user: toml::Table = toml::from_str(text).map_err(|e| syntax(source_name, &e))?;
+    let default: toml::Table =
+        toml::from_str(DEFAULT_CONFIG_TOML).map_err(|e| syntax("embedded default config", &e))?;
+    Ok(layers::effective(default, user, mode_flag))
+}
+
+/// The effective configuration of the file at `path` (the embedded default when `None`) as
+/// TOML: the file layered over the default, each robot completed from `[robots.default]`,
+/// checked as `armtwin serve` checks it. Paths in it are relative to the file, as written.
+pub fn effective_toml(path: Option<&Path>) -> Result<String, ConfigError> {
+    let (text, source_name, base_dir) = read_source(path)?;
+    ServiceConfig::parse(&text, &source_name, &base_dir, &Overrides::default())?;
+    let table = layers::with_robots_completed(effective_table(&text, &source_name, None)?);
+    toml::to_string(&table).map_err(|e| ConfigError::Syntax {
+        source_name,
+        message: e.to_string(),
+    })
+}
+
 impl ServiceConfig {
     /// Loads `path`, or the embedded default when `None`, and applies `overrides`.
     pub fn load(path: Option<&Path>, overrides: &Overrides) -> Result<Self, ConfigError> {
-        let (text, source_name, base_dir) = match path {
-            Some(path) => (
-                std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-                    path: path.display().to_string(),
-                    source,
-                })?,
-                path.display().to_string(),
-                path.parent().map(Path::to_path_buf).unwrap_or_default(),
-            ),
-            None => (
-                DEFAULT_CONFIG_TOML.to_owned(),
-                "embedded default config".to_owned(),
-                PathBuf::new(),
-            ),
-        };
+        let (text, source_name, base_dir) = read_source(path)?;
         Self::parse(&text, &source_name, &base_dir, overrides)
     }
 
-    /// Parses configuration text; relative paths in it are taken from `base_dir`.
+    /// Parses configuration text layered over the embedded default (a key it leaves out keeps
+    /// the default's value); relative paths in it are taken from `base_dir`.
     pub fn parse(
         text: &str,
         source_name: &str,
         base_dir: &Path,
         overrides: &Overrides,
     ) -> Result<Self, ConfigError> {
-        let file: File = toml::from_str(text).map_err(|e| ConfigError::Syntax {
-            source_name: source_name.to_owned(),
-            message: e.to_string(),
-        })?;
+        let table = effective_table(text, source_name, overrides.mode)?;
+        let file =
+            File::deserialize(toml::Value::Table(table)).map_err(|e| ConfigError::Syntax {
+                source_name: source_name.to_owned(),
+                message: e.to_string(),
+            })?;
         let mut zenoh = file.zenoh.overridden(overrides);
         zenoh.file = zenoh.file.map(|f| base_dir.join(f));
         let service = file.service;
@@ -630,6 +675,44 @@ mod tests {
 
     fn parse(text: &str) -> Result<ServiceConfig, ConfigError> {
         ServiceConfig::parse(text, "test", Path::new(""), &Overrides::default())
+    }
+
+    #[test]
+    fn a_file_is_layered_over_the_embedded_default() {
+        let default = ServiceConfig::load(None, &Overrides::default()).expect("embedded");
+        let config = parse("[robots.\"r1\"]\nmodel = \"ur5e\"\n").expect("valid");
+        assert_eq!(config.zenoh, default.zenoh);
+        assert_eq!(config.zenoh.listen, ["tcp/127.0.0.1:7447"]);
+        assert!(config.zenoh.reaches_anyone());
+        assert_eq!(config.pipeline, default.pipeline);
+        assert_eq!(config.robots["r1"].model.arm().name, "ur5e");
+        // One key of a section replaces that key alone.
+        let config = parse("[align]\nmax_gap_s = 0.1\n").expect("valid");
+        assert_eq!(
+            config.pipeline.align,
+            AlignConfig {
+                max_gap_s: 0.1,
+                ..default.pipeline.align
+            }
+        );
+        // A client listens only where its own file or -l says.
+        let client = parse("[zenoh]\nmode = \"client\"\n").expect("valid");
+        assert!(client.zenoh.listen.is_empty() && !client.zenoh.reaches_anyone());
+        let by_flag = ServiceConfig::parse(
+            "",
+            "test",
+            Path::new(""),
+            &Overrides {
+                mode: Some(ZenohMode::Client),
+                connect: vec!["tcp/127.0.0.1:7000".to_owned()],
+                ..Overrides::default()
+            },
+        )
+        .expect("valid");
+        assert!(by_flag.zenoh.listen.is_empty() && by_flag.zenoh.reaches_anyone());
+        // The user's own errors still name the user's line.
+        let error = parse("[service]\nwindow_s = \"ten\"\n").expect_err("mistyped");
+        assert!(error.to_string().contains("line 2"), "{error}");
     }
 
     /// The error's text, which must name the file, the field and the key.

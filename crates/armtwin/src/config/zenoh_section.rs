@@ -140,6 +140,21 @@ impl ZenohSection {
         }
     }
 
+    /// Whether a session on this section can meet anyone: it listens, connects, scouts by
+    /// multicast, or a `cfg` entry sets any of these (the `[zenoh] file`'s own endpoints are
+    /// replaced by `listen` and `connect`). `armtwin serve` warns when it cannot.
+    #[must_use]
+    pub fn reaches_anyone(&self) -> bool {
+        !self.listen.is_empty()
+            || !self.connect.is_empty()
+            || self.multicast_scouting
+            || self.cfg.iter().any(|insert| {
+                ["listen", "connect", "scouting"]
+                    .iter()
+                    .any(|path| insert.key.trim_start_matches('/').starts_with(path))
+            })
+    }
+
     /// The section with the command line's flags applied: a mode replaces the section's, an
     /// endpoint list replaces the section's list, `--cfg` entries come after the section's own.
     #[must_use]

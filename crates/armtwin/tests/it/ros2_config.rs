@@ -1,6 +1,6 @@
 //! ROS 2 sources without a running service: `rmw_zenoh` attachments read in both forms, namespace
-//! rules, the configurations refused at load time, the README's recipes, and the type hashes in
-//! keys.
+//! rules, the configurations refused at load time, the ROS 2 guide's recipes (docs/ros2.md), and
+//! the type hashes in keys.
 
 use crate::ros2_fixtures::{
     JOINT_TYPE, NAMESPACE_SOURCES, OUTPUT_CONFIG, POSE_TYPE, attachment, data, keyed_attachment,
@@ -309,17 +309,18 @@ fn sources_that_cannot_work_are_refused_at_load_time() {
     assert!(config.ros2_pose.of("quiet").is_none());
 }
 
-/// The `toml` block of README.md after `marker`.
-fn readme_toml(marker: &str) -> String {
-    let readme = std::fs::read_to_string(data().join("../../../README.md")).expect("README");
-    let after = &readme[readme.find(marker).expect("marker")..];
+/// The `toml` block of the ROS 2 guide (docs/ros2.md) after `marker`.
+fn guide_toml(marker: &str) -> String {
+    let guide =
+        std::fs::read_to_string(data().join("../../../docs/ros2.md")).expect("docs/ros2.md");
+    let after = &guide[guide.find(marker).expect("marker")..];
     let block = &after[after.find("```toml\n").expect("a toml block") + 8..];
     block[..block.find("```").expect("its end")].to_owned()
 }
 
 #[test]
-fn the_readme_recipes_load_as_documented() {
-    let block = readme_toml("The exact lines for a UR driver");
+fn the_ros2_guide_recipes_load_as_documented() {
+    let block = guide_toml("The exact lines for a UR driver");
     let recipes: Vec<&str> = block.split("\n\n").collect();
     assert_eq!(recipes.len(), 4, "{block}");
     for (recipe, from_key) in recipes.iter().zip([true, false, true, false]) {
@@ -340,11 +341,11 @@ fn the_readme_recipes_load_as_documented() {
         let ros2 = config.sources[1].ros2.as_ref().expect("ros2");
         assert_eq!(ros2.base_frame, "alice_base");
     }
-    // As the README says: the two bridge recipes combine, the two rmw_zenoh ones do not.
+    // As the guide says: the two bridge recipes combine, the two rmw_zenoh ones do not.
     parse(&format!("{}\n{}", recipes[2], recipes[3]), Vec::new()).expect("bridge forms combine");
     let error = parse(&format!("{}\n{}", recipes[0], recipes[1]), Vec::new()).unwrap_err();
     assert!(error.contains("a sample would be taken twice"), "{error}");
-    let pose = readme_toml("**The twin in RViz.**");
+    let pose = guide_toml("**The twin in RViz.**");
     let config = parse(&pose, Vec::new()).expect("the ros2_pose example");
     let fixed = config.ros2_pose.of("ur10e-07").expect("output");
     assert_eq!(

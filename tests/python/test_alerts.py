@@ -15,7 +15,7 @@ import sys
 import time
 
 from support import rtde_recording
-from support.dashboard import DashboardService, http_get, prometheus_path
+from support.dashboard import DashboardService, exposed_names, http_get, prometheus_path
 from support.paths import DATA_DIR, REPO_ROOT, SUPPORT_DIR
 from support.process import Process, free_port, wait_until
 
@@ -56,10 +56,6 @@ def test_the_rules_pass_promtool_and_their_unit_tests():
 def gauge(exposition: str, name: str) -> float | None:
     found = re.search(rf'^{name}\{{robot="{re.escape(ROBOT)}"\}} (\S+)$', exposition, re.M)
     return float(found.group(1)) if found else None
-
-
-def exposed_names(exposition: str) -> set[str]:
-    return {line.split("{")[0].split(" ")[0] for line in exposition.splitlines() if line and line[0] != "#"}
 
 
 class StandIn(Process):

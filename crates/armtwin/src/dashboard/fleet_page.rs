@@ -97,7 +97,8 @@ struct FleetPage<'a> {
     matched: usize,
     /// Of those, with an alarm active.
     alarms: usize,
-    /// The other instances' robots were more than a read keeps: some are missing.
+    /// Some of the other instances' robots may be missing (more than a read keeps, or an
+    /// instance that did not answer in time).
     fleet_truncated: bool,
     offset: usize,
     rows: Vec<PageRow<'a>>,

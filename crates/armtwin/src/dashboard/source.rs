@@ -29,7 +29,7 @@ pub trait FleetSource: Send + Sync + 'static {
     /// The key expression of the robots this instance twins (`[service] robots`).
     fn own_shard(&self) -> Arc<str>;
     /// The robots the fleet's other instances twin, read through the mesh (blocks for up to a
-    /// second).
+    /// few seconds).
     fn peers(&self) -> PeerFleet;
 }
 
@@ -38,7 +38,8 @@ pub trait FleetSource: Send + Sync + 'static {
 pub struct PeerFleet {
     /// In id order.
     pub rows: Vec<PeerRow>,
-    /// More robots answered than a read keeps: the list is cut.
+    /// Robots may be missing: more answered than a read keeps, or not every instance answered
+    /// in time.
     pub truncated: bool,
 }
 

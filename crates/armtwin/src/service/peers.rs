@@ -1,6 +1,7 @@
 //! The rest of the fleet, read through the mesh for the fleet page: the other instances' shard
 //! claims (`get <prefix>/shards/**`) and their robots' states (`get <prefix>/state/**`), both
-//! asked of remote queryables only, each bounded in time, in replies and in bytes per reply.
+//! asked of remote queryables only, each bounded in time, in replies and in bytes per reply; a
+//! read cut by either bound says so.
 //!
 //! Runs on a blocking thread when a fleet page asks (at most once a second, whatever the pages
 //! open): it costs the other instances one state answer per robot then, and the twins nothing
@@ -20,7 +21,7 @@ use crate::dashboard::{PeerFleet, PeerRow};
 use crate::keys::{KeySpace, Stream};
 
 /// How long a read waits for the other instances' answers.
-const PEER_WAIT: Duration = Duration::from_secs(1);
+const PEER_WAIT: Duration = Duration::from_secs(2);
 /// The most robots of other instances a read keeps: beyond, the page says the list is cut.
 pub(super) const MAX_PEER_ROBOTS: usize = 10_000;
 /// The most shard claims a read keeps.
@@ -43,6 +44,7 @@ impl Peers {
     pub(super) fn read(&self) -> PeerFleet {
         let claims: Vec<(KeyExpr<'static>, Arc<str>)> = self
             .ask(&self.keys.every_shard_claim(), MAX_CLAIMS)
+            .0
             .into_iter()
             .filter_map(|(_, claim)| {
                 let robots = claim.get("robots")?.as_str()?;
@@ -50,8 +52,9 @@ impl Peers {
                 Some((key, Arc::from(robots)))
             })
             .collect();
-        let answers = self.ask(&self.keys.every_robot(Stream::State), MAX_PEER_ROBOTS + 1);
-        let truncated = answers.len() > MAX_PEER_ROBOTS;
+        let (answers, timed_out) =
+            self.ask(&self.keys.every_robot(Stream::State), MAX_PEER_ROBOTS + 1);
+        let truncated = timed_out || answers.len() > MAX_PEER_ROBOTS;
         let mut rows: Vec<PeerRow> = answers
             .into_iter()
             .take(MAX_PEER_ROBOTS)
@@ -71,8 +74,8 @@ impl Peers {
     }
 
     /// The JSON answers of remote queryables on `selector`, at most `limit`, within
-    /// [`PEER_WAIT`].
-    fn ask(&self, selector: &str, limit: usize) -> Vec<(KeyExpr<'static>, Value)> {
+    /// [`PEER_WAIT`], and whether the wait ran out (some may not have answered).
+    fn ask(&self, selector: &str, limit: usize) -> (Vec<(KeyExpr<'static>, Value)>, bool) {
         let start = Instant::now();
         let replies = match self
             .session
@@ -84,7 +87,7 @@ impl Peers {
             Ok(replies) => replies,
             Err(e) => {
                 debug!(error = %e, selector, "the fleet's other instances could not be asked");
-                return Vec::new();
+                return (Vec::new(), false);
             }
         };
         let mut answers = Vec::new();
@@ -102,13 +105,14 @@ impl Peers {
                 break;
             }
         }
+        let took = start.elapsed();
         debug!(
             selector,
             answers = answers.len(),
-            took_ms = start.elapsed().as_millis(),
+            took_ms = took.as_millis(),
             "the fleet's other instances answered"
         );
-        answers
+        (answers, took >= PEER_WAIT)
     }
 }
 

@@ -80,7 +80,7 @@ function render(page) {
     `${s.robots} robots tracked · ${s.inputs} inputs · ${s.poses} poses · ${s.publish_errors} publish errors`;
   document.getElementById("summary").textContent =
     `${page.matched} robots match · ${page.alarms} in alarm` +
-    (page.fleet_truncated ? " · other shards' robots cut at the read's bound" : "");
+    (page.fleet_truncated ? " · some robots of other shards may be missing" : "");
   const first = page.matched === 0 ? 0 : page.offset + 1;
   const last = Math.min(page.offset + page.rows.length, page.matched);
   document.getElementById("page").textContent = `${first}–${last} of ${page.matched}`;

@@ -14,7 +14,7 @@ import json
 import re
 import subprocess
 
-from support.dashboard import DashboardService, Prometheus, http_get, http_json
+from support.dashboard import DashboardService, Prometheus, exposed_names, http_get, http_json
 from support.gateway import Gateway
 from support.paths import REPO_ROOT
 from support.process import wait_until
@@ -25,6 +25,7 @@ metrics_period_ms = 50
 
 [robots.default]
 model = "ur10e"
+effort = true
 """
 ROBOTS = ("cell-1/ur10e-a", "cell-2/ur10e-b")
 ROWS = 4000
@@ -38,14 +39,12 @@ def dashboard_queries() -> list[str]:
     return exprs
 
 
-def exposed_names(text: str) -> set[str]:
-    return {line.split("{")[0].split(" ")[0] for line in text.splitlines() if line and not line.startswith("#")}
-
-
 def test_prometheus_scrapes_the_twin_and_agrees_with_the_state_query(armtwin_bin, tmp_path):
     with DashboardService(armtwin_bin, tmp_path, CONFIG) as service, \
             Prometheus(tmp_path, f"127.0.0.1:{service.http_port}") as prometheus:
         gateway = Gateway(service.client, ROBOTS, rate_hz=250.0, recording=True, rows=ROWS)
+        # The token an `armtwin gateway rtde` holds while it streams: the dashboard's gateway panel.
+        token = service.client.session.liveliness().declare_token(f"twin/gateway/streaming/{ROBOTS[0]}")
         gateway.start()
         # Scraped while the recording streams.
         assert wait_until(
@@ -99,6 +98,7 @@ def test_prometheus_scrapes_the_twin_and_agrees_with_the_state_query(armtwin_bin
             if "alarm_active" not in expr:
                 # rate() needs two scrapes of a series.
                 assert wait_until(lambda: prometheus.query(query)["result"], 10.0, 0.5), f"no series for {expr}"
+        token.undeclare()
 
 
 def test_grafana_dashboard_structure():

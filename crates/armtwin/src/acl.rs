@@ -10,6 +10,7 @@
 //!   robots' state (`armtwin replay` waits on it) and sees who subscribes to inputs (its
 //!   publisher sends nothing while it knows of no subscriber);
 //! - **armtwin** takes inputs and publishes every output, token and queryable under the prefix;
+//!   it reads the other instances' robots' state and hears the gateways' tokens;
 //! - a **dashboard** subscribes and reads (`state`, `fk`, `ik`, `calibrate`), never changes;
 //! - an **operator** reads and also changes a twin (`<prefix>/admin/**`).
 //!
@@ -253,6 +254,26 @@ impl Fleet {
                     &["query", "reply"],
                     &[self.keys.every_shard_claim()],
                 ),
+                // The fleet page of each instance lists the other instances' robots.
+                rule(
+                    "armtwin-read-other-shards",
+                    &["ingress", "egress"],
+                    &["query", "reply"],
+                    &self.every(&[Stream::State]),
+                ),
+                // `/metrics` says whether each robot's gateway streams.
+                rule(
+                    "armtwin-watch-gateways",
+                    &["ingress"],
+                    &["declare_liveliness_subscriber", "liveliness_query"],
+                    &self.every(&GATEWAY_TOKENS),
+                ),
+                rule(
+                    "armtwin-hear-gateways",
+                    &["egress"],
+                    &["liveliness_token"],
+                    &self.every(&GATEWAY_TOKENS),
+                ),
                 // Queries reach armtwin's queryables, and its publishers learn who subscribes
                 // (a publisher that knows of no subscriber sends nothing).
                 rule(
@@ -269,6 +290,9 @@ impl Fleet {
                     "armtwin-take-inputs",
                     "armtwin-receive-inputs",
                     "armtwin-shard-claims",
+                    "armtwin-read-other-shards",
+                    "armtwin-watch-gateways",
+                    "armtwin-hear-gateways",
                     "armtwin-be-queried-and-subscribed",
                 ],
                 "armtwin",
@@ -769,6 +793,42 @@ mod tests {
             "ingress",
             "put",
             "plant/twin/joints/r1"
+        ));
+        // Each instance reads the others' robots and hears the gateways' tokens.
+        assert!(allows(
+            &section,
+            "armtwin",
+            "ingress",
+            "query",
+            "plant/twin/state/**"
+        ));
+        assert!(allows(
+            &section,
+            "armtwin",
+            "egress",
+            "reply",
+            "plant/twin/state/site-b/r1"
+        ));
+        assert!(allows(
+            &section,
+            "armtwin",
+            "ingress",
+            "declare_liveliness_subscriber",
+            "plant/twin/gateway/streaming/**"
+        ));
+        assert!(allows(
+            &section,
+            "armtwin",
+            "egress",
+            "liveliness_token",
+            "plant/twin/gateway/waiting/r1"
+        ));
+        assert!(!allows(
+            &section,
+            "armtwin",
+            "ingress",
+            "query",
+            "plant/twin/admin/reset/r1"
         ));
         // Nothing outside the prefix.
         assert!(!allows(

@@ -37,7 +37,9 @@ const SERVICE_LAYERS: &[(&str, &[&str])] = &[
         &[
             "calibration_slot",
             "events",
+            "gateways",
             "memory",
+            "peers",
             "publish",
             "requests",
             "shard",

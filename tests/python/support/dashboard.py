@@ -48,6 +48,11 @@ def http_get(url: str, timeout: float = HTTP_TIMEOUT_S) -> tuple[int, bytes]:
         return error.code, error.read()
 
 
+def exposed_names(exposition: str) -> set[str]:
+    """The series names of a ``/metrics`` exposition."""
+    return {line.split("{")[0].split(" ")[0] for line in exposition.splitlines() if line and not line.startswith("#")}
+
+
 def http_json(url: str):
     status, body = http_get(url)
     assert status == 200, f"GET {url}: {status} {body[:200]!r}"

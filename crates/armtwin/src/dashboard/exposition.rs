@@ -7,6 +7,7 @@ use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::family::Family;
 use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::registry::{Registry, Unit};
+use std::sync::Arc;
 use std::sync::atomic::AtomicU64;
 
 use super::{FleetRow, ServiceTotals};
@@ -77,6 +78,8 @@ struct RobotFamilies {
     payload: Gauges,
     collision_active: Gauges,
     collisions: Counters,
+    payload_mismatch: Gauges,
+    last_sample_age: Gauges,
 }
 
 impl RobotFamilies {
@@ -109,6 +112,8 @@ impl RobotFamilies {
             payload: Gauges::default(),
             collision_active: Gauges::default(),
             collisions: Counters::default(),
+            payload_mismatch: Gauges::default(),
+            last_sample_age: Gauges::default(),
         };
         let gauges = [
             (
@@ -221,6 +226,9 @@ impl RobotFamilies {
         self.epoch
             .get_or_create(&robot_labels())
             .set(row.metrics.epoch as f64);
+        self.last_sample_age
+            .get_or_create(&robot_labels())
+            .set(row.last_sample_age_s);
         if let Some(effort) = &row.metrics.effort {
             self.add_effort(robot, effort);
         }
@@ -244,8 +252,15 @@ impl RobotFamilies {
 }
 
 impl RobotFamilies {
-    /// Registers the effort gauges (robots with `effort = true`).
+    /// Registers the effort gauges (robots with `effort = true`), and the age of each robot's
+    /// last sample.
     fn register_effort(&self, registry: &mut Registry) {
+        registry.register_with_unit(
+            "robot_last_sample_age",
+            "Time since the robot's last sample (joints or measured pose) arrived, at the scrape",
+            Unit::Seconds,
+            self.last_sample_age.clone(),
+        );
         let gauges = [
             (
                 "joint_model_torque_newton_metres",
@@ -276,6 +291,11 @@ impl RobotFamilies {
                 "collision_active",
                 "1 while a joint's collision alarm is on",
                 &self.collision_active,
+            ),
+            (
+                "payload_mismatch_active",
+                "1 while the payload identified at rest is further from the one in use than the tolerance",
+                &self.payload_mismatch,
             ),
         ];
         for (name, help, family) in gauges {
@@ -351,6 +371,9 @@ impl RobotFamilies {
         self.collisions
             .get_or_create(&vec![("robot", robot.to_owned())])
             .inc_by(effort.collisions);
+        self.payload_mismatch
+            .get_or_create(&vec![("robot", robot.to_owned())])
+            .set(f64::from(u8::from(effort.payload_mismatch)));
     }
 }
 
@@ -415,16 +438,38 @@ fn register_totals(registry: &mut Registry, totals: &ServiceTotals) {
     }
 }
 
-/// The exposition of the fleet's rows and the service's totals (`OpenMetrics` text, which
-/// Prometheus reads; it ends with `# EOF`).
-pub(crate) fn render(totals: &ServiceTotals, rows: &[FleetRow]) -> String {
+/// Registers `armtwin_gateway_streaming`: per robot whose gateway holds (or held) a token, 1
+/// while it streams.
+fn register_gateways(registry: &mut Registry, gateways: &[(Arc<str>, bool)]) {
+    let streaming = Gauges::default();
+    for (robot, streams) in gateways {
+        streaming
+            .get_or_create(&vec![("robot", robot.to_string())])
+            .set(f64::from(u8::from(*streams)));
+    }
+    registry.register(
+        "gateway_streaming",
+        "1 while the robot's gateway streams it from its controller, 0 while it connects, waits \
+         or is gone (liveliness tokens <prefix>/gateway/streaming|waiting/<robot>)",
+        streaming,
+    );
+}
+
+/// The exposition of the fleet's rows, its gateways and the service's totals (`OpenMetrics`
+/// text, which Prometheus reads; it ends with `# EOF`).
+pub(crate) fn render(
+    totals: &ServiceTotals,
+    rows: &[FleetRow],
+    gateways: &[(Arc<str>, bool)],
+) -> String {
     let mut registry = Registry::with_prefix("armtwin");
     let families = RobotFamilies::register(&mut registry);
     for row in rows {
         families.add(row);
     }
+    register_gateways(&mut registry, gateways);
     register_totals(&mut registry, totals);
-    let mut text = String::with_capacity(256 + rows.len() * 2048);
+    let mut text = String::with_capacity(256 + rows.len() * 2048 + gateways.len() * 64);
     // Writing into a String cannot fail.
     let _ = encode(&mut text, &registry);
     text

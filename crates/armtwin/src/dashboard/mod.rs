@@ -10,10 +10,13 @@
 
 mod access;
 mod exposition;
+mod fleet_page;
 mod source;
 mod tls;
 
-pub use source::{FleetRow, FleetSource, RobotCounts, RobotDetail, ServiceTotals};
+pub use source::{
+    FleetRow, FleetSource, PeerFleet, PeerRow, RobotCounts, RobotDetail, ServiceTotals,
+};
 
 use std::collections::BTreeMap;
 use std::convert::Infallible;
@@ -33,10 +36,9 @@ use tokio::time::MissedTickBehavior;
 use tracing::{info, warn};
 use zenoh::key_expr::OwnedKeyExpr;
 
-use crate::config::without_source_location;
+use self::fleet_page::{FleetQuery, fleet_page_json};
 use crate::http_access::{HttpAccess, Token};
 use crate::mesh::{TEARDOWN_STEP, bounded};
-use crate::metrics::Metric;
 
 /// Fleet page updates: at most 2 per second per page.
 const FLEET_PERIOD: Duration = Duration::from_millis(500);
@@ -47,10 +49,9 @@ const FLEET_READ_MAX_AGE: Duration = Duration::from_millis(450);
 const ROBOT_PERIOD: Duration = Duration::from_millis(34);
 /// A robot page hears from an idle robot at least this often.
 const ROBOT_IDLE_PERIOD: Duration = Duration::from_secs(1);
-/// Rows one fleet request may ask for.
-const MAX_PAGE_ROWS: usize = 1000;
-/// The longest key expression a fleet filter may be.
-const MAX_FILTER_BYTES: usize = 1024;
+/// How old the shared read of the fleet's other instances may be: they answer at most once a
+/// second, whatever the pages open.
+const PEER_READ_MAX_AGE: Duration = Duration::from_secs(1);
 
 /// The running HTTP server.
 pub(crate) struct Dashboard {
@@ -78,8 +79,8 @@ impl Dashboard {
         );
         let mut app = router(AppState {
             view,
-            fleet: Arc::new(Mutex::new(None)),
-            fleet_reading: Arc::new(tokio::sync::Mutex::new(())),
+            fleet: Arc::new(Shared::new()),
+            peers: Arc::new(Shared::new()),
             stopping: stop_rx.clone(),
         });
         if !access.tokens.is_empty() {
@@ -132,62 +133,133 @@ struct FleetRead {
     rows: Vec<FleetRow>,
     /// Each row's id as a key expression, for filters (`None` for an id that is not one).
     keys: Vec<Option<OwnedKeyExpr>>,
+    /// The robots with a gateway token, and whether it streams.
+    gateways: Vec<(Arc<str>, bool)>,
+}
+
+/// The fleet's other instances' robots, read through the mesh for the fleet pages.
+struct PeerRead {
+    /// The key expression of the robots this instance twins.
+    own_shard: Arc<str>,
+    fleet: PeerFleet,
+    /// Each row's id as a key expression, for filters.
+    keys: Vec<Option<OwnedKeyExpr>>,
+}
+
+/// A read shared by every page that asks for it while it is fresh: pages whose ticks meet wait
+/// for one read, run on a blocking thread.
+struct Shared<T> {
+    latest: Mutex<Option<(Instant, Arc<T>)>>,
+    /// Held while a read runs.
+    reading: tokio::sync::Mutex<()>,
+}
+
+impl<T: Send + Sync + 'static> Shared<T> {
+    fn new() -> Self {
+        Self {
+            latest: Mutex::new(None),
+            reading: tokio::sync::Mutex::new(()),
+        }
+    }
+
+    /// The latest read, or a new one by `read` if it began `max_age` or longer ago (`failed`
+    /// stands for a read that panicked, until the next one).
+    async fn get(
+        &self,
+        max_age: Duration,
+        read: impl FnOnce() -> T + Send + 'static,
+        failed: fn() -> T,
+    ) -> Arc<T> {
+        let asked = Instant::now();
+        let fresh = || {
+            let latest = self
+                .latest
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .clone();
+            // A read begun after the ask is fresh whatever `max_age` (zero for `/metrics`).
+            latest
+                .filter(|(taken, _)| *taken >= asked || taken.elapsed() < max_age)
+                .map(|(_, value)| value)
+        };
+        if let Some(value) = fresh() {
+            return value;
+        }
+        let _reading = self.reading.lock().await;
+        if let Some(value) = fresh() {
+            return value;
+        }
+        let (taken, value) = tokio::task::spawn_blocking(move || (Instant::now(), read()))
+            .await
+            .unwrap_or_else(|_| (Instant::now(), failed()));
+        let value = Arc::new(value);
+        *self.latest.lock().unwrap_or_else(PoisonError::into_inner) =
+            Some((taken, Arc::clone(&value)));
+        value
+    }
 }
 
 #[derive(Clone)]
 struct AppState {
     view: Arc<dyn FleetSource>,
-    fleet: Arc<Mutex<Option<Arc<FleetRead>>>>,
-    /// Held while the fleet is read: pages whose ticks meet wait for that one read.
-    fleet_reading: Arc<tokio::sync::Mutex<()>>,
+    fleet: Arc<Shared<FleetRead>>,
+    peers: Arc<Shared<PeerRead>>,
     stopping: watch::Receiver<bool>,
 }
 
 impl AppState {
-    /// The shared fleet read, read again if older than `max_age`. The read runs on a blocking
-    /// thread: it takes every robot's lock in turn.
+    /// The shared fleet read, read again if older than `max_age`: it takes every robot's lock
+    /// in turn.
     async fn fleet(&self, max_age: Duration) -> Arc<FleetRead> {
-        let asked = Instant::now();
-        let fresh = |cache: &Mutex<Option<Arc<FleetRead>>>| {
-            let cached = cache.lock().unwrap_or_else(PoisonError::into_inner).clone();
-            // A read taken after the ask is fresh whatever `max_age` (zero for `/metrics`).
-            cached.filter(|read| read.taken >= asked || read.taken.elapsed() < max_age)
-        };
-        if let Some(read) = fresh(&self.fleet) {
-            return read;
-        }
-        let _reading = self.fleet_reading.lock().await;
-        if let Some(read) = fresh(&self.fleet) {
-            return read;
-        }
         let view = self.view.clone();
-        let read = tokio::task::spawn_blocking(move || {
+        let read = move || {
             // When the read began: what it shows is no older than this.
             let taken = Instant::now();
             let (totals, rows) = view.fleet();
-            let keys = rows
-                .iter()
-                .map(|row| OwnedKeyExpr::try_from(&*row.id).ok())
-                .collect();
+            let keys = rows.iter().map(|row| key_of(&row.id)).collect();
             FleetRead {
                 taken,
                 totals,
                 rows,
                 keys,
+                gateways: view.gateways(),
             }
-        })
-        .await
-        // Only a panic of the read ends here: an empty fleet until the next read.
-        .unwrap_or_else(|_| FleetRead {
+        };
+        // Only a panic of the read gives an empty fleet, until the next read.
+        let failed = || FleetRead {
             taken: Instant::now(),
             totals: ServiceTotals::default(),
             rows: Vec::new(),
             keys: Vec::new(),
-        });
-        let read = Arc::new(read);
-        *self.fleet.lock().unwrap_or_else(PoisonError::into_inner) = Some(Arc::clone(&read));
-        read
+            gateways: Vec::new(),
+        };
+        self.fleet.get(max_age, read, failed).await
     }
+
+    /// The shared read of the fleet's other instances, at most one a [`PEER_READ_MAX_AGE`].
+    async fn peers(&self) -> Arc<PeerRead> {
+        let view = self.view.clone();
+        let read = move || {
+            let fleet = view.peers();
+            let keys = fleet.rows.iter().map(|row| key_of(&row.id)).collect();
+            PeerRead {
+                own_shard: view.own_shard(),
+                fleet,
+                keys,
+            }
+        };
+        let failed = || PeerRead {
+            own_shard: Arc::from(""),
+            fleet: PeerFleet::default(),
+            keys: Vec::new(),
+        };
+        self.peers.get(PEER_READ_MAX_AGE, read, failed).await
+    }
+}
+
+/// A robot id as a key expression, for filters (`None` for an id that is not one).
+fn key_of(id: &str) -> Option<OwnedKeyExpr> {
+    OwnedKeyExpr::try_from(id).ok()
 }
 
 fn router(state: AppState) -> Router {
@@ -286,7 +358,7 @@ async fn healthz() -> &'static str {
 async fn metrics(State(state): State<AppState>) -> Response {
     // A scrape sees the twin as it is at the scrape: no shared read older than it.
     let read = state.fleet(Duration::ZERO).await;
-    let text = exposition::render(&read.totals, &read.rows);
+    let text = exposition::render(&read.totals, &read.rows, &read.gateways);
     (
         [(
             header::CONTENT_TYPE,
@@ -314,210 +386,6 @@ fn bad_request(status: StatusCode, reason: &str) -> Response {
 // ---------------------------------------------------------------------------------------------
 // The fleet
 
-/// What a fleet page sorts by.
-#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
-#[serde(rename_all = "snake_case")]
-enum SortKey {
-    #[default]
-    Robot,
-    Position,
-    Angle,
-    Paired,
-    Unpaired,
-    Rejected,
-    Alarm,
-    Age,
-}
-
-#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
-#[serde(rename_all = "snake_case")]
-enum Order {
-    #[default]
-    Asc,
-    Desc,
-}
-
-/// `?filter=<key expression>&sort=<column>&order=asc|desc&offset=<n>&limit=<n>`.
-#[derive(Debug, Deserialize)]
-struct FleetQuery {
-    filter: Option<String>,
-    #[serde(default)]
-    sort: SortKey,
-    #[serde(default)]
-    order: Order,
-    #[serde(default)]
-    offset: usize,
-    limit: Option<usize>,
-}
-
-/// A checked fleet query.
-struct FleetSelection {
-    filter: Option<OwnedKeyExpr>,
-    sort: SortKey,
-    order: Order,
-    offset: usize,
-    limit: usize,
-}
-
-impl FleetQuery {
-    /// The selection, or why the query is refused.
-    fn check(self) -> Result<FleetSelection, String> {
-        let filter = match self.filter.as_deref().map(str::trim) {
-            None | Some("") => None,
-            Some(text) if text.len() > MAX_FILTER_BYTES => {
-                return Err(format!(
-                    "the filter is longer than {MAX_FILTER_BYTES} bytes"
-                ));
-            }
-            Some(text) => Some(OwnedKeyExpr::autocanonize(text.to_owned()).map_err(|e| {
-                let message = e.to_string();
-                let reason = without_source_location(&message);
-                format!("the filter is not a key expression: {reason}")
-            })?),
-        };
-        Ok(FleetSelection {
-            filter,
-            sort: self.sort,
-            order: self.order,
-            offset: self.offset,
-            limit: self.limit.unwrap_or(100).clamp(1, MAX_PAGE_ROWS),
-        })
-    }
-}
-
-#[derive(Serialize)]
-struct FleetPage<'a> {
-    service: TotalsJson,
-    /// Robots the filter matches.
-    matched: usize,
-    /// Of those, with an alarm active.
-    alarms: usize,
-    offset: usize,
-    rows: Vec<FleetRowJson<'a>>,
-}
-
-#[derive(Serialize)]
-struct TotalsJson {
-    inputs: u64,
-    poses: u64,
-    publish_errors: u64,
-    robots: usize,
-    max_robots: usize,
-    robots_refused: u64,
-    robots_retired: u64,
-}
-
-impl From<&ServiceTotals> for TotalsJson {
-    fn from(totals: &ServiceTotals) -> Self {
-        Self {
-            inputs: totals.inputs,
-            poses: totals.poses,
-            publish_errors: totals.publish_errors,
-            robots: totals.robots,
-            max_robots: totals.max_robots,
-            robots_refused: totals.robots_refused,
-            robots_retired: totals.robots_retired,
-        }
-    }
-}
-
-#[derive(Serialize)]
-struct FleetRowJson<'a> {
-    robot: &'a str,
-    /// Window MAE of the position distance (m).
-    position_m: f64,
-    /// Window MAE of the rotation angle (rad).
-    angle_rad: f64,
-    /// Pairs in the window.
-    window_n: u64,
-    paired: u64,
-    unpaired: u64,
-    rejected: u64,
-    poses: u64,
-    alarm: AlarmJson,
-    /// Seconds since the twin last had a result of the robot; `null` before its first.
-    age_s: Option<f64>,
-}
-
-#[derive(Serialize)]
-struct AlarmJson {
-    position: bool,
-    angle: bool,
-}
-
-fn age_s(read: &FleetRead, row: &FleetRow) -> Option<f64> {
-    row.counts
-        .last_active
-        .map(|active| read.taken.saturating_duration_since(active).as_secs_f64())
-}
-
-/// The page of the fleet `selection` asks for.
-fn fleet_page_json(read: &FleetRead, selection: &FleetSelection) -> String {
-    let (position, angle) = (Metric::Position, Metric::Angle);
-    let mut matched: Vec<&FleetRow> = read
-        .rows
-        .iter()
-        .zip(&read.keys)
-        .filter(|(_, key)| match (&selection.filter, key) {
-            (None, _) => true,
-            (Some(filter), Some(key)) => filter.intersects(key),
-            (Some(_), None) => false,
-        })
-        .map(|(row, _)| row)
-        .collect();
-    let alarms = matched.iter().filter(|row| row.alarms_active.any()).count();
-    let window = |row: &FleetRow, metric: Metric| row.metrics.window.of(metric).mae;
-    // Rows come in id order: a stable sort keeps it among equals.
-    match selection.sort {
-        SortKey::Robot => {}
-        SortKey::Position => {
-            matched.sort_by(|a, b| window(a, position).total_cmp(&window(b, position)));
-        }
-        SortKey::Angle => matched.sort_by(|a, b| window(a, angle).total_cmp(&window(b, angle))),
-        SortKey::Paired => matched.sort_by_key(|row| row.metrics.paired),
-        SortKey::Unpaired => matched.sort_by_key(|row| row.metrics.unpaired),
-        SortKey::Rejected => matched.sort_by_key(|row| row.metrics.rejected),
-        SortKey::Alarm => {
-            matched.sort_by_key(|row| row.alarms_active.active_count());
-        }
-        SortKey::Age => matched.sort_by(|a, b| {
-            let age = |row: &FleetRow| age_s(read, row).unwrap_or(f64::INFINITY);
-            age(a).total_cmp(&age(b))
-        }),
-    }
-    if selection.order == Order::Desc {
-        matched.reverse();
-    }
-    let rows = matched
-        .iter()
-        .skip(selection.offset)
-        .take(selection.limit)
-        .map(|row| FleetRowJson {
-            robot: &row.id,
-            position_m: window(row, position),
-            angle_rad: window(row, angle),
-            window_n: row.metrics.window.n,
-            paired: row.metrics.paired,
-            unpaired: row.metrics.unpaired,
-            rejected: row.metrics.rejected,
-            poses: row.counts.poses,
-            alarm: AlarmJson {
-                position: row.alarms_active.position,
-                angle: row.alarms_active.angle,
-            },
-            age_s: age_s(read, row),
-        })
-        .collect();
-    let page = FleetPage {
-        service: TotalsJson::from(&read.totals),
-        matched: matched.len(),
-        alarms,
-        offset: selection.offset,
-        rows,
-    };
-    serde_json::to_string(&page).unwrap_or_default()
-}
-
 fn json_response(body: String) -> Response {
     (
         [(
@@ -534,8 +402,8 @@ async fn fleet_json(State(state): State<AppState>, Query(query): Query<FleetQuer
         Ok(selection) => selection,
         Err(reason) => return bad_request(StatusCode::BAD_REQUEST, &reason),
     };
-    let read = state.fleet(FLEET_READ_MAX_AGE).await;
-    json_response(fleet_page_json(&read, &selection))
+    let (read, peers) = tokio::join!(state.fleet(FLEET_READ_MAX_AGE), state.peers());
+    json_response(fleet_page_json(&read, &peers, &selection))
 }
 
 /// Events from `next` every `period` (missed ticks skipped), until the service stops; `next`
@@ -584,8 +452,8 @@ async fn fleet_stream(State(state): State<AppState>, Query(query): Query<FleetQu
     paced(&state, FLEET_PERIOD, (), move |()| {
         let (app, selection) = (app.clone(), Arc::clone(&selection));
         async move {
-            let read = app.fleet(FLEET_READ_MAX_AGE).await;
-            Some(fleet_page_json(&read, &selection))
+            let (read, peers) = tokio::join!(app.fleet(FLEET_READ_MAX_AGE), app.peers());
+            Some(fleet_page_json(&read, &peers, &selection))
         }
     })
 }
@@ -729,8 +597,9 @@ async fn robot_stream(State(state): State<AppState>, Query(query): Query<RobotQu
 #[allow(clippy::float_cmp, reason = "values are copied, not computed")]
 mod tests {
     use super::RobotCounts;
+    use super::fleet_page::{FleetSelection, MAX_PAGE_ROWS};
     use super::*;
-    use crate::metrics::StatsSet;
+    use crate::metrics::{Metric, StatsSet};
     use crate::pipeline::{Alarms, MetricsReadout};
 
     fn row(id: &str, position_m: f64, paired: u64, alarm: bool) -> FleetRow {
@@ -759,6 +628,7 @@ mod tests {
             },
             counts: RobotCounts::default(),
             joint_state: None,
+            last_sample_age_s: 0.25,
         }
     }
 
@@ -772,6 +642,37 @@ mod tests {
             totals: ServiceTotals::default(),
             rows,
             keys,
+            gateways: Vec::new(),
+        }
+    }
+
+    fn peers(own_shard: &str, rows: Vec<PeerRow>) -> PeerRead {
+        PeerRead {
+            own_shard: Arc::from(own_shard),
+            keys: rows.iter().map(|row| key_of(&row.id)).collect(),
+            fleet: PeerFleet {
+                rows,
+                truncated: false,
+            },
+        }
+    }
+
+    fn no_peers() -> PeerRead {
+        peers("**", Vec::new())
+    }
+
+    fn peer(id: &str, shard: &str, position_m: f64, alarm: bool) -> PeerRow {
+        PeerRow {
+            id: Arc::from(id),
+            shard: Some(Arc::from(shard)),
+            position_m,
+            angle_rad: 0.0,
+            window_n: 4,
+            paired: 40,
+            unpaired: 0,
+            rejected: 0,
+            alarm_position: alarm,
+            alarm_angle: false,
         }
     }
 
@@ -803,24 +704,80 @@ mod tests {
         let fleet = fleet();
         let all = select("{}").expect("valid");
         assert_eq!(
-            robots(&fleet_page_json(&fleet, &all)),
+            robots(&fleet_page_json(&fleet, &no_peers(), &all)),
             ["a/1", "a/2", "b/1"]
         );
         let only_a = select(r#"{"filter": "a/*"}"#).expect("valid");
-        assert_eq!(robots(&fleet_page_json(&fleet, &only_a)), ["a/1", "a/2"]);
+        assert_eq!(
+            robots(&fleet_page_json(&fleet, &no_peers(), &only_a)),
+            ["a/1", "a/2"]
+        );
         let by_error = select(r#"{"sort": "position", "order": "desc"}"#).expect("valid");
         assert_eq!(
-            robots(&fleet_page_json(&fleet, &by_error)),
+            robots(&fleet_page_json(&fleet, &no_peers(), &by_error)),
             ["a/1", "b/1", "a/2"]
         );
         let paged = select(r#"{"sort": "paired", "offset": 1, "limit": 1}"#).expect("valid");
         let page: serde_json::Value =
-            serde_json::from_str(&fleet_page_json(&fleet, &paged)).expect("JSON");
+            serde_json::from_str(&fleet_page_json(&fleet, &no_peers(), &paged)).expect("JSON");
         assert_eq!(page["matched"], 3);
         assert_eq!(page["alarms"], 1);
         assert_eq!(robots(&page.to_string()), ["b/1"]);
         assert_eq!(page["rows"][0]["position_m"], 0.002);
         assert!(page["rows"][0]["age_s"].is_null(), "never active");
+    }
+
+    #[test]
+    fn the_other_instances_robots_join_the_page_with_their_shard() {
+        let fleet = fleet();
+        let others = peers(
+            "a/**",
+            vec![
+                // Twinned here too (a claim that changed hands): this instance's row wins.
+                peer("a/1", "x/**", 0.5, false),
+                peer("0/9", "0/**", 0.004, true),
+                peer("c/1", "c/**", 0.0, false),
+            ],
+        );
+        let page = |query: &str| -> serde_json::Value {
+            let selection = select(query).expect("valid");
+            serde_json::from_str(&fleet_page_json(&fleet, &others, &selection)).expect("JSON")
+        };
+        let all = page("{}");
+        assert_eq!(
+            robots(&all.to_string()),
+            ["0/9", "a/1", "a/2", "b/1", "c/1"]
+        );
+        assert_eq!(
+            (all["matched"].clone(), all["alarms"].clone()),
+            (5.into(), 2.into())
+        );
+        assert_eq!(all["shard"], "a/**");
+        let shards: Vec<_> = all["rows"]
+            .as_array()
+            .expect("rows")
+            .iter()
+            .map(|row| (row["shard"].as_str(), row["local"].as_bool()))
+            .collect();
+        assert_eq!(
+            shards,
+            [
+                (Some("0/**"), Some(false)),
+                (Some("a/**"), Some(true)),
+                (Some("a/**"), Some(true)),
+                (Some("a/**"), Some(true)),
+                (Some("c/**"), Some(false)),
+            ]
+        );
+        assert_eq!(all["rows"][1]["position_m"], 0.003, "this instance's a/1");
+        assert!(all["rows"][0]["poses"].is_null() && all["rows"][0]["age_s"].is_null());
+        assert_eq!(robots(&page(r#"{"filter": "0/**"}"#).to_string()), ["0/9"]);
+        let by_error = page(r#"{"sort": "position", "order": "desc", "limit": 2}"#);
+        assert_eq!(robots(&by_error.to_string()), ["0/9", "a/1"]);
+        assert_eq!(
+            robots(&page(r#"{"sort": "shard"}"#).to_string()),
+            ["0/9", "a/1", "a/2", "b/1", "c/1"]
+        );
     }
 
     #[test]
@@ -841,13 +798,20 @@ mod tests {
         quoted.counts.poses = 7;
         quoted.counts.rejected_by_cause =
             vec![(crate::pipeline::RejectCause::Decode("not_json"), 2)];
-        let text = exposition::render(&ServiceTotals::default(), &[quoted]);
+        let gateways = [
+            (Arc::from("cell/\"odd\"\\id"), true),
+            (Arc::from("gone"), false),
+        ];
+        let text = exposition::render(&ServiceTotals::default(), &[quoted], &gateways);
         let robot = r#"robot="cell/\"odd\"\\id""#;
         for line in [
             format!("armtwin_position_error_mae_meters{{{robot},scope=\"window\"}} 0.004"),
             format!("armtwin_poses_total{{{robot}}} 7"),
             format!("armtwin_rejected_total{{{robot},cause=\"not_json\"}} 2"),
             format!("armtwin_alarm_active{{{robot},metric=\"position\"}} 1"),
+            format!("armtwin_robot_last_sample_age_seconds{{{robot}}} 0.25"),
+            format!("armtwin_gateway_streaming{{{robot}}} 1"),
+            "armtwin_gateway_streaming{robot=\"gone\"} 0".to_owned(),
             "armtwin_robots_tracked 0".to_owned(),
             "armtwin_robots_refused_total 0".to_owned(),
             "armtwin_robots_retired_total 0".to_owned(),
@@ -864,7 +828,7 @@ mod tests {
             snapshot_age_s: Some(2.5),
             ..ServiceTotals::default()
         };
-        let text = exposition::render(&totals, &[]);
+        let text = exposition::render(&totals, &[], &[]);
         assert!(text.contains("armtwin_snapshot_age_seconds 2.5"), "{text}");
     }
 }

@@ -22,6 +22,51 @@ pub trait FleetSource: Send + Sync + 'static {
     fn robot(&self, id: &str) -> Option<RobotDetail>;
     /// Robot `id`'s twin pose count (`None` if it is not tracked): changes whenever it moves.
     fn poses_of(&self, id: &str) -> Option<u64>;
+    /// The robots whose gateway holds a liveliness token, or held one while the robot is
+    /// configured or tracked, in id order, with whether the gateway streams (its `streaming`
+    /// token is declared).
+    fn gateways(&self) -> Vec<(Arc<str>, bool)>;
+    /// The key expression of the robots this instance twins (`[service] robots`).
+    fn own_shard(&self) -> Arc<str>;
+    /// The robots the fleet's other instances twin, read through the mesh (blocks for up to a
+    /// few seconds).
+    fn peers(&self) -> PeerFleet;
+}
+
+/// The robots of the fleet's other instances, as their state answers gave them.
+#[derive(Debug, Clone, Default)]
+pub struct PeerFleet {
+    /// In id order.
+    pub rows: Vec<PeerRow>,
+    /// Robots may be missing: more answered than a read keeps, or not every instance answered
+    /// in time.
+    pub truncated: bool,
+}
+
+/// One robot another instance twins.
+#[derive(Debug, Clone)]
+pub struct PeerRow {
+    /// The robot id.
+    pub id: Arc<str>,
+    /// The key expression of the instance that twins it (`[service] robots`), if its claim
+    /// answered.
+    pub shard: Option<Arc<str>>,
+    /// Window MAE of the position distance (m).
+    pub position_m: f64,
+    /// Window MAE of the rotation angle (rad).
+    pub angle_rad: f64,
+    /// Pairs in the window.
+    pub window_n: u64,
+    /// Counters of the current metrics epoch.
+    pub paired: u64,
+    /// Measured poses that could not be paired.
+    pub unpaired: u64,
+    /// Inputs rejected.
+    pub rejected: u64,
+    /// Whether its position alarm is active.
+    pub alarm_position: bool,
+    /// Whether its angle alarm is active.
+    pub alarm_angle: bool,
 }
 
 /// One tracked robot as the fleet page and `/metrics` read it.
@@ -37,6 +82,8 @@ pub struct FleetRow {
     pub joint_state: Option<JointState>,
     /// Its totals over the service's life (no recent events: the fleet does not show them).
     pub counts: RobotCounts,
+    /// Seconds since the robot's last input arrived, at the read.
+    pub last_sample_age_s: f64,
 }
 
 /// The service's own totals.

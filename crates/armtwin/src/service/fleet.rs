@@ -377,6 +377,14 @@ impl Fleet {
         self.clock_ms.load(Ordering::Relaxed)
     }
 
+    /// Time since `state`'s robot last had an input, now (its input stamped to the coarse
+    /// clock's last tick, so up to one control-thread turn more).
+    pub(super) fn since_last_input(&self, state: &CellState) -> Duration {
+        self.started
+            .elapsed()
+            .saturating_sub(Duration::from_millis(state.last_input_ms))
+    }
+
     /// Counts a sample of a new robot refused for a full fleet; whether to log it (at most once
     /// a minute).
     pub(super) fn refuse_full(&self) -> bool {

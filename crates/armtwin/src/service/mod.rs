@@ -25,17 +25,20 @@
 //! disconnected after Zenoh's `wait_before_close`. Every output carries its encoding.
 //!
 //! Its files depend one way (`module_graph.rs` holds the order): `error`; the leaves (`events`,
-//! `memory`, `requests`, `calibration_slot`, `shard`, and `publish`, the Zenoh I/O); `sink`;
-//! `fleet`; the duties over the fleet (`queries`, `self_calibration`, `snapshot`, `view`); what
-//! runs them (`intake`, Zenoh's callbacks, and `control`, the control thread); and this file.
+//! `memory`, `requests`, `calibration_slot`, `shard`, `gateways`, `peers`, and `publish`, the
+//! Zenoh I/O); `sink`; `fleet`; the duties over the fleet (`queries`, `self_calibration`,
+//! `snapshot`, `view`); what runs them (`intake`, Zenoh's callbacks, and `control`, the control
+//! thread); and this file.
 
 mod calibration_slot;
 mod control;
 mod error;
 mod events;
 mod fleet;
+mod gateways;
 mod intake;
 mod memory;
+mod peers;
 mod publish;
 mod queries;
 mod requests;
@@ -54,7 +57,9 @@ use self::control::Periods;
 pub use self::control::ServeReport;
 pub use self::error::ServiceError;
 use self::fleet::Fleet;
+use self::gateways::{GatewayTokens, watch_gateways};
 use self::intake::declare_intake;
+use self::peers::Peers;
 use self::publish::Outlet;
 use self::sink::Sinks;
 use self::snapshot::restore_snapshot;
@@ -131,17 +136,23 @@ pub async fn serve(
         }
     };
 
-    let dashboard = http_listener.map(|listener| {
-        dashboard::Dashboard::start(
-            listener,
-            &config.http_access,
-            Arc::new(view::FleetView::new(Arc::clone(&fleet))),
-        )
-    });
+    let (dashboard, gateway_watch) = match http_listener {
+        None => (None, Vec::new()),
+        Some(listener) => {
+            let (dashboard, watch) = start_dashboard(listener, &session, &config, &fleet).await;
+            (Some(dashboard), watch)
+        }
+    };
 
     shutdown.await;
     if let Some(dashboard) = dashboard {
         dashboard.stop().await;
+    }
+    for subscriber in gateway_watch {
+        let step = "undeclaring the gateway token subscriber";
+        if let Some(Err(e)) = bounded(step, TEARDOWN_STEP, subscriber.undeclare()).await {
+            warn!(error = %e, step, "undeclaring failed");
+        }
     }
     info!("shutting down: stopping intake");
     intake.undeclare().await;
@@ -161,6 +172,32 @@ pub async fn serve(
         "armtwin stopped"
     );
     Ok(report)
+}
+
+/// Starts the dashboard on `listener`, with the subscribers of the gateways' tokens it reads
+/// (heard only for `/metrics`: a service without the dashboard holds no table of them).
+async fn start_dashboard(
+    listener: tokio::net::TcpListener,
+    session: &zenoh::Session,
+    config: &ServiceConfig,
+    fleet: &Arc<Fleet>,
+) -> (dashboard::Dashboard, Vec<zenoh::pubsub::Subscriber<()>>) {
+    let (robots, max_robots) = fleet.occupancy();
+    let tokens = Arc::new(GatewayTokens::new(robots.max(max_robots)));
+    let watch = watch_gateways(session, &config.keys, &config.shard, &tokens)
+        .await
+        .unwrap_or_else(|e| {
+            warn!(error = %e, "cannot watch the gateways' liveliness tokens");
+            Vec::new()
+        });
+    let view = view::FleetView::new(
+        Arc::clone(fleet),
+        tokens,
+        Peers::new(session.clone(), config.keys.clone()),
+        config.shard.as_str(),
+    );
+    let dashboard = dashboard::Dashboard::start(listener, &config.http_access, Arc::new(view));
+    (dashboard, watch)
 }
 
 /// Waits, bounded, for the control thread to finish the pipeline and undeclare the robots'

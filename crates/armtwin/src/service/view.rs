@@ -1,23 +1,39 @@
 //! The dashboard's read of the fleet ([`FleetSource`]): copied out under each robot's own lock
 //! in turn.
 //!
-//! Must not keep anything between reads.
+//! Must not keep anything between reads (the gateways' tokens are heard, and the other
+//! instances' robots asked, in modules of their own).
 
 use std::collections::VecDeque;
 use std::sync::Arc;
 
 use super::fleet::Fleet;
+use super::gateways::GatewayTokens;
+use super::peers::Peers;
 use crate::codec::json;
-use crate::dashboard::{FleetRow, FleetSource, RobotCounts, RobotDetail, ServiceTotals};
+use crate::dashboard::{FleetRow, FleetSource, PeerFleet, RobotCounts, RobotDetail, ServiceTotals};
 
 /// The fleet as the dashboard reads it.
 pub(super) struct FleetView {
     fleet: Arc<Fleet>,
+    gateways: Arc<GatewayTokens>,
+    peers: Peers,
+    shard: Arc<str>,
 }
 
 impl FleetView {
-    pub(super) fn new(fleet: Arc<Fleet>) -> Self {
-        Self { fleet }
+    pub(super) fn new(
+        fleet: Arc<Fleet>,
+        gateways: Arc<GatewayTokens>,
+        peers: Peers,
+        shard: &str,
+    ) -> Self {
+        Self {
+            fleet,
+            gateways,
+            peers,
+            shard: Arc::from(shard),
+        }
     }
 }
 
@@ -39,6 +55,7 @@ impl FleetSource for FleetView {
                     recent_events: VecDeque::new(),
                     ..guard.outputs().counts().clone()
                 },
+                last_sample_age_s: fleet.since_last_input(guard).as_secs_f64(),
             });
         });
         rows.sort_by(|a, b| a.id.cmp(&b.id));
@@ -72,5 +89,17 @@ impl FleetSource for FleetView {
         let guard = cell.lock();
         guard.twin()?;
         Some(guard.outputs().counts().poses)
+    }
+
+    fn gateways(&self) -> Vec<(Arc<str>, bool)> {
+        self.gateways.read(|id| self.fleet.find(id).is_some())
+    }
+
+    fn own_shard(&self) -> Arc<str> {
+        Arc::clone(&self.shard)
+    }
+
+    fn peers(&self) -> PeerFleet {
+        self.peers.read()
     }
 }

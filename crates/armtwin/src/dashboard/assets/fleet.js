@@ -46,7 +46,7 @@ function render(page) {
         const tr = document.createElement("tr");
         tr.className = "group";
         const td = cell(parent === "" ? "(top level)" : parent + "/");
-        td.colSpan = 8;
+        td.colSpan = 9;
         tr.appendChild(td);
         fragment.appendChild(tr);
       }
@@ -56,12 +56,14 @@ function render(page) {
     const alarm = row.alarm.position || row.alarm.angle;
     if (alarm) tr.className = "alarm";
     const name = document.createElement("td");
-    const link = document.createElement("a");
-    link.href = "/robot/" + row.robot.split("/").map(encodeURIComponent).join("/");
+    // Another shard's robot has its page on that instance's dashboard, not here.
+    const link = document.createElement(row.local ? "a" : "span");
+    if (row.local) link.href = "/robot/" + row.robot.split("/").map(encodeURIComponent).join("/");
     link.textContent = view.sort === "robot" ? row.robot.slice(parentOf(row.robot).length).replace(/^\//, "") : row.robot;
     link.title = row.robot;
     name.appendChild(link);
     tr.appendChild(name);
+    tr.appendChild(cell(row.shard ?? "?", row.local ? "shard" : "shard remote"));
     tr.appendChild(cell(fmt(row.position_m, 1000, 3), "num position"));
     tr.appendChild(cell(fmt(row.angle_rad, 1000, 3), "num angle"));
     tr.appendChild(cell(String(row.paired), "num paired"));
@@ -77,7 +79,8 @@ function render(page) {
   document.getElementById("service").textContent =
     `${s.robots} robots tracked · ${s.inputs} inputs · ${s.poses} poses · ${s.publish_errors} publish errors`;
   document.getElementById("summary").textContent =
-    `${page.matched} robots match · ${page.alarms} in alarm`;
+    `${page.matched} robots match · ${page.alarms} in alarm` +
+    (page.fleet_truncated ? " · some robots of other shards may be missing" : "");
   const first = page.matched === 0 ? 0 : page.offset + 1;
   const last = Math.min(page.offset + page.rows.length, page.matched);
   document.getElementById("page").textContent = `${first}–${last} of ${page.matched}`;

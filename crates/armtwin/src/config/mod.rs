@@ -23,6 +23,7 @@ use serde::Deserialize;
 use thiserror::Error;
 
 use self::file::{AlignSection, File, SelfCalibrationSection, ServiceSection};
+pub use self::robots::ConfiguredTools;
 use self::robots::{SharedSettings, load_pose_outputs, load_robots};
 pub use self::sources::{Ros2Source, SourceConfig, SourceRobot, SourceStream};
 use self::sources::{SourceContext, load_sources};
@@ -183,6 +184,8 @@ pub struct ServiceConfig {
     pub default_robot: Option<RobotSettings>,
     /// Every `[robots."<id>"]`.
     pub robots: HashMap<String, RobotSettings>,
+    /// Which robots' TCP the configuration sets; the others take their controller's.
+    pub configured_tools: ConfiguredTools,
     /// `[self_calibration]`.
     pub self_calibration: SelfCalibrationConfig,
     /// `[[sources]]`: inputs on keys of the robots' own (ROS 2 topics, JSON elsewhere).
@@ -295,6 +298,7 @@ impl ServiceConfig {
                 Some(default_robot)
             },
             robots,
+            configured_tools: ConfiguredTools::of(&file.robots),
             self_calibration,
             sources,
             ros2_pose,

@@ -45,8 +45,13 @@ def recording_with_tcp(tmp_path, rows, tcp_offset=TCP_OFFSET):
 
 
 @pytest.fixture
-def service(armtwin_bin, tmp_path):
-    proc = ArmtwinProcess(armtwin_bin, tmp_path, CONFIG, WATCHDOG_S)
+def service_config() -> str:
+    return CONFIG
+
+
+@pytest.fixture
+def service(armtwin_bin, tmp_path, service_config):
+    proc = ArmtwinProcess(armtwin_bin, tmp_path, service_config, WATCHDOG_S)
     proc.start()
     session = open_session(proc.endpoint)
     events: list[dict] = []
@@ -143,6 +148,19 @@ def test_the_controllers_tcp_serial_and_model_reach_the_twin(tmp_path, rows, ser
     ], service.events
     assert "ur5e" in model_events[0]["reason"] and "ur10e" in model_events[0]["reason"]
     assert not controller_events(service, "dashboard"), service.events
+
+
+CONFIGURED_TCP = [0.0, 0.0, 0.1, 0.0, 0.0, 0.0]
+
+
+@pytest.mark.parametrize("service_config", [CONFIG + f"tcp = {CONFIGURED_TCP}\n"])
+def test_a_configured_tcp_stays_in_use_and_the_controllers_is_told(tmp_path, rows, service, started):
+    _, gateway = started(recording_with_tcp(tmp_path, rows[:500]), ["--fast", "--dashboard-port", 0])
+    assert wait_until(lambda: controller_events(service, "tcp_offset"), TIMEOUT_S), gateway.logs()
+    assert controller_events(service, "tcp_offset")[0]["detail"]["in_use"] is False
+    answer = state(service)
+    assert answer["tool"] == CONFIGURED_TCP and answer["controller"]["tcp_offset"] == TCP_OFFSET
+    assert not [e for e in service.events if e.get("kind") == "epoch"], service.events
 
 
 def test_a_service_started_after_the_gateway_asks_it_for_the_controller(

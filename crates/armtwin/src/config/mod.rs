@@ -636,6 +636,16 @@ mod tests {
         ServiceConfig::parse(text, "test", Path::new(""), &Overrides::default())
     }
 
+    #[test]
+    fn a_robot_without_a_configured_tcp_takes_its_controllers() {
+        let tools = |text: &str| parse(text).unwrap().configured_tools;
+        let own = tools("[robots.\"a\"]\ntcp = [0, 0, 0.1, 0, 0, 0]\n[robots.\"b\"]\n");
+        assert!(own.sets("a") && !own.sets("b") && !own.sets("unknown"));
+        let default = tools("[robots.default]\ntcp = [0, 0, 0.1, 0, 0, 0]\n[robots.\"b\"]\n");
+        assert!(default.sets("b") && default.sets("unknown"));
+        assert!(!tools("").sets("anyone"));
+    }
+
     /// The error's text, which must name the file, the field and the key.
     fn refusal(text: &str) -> String {
         let error = parse(text).expect_err(text);

@@ -1,8 +1,8 @@
 //! A controller's dashboard server (TCP port 29999), read for the controller's model and serial
 //! number. The protocol, as UR documents it and `ur_rtde`'s `DashboardClient` speaks it: the
 //! server greets with one line; each command is one line, each answer one line. `get robot
-//! model` answers the family (`UR10`); `get serial number` (PolyScope 5.6 and later) the serial
-//! number, digits only; an older server answers a command it does not know with a sentence
+//! model` answers the family (`UR10`); `get serial number` (controller software 5.6 and later)
+//! the serial number, digits only; an older server answers a command it does not know with a sentence
 //! (`Could not understand: …`), which is no serial number.
 //!
 //! Owns the connection, its bounds (one overall timeout, lines of at most [`MAX_LINE_BYTES`])

@@ -60,7 +60,10 @@ fn apply(robot: &Robot, tool_configured: bool, facts: ControllerFacts, stepping:
         ..
     } = stepping;
     let id = robot.id();
-    let previous = controller.replace(facts.clone()).unwrap_or_default();
+    let previous = controller.replace(facts).unwrap_or_default();
+    let Some(facts) = controller.as_ref() else {
+        return;
+    };
     if let Some(tcp_offset) = facts.tcp_offset
         && previous.tcp_offset != facts.tcp_offset
     {
@@ -75,7 +78,7 @@ fn apply(robot: &Robot, tool_configured: bool, facts: ControllerFacts, stepping:
             )
         };
         let detail = json!({"fact": "tcp_offset", "tcp_offset": tcp_offset, "in_use": in_use});
-        sink.controller_event(id, &reason, detail);
+        sink.controller_event(id, &reason, &detail);
         if in_use
             && let Some(tool) = TcpOffset::from_ur_pose(tcp_offset)
             && let Err(error) = twin.replace_tool(tool, TOOL_SOURCE, &mut sink)
@@ -100,7 +103,7 @@ fn apply(robot: &Robot, tool_configured: bool, facts: ControllerFacts, stepping:
             "controller": model,
             "serial": facts.serial,
         });
-        sink.controller_event(id, &reason, detail);
+        sink.controller_event(id, &reason, &detail);
     }
     if let Some(error) = &facts.dashboard_error
         && previous.dashboard_error.as_ref() != Some(error)
@@ -109,6 +112,6 @@ fn apply(robot: &Robot, tool_configured: bool, facts: ControllerFacts, stepping:
             "the controller's dashboard server could not be read ({error}): its model and \
              serial number are unknown, the model is not checked"
         );
-        sink.controller_event(id, &reason, json!({"fact": "dashboard", "error": error}));
+        sink.controller_event(id, &reason, &json!({"fact": "dashboard", "error": error}));
     }
 }

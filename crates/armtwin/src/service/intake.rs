@@ -389,7 +389,7 @@ impl Router {
         match self.keys.robot_of(Stream::Controller, key) {
             Ok(id) => take_facts(&self.fleet, id, &sample.payload().to_bytes()),
             Err(error) => {
-                warn!(%key, %error, "controller facts without a robot id in their key: ignored")
+                warn!(%key, %error, "controller facts without a robot id in their key: ignored");
             }
         }
     }

@@ -210,7 +210,7 @@ impl ZenohSink<'_> {
         &mut self,
         robot: &str,
         reason: &str,
-        detail: serde_json::Value,
+        detail: &serde_json::Value,
     ) {
         let message = serde_json::json!({
             "robot": robot,

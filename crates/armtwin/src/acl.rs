@@ -359,6 +359,7 @@ impl Fleet {
             let ask = format!("{id}:ask-state");
             let hear = format!("{id}:hear-state");
             let facts = format!("{id}:controller-facts");
+            let asked = format!("{id}:asked-controller-facts");
             section.rules.extend([
                 rule(&inputs, &["ingress"], &["put"], &of(&INPUTS)),
                 rule(
@@ -375,10 +376,11 @@ impl Fleet {
                 // after it.
                 rule(
                     &facts,
-                    &["ingress", "egress"],
-                    &["declare_queryable", "reply", "query"],
+                    &["ingress"],
+                    &["declare_queryable", "reply"],
                     &of(&[Stream::Controller]),
                 ),
+                rule(&asked, &["egress"], &["query"], &of(&[Stream::Controller])),
             ]);
             section
                 .subjects
@@ -390,6 +392,7 @@ impl Fleet {
                     &ask,
                     &hear,
                     &facts,
+                    &asked,
                     "gateway-see-subscribers",
                 ],
                 &id,

@@ -19,9 +19,9 @@ import pytest
 
 from support import rtde_recording
 from support.paths import DATA_DIR, SUPPORT_DIR
-from support.process import ArmtwinProcess, free_port, run_armtwin, wait_until
-from support.rtde_processes import WATCHDOG_S, Gateway, StandIn
-from support.zenoh_clients import open_session, reply_payloads
+from support.process import free_port, run_armtwin, wait_until
+from support.rtde_processes import Gateway, StandIn, serving
+from support.zenoh_clients import reply_payloads
 
 ROBOT = "cell-1/ur10e"
 CONFIG = """\
@@ -42,19 +42,8 @@ STREAM_TIMEOUT_S = 60.0
 
 @pytest.fixture
 def service(armtwin_bin, tmp_path):
-    proc = ArmtwinProcess(armtwin_bin, tmp_path, CONFIG, WATCHDOG_S)
-    proc.start()
-    session = open_session(proc.endpoint)
-    events: list[dict] = []
-    subscriber = session.declare_subscriber(
-        "twin/events/**", lambda sample: events.append(json.loads(sample.payload.to_bytes()))
-    )
-    proc.events = events
-    proc.session = session
-    yield proc
-    subscriber.undeclare()
-    session.close()
-    proc.stop()
+    with serving(armtwin_bin, tmp_path, CONFIG) as proc:
+        yield proc
 
 
 @pytest.fixture

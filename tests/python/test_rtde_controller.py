@@ -9,15 +9,13 @@ picked free, scouting is off, every wait is bounded.
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 
 from support import rtde_recording, ur_reference
 from support.paths import DATA_DIR
 from support.process import ArmtwinProcess, free_port, wait_until
-from support.rtde_processes import WATCHDOG_S, Gateway, StandIn
+from support.rtde_processes import WATCHDOG_S, Gateway, StandIn, serving
 from support.zenoh_clients import get_json, open_session
 
 ROBOT = "cell-7/ur10e"
@@ -51,19 +49,8 @@ def service_config() -> str:
 
 @pytest.fixture
 def service(armtwin_bin, tmp_path, service_config):
-    proc = ArmtwinProcess(armtwin_bin, tmp_path, service_config, WATCHDOG_S)
-    proc.start()
-    session = open_session(proc.endpoint)
-    events: list[dict] = []
-    subscriber = session.declare_subscriber(
-        f"twin/events/{ROBOT}", lambda sample: events.append(json.loads(sample.payload.to_bytes()))
-    )
-    proc.events = events
-    proc.session = session
-    yield proc
-    subscriber.undeclare()
-    session.close()
-    proc.stop()
+    with serving(armtwin_bin, tmp_path, service_config) as proc:
+        yield proc
 
 
 @pytest.fixture
@@ -171,7 +158,9 @@ def test_a_service_started_after_the_gateway_asks_it_for_the_controller(
                          ["--fast", "--dashboard-port", 0, "--serial", SERIAL], ["-l", gateway_endpoint])
     assert wait_until(lambda: (state(service).get("controller") or {}).get("serial") == SERIAL, TIMEOUT_S,
                       interval=0.1), (state(service), gateway.logs())
-    # The stream is over: a service that starts now hears no put, only the gateway's answer.
+    # The stream is over: a service that starts now hears no put, only the gateway's answer. The
+    # first one stops first: two instances may not both claim every robot.
+    assert service.stop().code == 0, service.logs()
     workdir = tmp_path / "late"
     workdir.mkdir()
     late = ArmtwinProcess(armtwin_bin, workdir, CONFIG + f'\n[zenoh]\nconnect = ["{gateway_endpoint}"]\n',

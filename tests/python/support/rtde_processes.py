@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import contextlib
+import json
 import sys
 import time
 from pathlib import Path
 
 from support.paths import SUPPORT_DIR
-from support.process import STARTUP_TIMEOUT_S, Process, wait_until
+from support.process import STARTUP_TIMEOUT_S, ArmtwinProcess, Process, wait_until
+from support.zenoh_clients import open_session
 
 WATCHDOG_S = 300.0
 
@@ -49,3 +52,23 @@ class Gateway(Process):
     def logs(self, limit: int = 10**9) -> str:
         """The whole log by default: the tests count what it says."""
         return super().logs(limit)
+
+
+@contextlib.contextmanager
+def serving(binary: Path, workdir: Path, config_text: str):
+    """`armtwin serve` with a session on it (``.session``) and every event it publishes (``.events``)."""
+    proc = ArmtwinProcess(binary, workdir, config_text, WATCHDOG_S)
+    proc.start()
+    session = open_session(proc.endpoint)
+    events: list[dict] = []
+    subscriber = session.declare_subscriber(
+        "twin/events/**", lambda sample: events.append(json.loads(sample.payload.to_bytes()))
+    )
+    proc.events = events
+    proc.session = session
+    try:
+        yield proc
+    finally:
+        subscriber.undeclare()
+        session.close()
+        proc.stop()

@@ -13,15 +13,15 @@ import random
 import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
 from support import rtde_recording
 from support.paths import DATA_DIR, SUPPORT_DIR
-from support.process import STARTUP_TIMEOUT_S, ArmtwinProcess, Process, free_port, run_armtwin, wait_until
-from support.zenoh_clients import open_session, reply_payloads
+from support.process import free_port, run_armtwin, wait_until
+from support.rtde_processes import Gateway, StandIn, serving
+from support.zenoh_clients import reply_payloads
 
 ROBOT = "cell-1/ur10e"
 CONFIG = """\
@@ -32,7 +32,6 @@ pose_congestion = "block"
 [robots.default]
 model = "ur10e"
 """
-WATCHDOG_S = 300.0
 STREAM_TIMEOUT_S = 60.0
 
 
@@ -41,55 +40,10 @@ STREAM_TIMEOUT_S = 60.0
 # ----------------------------------------------------------------------------------------------
 
 
-class StandIn(Process):
-    """rtde_server.py in its own process; its ports once it listens."""
-
-    def __init__(self, recording: Path, *args, workdir: Path, ports: int = 1):
-        command = [sys.executable, SUPPORT_DIR / "rtde_server.py", "--recording", recording]
-        command += ["--port", "0"] * ports + list(args)
-        super().__init__(f"rtde_server-{time.monotonic_ns()}", command, workdir, watchdog_s=WATCHDOG_S)
-        self.start()
-        assert wait_until(lambda: self.listening() is not None or not self.running(), STARTUP_TIMEOUT_S), (
-            f"stand-in did not start\n{self.logs()}")
-        self.ports = self.listening()
-        assert self.ports is not None, f"stand-in did not start\n{self.logs()}"
-
-    def listening(self) -> list[int] | None:
-        """The ports of its ``listening`` line, once it printed one."""
-        for line in self.logs(limit=10**9).splitlines():
-            if line.startswith("listening"):
-                return [int(p) for p in line.split()[1:]]
-        return None
-
-
-class Gateway(Process):
-    """`armtwin gateway rtde …` connected to the service's endpoint."""
-
-    def __init__(self, binary: Path, workdir: Path, endpoint: str, *args):
-        argv = [binary, "gateway", "rtde", "-e", endpoint, *args]
-        super().__init__(f"gateway-{time.monotonic_ns()}", argv, workdir, watchdog_s=WATCHDOG_S)
-        self.start()
-
-    def logs(self, limit: int = 10**9) -> str:
-        """The whole log by default: the tests count what it says."""
-        return super().logs(limit)
-
-
 @pytest.fixture
 def service(armtwin_bin, tmp_path):
-    proc = ArmtwinProcess(armtwin_bin, tmp_path, CONFIG, WATCHDOG_S)
-    proc.start()
-    session = open_session(proc.endpoint)
-    events: list[dict] = []
-    subscriber = session.declare_subscriber(
-        "twin/events/**", lambda sample: events.append(json.loads(sample.payload.to_bytes()))
-    )
-    proc.events = events
-    proc.session = session
-    yield proc
-    subscriber.undeclare()
-    session.close()
-    proc.stop()
+    with serving(armtwin_bin, tmp_path, CONFIG) as proc:
+        yield proc
 
 
 @pytest.fixture

@@ -126,6 +126,10 @@ pub struct RtdeArgs {
     /// The controller's RTDE port.
     #[arg(long, default_value_t = armtwin::codec::rtde::DEFAULT_PORT)]
     pub port: u16,
+    /// The controller's dashboard server port, read for its model and serial number (another
+    /// one for a controller behind NAT).
+    #[arg(long, default_value_t = armtwin::gateway::dashboard::DEFAULT_PORT)]
+    pub dashboard_port: u16,
     /// Robot id to publish as (may span several key chunks, e.g. plant-a/cell-3/ur10e-07).
     #[arg(long, required_unless_present = "config", conflicts_with = "config")]
     pub robot: Option<String>,
@@ -135,8 +139,8 @@ pub struct RtdeArgs {
     /// Also write every data package to this CSV (`ur_rtde`'s form: `armtwin validate` reads it).
     #[arg(long, value_name = "FILE", conflicts_with = "config")]
     pub record: Option<PathBuf>,
-    /// A fleet file: `[[controllers]]` with `robot`, `host`, optional `port`, `frequency`,
-    /// `record`; one connection each, one Zenoh session.
+    /// A fleet file: `[[controllers]]` with `robot`, `host`, optional `port`,
+    /// `dashboard_port`, `frequency`, `record`; one connection each, one Zenoh session.
     #[arg(short = 'c', long, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// The key prefix of the service to feed: its `[service] key_prefix` (keys

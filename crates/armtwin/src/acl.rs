@@ -46,7 +46,7 @@ const ARMTWIN_DECLARES: [Stream; 15] = [
     Stream::ApplyPayload,
 ];
 /// What a gateway sends for a robot.
-const INPUTS: [Stream; 2] = [Stream::Joints, Stream::Measured];
+const INPUTS: [Stream; 3] = [Stream::Joints, Stream::Measured, Stream::Controller];
 /// The tokens a gateway holds for a robot.
 const GATEWAY_TOKENS: [Stream; 2] = [Stream::GatewayStreaming, Stream::GatewayWaiting];
 /// Queryables that only read: the ACL sees a query's key, never its parameters, so every change
@@ -247,6 +247,14 @@ impl Fleet {
                     &["put"],
                     &self.every(&INPUTS),
                 ),
+                // Each instance asks the gateways what they read of the controllers when it
+                // starts: their TCP, model and serial number.
+                rule(
+                    "armtwin-ask-controllers",
+                    &["ingress", "egress"],
+                    &["query", "reply"],
+                    &[self.keys.every_robot(Stream::Controller)],
+                ),
                 // Each instance asks the others which robots they own (`[service] robots`).
                 rule(
                     "armtwin-shard-claims",
@@ -289,6 +297,7 @@ impl Fleet {
                     "armtwin-publish",
                     "armtwin-take-inputs",
                     "armtwin-receive-inputs",
+                    "armtwin-ask-controllers",
                     "armtwin-shard-claims",
                     "armtwin-read-other-shards",
                     "armtwin-watch-gateways",
@@ -373,6 +382,8 @@ impl Fleet {
             let tokens = format!("{id}:tokens");
             let ask = format!("{id}:ask-state");
             let hear = format!("{id}:hear-state");
+            let facts = format!("{id}:controller-facts");
+            let asked = format!("{id}:asked-controller-facts");
             section.rules.extend([
                 rule(&inputs, &["ingress"], &["put"], &of(&INPUTS)),
                 rule(
@@ -385,12 +396,29 @@ impl Fleet {
                 // answer comes after every put it made, a barrier before it closes.
                 rule(&ask, &["ingress"], &["query"], &of(&[Stream::State])),
                 rule(&hear, &["egress"], &["reply"], &of(&[Stream::State])),
+                // The latest of what it read of each controller, for a service that starts
+                // after it.
+                rule(
+                    &facts,
+                    &["ingress"],
+                    &["declare_queryable", "reply"],
+                    &of(&[Stream::Controller]),
+                ),
+                rule(&asked, &["egress"], &["query"], &of(&[Stream::Controller])),
             ]);
             section
                 .subjects
                 .push(subject(&id, std::slice::from_ref(gateway)));
             section.policies.push(policy(
-                &[&inputs, &tokens, &ask, &hear, "gateway-see-subscribers"],
+                &[
+                    &inputs,
+                    &tokens,
+                    &ask,
+                    &hear,
+                    &facts,
+                    &asked,
+                    "gateway-see-subscribers",
+                ],
                 &id,
             ));
         }

@@ -52,6 +52,9 @@ pub enum Stream {
     Joints,
     /// Measured TCP poses in the robot's `base` frame (in).
     Measured,
+    /// What a gateway read of the robot's controller: its TCP, model and serial number (in;
+    /// also the gateway's queryable of the latest).
+    Controller,
     /// The robot's state (queryable).
     State,
     /// FK under the robot's model (queryable).
@@ -81,7 +84,7 @@ pub enum Stream {
 impl Stream {
     /// Every subtree, outputs first: a key expression reaching into several is named by the
     /// first it meets here, and feeding armtwin its own outputs is the worse mistake.
-    pub const ALL: [Self; 19] = [
+    pub const ALL: [Self; 20] = [
         Self::Pose,
         Self::Deviation,
         Self::Metrics,
@@ -91,6 +94,7 @@ impl Stream {
         Self::Payload,
         Self::Joints,
         Self::Measured,
+        Self::Controller,
         Self::State,
         Self::Fk,
         Self::Reset,
@@ -116,6 +120,7 @@ impl Stream {
             Self::Payload => "payload",
             Self::Joints => "joints",
             Self::Measured => "measured",
+            Self::Controller => "controller",
             Self::State => "state",
             Self::Fk => "fk",
             Self::Reset => "admin/reset",
@@ -338,6 +343,7 @@ mod tests {
                 "payload",
                 "joints",
                 "measured",
+                "controller",
                 "state",
                 "fk",
                 "admin/reset",

@@ -25,6 +25,8 @@
 //! - [`http_access`]: who may reach it: its TLS identity, tokens and their roles.
 //! - [`replay`]: `armtwin replay`, a recording published as a gateway would.
 //! - [`gateway`]: `armtwin gateway rtde`, Universal Robots controllers streamed over RTDE.
+//! - [`controller`]: what a gateway learns of a controller beyond its samples (its TCP, model
+//!   and serial number), as the message the service reads.
 //! - [`validate`]: `armtwin validate`, a recording through the pipeline offline, with its report
 //!   and plots.
 //! - [`calibrate`]: `armtwin calibrate`, a recording's kinematics identified, with its report.
@@ -41,6 +43,7 @@ pub use armtwin_core::{
 pub mod acl;
 pub mod calibrate;
 pub mod config;
+pub mod controller;
 pub mod dashboard;
 #[cfg(test)]
 mod file_sizes;

@@ -52,7 +52,13 @@ const SERVICE_LAYERS: &[(&str, &[&str])] = &[
     ),
     (
         "duties, each over the fleet",
-        &["queries", "self_calibration", "snapshot", "view"],
+        &[
+            "controller",
+            "queries",
+            "self_calibration",
+            "snapshot",
+            "view",
+        ],
     ),
     (
         "what runs the duties: Zenoh's callbacks and the control thread",

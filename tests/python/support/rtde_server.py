@@ -5,6 +5,7 @@ same interpreter would starve)::
 
     python rtde_server.py --port 0 --recording rows.csv [--rate-hz 500 | --fast]
         [--drop-after N] [--damage KIND --damage-after N] [--restart-after N]
+        [--dashboard-port 0 --model UR10 --serial 20235500001]
 
 The recording is in ``ur_rtde``'s CSV form: a header of RTDE names (vectors as ``name_0``…),
 one row per data package. The server knows exactly the recording's variables and answers
@@ -12,6 +13,12 @@ one row per data package. The server knows exactly the recording's variables and
 client of a controller streams from where the controller's clock is (the row after the last one
 sent, plus ``--skip-on-drop`` rows after a dropped link: the controller's clock ran on while the
 link was down). It prints ``listening <port> …`` on stdout once every port accepts.
+
+With ``--dashboard-port`` (one per ``--port``, 0: any free one) each controller also runs a
+dashboard server, as a controller does on port 29999: a greeting line, then one answer line per
+command line (``get robot model``, ``get serial number``, ``PolyscopeVersion``, ``quit``; anything
+else is not understood), answering ``--model`` and ``--serial``. Its ports are printed as
+``dashboard <port> …`` before the ``listening`` line.
 
 Faults, each counted per controller:
 - ``--drop-after N``: closes a streaming link after N rows (``--drop-times`` links, default 1).
@@ -50,6 +57,7 @@ TYPES = {
     "actual_current": "VECTOR6D",
     "joint_control_output": "VECTOR6D",
     "actual_TCP_pose": "VECTOR6D",
+    "tcp_offset": "VECTOR6D",
     "actual_TCP_speed": "VECTOR6D",
     "actual_TCP_force": "VECTOR6D",
     "target_TCP_pose": "VECTOR6D",
@@ -320,6 +328,58 @@ class Link:
             pass
 
 
+def dashboard_answer(command: str, args) -> str | None:
+    """The dashboard server's answer line to one command line; ``None`` closes the connection."""
+    if command == "quit":
+        return None
+    if command == "get robot model":
+        return args.model
+    if command == "get serial number":
+        return args.serial
+    if command == "PolyscopeVersion":
+        return "URSoftware {}.{}.{}.{} (Jan 01 2025)".format(*CONTROLLER_VERSION)
+    return f"Could not understand: '{command}'"
+
+
+def serve_dashboard(connection: socket.socket, args) -> None:
+    """One dashboard client: the greeting, then a line per command line, until it quits or goes."""
+    with connection:
+        try:
+            connection.sendall(b"Connected: Universal Robots Dashboard Server\n")
+            buffer = b""
+            while True:
+                chunk = connection.recv(4096)
+                if not chunk:
+                    return
+                buffer += chunk
+                while b"\n" in buffer:
+                    line, buffer = buffer.split(b"\n", 1)
+                    answer = dashboard_answer(line.decode(errors="replace").strip(), args)
+                    if answer is None:
+                        connection.sendall(b"Disconnected\n")
+                        return
+                    connection.sendall(answer.encode() + b"\n")
+        except OSError:
+            pass
+
+
+def dashboard(listener: socket.socket, args) -> None:
+    while True:
+        try:
+            connection, _ = listener.accept()
+        except OSError:
+            return
+        threading.Thread(target=serve_dashboard, args=(connection, args), daemon=True).start()
+
+
+def listen(port: int) -> socket.socket:
+    listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    listener.bind(("127.0.0.1", port))
+    listener.listen(16)
+    return listener
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--port", type=int, action="append", required=True,
@@ -337,16 +397,27 @@ def main() -> None:
     parser.add_argument("--damage-after", type=int, default=100)
     parser.add_argument("--damage-times", type=int, default=1)
     parser.add_argument("--restart-after", type=int)
+    parser.add_argument("--dashboard-port", type=int, action="append", default=[],
+                        help="a controller's dashboard server port (0: any free one), one per --port")
+    parser.add_argument("--model", default="UR10", help="the dashboard's answer to 'get robot model'")
+    parser.add_argument("--serial", default="20235500001",
+                        help="the dashboard's answer to 'get serial number'")
     args = parser.parse_args()
+    if args.dashboard_port and len(args.dashboard_port) != len(args.port):
+        raise SystemExit("give one --dashboard-port per --port")
     variables, rows = read_recording(args.recording)
     if "timestamp" not in variables:
         raise SystemExit(f"{args.recording}: no timestamp column")
+    dashboard_ports = []
+    for port in args.dashboard_port:
+        listener = listen(port)
+        dashboard_ports.append(listener.getsockname()[1])
+        threading.Thread(target=dashboard, args=(listener, args), daemon=True).start()
+    if dashboard_ports:
+        print("dashboard", *dashboard_ports, flush=True)
     ports = []
     for port in args.port:
-        listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        listener.bind(("127.0.0.1", port))
-        listener.listen(16)
+        listener = listen(port)
         ports.append(listener.getsockname()[1])
         controller = Controller(args, variables, rows)
         threading.Thread(target=controller.serve, args=(listener,), daemon=True).start()

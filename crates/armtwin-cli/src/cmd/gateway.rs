@@ -22,6 +22,7 @@ pub(super) fn rtde(args: &RtdeArgs) -> Result<()> {
                 robot: robot.clone(),
                 host: host.clone(),
                 port: args.port,
+                dashboard_port: args.dashboard_port,
                 frequency_hz: args.frequency,
                 record: args.record.clone(),
             }],

@@ -495,6 +495,10 @@ pub struct StateMessage {
     /// otherwise.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub effort: Option<Value>,
+    /// What a gateway read of the robot's controller (its TCP, model and serial number), once
+    /// one did; absent otherwise. The service fills it in: the pipeline does not know it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub controller: Option<Value>,
 }
 
 impl StateMessage {
@@ -530,6 +534,7 @@ impl StateMessage {
                 .effort
                 .as_deref()
                 .map(|summary| super::effort_summary_json(state.robot, summary)),
+            controller: None,
         }
     }
 }

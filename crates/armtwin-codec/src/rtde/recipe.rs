@@ -122,6 +122,7 @@ enum Field {
     SpeedScaling,
     Payload,
     PayloadCog,
+    TcpOffset,
 }
 
 const fn variable(name: &'static str, kind: VariableType, field: Field) -> Variable {
@@ -136,7 +137,7 @@ const fn variable(name: &'static str, kind: VariableType, field: Field) -> Varia
 /// What the gateway requests, in order, with the types UR's RTDE guide gives them. `timestamp`
 /// and `actual_q` are required; the others fill [`RtdeSample`]'s optional fields where the
 /// controller has them (older firmware lacks some, e.g. `payload_cog` before 3.3 / 5.0).
-pub const VARIABLES: [Variable; 17] = [
+pub const VARIABLES: [Variable; 18] = [
     Variable {
         required: true,
         ..variable("timestamp", VariableType::Double, Field::Timestamp)
@@ -180,6 +181,7 @@ pub const VARIABLES: [Variable; 17] = [
     variable("speed_scaling", VariableType::Double, Field::SpeedScaling),
     variable("payload", VariableType::Double, Field::Payload),
     variable("payload_cog", VariableType::Vector3D, Field::PayloadCog),
+    variable("tcp_offset", VariableType::Vector6D, Field::TcpOffset),
 ];
 
 /// The variable named `name` among [`VARIABLES`].
@@ -226,6 +228,9 @@ pub struct RtdeSample {
     pub payload_kg: Option<f64>,
     /// The payload's centre of gravity (m, tool flange frame).
     pub payload_cog_m: Option<[f64; 3]>,
+    /// The TCP the controller's `actual_TCP_pose` is of: `x, y, z` (m) and a rotation vector
+    /// (rad) in the tool flange frame, as the robot's installation or `set_tcp` sets it.
+    pub tcp_offset: Option<[f64; 6]>,
 }
 
 impl RtdeSample {
@@ -445,6 +450,7 @@ impl Recipe {
                 Field::SpeedScaling => sample.speed_scaling = Some(values.f64()),
                 Field::Payload => sample.payload_kg = Some(values.f64()),
                 Field::PayloadCog => sample.payload_cog_m = Some(values.f64s()),
+                Field::TcpOffset => sample.tcp_offset = Some(values.f64s()),
             }
         }
         Ok(sample)
@@ -488,6 +494,7 @@ pub fn encode(recipe: &Recipe, sample: &RtdeSample) -> Vec<u8> {
             Field::SpeedScaling => doubles(out, &[sample.speed_scaling.unwrap_or_default()]),
             Field::Payload => doubles(out, &[sample.payload_kg.unwrap_or_default()]),
             Field::PayloadCog => doubles(out, &sample.payload_cog_m.unwrap_or_default()),
+            Field::TcpOffset => doubles(out, &six(sample.tcp_offset)),
             Field::RobotMode => {
                 out.extend_from_slice(&sample.robot_mode.unwrap_or_default().to_be_bytes());
             }
@@ -539,6 +546,7 @@ impl Variable {
             Field::SpeedScaling => doubles(&[sample.speed_scaling.unwrap_or_default()]),
             Field::Payload => doubles(&[sample.payload_kg.unwrap_or_default()]),
             Field::PayloadCog => doubles(&sample.payload_cog_m.unwrap_or_default()),
+            Field::TcpOffset => doubles(&six(sample.tcp_offset)),
             Field::RobotMode => cell(Cell::Integer(sample.robot_mode.unwrap_or_default().into())),
             Field::SafetyMode => {
                 cell(Cell::Integer(sample.safety_mode.unwrap_or_default().into()));

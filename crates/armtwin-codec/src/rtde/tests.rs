@@ -146,11 +146,12 @@ fn a_full_controller_streams_every_variable() {
         actual_current_a: Some([0.25; 6]),
         target_current_a: Some([0.5; 6]),
         target_moment_nm: Some([1.5; 6]),
+        tcp_offset: Some([0.0, 0.0, 0.2, 0.0, 0.0, 1.5]),
         ..sample()
     };
     let payload = recipe::encode(&started.recipe, &full);
-    // 1 id byte, 10 vectors of 6 doubles, 3 doubles, a VECTOR3D, 2 INT32 and a UINT32.
-    assert_eq!(payload.len(), 1 + 10 * 48 + 3 * 8 + 24 + 3 * 4);
+    // 1 id byte, 11 vectors of 6 doubles, 3 doubles, a VECTOR3D, 2 INT32 and a UINT32.
+    assert_eq!(payload.len(), 1 + 11 * 48 + 3 * 8 + 24 + 3 * 4);
     assert_eq!(payload.len(), started.recipe.payload_bytes);
     match feed(&mut handshake, &package(b'U', &payload)) {
         Ok(Progress::Sample(got)) => assert_eq!(got, full),

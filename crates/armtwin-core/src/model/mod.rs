@@ -174,6 +174,12 @@ impl RobotModel {
         )
     }
 
+    /// The same arm, calibration and output frame with another `tool`: the TCP a controller
+    /// reports (`tcp_offset`) in place of the configured one.
+    pub fn with_tool(&self, tool: TcpOffset) -> Result<Self, ModelError> {
+        Self::new(self.arm.clone(), self.calibration.clone(), tool, self.frame)
+    }
+
     /// The nominal arm.
     #[must_use]
     pub fn arm(&self) -> &ArmDescription {

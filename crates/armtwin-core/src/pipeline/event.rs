@@ -280,6 +280,13 @@ pub enum Reason<'a> {
         /// The calibration's source name (a file, `self-calibration`).
         source: &'a str,
     },
+    /// The robot's tool was replaced.
+    ToolReplaced {
+        /// Who gave the new tool (`the controller`).
+        source: &'a str,
+        /// The new tool: `x, y, z` (m), rotation vector (rad), flange frame.
+        tool: [f64; 6],
+    },
 }
 
 /// One event for a robot's events key.
@@ -428,6 +435,11 @@ impl fmt::Display for Event<'_> {
             (Reason::ModelReplaced { source }, EventDetail::Epoch { epoch }) => write!(
                 f,
                 "model replaced by the calibration from {source}: metrics epoch {epoch} begins, \
+                 counters and statistics start afresh"
+            ),
+            (Reason::ToolReplaced { source, tool }, EventDetail::Epoch { epoch }) => write!(
+                f,
+                "tool replaced by {source}'s tcp_offset {tool:?}: metrics epoch {epoch} begins, \
                  counters and statistics start afresh"
             ),
             (Reason::Effort, detail) => self.effort_sentence(f, detail),
@@ -637,6 +649,19 @@ mod tests {
                 ),
                 "model replaced by the calibration from self-calibration: metrics epoch 2 begins, \
                  counters and statistics start afresh"
+                    .to_owned(),
+            ),
+            (
+                event(
+                    EventKind::Epoch,
+                    EventDetail::Epoch { epoch: 1 },
+                    Reason::ToolReplaced {
+                        source: "the controller",
+                        tool: [0.0, 0.0, 0.2, 0.0, 0.0, 1.5],
+                    },
+                ),
+                "tool replaced by the controller's tcp_offset [0.0, 0.0, 0.2, 0.0, 0.0, 1.5]: \
+                 metrics epoch 1 begins, counters and statistics start afresh"
                     .to_owned(),
             ),
         ];

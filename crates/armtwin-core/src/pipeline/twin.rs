@@ -24,9 +24,9 @@ use super::{
 };
 use crate::align::{self, Aligner, Bracket, Pending, UnpairedReason};
 use crate::dynamics::monitor::EffortMonitor;
-use crate::kinematics::{KinematicsError, OutputFrame, PoseReadout};
+use crate::kinematics::{KinematicsError, OutputFrame, PoseReadout, TcpOffset};
 use crate::metrics::{CumulativeStats, Deviation, WindowStats};
-use crate::model::RobotModel;
+use crate::model::{ModelError, RobotModel};
 use crate::orientation;
 use crate::sample::{JointSample, JointState};
 use crate::self_calibration::PairReservoir;
@@ -252,6 +252,40 @@ impl Twin {
         model: Arc<RobotModel>,
         sink: &mut impl Sink,
     ) -> Result<MetricsReadout, ReplaceModelError> {
+        let source = model
+            .calibration()
+            .map_or("the nominal model", |c| c.source_name.as_str())
+            .to_owned();
+        self.replace(model, Reason::ModelReplaced { source: &source }, sink)
+    }
+
+    /// Replaces its model's tool by `tool`, given by `source` (`the controller`), and starts a
+    /// new metrics epoch: deviations from two TCPs never mix. Nothing changes, and `None` comes
+    /// back, when the model already has that tool.
+    pub fn replace_tool(
+        &mut self,
+        tool: TcpOffset,
+        source: &str,
+        sink: &mut impl Sink,
+    ) -> Result<Option<MetricsReadout>, ModelError> {
+        if *self.model.tool() == tool {
+            return Ok(None);
+        }
+        let model = Arc::new(self.model.with_tool(tool)?);
+        let reason = Reason::ToolReplaced {
+            source,
+            tool: tool.to_ur_pose(),
+        };
+        // The same arm: its joint count cannot differ.
+        Ok(self.replace(model, reason, sink).ok())
+    }
+
+    fn replace(
+        &mut self,
+        model: Arc<RobotModel>,
+        reason: Reason<'_>,
+        sink: &mut impl Sink,
+    ) -> Result<MetricsReadout, ReplaceModelError> {
         let expected = self.model.joint_count();
         if model.joint_count() != expected {
             return Err(ReplaceModelError::JointCount {
@@ -266,17 +300,7 @@ impl Twin {
         self.epoch += 1;
         self.dirty = true;
         let detail = EventDetail::Epoch { epoch: self.epoch };
-        let source = self
-            .model
-            .calibration()
-            .map_or("the nominal model", |c| c.source_name.as_str());
-        let event = self.event(
-            last.stamp_s,
-            EventKind::Epoch,
-            None,
-            detail,
-            Reason::ModelReplaced { source },
-        );
+        let event = self.event(last.stamp_s, EventKind::Epoch, None, detail, reason);
         sink.event(&event);
         Ok(last)
     }

@@ -27,6 +27,7 @@ use serde::Deserialize;
 use thiserror::Error;
 
 use self::file::{AlignSection, File, SelfCalibrationSection, ServiceSection};
+pub use self::robots::ConfiguredTools;
 use self::robots::{SharedSettings, load_pose_outputs, load_robots};
 pub use self::sources::{Ros2Source, SourceConfig, SourceRobot, SourceStream};
 use self::sources::{SourceContext, load_sources};
@@ -187,6 +188,8 @@ pub struct ServiceConfig {
     pub default_robot: Option<RobotSettings>,
     /// Every `[robots."<id>"]`.
     pub robots: HashMap<String, RobotSettings>,
+    /// Which robots' TCP the configuration sets; the others take their controller's.
+    pub configured_tools: ConfiguredTools,
     /// `[self_calibration]`.
     pub self_calibration: SelfCalibrationConfig,
     /// `[[sources]]`: inputs on keys of the robots' own (ROS 2 topics, JSON elsewhere).
@@ -340,6 +343,7 @@ impl ServiceConfig {
                 Some(default_robot)
             },
             robots,
+            configured_tools: ConfiguredTools::of(&file.robots),
             self_calibration,
             sources,
             ros2_pose,
@@ -713,6 +717,16 @@ mod tests {
         // The user's own errors still name the user's line.
         let error = parse("[service]\nwindow_s = \"ten\"\n").expect_err("mistyped");
         assert!(error.to_string().contains("line 2"), "{error}");
+    }
+
+    #[test]
+    fn a_robot_without_a_configured_tcp_takes_its_controllers() {
+        let tools = |text: &str| parse(text).unwrap().configured_tools;
+        let own = tools("[robots.\"a\"]\ntcp = [0, 0, 0.1, 0, 0, 0]\n[robots.\"b\"]\n");
+        assert!(own.sets("a") && !own.sets("b") && !own.sets("unknown"));
+        let default = tools("[robots.default]\ntcp = [0, 0, 0.1, 0, 0, 0]\n[robots.\"b\"]\n");
+        assert!(default.sets("b") && default.sets("unknown"));
+        assert!(!tools("").sets("anyone"));
     }
 
     /// The error's text, which must name the file, the field and the key.

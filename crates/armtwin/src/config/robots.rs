@@ -36,6 +36,44 @@ pub(super) struct SharedSettings {
     pub(super) window_s: f64,
 }
 
+/// Which robots' TCP the configuration sets (`tcp` in their own section or in
+/// `[robots.default]`): the others take the one their controller reports, when a gateway reads
+/// it (`tcp_offset`).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ConfiguredTools {
+    /// `[robots.default]` sets `tcp`.
+    default: bool,
+    /// Robots with a section of their own whose TCP is set.
+    robots: std::collections::HashSet<String>,
+    /// Robots with a section of their own whose TCP is not.
+    unset: std::collections::HashSet<String>,
+}
+
+impl ConfiguredTools {
+    /// Reads them off the `[robots]` sections.
+    pub(super) fn of(sections: &HashMap<String, RobotSection>) -> Self {
+        let default = sections.get("default").is_some_and(|s| s.tcp.is_some());
+        let mut tools = Self {
+            default,
+            ..Self::default()
+        };
+        for (id, section) in sections.iter().filter(|(id, _)| *id != "default") {
+            if section.tcp.is_some() || default {
+                tools.robots.insert(id.clone());
+            } else {
+                tools.unset.insert(id.clone());
+            }
+        }
+        tools
+    }
+
+    /// Whether robot `id`'s TCP is configured (its own section's, else the default's).
+    #[must_use]
+    pub fn sets(&self, id: &str) -> bool {
+        self.robots.contains(id) || (self.default && !self.unset.contains(id))
+    }
+}
+
 /// `[robots.default]` (built in when absent: the `ur10e`, no tool) and every robot's own section.
 pub(super) fn load_robots(
     sections: &HashMap<String, RobotSection>,

@@ -4,10 +4,16 @@
 //! wait and connect again, with a backoff from 0.1 s doubling to 5 s. Says each state change in
 //! the log and in the robot's gateway liveliness tokens.
 //!
+//! Beside the samples, what it reads of the controller ([`ControllerFacts`]: its version, its
+//! `tcp_offset`, its model and serial number from the dashboard server, read once per
+//! connection while the samples flow) goes on the robot's controller key whenever it changes,
+//! before the sample that changed it, and a queryable there answers the latest.
+//!
 //! Owns the socket, the timeouts, the backoff and the per-robot `seq`; must not parse bytes (the
 //! codec's `rtde` module does) nor decide stamps ([`super::clock`]).
 
 use std::io::Write as _;
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use nalgebra::Vector3;
@@ -22,12 +28,15 @@ use zenoh::bytes::Encoding;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
+use zenoh::query::Queryable;
 
 use super::ControllerSettings;
 use super::clock::{OffsetChange, StampClock};
+use super::dashboard::{self, DashboardError, Identity};
 use crate::codec::rtde::handshake::{Progress, Started, TextMessage};
 use crate::codec::rtde::{FrameSplitter, Handshake, RtdeError, RtdeSample, record};
 use crate::codec::zser;
+use crate::controller::ControllerFacts;
 use crate::keys::{KeySpace, Stream};
 use crate::orientation;
 
@@ -74,6 +83,10 @@ struct Robot {
     recorder: Option<Recorder>,
     /// Samples of the current connection.
     streamed: u64,
+    /// What was read of the controller, across connections.
+    facts: ControllerFacts,
+    /// The facts last published, which the controller key's queryable answers.
+    published: Arc<Mutex<Option<ControllerFacts>>>,
 }
 
 /// `--record`: the CSV of every data package, under the first connection's recipe.
@@ -119,6 +132,18 @@ pub(super) async fn run(
             None
         }
     };
+    let published = Arc::new(Mutex::new(None));
+    let facts_key = keys.key(Stream::Controller, &settings.robot);
+    let facts_queryable = match session.declare_queryable(facts_key).await {
+        Ok(queryable) => Some(tokio::spawn(answer_facts(
+            queryable,
+            Arc::clone(&published),
+        ))),
+        Err(error) => {
+            warn!(robot = %settings.robot, %error, "cannot declare the controller facts queryable: a service that starts later learns them at the next change");
+            None
+        }
+    };
     let mut robot = Robot {
         clock: StampClock::new(1.0 / settings.frequency_hz),
         settings,
@@ -130,6 +155,8 @@ pub(super) async fn run(
         dropped_said: false,
         recorder,
         streamed: 0,
+        facts: ControllerFacts::default(),
+        published,
     };
     let mut backoff = FIRST_BACKOFF;
     loop {
@@ -160,6 +187,10 @@ pub(super) async fn run(
         backoff = (backoff * 2).min(MAX_BACKOFF);
     }
     robot.flush_recording();
+    if let Some(task) = facts_queryable {
+        // The task owns the queryable: ending it undeclares it.
+        task.abort();
+    }
     if let Some((_, token)) = robot.token.take() {
         let _ = token.undeclare().await;
     }
@@ -215,13 +246,27 @@ impl Robot {
         socket.write_all(&first).await?;
         let mut splitter = FrameSplitter::new();
         let mut buffer = vec![0_u8; 16 * 1024];
+        // Read beside the samples, never before them: a dashboard server out of reach costs
+        // the stream nothing.
+        let host = self.settings.host.clone();
+        let identity = dashboard::read_identity(&host, self.settings.dashboard_port);
+        let mut identity = std::pin::pin!(identity);
+        let mut identity_pending = true;
         loop {
             let limit = if handshake.is_streaming() {
                 SILENCE_TIMEOUT
             } else {
                 ANSWER_TIMEOUT
             };
-            let read = match timeout(limit, socket.read(&mut buffer)).await {
+            let read = tokio::select! {
+                read = timeout(limit, socket.read(&mut buffer)) => read,
+                identity = &mut identity, if identity_pending => {
+                    identity_pending = false;
+                    self.identified(identity).await;
+                    continue;
+                }
+            };
+            let read = match read {
                 Ok(read) => read?,
                 Err(_) => return Err(LinkError::Silent(limit)),
             };
@@ -257,6 +302,13 @@ impl Robot {
                 "the controller does not have these variables: streaming without them"
             );
         }
+        self.facts.version = Some([
+            controller.major,
+            controller.minor,
+            controller.bugfix,
+            controller.build,
+        ]);
+        self.publish_facts().await;
         if let Some(recorder) = &mut self.recorder
             && recorder.recipe.is_none()
         {
@@ -269,7 +321,83 @@ impl Robot {
         self.say(true).await;
     }
 
+    /// The dashboard server's answer, or why there is none: logged, and published if it changed
+    /// what is known.
+    async fn identified(&mut self, identity: Result<Identity, DashboardError>) {
+        let robot = &self.settings.robot;
+        match identity {
+            Ok(Identity { model, serial }) => {
+                info!(
+                    %robot,
+                    model = model.as_deref().unwrap_or("unknown"),
+                    serial = serial.as_deref().unwrap_or("unknown"),
+                    "dashboard server read"
+                );
+                self.facts.model = model;
+                self.facts.serial = serial;
+                self.facts.dashboard_error = None;
+            }
+            Err(error) => {
+                warn!(
+                    %robot,
+                    %error,
+                    "cannot read the controller's dashboard server: its model and serial number \
+                     stay unknown; streaming goes on"
+                );
+                self.facts.dashboard_error = Some(error.to_string());
+            }
+        }
+        self.publish_facts().await;
+    }
+
+    /// A `tcp_offset` new to the gateway: logged and published before the sample of it.
+    async fn tcp_offset(&mut self, tcp_offset: [f64; 6]) {
+        if !tcp_offset.iter().all(|v| v.is_finite()) || self.facts.tcp_offset == Some(tcp_offset) {
+            return;
+        }
+        info!(
+            robot = %self.settings.robot,
+            tcp_offset = ?tcp_offset,
+            previous = ?self.facts.tcp_offset,
+            "the controller's TCP (tcp_offset)"
+        );
+        self.facts.tcp_offset = Some(tcp_offset);
+        self.publish_facts().await;
+    }
+
+    /// Puts the facts on the robot's controller key, if they changed since last put.
+    async fn publish_facts(&mut self) {
+        let mut published = self
+            .published
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone();
+        if published.as_ref() == Some(&self.facts) {
+            return;
+        }
+        let key = self.keys.key(Stream::Controller, &self.settings.robot);
+        match self
+            .session
+            .put(key, self.facts.to_json())
+            .encoding(Encoding::APPLICATION_JSON)
+            .congestion_control(CongestionControl::Block)
+            .await
+        {
+            Ok(()) => published = Some(self.facts.clone()),
+            Err(error) => {
+                warn!(robot = %self.settings.robot, %error, "cannot publish the controller's facts");
+            }
+        }
+        *self
+            .published
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner) = published;
+    }
+
     async fn publish(&mut self, sample: &RtdeSample) -> Result<(), LinkError> {
+        if let Some(tcp_offset) = sample.tcp_offset {
+            self.tcp_offset(tcp_offset).await;
+        }
         let wall_s = SystemTime::now()
             .duration_since(UNIX_EPOCH)
             .map_or(0.0, |since| since.as_secs_f64());
@@ -341,6 +469,30 @@ impl Robot {
             && let Err(error) = recorder.file.flush()
         {
             warn!(robot = %self.settings.robot, %error, "cannot write the recording");
+        }
+    }
+}
+
+/// Answers each query on the robot's controller key with the facts last published (none before
+/// the first), until the link ends and aborts it.
+async fn answer_facts(
+    queryable: Queryable<zenoh::handlers::FifoChannelHandler<zenoh::query::Query>>,
+    published: Arc<Mutex<Option<ControllerFacts>>>,
+) {
+    while let Ok(query) = queryable.recv_async().await {
+        let facts = published
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone();
+        if let Some(facts) = facts {
+            let key = queryable.key_expr().clone();
+            if let Err(error) = query
+                .reply(key, facts.to_json())
+                .encoding(Encoding::APPLICATION_JSON)
+                .await
+            {
+                debug!(%error, "cannot answer a controller facts query");
+            }
         }
     }
 }

@@ -1,15 +1,19 @@
 //! `armtwin gateway rtde`: Universal Robots controllers streamed into the mesh over RTDE, one TCP
 //! connection per controller and one Zenoh session for all of them. Each data package becomes
 //! a joint message (`armtwin/joints/v2`) on the robot's joints key, with the controller's
-//! `actual_TCP_pose` embedded as its measured pose.
+//! `actual_TCP_pose` embedded as its measured pose; what the gateway reads of the controller
+//! beside (its `tcp_offset`, and its model and serial number from the dashboard server) goes on
+//! the robot's controller key ([`crate::controller`]) when it changes.
 //!
 //! - [`clock`]: stamps from the controller's clock, offset to wall time once per connection.
+//! - [`dashboard`]: the controller's dashboard server, read for its model and serial number.
 //! - `link`: one controller's connection, reconnection and publishing.
 //!
 //! Owns the fleet's settings (a fleet file, `gateways.toml`) and the session's lifetime; must
 //! not parse RTDE bytes (the codec's `rtde` module does).
 
 pub mod clock;
+pub mod dashboard;
 mod link;
 
 use std::collections::HashSet;
@@ -41,6 +45,9 @@ pub struct ControllerSettings {
     /// Its RTDE port.
     #[serde(default = "default_port")]
     pub port: u16,
+    /// Its dashboard server's port.
+    #[serde(default = "default_dashboard_port")]
+    pub dashboard_port: u16,
     /// The output frequency to ask for (Hz).
     #[serde(default = "default_frequency_hz", rename = "frequency")]
     pub frequency_hz: f64,
@@ -51,6 +58,10 @@ pub struct ControllerSettings {
 
 fn default_port() -> u16 {
     DEFAULT_PORT
+}
+
+fn default_dashboard_port() -> u16 {
+    dashboard::DEFAULT_PORT
 }
 
 fn default_frequency_hz() -> f64 {
@@ -228,6 +239,7 @@ mod tests {
             robot = "cell-2/ur5e"
             host = "10.0.0.6"
             port = 30005
+            dashboard_port = 29005
             frequency = 125
             record = "cell-2.csv"
         "#;
@@ -236,6 +248,8 @@ mod tests {
         assert_eq!(controllers[0].port, 30004);
         assert_eq!(controllers[0].frequency_hz, 500.0);
         assert_eq!(controllers[1].port, 30005);
+        assert_eq!(controllers[0].dashboard_port, 29999);
+        assert_eq!(controllers[1].dashboard_port, 29005);
         assert_eq!(controllers[1].record, Some(PathBuf::from("cell-2.csv")));
         let settings = GatewaySettings {
             zenoh: ZenohSection::default(),
@@ -258,6 +272,7 @@ mod tests {
             robot: robot.to_owned(),
             host: "h".to_owned(),
             port: 1,
+            dashboard_port: 2,
             frequency_hz,
             record: None,
         };

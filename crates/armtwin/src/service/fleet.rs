@@ -15,7 +15,9 @@ use zenoh::key_expr::KeyExpr;
 use super::calibration_slot::CalibrationSlot;
 use super::publish::Outlet;
 use super::sink::{RobotOutputState, Sinks, ZenohSink};
-use crate::config::ServiceConfig;
+use crate::codec::json;
+use crate::config::{ConfiguredTools, ServiceConfig};
+use crate::controller::ControllerFacts;
 use crate::model::RobotModel;
 use crate::pipeline::{PipelineConfig, Robot, RobotDirectory, Sink, Twin, Untracked};
 use crate::ros2::PublisherSeq;
@@ -58,6 +60,8 @@ use crate::ros2::PublisherSeq;
 pub(super) struct Fleet {
     /// `[service] robots`.
     shard: KeyExpr<'static>,
+    /// Which robots' TCP the configuration sets.
+    configured_tools: ConfiguredTools,
     pipeline: PipelineConfig,
     directory: RwLock<Directory>,
     /// What every robot's sink shares.
@@ -162,6 +166,8 @@ pub(super) struct CellState {
     /// By `[[sources]]` index: how a ROS source's `rmw_zenoh` sequence numbers become gateway
     /// `seq`s (a robot has one or two sources at most: a short list beats a map).
     publisher_seqs: Vec<(usize, PublisherSeq)>,
+    /// What a gateway last said of the robot's controller.
+    controller: Option<ControllerFacts>,
     /// Inputs stepped into the twin.
     inputs: u64,
     /// The robot's last input, on the fleet's clock ([`Fleet::clock_ms`]).
@@ -238,6 +244,7 @@ pub(super) struct Stepping<'a> {
     pub(super) twin: &'a mut Twin,
     pub(super) sink: ZenohSink<'a>,
     pub(super) publisher_seqs: &'a mut Vec<(usize, PublisherSeq)>,
+    pub(super) controller: &'a mut Option<ControllerFacts>,
 }
 
 impl CellState {
@@ -264,6 +271,17 @@ impl CellState {
     /// The same, to change.
     pub(super) fn outputs_mut(&mut self) -> &mut RobotOutputState {
         &mut self.outputs
+    }
+
+    /// The robot's state answer (`None` before its first input), with what a gateway last said
+    /// of its controller.
+    pub(super) fn state_message(&self) -> Option<json::StateMessage> {
+        let mut message = json::StateMessage::new(&self.twin.as_ref()?.state());
+        message.controller = self
+            .controller
+            .as_ref()
+            .and_then(|facts| serde_json::to_value(facts).ok());
+        Some(message)
     }
 
     /// The robot's self-calibration fits.
@@ -293,6 +311,7 @@ impl CellState {
             twin,
             sink,
             publisher_seqs: &mut self.publisher_seqs,
+            controller: &mut self.controller,
         }
     }
 }
@@ -313,6 +332,7 @@ impl Fleet {
     pub(super) fn new(config: &ServiceConfig, sinks: Sinks) -> Self {
         Self {
             shard: config.shard.clone(),
+            configured_tools: config.configured_tools.clone(),
             pipeline: config.pipeline,
             directory: RwLock::new(Directory {
                 robots: RobotDirectory::new(config.default_robot.clone(), config.robots.clone())
@@ -442,6 +462,11 @@ impl Fleet {
             .robots
             .settings_for(id)
             .map(|settings| Arc::clone(&settings.model))
+    }
+
+    /// Whether the configuration sets robot `id`'s TCP: if not, the twin takes its controller's.
+    pub(super) fn tool_configured(&self, id: &str) -> bool {
+        self.configured_tools.sets(id)
     }
 
     /// Admits robot `id` under the default settings (or finds it configured or tracked), or

@@ -10,6 +10,7 @@ use tracing::{debug, info, warn};
 use zenoh::sample::Sample;
 use zenoh::session::Session;
 
+use super::controller::take_facts;
 use super::error::ServiceError;
 use super::fleet::{Fleet, Lookup, RobotCell, Stepping};
 use super::queries::Queries;
@@ -92,6 +93,14 @@ pub(super) async fn declare_intake(
             .callback(move |sample| measured.measured(&sample))
             .await?,
     );
+    let controller = Arc::clone(&router);
+    subscribers.push(
+        session
+            .declare_subscriber(keys.key(Stream::Controller, shard))
+            .callback(move |sample| controller.controller(&sample))
+            .await?,
+    );
+    ask_controllers(session, keys, shard, &router);
     for (robot, settings) in &config.robots {
         // A configured robot is in the directory from the start: its sensors' samples need no
         // look-up at all.
@@ -125,6 +134,36 @@ pub(super) async fn declare_intake(
         queryables,
     })
 }
+
+/// Asks the gateways already streaming what they read of their controllers (a gateway puts
+/// its facts when they change, so one that started first would otherwise stay unheard until
+/// then); the answers are taken as the puts are, off the start's path.
+fn ask_controllers(session: &Session, keys: &KeySpace, shard: &str, router: &Arc<Router>) {
+    let session = session.clone();
+    let key = keys.key(Stream::Controller, shard);
+    let router = Arc::clone(router);
+    tokio::spawn(async move {
+        let replies = match session
+            .get(key.as_str())
+            .timeout(CONTROLLER_QUERY_TIMEOUT)
+            .await
+        {
+            Ok(replies) => replies,
+            Err(error) => {
+                warn!(%key, %error, "cannot ask the gateways for their controllers' facts");
+                return;
+            }
+        };
+        while let Ok(reply) = replies.recv_async().await {
+            if let Ok(sample) = reply.result() {
+                router.controller(sample);
+            }
+        }
+    });
+}
+
+/// How long the gateways have to answer the start's query for their controllers' facts.
+const CONTROLLER_QUERY_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(5);
 
 /// One subscriber per `[[sources]]` entry (their keys were checked when the configuration
 /// loaded: outside armtwin's own keys and twin pose outputs, disjoint from each other).
@@ -342,6 +381,17 @@ impl Router {
         let fallback_s = || transport_stamp_s(sample);
         let measured = MeasuredStream::Robot;
         self.intake(id, key, measured, decoder, &payload, fallback_s, |_, _| {});
+    }
+
+    /// A gateway's facts of a controller, on `<prefix>/controller/<robot>`.
+    fn controller(&self, sample: &Sample) {
+        let key = sample.key_expr().as_str();
+        match self.keys.robot_of(Stream::Controller, key) {
+            Ok(id) => take_facts(&self.fleet, id, &sample.payload().to_bytes()),
+            Err(error) => {
+                warn!(%key, %error, "controller facts without a robot id in their key: ignored");
+            }
+        }
     }
 
     /// A pose of one of `robot`'s sensors: the robot is the sensor's, resolved when its key was

@@ -26,12 +26,13 @@
 //!
 //! Its files depend one way (`module_graph.rs` holds the order): `error`; the leaves (`events`,
 //! `memory`, `requests`, `calibration_slot`, `shard`, `gateways`, `peers`, and `publish`, the
-//! Zenoh I/O); `sink`; `fleet`; the duties over the fleet (`queries`, `self_calibration`,
-//! `snapshot`, `view`); what runs them (`intake`, Zenoh's callbacks, and `control`, the control
-//! thread); and this file.
+//! Zenoh I/O); `sink`; `fleet`; the duties over the fleet (`controller`, `queries`,
+//! `self_calibration`, `snapshot`, `view`); what runs them (`intake`, Zenoh's callbacks, and
+//! `control`, the control thread); and this file.
 
 mod calibration_slot;
 mod control;
+mod controller;
 mod error;
 mod events;
 mod fleet;

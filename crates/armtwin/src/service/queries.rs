@@ -111,8 +111,8 @@ impl Queries {
         for (cell, key) in self.matching_robots(query, Stream::State) {
             let payload = cell
                 .lock()
-                .twin()
-                .map(|twin| json::to_json_bytes(&json::StateMessage::new(&twin.state())));
+                .state_message()
+                .map(|message| json::to_json_bytes(&message));
             if let Some(payload) = payload {
                 Self::reply(query, &key, payload);
             }

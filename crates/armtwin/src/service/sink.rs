@@ -203,6 +203,36 @@ impl ZenohSink<'_> {
         self.sinks.outlet.publish(declared, robot, stream, payload);
     }
 
+    /// Publishes an event about `robot`'s controller (`kind` `controller`: what a gateway read
+    /// of it, not a sample): always, as alarms are, kept among the recent events and logged at
+    /// warn. `t` is the arrival time: the facts carry no stamp of the controller's.
+    pub(super) fn controller_event(
+        &mut self,
+        robot: &str,
+        reason: &str,
+        detail: &serde_json::Value,
+    ) {
+        let message = serde_json::json!({
+            "robot": robot,
+            "t": SystemTime::now()
+                .duration_since(UNIX_EPOCH)
+                .map_or(0.0, |since| since.as_secs_f64()),
+            "kind": "controller",
+            "reason": reason,
+            "detail": detail,
+        });
+        let payload = json::to_json_bytes(&message);
+        if let Some(state) = self.robot.as_deref_mut() {
+            let recent = &mut state.counts.recent_events;
+            if recent.len() == RECENT_EVENTS {
+                recent.pop_front();
+            }
+            recent.push_back(Arc::from(payload.as_slice()));
+        }
+        self.put(robot, Stream::Events, payload);
+        warn!(robot, kind = "controller", reason, "event");
+    }
+
     /// Prepares `robot`'s twin pose output for ROS tools, if it has one.
     fn track_ros2_pose(&mut self, robot: &Robot) {
         let outlet = &self.sinks.outlet;

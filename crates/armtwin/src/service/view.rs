@@ -76,10 +76,10 @@ impl FleetSource for FleetView {
     fn robot(&self, id: &str) -> Option<RobotDetail> {
         let cell = self.fleet.existing_cell_of(id)?;
         let guard = cell.lock();
-        let twin = guard.twin()?;
+        let state = guard.state_message()?;
         Some(RobotDetail {
-            state: json::StateMessage::new(&twin.state()),
-            model: Arc::clone(twin.model()),
+            state,
+            model: Arc::clone(guard.twin()?.model()),
             counts: guard.outputs().counts().clone(),
         })
     }

@@ -188,6 +188,15 @@ function poseRow(rowId, label, stamped) {
   }));
 }
 
+// What the gateway read of the controller. Its texts come from the controller: shown as text only.
+function controllerText(controller) {
+  if (!controller) return "";
+  const tcp = controller.tcp_offset
+    ? ` · tcp_offset [${controller.tcp_offset.map((v) => v.toFixed(4)).join(", ")}]` : "";
+  const problem = controller.dashboard_error ? ` · dashboard server: ${controller.dashboard_error}` : "";
+  return `\ncontroller   ${controller.model ?? "model unknown"} · serial ${controller.serial ?? "unknown"}${tcp}${problem}`;
+}
+
 function update(message) {
   const state = message.state;
   if (message.frames) drawArm(message.frames);
@@ -217,7 +226,7 @@ function update(message) {
   alarm.className = active.length ? "alarm" : "";
   const tool = state.tool.map((v) => v.toFixed(4)).join(", ");
   document.getElementById("model").textContent =
-    `model        ${state.model}\ncalibration  ${state.calibration ?? "none (nominal)"}\ntool         [${tool}] (m, rotation vector rad)\nframe        ${state.frame}\njoints (rad) ${state.joints ? state.joints.q.map((q) => q.toFixed(4)).join(", ") : "–"}${jointStateText(state.joint_state)}${effortText(state.effort)}`;
+    `model        ${state.model}\ncalibration  ${state.calibration ?? "none (nominal)"}\ntool         [${tool}] (m, rotation vector rad)\nframe        ${state.frame}${controllerText(state.controller)}\njoints (rad) ${state.joints ? state.joints.q.map((q) => q.toFixed(4)).join(", ") : "–"}${jointStateText(state.joint_state)}${effortText(state.effort)}`;
   const list = document.getElementById("events");
   list.replaceChildren(...message.events.slice().reverse().map((event) => {
     const li = document.createElement("li");

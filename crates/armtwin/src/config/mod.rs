@@ -10,6 +10,7 @@
 
 mod file;
 mod http;
+mod recorder;
 mod robots;
 mod sources;
 mod zenoh_section;
@@ -23,6 +24,7 @@ use serde::Deserialize;
 use thiserror::Error;
 
 use self::file::{AlignSection, File, SelfCalibrationSection, ServiceSection};
+pub use self::recorder::RecorderConfig;
 use self::robots::{SharedSettings, load_pose_outputs, load_robots};
 pub use self::sources::{Ros2Source, SourceConfig, SourceRobot, SourceStream};
 use self::sources::{SourceContext, load_sources};
@@ -198,6 +200,8 @@ pub struct ServiceConfig {
     pub http_listen: Option<SocketAddr>,
     /// `[http]`'s TLS and tokens (none of either on the embedded default).
     pub http_access: crate::http_access::HttpAccess,
+    /// `[recorder]`: the flight recorder.
+    pub recorder: RecorderConfig,
 }
 
 impl ServiceConfig {
@@ -258,6 +262,8 @@ impl ServiceConfig {
         let (shard, snapshots) = check_deployment(&service, &robots, (source_name, base_dir))?;
         let (http_listen, http_access) =
             http::load_http(&file.http, overrides.http_listen, (source_name, base_dir))?;
+        let recorder =
+            recorder::load_recorder(&file.recorder, &file.robots, (source_name, base_dir))?;
         let sources = load_sources(
             &file.sources,
             &SourceContext {
@@ -302,6 +308,7 @@ impl ServiceConfig {
             snapshots,
             http_listen,
             http_access,
+            recorder,
         })
     }
 

@@ -13,7 +13,7 @@ mod exposition;
 mod source;
 mod tls;
 
-pub use source::{FleetRow, FleetSource, RobotCounts, RobotDetail, ServiceTotals};
+pub use source::{FleetRow, FleetSource, RecorderTotals, RobotCounts, RobotDetail, ServiceTotals};
 
 use std::collections::BTreeMap;
 use std::convert::Infallible;

@@ -24,7 +24,7 @@ use nalgebra::UnitQuaternion;
 /// Joint angles (rad) of a UR10e in a working pose.
 const Q: [f64; 6] = [-0.693, -0.833, 0.951, 1.149, 1.515, 1.739];
 const RATE_HZ: f64 = 500.0;
-/// `[recorder]`'s defaults: pre_s + post_s and the second the cut needs.
+/// `[recorder]`'s defaults: `pre_s` + `post_s` and the second the cut needs.
 const SPAN_S: f64 = 16.0;
 const ROBOT_BYTES: usize = 8 << 20;
 

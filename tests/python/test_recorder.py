@@ -23,7 +23,7 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.typesys import Stores, get_typestore
 
 from support.gateway import Gateway
-from support.process import ArmtwinProcess, free_port, wait_until
+from support.process import ArmtwinProcess, free_port, run_armtwin, wait_until
 from support.secured_fleet import open_as, send, tls_router_and_twin
 from support.twin_reference import joint_message, load_lasttest_naive
 from support.zenoh_clients import TwinClient, get_json, paired_of, wait_queryable
@@ -181,6 +181,17 @@ def test_an_alarm_leaves_one_mcap_file_with_what_was_streamed(armtwin_bin, tmp_p
     [(log_time, log, _)] = messages["/rosout"]
     assert log.level == 30 and log.name == "armtwin" and seconds(log.stamp) == t_alarm
     assert json.loads(log.msg)["kind"] == "alarm"
+
+    # `armtwin validate` reads the file as a bag of the robot: every joint sample paired with its
+    # measured pose again, the same deviations as the file's (the twin's own, streamed live).
+    out = tmp_path / "report"
+    res = run_armtwin("validate", path, "--out", out)
+    assert res.returncode == 0, res.stderr
+    cumulative = json.loads((out / "report.json").read_text())["cumulative"]
+    live = [m.position_m for _, m, _ in messages["/twin/deviation"]]
+    assert cumulative["n"] == len(window), cumulative["n"]
+    assert abs(cumulative["position"]["max"] - max(live)) <= 1e-12, (cumulative["position"], max(live))
+    assert abs(cumulative["position"]["mae"] - sum(live) / len(live)) <= 1e-12
 
 
 def metric(port: int, name: str) -> float | None:

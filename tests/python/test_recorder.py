@@ -24,7 +24,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from support.gateway import Gateway
 from support.process import ArmtwinProcess, free_port, run_armtwin, wait_until
-from support.secured_fleet import open_as, send, tls_router_and_twin
+from support.secured_fleet import secured_fleet, send
 from support.twin_reference import joint_message, load_lasttest_naive
 from support.zenoh_clients import TwinClient, get_json, paired_of, wait_queryable
 
@@ -242,39 +242,28 @@ def test_a_recorder_that_cannot_write_counts_it_and_loses_no_twin_sample(armtwin
 
 
 def test_an_operator_records_behind_the_secured_router_and_a_dashboard_may_not(tmp_path, certs, armtwin_bin):
-    router, twin = tls_router_and_twin(tmp_path, certs, armtwin_bin)
-    sessions = []
-    try:
-        router.start()
-        twin.start()
-        gateway_session = open_as(router, certs, "g1")
-        dashboard = open_as(router, certs, "dashboard")
-        operator = open_as(router, certs, "operator")
-        sessions += [gateway_session, dashboard, operator]
+    with secured_fleet(tmp_path, certs, armtwin_bin, ["g1", "dashboard", "operator"]) as (router, sessions):
+        dashboard, operator = sessions["dashboard"], sessions["operator"]
         assert wait_queryable(operator, "twin/admin/record/**"), router.logs()
-        send(Gateway(gateway_session, "r1"), router, count=50)
+        send(Gateway(sessions["g1"], "r1"), router, count=50)
         assert wait_until(lambda: paired_of(dashboard, "r1") == 50, 15)
         events = []
         dashboard.declare_subscriber("twin/events/r1", lambda s: events.append(json.loads(s.payload.to_bytes())))
 
         refused = list(dashboard.get("twin/admin/record/r1?post_s=0", timeout=5.0))
         assert refused == [], "the router drops a dashboard's record query"
-        [reply] = list(operator.get("twin/admin/record/r1?pre_s=1&post_s=0", timeout=5.0))
+        [reply] = list(operator.get("twin/admin/record/r1?pre_s=1;post_s=0", timeout=5.0))
         assert reply.ok is not None, reply.err.payload.to_string()
         answer = json.loads(reply.ok.payload.to_bytes())
-        assert answer["trigger"] == "operator" and abs(answer["until_s"] - answer["from_s"] - 1.0) < 1e-6, answer
+        assert answer["trigger"] == "operator", answer
+        assert abs(answer["until_s"] - answer["from_s"] - 1.0) < 1e-6, answer
         assert wait_until(lambda: any(e["kind"] == "recorded" for e in events), 20), events
         [recorded] = [e for e in events if e["kind"] == "recorded"]
         assert recorded["detail"]["path"] == answer["path"], (recorded, answer)
         files = list((tmp_path / "twin" / "recordings").rglob("*-operator.mcap"))
         assert [str(f) for f in files] == [answer["path"]], files
-        channels, messages, metadata = read_mcap(files[0])
+        _, messages, metadata = read_mcap(files[0])
         assert metadata["armtwin"]["trigger"] == "operator"
         assert 1 <= len(messages["/joint_states"]) <= 50
         time.sleep(0.5)
         assert len([e for e in events if e["kind"] == "recorded"]) == 1, "the dashboard's query recorded nothing"
-    finally:
-        for session in sessions:
-            session.close()
-        twin.stop()
-        router.stop()

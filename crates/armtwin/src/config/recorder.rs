@@ -86,17 +86,23 @@ impl RecorderConfig {
 
 impl Default for RecorderConfig {
     fn default() -> Self {
-        let section = RecorderSection::default();
+        Self::of(&RecorderSection::default(), HashMap::new(), Path::new(""))
+    }
+}
+
+impl RecorderConfig {
+    /// `section` as it reads, with the robots' `record` and `dir` taken from `base_dir`.
+    fn of(section: &RecorderSection, robots: HashMap<String, bool>, base_dir: &Path) -> Self {
         Self {
             enabled: section.enabled,
-            robots: HashMap::new(),
+            robots,
             pre_s: section.pre_s,
             post_s: section.post_s,
             gap_s: section.gap_s,
             robot_bytes: section.robot_bytes,
             fleet_bytes: section.fleet_bytes,
             store: StoreSettings {
-                dir: section.dir,
+                dir: base_dir.join(&section.dir),
                 max_files: section.max_files,
                 max_bytes: section.max_bytes,
             },
@@ -136,21 +142,9 @@ pub(super) fn load_recorder(
             "0 would remove every file it writes".to_owned(),
         ));
     }
-    Ok(RecorderConfig {
-        enabled: section.enabled,
-        robots: robots
-            .iter()
-            .filter_map(|(id, robot)| Some((id.clone(), robot.record?)))
-            .collect(),
-        pre_s: section.pre_s,
-        post_s: section.post_s,
-        gap_s: section.gap_s,
-        robot_bytes: section.robot_bytes,
-        fleet_bytes: section.fleet_bytes,
-        store: StoreSettings {
-            dir: base_dir.join(&section.dir),
-            max_files: section.max_files,
-            max_bytes: section.max_bytes,
-        },
-    })
+    let records = robots
+        .iter()
+        .filter_map(|(id, robot)| Some((id.clone(), robot.record?)))
+        .collect();
+    Ok(RecorderConfig::of(section, records, base_dir))
 }

@@ -765,7 +765,8 @@ pub fn encode_pose_stamped(stamp_s: f64, frame_id: &str, pose: &PoseReadout) -> 
 /// stamp of whole microseconds read from a ROS header goes out as it came, and the message
 /// always reads back as `stamp_s` to the last bit. With none, the nearest count.
 #[allow(clippy::float_cmp, reason = "reading back exactly is the point")]
-fn split_stamp(stamp_s: f64) -> (i32, u32) {
+#[must_use]
+pub fn split_stamp(stamp_s: f64) -> (i32, u32) {
     let floor = stamp_s.floor();
     if !floor.is_finite() {
         return (0, 0);

@@ -28,7 +28,7 @@ use crate::keys::{self, KeySpace, Stream};
 
 /// Outputs, tokens and queryables armtwin declares per robot: every stream but the inputs and
 /// the gateways' own tokens.
-const ARMTWIN_DECLARES: [Stream; 15] = [
+const ARMTWIN_DECLARES: [Stream; 16] = [
     Stream::Pose,
     Stream::Deviation,
     Stream::Metrics,
@@ -44,6 +44,7 @@ const ARMTWIN_DECLARES: [Stream; 15] = [
     Stream::Reset,
     Stream::ApplyCalibration,
     Stream::ApplyPayload,
+    Stream::Record,
 ];
 /// What a gateway sends for a robot.
 const INPUTS: [Stream; 3] = [Stream::Joints, Stream::Measured, Stream::Controller];
@@ -53,10 +54,11 @@ const GATEWAY_TOKENS: [Stream; 2] = [Stream::GatewayStreaming, Stream::GatewayWa
 /// lives under `<prefix>/admin/`, which these leave out.
 const READS: [Stream; 4] = [Stream::State, Stream::Fk, Stream::Ik, Stream::Calibrate];
 /// Queryables that change a twin.
-const CHANGES: [Stream; 3] = [
+const CHANGES: [Stream; 4] = [
     Stream::Reset,
     Stream::ApplyCalibration,
     Stream::ApplyPayload,
+    Stream::Record,
 ];
 
 /// The fleet description's TOML (config/fleet.toml is a commented one).

@@ -71,6 +71,9 @@ pub enum Stream {
     ApplyCalibration,
     /// Applies or discards the robot's identified payload (queryable, a change: under `admin/`).
     ApplyPayload,
+    /// Writes the robot's recent streams to a file (queryable, under `admin/`: it writes to the
+    /// service's disk).
+    Record,
     /// Present while armtwin tracks the robot (liveliness token).
     Alive,
     /// Present while a gateway (`armtwin gateway rtde`) streams the robot from its controller
@@ -84,7 +87,7 @@ pub enum Stream {
 impl Stream {
     /// Every subtree, outputs first: a key expression reaching into several is named by the
     /// first it meets here, and feeding armtwin its own outputs is the worse mistake.
-    pub const ALL: [Self; 20] = [
+    pub const ALL: [Self; 21] = [
         Self::Pose,
         Self::Deviation,
         Self::Metrics,
@@ -102,6 +105,7 @@ impl Stream {
         Self::Calibrate,
         Self::ApplyCalibration,
         Self::ApplyPayload,
+        Self::Record,
         Self::Alive,
         Self::GatewayStreaming,
         Self::GatewayWaiting,
@@ -128,6 +132,7 @@ impl Stream {
             Self::Calibrate => "calibrate",
             Self::ApplyCalibration => "admin/calibrate",
             Self::ApplyPayload => "admin/payload",
+            Self::Record => "admin/record",
             Self::Alive => "alive",
             Self::GatewayStreaming => "gateway/streaming",
             Self::GatewayWaiting => "gateway/waiting",
@@ -351,6 +356,7 @@ mod tests {
                 "calibrate",
                 "admin/calibrate",
                 "admin/payload",
+                "admin/record",
                 "alive",
                 "gateway/streaming",
                 "gateway/waiting"

@@ -23,6 +23,7 @@
 //! - [`snapshot`]: the service's snapshot file, each twin's cumulative state across restarts.
 //! - [`dashboard`]: the service's HTTP side: fleet and robot pages, live streams, `/metrics`.
 //! - [`http_access`]: who may reach it: its TLS identity, tokens and their roles.
+//! - [`recorder`]: the flight recorder: each robot's recent streams, incidents as MCAP files.
 //! - [`replay`]: `armtwin replay`, a recording published as a gateway would.
 //! - [`gateway`]: `armtwin gateway rtde`, Universal Robots controllers streamed over RTDE.
 //! - [`controller`]: what a gateway learns of a controller beyond its samples (its TCP, model
@@ -55,6 +56,7 @@ pub mod keys;
 pub mod mesh;
 #[cfg(test)]
 mod module_graph;
+pub mod recorder;
 pub mod replay;
 pub mod ros2;
 pub mod rosbag;

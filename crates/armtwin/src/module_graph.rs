@@ -25,6 +25,10 @@ const FORBIDDEN: &[(&str, &str)] = &[
     ("codec", "mesh"),
     ("codec", "config"),
     ("codec", "dashboard"),
+    // The flight recorder's rings and files know no network and no service.
+    ("recorder", "service"),
+    ("recorder", "mesh"),
+    ("recorder", "dashboard"),
 ];
 
 /// The files of `service/`, lowest layer first: a file imports only from the layers below its
@@ -41,6 +45,7 @@ const SERVICE_LAYERS: &[(&str, &[&str])] = &[
             "memory",
             "peers",
             "publish",
+            "recording",
             "requests",
             "shard",
         ],

@@ -9,6 +9,7 @@ use super::{Event, MetricsReadout, Robot};
 use crate::dynamics::monitor::EffortReadout;
 use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
+use crate::sample::JointSample;
 
 /// Where the pipeline's results go. Every result names its robot by [`Robot`] (or, for events,
 /// [`Event::index`]), whose [`RobotIndex`](super::RobotIndex) lets a sink keep per-robot state
@@ -40,6 +41,12 @@ pub trait Sink {
         frame: OutputFrame,
         pose: &PoseReadout,
     );
+
+    /// A valid joint sample as it came in, with its twin pose (right after [`Sink::pose`]): for
+    /// a sink that keeps the inputs themselves (the service's flight recorder).
+    fn joints(&mut self, robot: &Robot, stamp_s: f64, sample: &JointSample, twin: &PoseReadout) {
+        let _ = (robot, stamp_s, sample, twin);
+    }
 
     /// A robot is tracked from now on (declare its outputs, its liveliness token).
     fn tracking(&mut self, robot: &Robot) {

@@ -447,6 +447,7 @@ impl Twin {
         let seq = self.next_pose_seq;
         self.next_pose_seq += 1;
         sink.pose(&self.robot, stamp_s, seq, self.model.frame(), &pose);
+        sink.joints(&self.robot, stamp_s, sample, &pose);
         self.aligner.push_joints(stamp_s, &sample.q_rad);
         self.last_joint_s = Some(stamp_s);
         self.last_joints.clear();

@@ -37,6 +37,8 @@ pub(super) struct File {
     pub(super) sources: Vec<SourceSection>,
     #[serde(default)]
     pub(super) http: HttpSection,
+    #[serde(default)]
+    pub(super) recorder: super::recorder::RecorderSection,
 }
 
 /// `[http]`: the dashboard and `/metrics` (off unless `listen` is set), its TLS and tokens.
@@ -227,6 +229,8 @@ pub(super) struct RobotSection {
     #[serde(default)]
     pub(super) sensors: Vec<SensorSection>,
     pub(super) ros2_pose: Option<Ros2PoseSection>,
+    /// The flight recorder's ring for this robot (`[recorder] enabled` when unset).
+    pub(super) record: Option<bool>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -14,6 +14,7 @@ mod documented_keys;
 mod file;
 mod http;
 mod layers;
+mod recorder;
 mod robots;
 mod sources;
 mod zenoh_section;
@@ -28,6 +29,7 @@ use thiserror::Error;
 
 use self::file::{AlignSection, File, SelfCalibrationSection, ServiceSection};
 pub use self::robots::ConfiguredTools;
+pub use self::recorder::RecorderConfig;
 use self::robots::{SharedSettings, load_pose_outputs, load_robots};
 pub use self::sources::{Ros2Source, SourceConfig, SourceRobot, SourceStream};
 use self::sources::{SourceContext, load_sources};
@@ -205,6 +207,8 @@ pub struct ServiceConfig {
     pub http_listen: Option<SocketAddr>,
     /// `[http]`'s TLS and tokens (none of either on the embedded default).
     pub http_access: crate::http_access::HttpAccess,
+    /// `[recorder]`: the flight recorder.
+    pub recorder: RecorderConfig,
 }
 
 /// The text of the configuration at `path` (the embedded default when `None`), its name for
@@ -306,6 +310,8 @@ impl ServiceConfig {
         let (shard, snapshots) = check_deployment(&service, &robots, (source_name, base_dir))?;
         let (http_listen, http_access) =
             http::load_http(&file.http, overrides.http_listen, (source_name, base_dir))?;
+        let recorder =
+            recorder::load_recorder(&file.recorder, &file.robots, (source_name, base_dir))?;
         let sources = load_sources(
             &file.sources,
             &SourceContext {
@@ -351,6 +357,7 @@ impl ServiceConfig {
             snapshots,
             http_listen,
             http_access,
+            recorder,
         })
     }
 

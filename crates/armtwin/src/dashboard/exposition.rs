@@ -410,12 +410,35 @@ fn register_totals(registry: &mut Registry, totals: &ServiceTotals) {
             "Snapshot writes that failed (tried again next period)",
             totals.snapshot_failures,
         ),
+        (
+            "recorder_files",
+            "Incident files the flight recorder wrote",
+            totals.recorder.files,
+        ),
+        (
+            "recorder_written_bytes",
+            "Bytes of the incident files written",
+            totals.recorder.bytes,
+        ),
+        (
+            "recorder_failures",
+            "Incident files not written (a full disk, a full queue)",
+            totals.recorder.failures,
+        ),
     ];
     for (name, help, value) in counters {
         let counter: Counter<u64, AtomicU64> = Counter::default();
         counter.inc_by(value);
         registry.register(name, help, counter);
     }
+    let ring: Gauge<f64, AtomicU64> = Gauge::default();
+    ring.set(totals.recorder.ring_bytes as f64);
+    registry.register_with_unit(
+        "recorder_ring",
+        "Memory every robot's recent streams hold in the flight recorder",
+        Unit::Bytes,
+        ring,
+    );
     let tracked: Gauge<f64, AtomicU64> = Gauge::default();
     tracked.set(totals.robots as f64);
     registry.register("robots_tracked", "Robots the twin tracks", tracked);

@@ -15,7 +15,8 @@ mod source;
 mod tls;
 
 pub use source::{
-    FleetRow, FleetSource, PeerFleet, PeerRow, RobotCounts, RobotDetail, ServiceTotals,
+    FleetRow, FleetSource, PeerFleet, PeerRow, RecorderTotals, RobotCounts, RobotDetail,
+    ServiceTotals,
 };
 
 use std::collections::BTreeMap;

@@ -107,6 +107,21 @@ pub struct ServiceTotals {
     pub snapshot_age_s: Option<f64>,
     /// Snapshot writes that failed (a full or read-only disk); each is tried again next period.
     pub snapshot_failures: u64,
+    /// The flight recorder's files and memory.
+    pub recorder: RecorderTotals,
+}
+
+/// The flight recorder's totals.
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+pub struct RecorderTotals {
+    /// Incident files written.
+    pub files: u64,
+    /// Their bytes.
+    pub bytes: u64,
+    /// Incident files that could not be written (a full disk), or were dropped for a full queue.
+    pub failures: u64,
+    /// Bytes every robot's recent streams hold.
+    pub ring_bytes: u64,
 }
 
 /// One robot as its page reads it.

@@ -44,9 +44,16 @@ pub struct ServeReport {
 /// for a metrics message's encoding and sending.
 fn publish_due_metrics(fleet: &Fleet) {
     let outlet = fleet.outlet();
+    let now = Instant::now();
     fleet.for_each_cell(|cell| {
         let (readout, publisher) = {
             let mut state = cell.lock();
+            // A robot that stopped streaming within an incident's `post_s` leaves its file.
+            let stalled = (state.outputs_mut().recording_mut())
+                .and_then(|recording| recording.cut_stalled(cell.robot().id(), now));
+            if let Some(incident) = stalled {
+                fleet.recorder().send(incident);
+            }
             let Some(readout) = state.twin_mut().and_then(Twin::take_due_metrics) else {
                 return;
             };
@@ -103,6 +110,11 @@ impl Declarations {
         let finished = fleet
             .twin_and_sink(state)
             .map(|(twin, mut sink)| twin.finish(&mut sink));
+        // An incident still in its `post_s` is written with what it has.
+        let incident = state.outputs_mut().recording_mut().and_then(|r| r.cut(id));
+        if let Some(incident) = incident {
+            fleet.recorder().send(incident);
+        }
         let (publishers, token) = state.outputs_mut().take_declared();
         if let Some(publishers) = publishers {
             self.publishers.push((Arc::clone(id), publishers));

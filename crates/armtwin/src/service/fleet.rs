@@ -14,6 +14,7 @@ use zenoh::key_expr::KeyExpr;
 
 use super::calibration_slot::CalibrationSlot;
 use super::publish::Outlet;
+use super::recording::Recorder;
 use super::sink::{RobotOutputState, Sinks, ZenohSink};
 use crate::codec::json;
 use crate::config::{ConfiguredTools, ServiceConfig};
@@ -357,6 +358,11 @@ impl Fleet {
     /// The outlet every robot's outputs go out through.
     pub(super) fn outlet(&self) -> &Outlet {
         self.sinks.outlet()
+    }
+
+    /// The flight recorder every robot's sink feeds.
+    pub(super) fn recorder(&self) -> &Recorder {
+        self.sinks.recorder()
     }
 
     /// `state`'s twin, if it has one, with a sink of its outputs: for a call into the twin off
@@ -761,7 +767,12 @@ mod tests {
         let outlet = Outlet::new(session, &config);
         Arc::new(Fleet::new(
             &config,
-            Sinks::new(outlet, requests, config.event_budget),
+            Sinks::new(
+                outlet,
+                requests,
+                config.event_budget,
+                super::super::recording::Recorder::new(config.recorder.clone(), None),
+            ),
         ))
     }
 

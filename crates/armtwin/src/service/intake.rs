@@ -61,6 +61,7 @@ fn service_totals(fleet: &Arc<Fleet>) -> impl Fn() -> serde_json::Value + Send +
             "robots_refused": fleet.robots_refused(),
             "robots_retired": fleet.robots_retired(),
             "snapshot_failures": fleet.snapshot_failures(),
+            "recorder": fleet.recorder().totals(),
         })
     }
 }

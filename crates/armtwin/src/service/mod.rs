@@ -25,10 +25,10 @@
 //! disconnected after Zenoh's `wait_before_close`. Every output carries its encoding.
 //!
 //! Its files depend one way (`module_graph.rs` holds the order): `error`; the leaves (`events`,
-//! `memory`, `requests`, `calibration_slot`, `shard`, `gateways`, `peers`, and `publish`, the
-//! Zenoh I/O); `sink`; `fleet`; the duties over the fleet (`controller`, `queries`,
-//! `self_calibration`, `snapshot`, `view`); what runs them (`intake`, Zenoh's callbacks, and
-//! `control`, the control thread); and this file.
+//! `memory`, `recording`, `requests`, `calibration_slot`, `shard`, `gateways`, `peers`, and
+//! `publish`, the Zenoh I/O); `sink`; `fleet`; the duties over the fleet (`controller`,
+//! `queries`, `self_calibration`, `snapshot`, `view`); what runs them (`intake`, Zenoh's
+//! callbacks, and `control`, the control thread); and this file.
 
 mod calibration_slot;
 mod control;
@@ -42,6 +42,7 @@ mod memory;
 mod peers;
 mod publish;
 mod queries;
+mod recording;
 mod requests;
 mod self_calibration;
 mod shard;
@@ -100,7 +101,8 @@ pub async fn serve(
     );
     let (requests, received) = requests::queue();
     let outlet = Outlet::new(session.clone(), &config);
-    let sinks = Sinks::new(outlet, requests.clone(), config.event_budget);
+    let recorder = recording::start(&config.recorder, session.clone(), keys.clone());
+    let sinks = Sinks::new(outlet, requests.clone(), config.event_budget, recorder);
     let fleet = Arc::new(Fleet::new(&config, sinks));
     let snapshots = config.snapshots.as_ref().map(|settings| {
         (
@@ -160,6 +162,15 @@ pub async fn serve(
     // Samples that arrive after this are ignored: the control thread finishes the pipeline.
     requests.stop();
     let report = finish(control).await;
+    // The incidents the finished twins left are written, and their events sent, before the
+    // session closes.
+    let recording_fleet = Arc::clone(&fleet);
+    bounded(
+        "writing the last incident files",
+        TEARDOWN_STEP * 4,
+        tokio::task::spawn_blocking(move || recording_fleet.recorder().finish()),
+    )
+    .await;
     // Closed even when the control thread failed: the session's links go down either way.
     if let Some(Err(e)) = bounded("closing the session", TEARDOWN_STEP, session.close()).await {
         warn!(error = %e, "closing the session failed");

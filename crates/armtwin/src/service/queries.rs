@@ -1,5 +1,5 @@
 //! The queryables: `state`, `fk`, `ik` and `calibrate` (reads), `admin/reset`,
-//! `admin/calibrate` and `admin/payload` (changes, on keys of their own so that an access control list can keep them
+//! `admin/calibrate`, `admin/payload` and `admin/record` (changes, on keys of their own so that an access control list can keep them
 //! from those who only watch), each answered from the robots it names, one cell at a time,
 //! replying once that cell's lock is released.
 //!
@@ -38,7 +38,7 @@ impl Queries {
     }
 
     /// The handlers, by the stream their queryable is declared on.
-    pub(super) const HANDLERS: [(Stream, QueryHandler); 7] = [
+    pub(super) const HANDLERS: [(Stream, QueryHandler); 8] = [
         (Stream::State, Self::state),
         (Stream::Fk, Self::fk),
         (Stream::Reset, Self::reset),
@@ -46,6 +46,7 @@ impl Queries {
         (Stream::Calibrate, Self::calibrate),
         (Stream::ApplyCalibration, Self::apply_calibration),
         (Stream::ApplyPayload, Self::apply_payload),
+        (Stream::Record, Self::record),
     ];
 
     /// Answers `query` with `handler`, unless the service stopped.
@@ -153,6 +154,90 @@ impl Queries {
         for (key, payload) in replies {
             Self::reply(query, &key, payload);
         }
+    }
+
+    /// `<prefix>/admin/record/<robot>[?pre_s=…;post_s=…]` (or `&`): the robot's recent streams, from
+    /// `pre_s` before its newest sample to `post_s` after (each at most, and by default, the
+    /// `[recorder]`'s), as an incident file; the reply names the file, the `recorded` event
+    /// follows once it is written.
+    fn record(&self, query: &Query) {
+        let usage = "ask one robot: <prefix>/admin/record/<robot id>[?pre_s=<s>&post_s=<s>]";
+        let Ok(robot) = self
+            .keys
+            .robot_of(Stream::Record, query.key_expr().as_str())
+        else {
+            Self::reply_err(query, usage);
+            return;
+        };
+        let config = self.fleet.recorder().config();
+        // Zenoh separates parameters with `;`; a URL's `&` is taken too.
+        let parameters = query.parameters().as_str().to_owned();
+        let given = |name: &str| {
+            parameters
+                .split([';', '&'])
+                .find_map(|pair| pair.split_once('=').filter(|(key, _)| *key == name))
+                .map(|(_, value)| value)
+        };
+        let parameter = |name: &str, most: f64| match given(name) {
+            None => Ok(most),
+            Some(text) => match text.parse::<f64>() {
+                Ok(value) if value.is_finite() && value >= 0.0 => Ok(value.min(most)),
+                _ => Err(format!("{name}={text} is not a duration ≥ 0 in seconds")),
+            },
+        };
+        let span = match (
+            parameter("pre_s", config.pre_s),
+            parameter("post_s", config.post_s),
+        ) {
+            (Ok(pre_s), Ok(post_s)) => (pre_s, post_s),
+            (Err(e), _) | (_, Err(e)) => {
+                Self::reply_err(query, &e);
+                return;
+            }
+        };
+        let Some(cell) = self.fleet.existing_cell_of(robot) else {
+            Self::reply_err(query, &format!("robot '{robot}' is not tracked"));
+            return;
+        };
+        let requested = cell
+            .lock()
+            .outputs_mut()
+            .recording_mut()
+            .map(|recording| recording.request(robot, span));
+        let requested = match requested {
+            None => {
+                Self::reply_err(
+                    query,
+                    &format!("robot '{robot}' does not record ([recorder])"),
+                );
+                return;
+            }
+            Some(None) => {
+                Self::reply_err(
+                    query,
+                    &format!("robot '{robot}' has sent no joint sample yet"),
+                );
+                return;
+            }
+            Some(Some(requested)) => requested,
+        };
+        info!(
+            robot,
+            pre_s = span.0,
+            post_s = span.1,
+            "recording asked for"
+        );
+        let body = serde_json::json!({
+            "robot": robot,
+            "trigger": "operator",
+            "from_s": requested.from_s,
+            "until_s": requested.until_s,
+            "path": config.store.dir.join(&requested.path),
+        });
+        let Ok(key) = KeyExpr::try_from(self.keys.key(Stream::Record, robot)) else {
+            return;
+        };
+        Self::reply(query, &key, body.to_string().into_bytes());
     }
 
     /// The robot a per-robot query (`<prefix>/<stream>/<robot id>`) asks about, its current

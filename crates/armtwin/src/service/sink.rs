@@ -14,6 +14,7 @@ use zenoh::pubsub::Publisher;
 
 use super::events::EventBucket;
 use super::publish::{Outlet, RobotPublishers};
+use super::recording::{Recorder, RobotRecording};
 use super::requests::Requests;
 use crate::codec::{PoseFields, cdr, json, zser};
 use crate::config::{EventBudget, OutputEncoding};
@@ -24,6 +25,7 @@ use crate::kinematics::{OutputFrame, PoseReadout};
 use crate::metrics::Deviation;
 use crate::pipeline::{Event, EventDetail, EventKind, MetricsReadout, Robot, Sink};
 use crate::ros2;
+use crate::sample::JointSample;
 
 /// Events kept per robot for the dashboard's robot page.
 const RECENT_EVENTS: usize = 10;
@@ -42,25 +44,32 @@ const ROUTE_CACHE_POSES: u32 = 64;
 const ROUTE_CACHE_WINDOW_S: f64 = 10.0;
 
 /// What every robot's sink shares, and where sinks are made: the outlet results go out
-/// through, the control thread's requests, and the event budget (with the one bucket of the
-/// robots that may not be tracked).
+/// through, the control thread's requests, the event budget (with the one bucket of the
+/// robots that may not be tracked) and the flight recorder.
 pub(super) struct Sinks {
     outlet: Outlet,
     requests: Requests,
     event_budget: EventBudget,
+    recorder: Recorder,
     /// Shared by the robots that may not be tracked, so a flood of made-up ids cannot grow the
     /// buckets. A leaf lock: held for a bucket's arithmetic only, never across a `put`.
     untracked_bucket: Mutex<EventBucket>,
 }
 
 impl Sinks {
-    /// Sinks that publish through `outlet`, ask the control thread through `requests` and keep
-    /// each robot's events within `event_budget`.
-    pub(super) fn new(outlet: Outlet, requests: Requests, event_budget: EventBudget) -> Self {
+    /// Sinks that publish through `outlet`, ask the control thread through `requests`, keep
+    /// each robot's events within `event_budget` and its recent streams in `recorder`.
+    pub(super) fn new(
+        outlet: Outlet,
+        requests: Requests,
+        event_budget: EventBudget,
+        recorder: Recorder,
+    ) -> Self {
         Self {
             outlet,
             requests,
             event_budget,
+            recorder,
             untracked_bucket: Mutex::new(EventBucket::full(event_budget, Instant::now())),
         }
     }
@@ -68,6 +77,11 @@ impl Sinks {
     /// The outlet every sink publishes through.
     pub(super) fn outlet(&self) -> &Outlet {
         &self.outlet
+    }
+
+    /// The flight recorder.
+    pub(super) fn recorder(&self) -> &Recorder {
+        &self.recorder
     }
 
     /// The sink of one robot, for one call into its twin, with `robot`, the robot's output
@@ -103,6 +117,8 @@ pub(super) struct RobotOutputState {
     counts: RobotCounts,
     /// Whether the robot streams fast enough for route caches.
     route_demand: RouteDemand,
+    /// From tracking on, if the robot records: its recent streams.
+    recording: Option<RobotRecording>,
 }
 
 impl RobotOutputState {
@@ -136,6 +152,11 @@ impl RobotOutputState {
     /// Gives the robot the liveliness token the control thread declared for it.
     pub(super) fn set_token(&mut self, token: LivelinessToken) {
         self.token = Some(token);
+    }
+
+    /// The robot's recent streams, if it records.
+    pub(super) fn recording_mut(&mut self) -> Option<&mut RobotRecording> {
+        self.recording.as_mut()
     }
 
     /// The robot's publishers and token, taken out to be undeclared.
@@ -286,6 +307,7 @@ impl Sink for ZenohSink<'_> {
     fn tracking(&mut self, robot: &Robot) {
         if let Some(state) = self.robot.as_deref_mut() {
             state.event_bucket = Some(EventBucket::full(self.sinks.event_budget, Instant::now()));
+            state.recording = self.sinks.recorder.start(robot);
         }
         self.track_ros2_pose(robot);
         self.sinks.requests.track(robot);
@@ -316,13 +338,32 @@ impl Sink for ZenohSink<'_> {
         self.put_ros2_pose(robot, stamp_s, pose);
     }
 
+    fn joints(&mut self, robot: &Robot, stamp_s: f64, sample: &JointSample, twin: &PoseReadout) {
+        let recording = self
+            .robot
+            .as_deref_mut()
+            .and_then(|state| state.recording.as_mut());
+        if let Some(incident) =
+            recording.and_then(|recording| recording.joints(robot.id(), stamp_s, sample, twin))
+        {
+            self.sinks.recorder.send(incident);
+        }
+    }
+
     fn deviation(
         &mut self,
         robot: &Robot,
         stamp_s: f64,
-        _measured: &PoseReadout,
+        measured: &PoseReadout,
         deviation: &Deviation,
     ) {
+        if let Some(recording) = self
+            .robot
+            .as_deref_mut()
+            .and_then(|state| state.recording.as_mut())
+        {
+            recording.measured(stamp_s, measured, deviation);
+        }
         let payload: ZBytes = match self.sinks.outlet.encoding() {
             OutputEncoding::Json => {
                 json::deviation_json_bytes(robot.id(), stamp_s, deviation).into()
@@ -341,6 +382,15 @@ impl Sink for ZenohSink<'_> {
         );
         // An event names its robot's index only when it has a twin, whose entry this sink holds.
         let mut robot_state = self.robot.as_deref_mut().filter(|_| event.index.is_some());
+        if let (Some(state), Some(kind)) = (&mut robot_state, self.sinks.recorder.trigger_of(event))
+            && let Some(recording) = state.recording.as_mut()
+        {
+            let config = self.sinks.recorder.config();
+            let text =
+                String::from_utf8_lossy(&json::to_json_bytes(&json::EventMessage::new(event)))
+                    .into_owned();
+            recording.trigger(kind, event.stamp_s, text, (config.pre_s, config.post_s));
+        }
         if let (Some(state), EventDetail::Rejected { cause }) = (&mut robot_state, &event.detail) {
             let by_cause = &mut state.counts.rejected_by_cause;
             match by_cause.iter_mut().find(|(counted, _)| counted == cause) {
@@ -403,6 +453,13 @@ impl Sink for ZenohSink<'_> {
     }
 
     fn effort(&mut self, robot: &Robot, readout: &EffortReadout) {
+        if let Some(recording) = self
+            .robot
+            .as_deref_mut()
+            .and_then(|state| state.recording.as_mut())
+        {
+            recording.effort(readout);
+        }
         self.put(
             robot.id(),
             Stream::Effort,

@@ -69,6 +69,7 @@ impl FleetSource for FleetView {
             robots_retired: fleet.robots_retired(),
             snapshot_age_s: fleet.snapshot_age_s(),
             snapshot_failures: fleet.snapshot_failures(),
+            recorder: fleet.recorder().totals(),
         };
         (totals, rows)
     }

@@ -1,0 +1,269 @@
+"""The flight recorder end to end: the real service on real Zenoh streams the real UR10e recording
+(tests/data/ur10e_lasttest.csv) with its measured pose pushed past the alarm threshold mid-stream;
+the alarm leaves one MCAP file, read back with the `mcap` package and `mcap-ros2-support` (and the
+joint messages once more with `rosbags`' CDR deserializer), against what was streamed. An
+operator's record query works behind the shipped TLS + ACL router and a dashboard's is refused;
+a recorder whose files cannot be written counts the failure and loses no twin sample.
+
+Run: ``ARMTWIN_BIN=$PWD/target/debug/armtwin .venv/bin/python -m pytest tests/python/test_recorder.py -q``
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import struct
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from rosbags.typesys import Stores, get_typestore
+
+from support.gateway import Gateway
+from support.process import ArmtwinProcess, free_port, run_armtwin, wait_until
+from support.secured_fleet import secured_fleet, send
+from support.twin_reference import joint_message, load_lasttest_naive
+from support.zenoh_clients import TwinClient, get_json, paired_of, wait_queryable
+
+PRE_S = 4.0
+POST_S = 2.0
+# Source time of the first row: the recording's own first stamp, so the files carry real Unix
+# times; rows follow at 500 Hz.
+T0 = 1748954669.0
+PERIOD_S = 0.002
+ROWS = 6000
+# The measured pose is pushed 20 mm off (threshold 5 mm) for these rows (1.2 s, over the 0.5-s hold).
+PUSHED = range(3000, 3600)
+
+TOPICS = {
+    "/joint_states": "sensor_msgs/msg/JointState",
+    "/twin/pose": "geometry_msgs/msg/PoseStamped",
+    "/tcp_pose_broadcaster/pose": "geometry_msgs/msg/PoseStamped",
+    "/twin/deviation": "armtwin_msgs/msg/Deviation",
+    "/twin/effort": "armtwin_msgs/msg/Effort",
+    "/rosout": "rcl_interfaces/msg/Log",
+}
+
+
+def config(recordings: Path, extra: str = "") -> str:
+    return f"""
+[service]
+metrics_period_ms = 50
+pose_congestion = "block"
+{extra}
+
+[recorder]
+dir = "{recordings}"
+pre_s = {PRE_S}
+post_s = {POST_S}
+
+[robots.default]
+model = "ur10e"
+alarm_position_m = 0.005
+alarm_hold_s = 0.5
+"""
+
+
+def stream() -> tuple[list[float], list[list[float]], list[list[float]]]:
+    """Stamps, joints and measured poses (the pushed rows 20 mm off in x) of the first rows."""
+    rows = load_lasttest_naive()[:ROWS]
+    t = [T0 + i * PERIOD_S for i in range(ROWS)]
+    q = [[float(v) for v in r[1:7]] for r in rows]
+    meas = [[float(v) for v in r[7:14]] for r in rows]
+    for i in PUSHED:
+        meas[i][0] += 0.02
+    return t, q, meas
+
+
+def send_all(client: TwinClient, robot: str, t, q, meas) -> None:
+    client.ready([robot])
+    pub = client.joints(robot)
+    for i in range(len(t)):
+        pub.put(json.dumps(joint_message(t[i], q[i], meas[i])))
+
+
+def read_mcap(path: Path):
+    """(channels {topic: (schema name, schema encoding, message encoding)}, decoded messages by
+    topic as (log time, message, raw bytes), metadata by name)."""
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        channels = {
+            c.topic: (summary.schemas[c.schema_id].name, summary.schemas[c.schema_id].encoding, c.message_encoding)
+            for c in summary.channels.values()
+        }
+        messages: dict[str, list] = {topic: [] for topic in channels}
+        for _, channel, message, decoded in reader.iter_decoded_messages():
+            messages[channel.topic].append((message.log_time, decoded, message.data))
+        metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+    return channels, messages, metadata
+
+
+def stamp_of(header) -> float:
+    return seconds(header.stamp)
+
+
+def seconds(time) -> float:
+    """A ``builtin_interfaces/Time`` read back as armtwin's stamps are: sec + nanosec·1e-9."""
+    return time.sec + time.nanosec * 1e-9
+
+
+def test_an_alarm_leaves_one_mcap_file_with_what_was_streamed(armtwin_bin, tmp_path):
+    recordings = tmp_path / "recordings"
+    proc = ArmtwinProcess(armtwin_bin, tmp_path, config(recordings), 300.0)
+    proc.start()
+    client = TwinClient(proc.endpoint)
+    robot = "site/cell-1/ur10e"
+    try:
+        t, q, meas = stream()
+        send_all(client, robot, t, q, meas)
+        c = client.collector
+        recorded = c.wait_message("events", robot, lambda m: m["kind"] == "recorded", 60.0)
+        assert recorded is not None, (c.messages("events", robot), proc.logs())
+        alarms = [m for m in c.messages("events", robot) if m["kind"] == "alarm"]
+        assert wait_until(lambda: c.count("pose", robot) == ROWS, 30), c.count("pose", robot)
+    finally:
+        client.close()
+        proc.stop()
+    assert len(alarms) == 1, alarms
+    t_alarm = alarms[0]["t"]
+    assert t[PUSHED.start] < t_alarm < t[PUSHED.stop], t_alarm
+
+    files = sorted(recordings.rglob("*.mcap"))
+    assert len(files) == 1, files
+    path = files[0]
+    # The robot id is one directory, escaped; the name is the UTC time and the trigger.
+    assert path.parent == recordings / "site%2Fcell-1%2Fur10e", path
+    assert re.fullmatch(r"\d{8}T\d{6}\.\d{3}Z-alarm\.mcap", path.name), path.name
+    detail = recorded["detail"]
+    assert Path(detail["path"]) == path and detail["bytes"] == path.stat().st_size, detail
+    assert (detail["from_s"], detail["until_s"]) == (t_alarm - PRE_S, t_alarm + POST_S), detail
+
+    channels, messages, metadata = read_mcap(path)
+    assert channels == {topic: (name, "ros2msg", "cdr") for topic, name in TOPICS.items()}, channels
+    meta = metadata["armtwin"]
+    assert meta["robot"] == robot and meta["model"] == "ur10e" and meta["trigger"] == "alarm", meta
+    assert meta["calibration_source"] == "nominal" and meta["armtwin_version"], meta
+    assert float(meta["trigger_stamp_s"]) == t_alarm
+    assert json.loads(meta["trigger_event"])["kind"] == "alarm"
+
+    window = [i for i in range(ROWS) if t_alarm - PRE_S <= t[i] <= t_alarm + POST_S]
+    assert len(window) == 3001, len(window)
+    for topic in ("/joint_states", "/twin/pose", "/tcp_pose_broadcaster/pose", "/twin/deviation"):
+        assert len(messages[topic]) == len(window), (topic, len(messages[topic]))
+        stamps = [stamp_of(m.header) for _, m, _ in messages[topic]]
+        assert stamps == [t[i] for i in window], topic
+        assert [log_time for log_time, _, _ in messages[topic]] == [
+            m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for _, m, _ in messages[topic]
+        ]
+    assert messages["/twin/effort"] == []
+
+    typestore = get_typestore(Stores.ROS2_HUMBLE)
+    for (_, joint_state, raw), i in zip(messages["/joint_states"], window):
+        assert list(joint_state.name) == [
+            "shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint",
+            "wrist_1_joint", "wrist_2_joint", "wrist_3_joint",
+        ]
+        sent = struct.pack("<6d", *q[i])
+        assert struct.pack("<6d", *joint_state.position) == sent, i
+        again = typestore.deserialize_cdr(raw, "sensor_msgs/msg/JointState")
+        assert struct.pack("<6d", *again.position) == sent, i
+        assert list(joint_state.velocity) == [] and list(joint_state.effort) == []
+    for (_, pose, _), i in zip(messages["/tcp_pose_broadcaster/pose"], window):
+        p = pose.pose.position
+        assert abs(p.x - meas[i][0]) < 1e-12 and abs(p.y - meas[i][1]) < 1e-12 and abs(p.z - meas[i][2]) < 1e-12
+    pushed = [m.position_m for (_, m, _), i in zip(messages["/twin/deviation"], window) if i in PUSHED]
+    assert pushed and min(pushed) > 0.015, min(pushed)
+
+    [(log_time, log, _)] = messages["/rosout"]
+    assert log.level == 30 and log.name == "armtwin" and seconds(log.stamp) == t_alarm
+    assert json.loads(log.msg)["kind"] == "alarm"
+
+    # `armtwin validate` reads the file as a bag of the robot: every joint sample paired with its
+    # measured pose again, the same deviations as the file's (the twin's own, streamed live).
+    out = tmp_path / "report"
+    res = run_armtwin("validate", path, "--out", out)
+    assert res.returncode == 0, res.stderr
+    cumulative = json.loads((out / "report.json").read_text())["cumulative"]
+    live = [m.position_m for _, m, _ in messages["/twin/deviation"]]
+    assert cumulative["n"] == len(window), cumulative["n"]
+    assert abs(cumulative["position"]["max"] - max(live)) <= 1e-12, (cumulative["position"], max(live))
+    assert abs(cumulative["position"]["mae"] - sum(live) / len(live)) <= 1e-12
+
+
+def metric(port: int, name: str) -> float | None:
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=10) as response:
+        body = response.read().decode()
+    match = re.search(rf"^{re.escape(name)} (\S+)$", body, re.MULTILINE)
+    return float(match.group(1)) if match else None
+
+
+# The service under a file size limit (what a full disk does to a write, from the kernel, without
+# root): SIGXFSZ ignored, so a write past it fails with EFBIG instead of killing the process.
+LIMITED = (
+    "import os, resource, signal, sys; signal.signal(signal.SIGXFSZ, signal.SIG_IGN); "
+    "resource.setrlimit(resource.RLIMIT_FSIZE, (int(sys.argv[1]), int(sys.argv[1]))); "
+    "os.execv(sys.argv[2], sys.argv[2:])"
+)
+
+
+def test_a_recorder_that_cannot_write_counts_it_and_loses_no_twin_sample(armtwin_bin, tmp_path):
+    recordings = tmp_path / "recordings"
+    http_port = free_port()
+    proc = ArmtwinProcess(
+        armtwin_bin, tmp_path, config(recordings, f'\n[http]\nlisten = "127.0.0.1:{http_port}"'), 300.0
+    )
+    # 256 KiB: the service's log stays under it, an incident file of 3 000 joint samples does not.
+    proc.argv = [sys.executable, "-c", LIMITED, str(256 * 1024), *proc.argv]
+    proc.start()
+    client = TwinClient(proc.endpoint)
+    robot = "r1"
+    try:
+        t, q, meas = stream()
+        send_all(client, robot, t, q, meas)
+        c = client.collector
+        failed = c.wait_message("events", robot, lambda m: m["kind"] == "record_failed", 60.0)
+        assert failed is not None, (c.messages("events", robot), proc.logs())
+        assert "too large" in failed["detail"]["error"].lower(), failed
+        assert wait_until(lambda: c.count("pose", robot) == ROWS, 30), c.count("pose", robot)
+        assert c.count("deviation", robot) == ROWS
+        [(_, state)] = get_json(client.session, f"twin/state/{robot}")
+        assert state["metrics"]["paired"] == ROWS, state
+        assert metric(http_port, "armtwin_recorder_failures_total") == 1
+        assert metric(http_port, "armtwin_recorder_files_total") == 0
+        assert metric(http_port, "armtwin_recorder_ring_bytes") > 0
+    finally:
+        client.close()
+        proc.stop()
+    assert list(recordings.rglob("*.mcap*")) == [], "what the failed write left is removed"
+
+
+def test_an_operator_records_behind_the_secured_router_and_a_dashboard_may_not(tmp_path, certs, armtwin_bin):
+    with secured_fleet(tmp_path, certs, armtwin_bin, ["g1", "dashboard", "operator"]) as (router, sessions):
+        dashboard, operator = sessions["dashboard"], sessions["operator"]
+        assert wait_queryable(operator, "twin/admin/record/**"), router.logs()
+        send(Gateway(sessions["g1"], "r1"), router, count=50)
+        assert wait_until(lambda: paired_of(dashboard, "r1") == 50, 15)
+        events = []
+        dashboard.declare_subscriber("twin/events/r1", lambda s: events.append(json.loads(s.payload.to_bytes())))
+
+        refused = list(dashboard.get("twin/admin/record/r1?post_s=0", timeout=5.0))
+        assert refused == [], "the router drops a dashboard's record query"
+        [reply] = list(operator.get("twin/admin/record/r1?pre_s=1;post_s=0", timeout=5.0))
+        assert reply.ok is not None, reply.err.payload.to_string()
+        answer = json.loads(reply.ok.payload.to_bytes())
+        assert answer["trigger"] == "operator", answer
+        assert abs(answer["until_s"] - answer["from_s"] - 1.0) < 1e-6, answer
+        assert wait_until(lambda: any(e["kind"] == "recorded" for e in events), 20), events
+        [recorded] = [e for e in events if e["kind"] == "recorded"]
+        assert recorded["detail"]["path"] == answer["path"], (recorded, answer)
+        files = list((tmp_path / "twin" / "recordings").rglob("*-operator.mcap"))
+        assert [str(f) for f in files] == [answer["path"]], files
+        _, messages, metadata = read_mcap(files[0])
+        assert metadata["armtwin"]["trigger"] == "operator"
+        assert 1 <= len(messages["/joint_states"]) <= 50
+        time.sleep(0.5)
+        assert len([e for e in events if e["kind"] == "recorded"]) == 1, "the dashboard's query recorded nothing"

@@ -35,6 +35,7 @@ struct Row {
     target_qd: [f64; J],
     target_qdd: [f64; J],
     target_current: [f64; J],
+    target_moment: [f64; J],
     q: [f64; J],
     qd: [f64; J],
     current: [f64; J],
@@ -65,6 +66,7 @@ fn recording() -> Vec<Row> {
                 target_qd: six(&cells, "target_qd"),
                 target_qdd: six(&cells, "target_qdd"),
                 target_current: six(&cells, "target_current"),
+                target_moment: six(&cells, "target_moment"),
                 q: six(&cells, "actual_q"),
                 qd: six(&cells, "actual_qd"),
                 current: six(&cells, "actual_current"),
@@ -194,6 +196,46 @@ fn each_residual_term_pays_on_real_currents() {
     for k in 0..4 {
         assert!(with_friction[k] < 0.7 * model_only[k], "{k}");
         assert!(target_current[k] < 0.5 * model_only[k], "{k}");
+    }
+}
+
+/// At rest the controller's target current carries no friction feed-forward: its ratio to
+/// `target_moment` is the controller's own current-to-torque factor, which the nominal `K_τ · 101`
+/// must match.
+#[test]
+fn the_nominal_torque_factors_match_the_controllers_own() {
+    let rows = recording();
+    let factors = ur::current_to_torque_nm_per_a("ur3e").unwrap();
+    let rest: Vec<&Row> = rows
+        .iter()
+        .filter(|row| row.target_qd.iter().all(|v| *v == 0.0))
+        .collect();
+    for (k, nominal) in factors.iter().enumerate() {
+        let held: Vec<_> = rest
+            .iter()
+            .filter(|row| row.target_current[k].abs() > 0.05)
+            .collect();
+        if held.len() < 10 {
+            continue;
+        }
+        // Least squares through the origin: moment = factor · current.
+        let factor = held
+            .iter()
+            .map(|row| row.target_moment[k] * row.target_current[k])
+            .sum::<f64>()
+            / held
+                .iter()
+                .map(|row| row.target_current[k].powi(2))
+                .sum::<f64>();
+        println!(
+            "joint {}: controller {factor:.4} N·m/A, nominal {nominal:.4} ({} rows at rest)",
+            k + 1,
+            held.len()
+        );
+        assert!(
+            (factor / nominal - 1.0).abs() < 0.03,
+            "{k}: {factor} vs {nominal}"
+        );
     }
 }
 

@@ -205,19 +205,9 @@ pub fn compare(
             ControllerMode::from_robot_status_bits,
         );
         let tau_model_nm = loaded.controller_moment_nm(mode, &q, &qd, &qdd);
-        let tau_measured_nm = current_to_torque.and_then(|factors| {
-            group(values, ACTUAL_CURRENT)
-                .map(|current| std::array::from_fn(|k| current[k] * factors[k]))
-        });
-        let current_vs_target_nm = current_to_torque.and_then(|factors| {
-            let (current, target) = (
-                group(values, ACTUAL_CURRENT)?,
-                group(values, TARGET_CURRENT)?,
-            );
-            Some(std::array::from_fn(|k| {
-                (current[k] - target[k]) * factors[k]
-            }))
-        });
+        let tau_measured_nm = current_torque_nm(values, None, current_to_torque);
+        let current_vs_target_nm =
+            current_torque_nm(values, Some(TARGET_CURRENT), current_to_torque);
         // Payload identification: program mode, at rest by the actual velocities.
         if let (ControllerMode::Program, Some(measured), Some(actual_q), Some(actual_qd)) = (
             mode,
@@ -252,6 +242,22 @@ pub fn compare(
             payload_configured.map_or([0.0; 3], |p| p.cog_flange_m),
         ),
     })
+}
+
+/// The actual currents (less the group at `less`, if given) through the drives' torque factors.
+fn current_torque_nm(
+    values: &[Option<f64>],
+    less: Option<usize>,
+    factors: Option<[f64; JOINTS]>,
+) -> Option<[f64; JOINTS]> {
+    let (factors, current) = (factors?, group(values, ACTUAL_CURRENT)?);
+    let subtracted = match less {
+        Some(less) => group(values, less)?,
+        None => [0.0; JOINTS],
+    };
+    Some(std::array::from_fn(|k| {
+        (current[k] - subtracted[k]) * factors[k]
+    }))
 }
 
 /// A row's payload: its own columns in a recording that has them, else `payload_flag`.

@@ -167,13 +167,22 @@ fn summarise_dynamics(dynamics: &DynamicsJson) {
     if let Some(stats) = &dynamics.model_vs_currents {
         eprintln!("  currents − model RMS per joint (N·m): {}", rms(stats));
     }
+    if let Some(stats) = &dynamics.currents_vs_target_current {
+        eprintln!(
+            "  currents − target current RMS per joint (N·m): {}",
+            rms(stats)
+        );
+    }
     if let Some(identified) = &dynamics.payload.identified {
         eprintln!(
-            "  payload identified from currents: {:.3} ± {:.3} kg ({} rows at rest)",
+            "  payload identified from currents: {:.3} ± {:.3} kg ({} rows at rest; {})",
             identified.mass_kg,
             identified.mass_std_kg.unwrap_or(f64::NAN),
-            identified.samples.unwrap_or(0)
+            identified.samples.unwrap_or(0),
+            identified.source
         );
+    } else if let Some(reason) = dynamics.payload.not_identifiable {
+        eprintln!("  payload: not identifiable from this motion ({reason})");
     }
 }
 

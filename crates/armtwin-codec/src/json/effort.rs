@@ -11,7 +11,7 @@ use armtwin_core::dynamics::Payload;
 use armtwin_core::dynamics::monitor::{
     EffortReadout, EffortSummary, PayloadReadout, PayloadSource, ResidualStats,
 };
-use armtwin_core::dynamics::payload::PayloadEstimate;
+use armtwin_core::dynamics::payload::{PayloadEstimate, PayloadIdentification};
 
 use super::to_json_bytes;
 
@@ -47,7 +47,26 @@ fn estimate_json(estimate: &PayloadEstimate) -> Value {
         "cog_m": estimate.cog_flange_m,
         "mass_std_kg": estimate.mass_std_kg,
         "samples": estimate.samples,
+        "cog_identified": estimate.cog_identified,
+        "condition": estimate.condition,
     })
+}
+
+/// `null` while nothing is identified or an estimate is; else why this motion identifies none:
+/// `{reason, condition, samples}` (`condition` null when the poses are singular).
+fn not_identifiable_json(identification: Option<&PayloadIdentification>) -> Value {
+    match identification {
+        Some(PayloadIdentification::NotIdentifiable {
+            reason,
+            condition,
+            samples,
+        }) => json!({
+            "reason": reason.as_str(),
+            "condition": condition.is_finite().then_some(*condition),
+            "samples": samples,
+        }),
+        _ => Value::Null,
+    }
 }
 
 fn with_source(payload: &Payload, source: PayloadSource) -> Value {
@@ -56,12 +75,14 @@ fn with_source(payload: &Payload, source: PayloadSource) -> Value {
     value
 }
 
-/// The payload as the monitor has it: `{configured, estimate, applied, in_use}`.
+/// The payload as the monitor has it: `{configured, estimate, not_identifiable, applied,
+/// in_use}`.
 #[must_use]
 pub fn payload_readout_json(payload: &PayloadReadout) -> Value {
     json!({
         "configured": payload.configured.map(|(payload, source)| with_source(&payload, source)),
         "estimate": payload.estimate.as_ref().map(estimate_json),
+        "not_identifiable": not_identifiable_json(payload.identification.as_ref()),
         "applied": payload.applied.as_ref().map(payload_json),
         "in_use": with_source(&payload.in_use.0, payload.in_use.1),
     })
@@ -82,8 +103,8 @@ fn stats_json(stats: &ResidualStats) -> Value {
 }
 
 /// The effort object of the state answer and the metrics message: `{latest, residual:
-/// {cumulative, window}, friction, payload, collision: {threshold_nm, active, count},
-/// payload_mismatch}`.
+/// {cumulative, window}, friction, payload, collision: {threshold_nm, threshold_source, detection,
+/// active, count}, payload_mismatch}`.
 #[must_use]
 pub fn effort_summary_json(robot: &str, summary: &EffortSummary) -> Value {
     let friction: Vec<Value> = summary
@@ -111,6 +132,8 @@ pub fn effort_summary_json(robot: &str, summary: &EffortSummary) -> Value {
         "payload": payload_readout_json(&summary.payload),
         "collision": {
             "threshold_nm": summary.collision_threshold_nm,
+            "threshold_source": summary.threshold_source.as_str(),
+            "detection": summary.detection.as_str(),
             "active": summary.collision,
             "count": summary.collisions,
         },

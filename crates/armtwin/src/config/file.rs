@@ -102,6 +102,9 @@ pub(super) struct EffortSection {
     pub(super) payload_window_s: f64,
     pub(super) friction_window_s: f64,
     pub(super) collision_baseline_s: f64,
+    pub(super) threshold_learning_s: f64,
+    pub(super) threshold_factor: f64,
+    pub(super) payload_reach_m: f64,
 }
 
 impl Default for EffortSection {
@@ -113,6 +116,9 @@ impl Default for EffortSection {
             payload_window_s: defaults.payload_window_s,
             friction_window_s: defaults.friction_window_s,
             collision_baseline_s: defaults.collision_baseline_s,
+            threshold_learning_s: defaults.threshold_learning_s,
+            threshold_factor: defaults.threshold_factor,
+            payload_reach_m: defaults.payload_reach_m,
         }
     }
 }
@@ -126,6 +132,9 @@ impl EffortSection {
             payload_window_s: self.payload_window_s,
             friction_window_s: self.friction_window_s,
             collision_baseline_s: self.collision_baseline_s,
+            threshold_learning_s: self.threshold_learning_s,
+            threshold_factor: self.threshold_factor,
+            payload_reach_m: self.payload_reach_m,
             ..EffortConfig::default()
         }
     }

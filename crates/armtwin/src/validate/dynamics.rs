@@ -15,7 +15,7 @@ use thiserror::Error;
 
 use crate::codec::recording::ColumnTable;
 pub use crate::dynamics::monitor::StateSource;
-use crate::dynamics::payload::{PayloadEstimate, PayloadIdentifier};
+use crate::dynamics::payload::{DEFAULT_REACH_M, PayloadIdentification, PayloadIdentifier};
 use crate::dynamics::{ArmDynamics, ControllerMode, DynamicsError, Payload, ur};
 use crate::model::ArmDescription;
 
@@ -58,6 +58,9 @@ pub struct DynamicsRow {
     pub tau_measured_nm: Option<[f64; 6]>,
     /// The controller's `target_moment` (N·m), if recorded.
     pub target_moment_nm: Option<[f64; 6]>,
+    /// Measured less target current through the drives' torque factors (N·m), if both are
+    /// recorded: what the live monitor watches for collisions then.
+    pub current_vs_target_nm: Option<[f64; 6]>,
 }
 
 /// The dynamics of a whole recording.
@@ -74,8 +77,8 @@ pub struct DynamicsValidation {
     pub payload_configured: Option<Payload>,
     /// Where the payload came from.
     pub payload_source: PayloadSource,
-    /// The payload identified from the currents of program-mode rows at rest, if they determine it.
-    pub payload_identified: Option<PayloadEstimate>,
+    /// The payload the currents of program-mode rows at rest identify, or why they identify none.
+    pub payload_identification: PayloadIdentification,
 }
 
 const JOINTS: usize = 6;
@@ -106,6 +109,7 @@ pub fn wanted_columns() -> Vec<String> {
         ]
         .map(str::to_owned),
     );
+    names.extend((0..JOINTS).map(|k| format!("target_current_{k}")));
     names
 }
 
@@ -120,6 +124,7 @@ const ACTUAL_CURRENT: usize = 31;
 const TARGET_MOMENT: usize = 37;
 const PAYLOAD: usize = 43;
 const STATUS_BITS: usize = 47;
+const TARGET_CURRENT: usize = 48;
 
 fn group(values: &[Option<f64>], start: usize) -> Option<[f64; JOINTS]> {
     let mut out = [0.0; JOINTS];
@@ -200,10 +205,9 @@ pub fn compare(
             ControllerMode::from_robot_status_bits,
         );
         let tau_model_nm = loaded.controller_moment_nm(mode, &q, &qd, &qdd);
-        let tau_measured_nm = current_to_torque.and_then(|factors| {
-            group(values, ACTUAL_CURRENT)
-                .map(|current| std::array::from_fn(|k| current[k] * factors[k]))
-        });
+        let tau_measured_nm = current_torque_nm(values, None, current_to_torque);
+        let current_vs_target_nm =
+            current_torque_nm(values, Some(TARGET_CURRENT), current_to_torque);
         // Payload identification: program mode, at rest by the actual velocities.
         if let (ControllerMode::Program, Some(measured), Some(actual_q), Some(actual_qd)) = (
             mode,
@@ -223,6 +227,7 @@ pub fn compare(
             tau_model_nm,
             tau_measured_nm,
             target_moment_nm: group(values, TARGET_MOMENT),
+            current_vs_target_nm,
         });
     }
     Ok(DynamicsValidation {
@@ -231,8 +236,28 @@ pub fn compare(
         skipped_lines,
         payload_configured,
         payload_source,
-        payload_identified: identifier.estimate(),
+        // A centre of gravity the poses cannot place is taken as configured.
+        payload_identification: identifier.identify(
+            DEFAULT_REACH_M,
+            payload_configured.map_or([0.0; 3], |p| p.cog_flange_m),
+        ),
     })
+}
+
+/// The actual currents (less the group at `less`, if given) through the drives' torque factors.
+fn current_torque_nm(
+    values: &[Option<f64>],
+    less: Option<usize>,
+    factors: Option<[f64; JOINTS]>,
+) -> Option<[f64; JOINTS]> {
+    let (factors, current) = (factors?, group(values, ACTUAL_CURRENT)?);
+    let subtracted = match less {
+        Some(less) => group(values, less)?,
+        None => [0.0; JOINTS],
+    };
+    Some(std::array::from_fn(|k| {
+        (current[k] - subtracted[k]) * factors[k]
+    }))
 }
 
 /// A row's payload: its own columns in a recording that has them, else `payload_flag`.

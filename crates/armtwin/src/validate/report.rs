@@ -16,6 +16,7 @@ use super::svg::{self, Series};
 use super::{EventCounts, Rejection, Validation};
 use crate::codec::PoseFields;
 use crate::codec::json::StatsSetJson;
+use crate::dynamics::payload::PayloadIdentification;
 use crate::kinematics::PoseReadout;
 use crate::metrics::{Deviation, METRIC_NAMES};
 use crate::model::RobotModel;
@@ -207,6 +208,8 @@ pub struct PayloadsJson {
     pub configured: Option<PayloadJson>,
     /// The payload identified from the currents, if the rows at rest determine it.
     pub identified: Option<PayloadJson>,
+    /// Else why not: `too_few_poses`, `poses_alike` or `unphysical`.
+    pub not_identifiable: Option<&'static str>,
 }
 
 /// `dynamics`: the recording's joint torques against the model.
@@ -225,6 +228,8 @@ pub struct DynamicsJson {
     pub model_vs_target_moment: Option<JointTorqueStatsJson>,
     /// Torque from currents minus the model (the residual), for arms with public drive data.
     pub model_vs_currents: Option<JointTorqueStatsJson>,
+    /// Measured minus target current as torque, where both are recorded.
+    pub currents_vs_target_current: Option<JointTorqueStatsJson>,
     /// The payloads.
     pub payload: PayloadsJson,
 }
@@ -250,6 +255,9 @@ pub fn dynamics_json(dynamics: &DynamicsValidation) -> DynamicsJson {
             row.tau_measured_nm
                 .map(|measured| difference(measured, row.tau_model_nm))
         })),
+        currents_vs_target_current: JointTorqueStatsJson::of(
+            dynamics.rows.iter().filter_map(|row| row.current_vs_target_nm),
+        ),
         payload: PayloadsJson {
             configured: dynamics.payload_configured.map(|p| PayloadJson {
                 mass_kg: p.mass_kg,
@@ -262,13 +270,24 @@ pub fn dynamics_json(dynamics: &DynamicsValidation) -> DynamicsJson {
                 mass_std_kg: None,
                 samples: None,
             }),
-            identified: dynamics.payload_identified.map(|p| PayloadJson {
-                mass_kg: p.mass_kg,
-                cog_m: p.cog_flange_m,
-                source: "currents, program-mode rows at rest",
-                mass_std_kg: Some(p.mass_std_kg),
-                samples: Some(p.samples),
-            }),
+            identified: dynamics
+                .payload_identification
+                .estimate()
+                .map(|p| PayloadJson {
+                    mass_kg: p.mass_kg,
+                    cog_m: p.cog_flange_m,
+                    source: if p.cog_identified {
+                        "currents, program-mode rows at rest"
+                    } else {
+                        "currents, program-mode rows at rest; mass only, centre of gravity as configured"
+                    },
+                    mass_std_kg: Some(p.mass_std_kg),
+                    samples: Some(p.samples),
+                }),
+            not_identifiable: match dynamics.payload_identification {
+                PayloadIdentification::NotIdentifiable { reason, .. } => Some(reason.as_str()),
+                PayloadIdentification::Identified(_) => None,
+            },
         },
     }
 }
@@ -759,7 +778,7 @@ fn dynamics_md(dynamics: &DynamicsJson) -> String {
     );
     let _ = writeln!(
         md,
-        "| Joint | model − target_moment RMS (N·m) | max (N·m) | currents − model RMS (N·m) | max (N·m) |\n|---|---:|---:|---:|---:|"
+        "| Joint | model − target_moment RMS (N·m) | max (N·m) | currents − model RMS (N·m) | max (N·m) | currents − target current RMS (N·m) | max (N·m) |\n|---|---:|---:|---:|---:|---:|---:|"
     );
     let cell = |stats: Option<&JointTorqueStatsJson>, k: usize, rms: bool| {
         stats.map_or_else(
@@ -767,19 +786,22 @@ fn dynamics_md(dynamics: &DynamicsJson) -> String {
             |s| format!("{:.4}", if rms { s.rms_nm[k] } else { s.max_nm[k] }),
         )
     };
-    let (target, currents) = (
+    let (target, currents, drive) = (
         dynamics.model_vs_target_moment.as_ref(),
         dynamics.model_vs_currents.as_ref(),
+        dynamics.currents_vs_target_current.as_ref(),
     );
     for k in 0..6 {
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} |",
             k + 1,
             cell(target, k, true),
             cell(target, k, false),
             cell(currents, k, true),
-            cell(currents, k, false)
+            cell(currents, k, false),
+            cell(drive, k, true),
+            cell(drive, k, false)
         );
     }
     let describe = |p: &PayloadJson| {
@@ -806,7 +828,13 @@ fn dynamics_md(dynamics: &DynamicsJson) -> String {
             .as_ref()
             .map_or_else(|| "none".to_owned(), describe),
         dynamics.payload.identified.as_ref().map_or_else(
-            || "not determined (too few program-mode rows at rest, or poses too alike)".to_owned(),
+            || format!(
+                "not identifiable from this motion ({})",
+                dynamics
+                    .payload
+                    .not_identifiable
+                    .unwrap_or("no rows at rest")
+            ),
             describe
         )
     );

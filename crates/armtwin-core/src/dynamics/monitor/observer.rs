@@ -1,8 +1,11 @@
 //! The momentum observer: an estimate of what the drives spend beyond the model, without
 //! differentiating anything (the sign convention is in the module's documentation), and the
 //! collision alarms on it, armed once it has settled and measured against a slow baseline.
+//! Where the controller sends its target current, the observer's place is taken by the
+//! measured-minus-target torque low-passed with the same time constant `1/K`: the controller's
+//! model already holds the dynamics the observer would integrate.
 
-use super::{EffortAlarm, EffortMonitor, J};
+use super::{DetectionSource, EffortAlarm, EffortMonitor, J};
 use crate::dynamics::ControllerMode;
 
 /// Observer time constants (`1/K`) of steady program-mode input before its alarms are armed:
@@ -23,6 +26,8 @@ pub(super) struct Observer {
     pub(super) last_s: Option<f64>,
     /// Alarms are armed from this stamp on.
     pub(super) armed_from_s: f64,
+    /// What it watches: a change starts it afresh.
+    pub(super) source: DetectionSource,
 }
 
 impl EffortMonitor {
@@ -37,25 +42,38 @@ impl EffortMonitor {
         qd: &[f64; J],
         measured_nm: &[f64; J],
         friction_nm: &[f64; J],
+        drive_residual_nm: Option<&[f64; J]>,
         on_alarm: &mut impl FnMut(EffortAlarm),
     ) -> [f64; J] {
         let gain = self.config.observer_gain_per_s;
-        let terms = self.loaded.momentum(q, qd);
+        let source = drive_residual_nm.map_or(DetectionSource::Observer, |_| {
+            DetectionSource::TargetCurrent
+        });
         let observer = &mut self.observer;
-        let continues = observer.last_s.is_some() && step_s.is_some();
+        let continues = observer.last_s.is_some() && step_s.is_some() && observer.source == source;
+        observer.source = source;
         if continues && let Some(dt) = step_s {
-            let gravity_nm = self.loaded.gravity_nm(q);
-            for k in 0..J {
-                let drive = measured_nm[k] - friction_nm[k];
-                let partial = observer.expected_nms[k]
-                    + (drive + terms.coriolis_transpose_qd_nm[k] - gravity_nm[k]) * dt;
-                // Implicit in r: stable for any K·dt.
-                let r = gain * (terms.momentum_nms[k] - partial) / (1.0 + gain * dt);
-                observer.expected_nms[k] = partial + r * dt;
-                observer.r_nm[k] = r;
+            if let Some(drive_residual) = drive_residual_nm {
+                // The same first-order lag the observer has, implicit: stable for any K·dt.
+                let follow = gain * dt / (1.0 + gain * dt);
+                for (r, residual) in observer.r_nm.iter_mut().zip(drive_residual) {
+                    *r += follow * (-residual - *r);
+                }
+            } else {
+                let terms = self.loaded.momentum(q, qd);
+                let gravity_nm = self.loaded.gravity_nm(q);
+                for k in 0..J {
+                    let drive = measured_nm[k] - friction_nm[k];
+                    let partial = observer.expected_nms[k]
+                        + (drive + terms.coriolis_transpose_qd_nm[k] - gravity_nm[k]) * dt;
+                    // Implicit in r: stable for any K·dt.
+                    let r = gain * (terms.momentum_nms[k] - partial) / (1.0 + gain * dt);
+                    observer.expected_nms[k] = partial + r * dt;
+                    observer.r_nm[k] = r;
+                }
             }
         } else {
-            observer.expected_nms = terms.momentum_nms;
+            observer.expected_nms = self.loaded.momentum(q, qd).momentum_nms;
             observer.r_nm = [0.0; J];
             observer.baseline_nm = [0.0; J];
             observer.armed_from_s = stamp_s + ARMING_TIME_CONSTANTS / gain;
@@ -70,6 +88,7 @@ impl EffortMonitor {
         let follow = step_s.map_or(1.0, |dt| {
             1.0 - (-dt / self.config.collision_baseline_s).exp()
         });
+        let mut above_baseline_nm = [0.0; J];
         for (k, output_nm) in output.iter().enumerate() {
             if !armed {
                 // Settling (a start, a gap, freedrive): what the observer shows is the arm's
@@ -77,10 +96,11 @@ impl EffortMonitor {
                 observer.baseline_nm[k] = *output_nm;
             }
             let value_nm = output_nm - observer.baseline_nm[k];
+            above_baseline_nm[k] = value_nm;
             if armed && !self.collision[k] {
                 observer.baseline_nm[k] += follow * (output_nm - observer.baseline_nm[k]);
             }
-            let threshold_nm = self.thresholds_nm[k];
+            let threshold_nm = self.thresholds.nm[k];
             let on = if self.collision[k] {
                 value_nm.abs() > threshold_nm / 2.0
             } else {
@@ -98,6 +118,12 @@ impl EffortMonitor {
                     on,
                 });
             }
+        }
+        // Normal motion teaches the thresholds: armed, in a program, nothing alarming.
+        if let (true, Some(dt), ControllerMode::Program) = (armed, step_s, mode)
+            && !self.collision.iter().any(|on| *on)
+        {
+            self.thresholds.learn(dt, &above_baseline_nm);
         }
         output
     }

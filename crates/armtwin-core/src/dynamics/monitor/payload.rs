@@ -24,7 +24,11 @@ impl EffortMonitor {
         self.rest_since_estimate += 1;
         if self.rest_since_estimate >= PAYLOAD_ESTIMATE_EVERY {
             self.rest_since_estimate = 0;
-            self.estimate = self.identifier.estimate();
+            let identification = self
+                .identifier
+                .identify(self.config.payload_reach_m, self.in_use.0.cog_flange_m);
+            self.identification = Some(identification);
+            self.estimate = identification.estimate();
             self.check_payload(on_alarm);
         }
     }

@@ -3,7 +3,8 @@
 //! changes. Types only; the monitor and its parts fill them.
 
 use super::J;
-use crate::dynamics::payload::PayloadEstimate;
+use super::ThresholdSource;
+use crate::dynamics::payload::{PayloadEstimate, PayloadIdentification};
 use crate::dynamics::{ControllerMode, DynamicsError, Payload};
 
 /// How a robot's effort is watched.
@@ -11,9 +12,18 @@ use crate::dynamics::{ControllerMode, DynamicsError, Payload};
 pub struct EffortConfig {
     /// The momentum observer's gain `K` (1/s): its time constant is `1/K`.
     pub observer_gain_per_s: f64,
-    /// Per joint, the observer output (N·m) beyond which a collision is reported; `None` for the
-    /// arm's default ([`ur::default_collision_threshold_nm`](crate::dynamics::ur::default_collision_threshold_nm)).
+    /// Per joint, the observer output (N·m) beyond which a collision is reported; `None` to
+    /// learn them from the arm's normal motion, never below the arm's rated-torque share
+    /// ([`ur::default_collision_threshold_nm`](crate::dynamics::ur::default_collision_threshold_nm)).
     pub collision_threshold_nm: Option<[f64; J]>,
+    /// Seconds of armed program-mode motion the thresholds are learnt from (0: the rated-torque
+    /// share, unlearnt).
+    pub threshold_learning_s: f64,
+    /// Learnt thresholds are this times the 99.9th percentile of the normal motion's output.
+    pub threshold_factor: f64,
+    /// Distance (m) from the flange within which an identified payload's centre of gravity must
+    /// lie to count.
+    pub payload_reach_m: f64,
     /// Identified minus modelled payload mass (kg) beyond which a mismatch is reported.
     pub payload_tolerance_kg: f64,
     /// Time constant (s) of the payload identifier's forgetting.
@@ -33,6 +43,9 @@ impl Default for EffortConfig {
         Self {
             observer_gain_per_s: 50.0,
             collision_threshold_nm: None,
+            threshold_learning_s: 60.0,
+            threshold_factor: 2.0,
+            payload_reach_m: crate::dynamics::payload::DEFAULT_REACH_M,
             payload_tolerance_kg: 0.5,
             payload_window_s: 300.0,
             friction_window_s: 600.0,
@@ -83,6 +96,28 @@ impl StateSource {
         match self {
             Self::Target => "target",
             Self::Actual => "actual",
+        }
+    }
+}
+
+/// What the collision detector watches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum DetectionSource {
+    /// The momentum observer on measured torques less the model and the fitted friction.
+    #[default]
+    Observer,
+    /// Measured less target motor current (the controller's own model, friction feed-forward
+    /// included) through the drives' torque factors, low-passed like the observer.
+    TargetCurrent,
+}
+
+impl DetectionSource {
+    /// The wire name.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Observer => "observer",
+            Self::TargetCurrent => "target_current",
         }
     }
 }
@@ -165,8 +200,10 @@ pub struct FrictionReadout {
 pub struct PayloadReadout {
     /// What the controller or the configuration says, and which.
     pub configured: Option<(Payload, PayloadSource)>,
-    /// The latest identification.
+    /// The latest physical estimate.
     pub estimate: Option<PayloadEstimate>,
+    /// The latest identification: an estimate, or why the motion so far identifies none.
+    pub identification: Option<PayloadIdentification>,
     /// An identified payload an operator applied.
     pub applied: Option<Payload>,
     /// The one the model uses, and where it comes from.
@@ -190,6 +227,10 @@ pub struct EffortSummary {
     pub payload: PayloadReadout,
     /// Per joint, the collision threshold (N·m).
     pub collision_threshold_nm: [f64; J],
+    /// Where the thresholds come from.
+    pub threshold_source: ThresholdSource,
+    /// What the collision detector watches.
+    pub detection: DetectionSource,
     /// Per joint, whether a collision alarm is on.
     pub collision: [bool; J],
     /// Collisions reported since the start.

@@ -29,5 +29,5 @@ pub use reading::{
     ControllerReading, DeviationStats, IdentifiedPayload, PayloadReading, PoseReading,
     RobotReading, TwinSource,
 };
-pub use server::{OpcUaError, OpcUaServer};
+pub use server::{BoundServer, OpcUaError, OpcUaServer};
 pub use settings::{OpcUaSection, OpcUaSettings, SettingsError, User, UserSection};

@@ -16,12 +16,10 @@ use std::time::{Duration, Instant};
 use opcua::crypto::SecurityPolicy;
 use opcua::nodes::{BaseEventType, Event};
 use opcua::server::{
-    ANONYMOUS_USER_TOKEN_ID, ServerBuilder, ServerEndpoint, ServerHandle, ServerUserToken,
+    ANONYMOUS_USER_TOKEN_ID, Server, ServerBuilder, ServerEndpoint, ServerHandle, ServerUserToken,
     SubscriptionCache,
 };
-use opcua::types::{
-    ByteString, DataValue, DateTime, MessageSecurityMode, NodeId, ObjectId, ObjectTypeId,
-};
+use opcua::types::{ByteString, DataValue, DateTime, MessageSecurityMode, NodeId, ObjectTypeId};
 use ring::rand::{SecureRandom, SystemRandom};
 use tracing::{debug, info, warn};
 
@@ -96,14 +94,21 @@ fn endpoints(settings: &OpcUaSettings) -> Vec<(String, ServerEndpoint)> {
     endpoints
 }
 
+/// A server built and bound, not yet serving: what can fail at start has failed here, before
+/// the service takes any input.
+pub struct BoundServer {
+    server: Server,
+    handle: ServerHandle,
+    listener: tokio::net::TcpListener,
+    nodes: Arc<TwinNodeManager>,
+    namespaces: Namespaces,
+    period: Duration,
+}
+
 impl OpcUaServer {
-    /// Binds the endpoint, builds the server with the DI and Robotics models and starts it and
-    /// its sampler, which reads `source` every `settings.sampling_interval`. Call from within a
-    /// Tokio runtime.
-    pub async fn start(
-        settings: &OpcUaSettings,
-        source: Arc<dyn TwinSource>,
-    ) -> Result<Self, OpcUaError> {
+    /// Binds the endpoint and builds the server with the DI and Robotics models. Call from
+    /// within a Tokio runtime.
+    pub async fn bind(settings: &OpcUaSettings) -> Result<BoundServer, OpcUaError> {
         let nodesets = manager::parse_nodesets()?;
         let address = format!("{}:{}", settings.host, settings.port);
         let listener = tokio::net::TcpListener::bind(&address)
@@ -114,7 +119,7 @@ impl OpcUaServer {
             })?;
         let mut builder = ServerBuilder::new()
             .application_name("armtwin")
-            .application_uri("urn:armtwin:opcua")
+            .application_uri("urn:armtwin:server")
             .product_uri("urn:armtwin")
             .host(settings.host.clone())
             .port(settings.port)
@@ -152,35 +157,21 @@ impl OpcUaServer {
             .ok_or_else(|| OpcUaError::Server("the twins' node manager is missing".to_owned()))?;
         let namespaces = Namespaces::of(&nodes)
             .ok_or_else(|| OpcUaError::Server("a namespace is missing".to_owned()))?;
-        let server = tokio::spawn(server.run_with(listener));
-        let (stop_sampler, stopped) = mpsc::channel();
-        let sampler = Sampler {
-            source,
-            nodes,
-            subscriptions: Arc::clone(handle.subscriptions()),
-            namespaces,
-            robots: HashMap::new(),
-            readings: Vec::new(),
-            random: SystemRandom::new(),
-        };
-        let period = settings.sampling_interval;
-        let sampler = std::thread::Builder::new()
-            .name("armtwin-opcua".to_owned())
-            .spawn(move || sampler.run(period, &stopped))
-            .map_err(|e| OpcUaError::Server(format!("the sampler thread: {e}")))?;
         info!(
             endpoint = %settings.url,
-            sampling_interval_ms = period.as_millis(),
+            sampling_interval_ms = settings.sampling_interval.as_millis(),
             anonymous = settings.anonymous,
             security_none = settings.security_none && settings.anonymous,
             users = settings.users.len(),
-            "OPC UA server listening"
+            "OPC UA server bound"
         );
-        Ok(Self {
-            handle,
+        Ok(BoundServer {
             server,
-            stop_sampler,
-            sampler,
+            handle,
+            listener,
+            nodes,
+            namespaces,
+            period: settings.sampling_interval,
         })
     }
 
@@ -197,6 +188,35 @@ impl OpcUaServer {
             Ok(Err(e)) => warn!(error = %e, "OPC UA server task failed"),
             Err(_) => warn!("OPC UA server did not stop in time"),
         }
+    }
+}
+
+impl BoundServer {
+    /// Starts serving, and the sampler, which reads `source` every sampling interval.
+    pub fn start(self, source: Arc<dyn TwinSource>) -> Result<OpcUaServer, OpcUaError> {
+        let (stop_sampler, stopped) = mpsc::channel();
+        let sampler = Sampler {
+            source,
+            nodes: self.nodes,
+            subscriptions: Arc::clone(self.handle.subscriptions()),
+            namespaces: self.namespaces,
+            robots: HashMap::new(),
+            readings: Vec::new(),
+            random: SystemRandom::new(),
+        };
+        let period = self.period;
+        let sampler = std::thread::Builder::new()
+            .name("armtwin-opcua".to_owned())
+            .spawn(move || sampler.run(period, &stopped))
+            .map_err(|e| OpcUaError::Server(format!("the sampler thread: {e}")))?;
+        let server = tokio::spawn(self.server.run_with(self.listener));
+        info!("OPC UA server serving");
+        Ok(OpcUaServer {
+            handle: self.handle,
+            server,
+            stop_sampler,
+            sampler,
+        })
     }
 }
 
@@ -325,9 +345,9 @@ impl Sampler {
         self.readings = readings;
     }
 
-    /// Each alarm change as an event, from the robot's system node and from the Server object.
+    /// Each alarm change as an event from the robot's system node: a client watching the node,
+    /// or the Server object (which every event reaches), receives it.
     fn notify(&self, changes: &[(NodeId, Arc<str>, AlarmChange)]) {
-        let server: NodeId = ObjectId::Server.into();
         for (root, robot, change) in changes {
             let mut id = [0_u8; 16];
             // Without randomness the id is zero: events stay distinct by time and source.
@@ -341,13 +361,8 @@ impl Sampler {
             .set_source_name(robot.as_ref().into())
             .set_severity(change.severity());
             info!(robot = %robot, severity = change.severity(), message = %change.message(robot), "OPC UA event");
-            self.subscriptions.notify_events(
-                [
-                    (&event as &dyn Event, &server),
-                    (&event as &dyn Event, root),
-                ]
-                .into_iter(),
-            );
+            self.subscriptions
+                .notify_events([(&event as &dyn Event, root)].into_iter());
         }
     }
 }

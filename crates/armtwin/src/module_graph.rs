@@ -50,7 +50,13 @@ const SERVICE_LAYERS: &[(&str, &[&str])] = &[
     ),
     (
         "duties, each over the fleet",
-        &["queries", "self_calibration", "snapshot", "view"],
+        &[
+            "opcua_view",
+            "queries",
+            "self_calibration",
+            "snapshot",
+            "view",
+        ],
     ),
     (
         "what runs the duties: Zenoh's callbacks and the control thread",

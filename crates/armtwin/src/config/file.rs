@@ -37,6 +37,8 @@ pub(super) struct File {
     pub(super) sources: Vec<SourceSection>,
     #[serde(default)]
     pub(super) http: HttpSection,
+    #[serde(default)]
+    pub(super) opcua: armtwin_opcua::OpcUaSection,
 }
 
 /// `[http]`: the dashboard and `/metrics` (off unless `listen` is set), its TLS and tokens.

@@ -198,6 +198,8 @@ pub struct ServiceConfig {
     pub http_listen: Option<SocketAddr>,
     /// `[http]`'s TLS and tokens (none of either on the embedded default).
     pub http_access: crate::http_access::HttpAccess,
+    /// `[opcua]` (or `--opcua`): the OPC UA server; `None`, none.
+    pub opcua: Option<armtwin_opcua::OpcUaSettings>,
 }
 
 impl ServiceConfig {
@@ -258,6 +260,16 @@ impl ServiceConfig {
         let (shard, snapshots) = check_deployment(&service, &robots, (source_name, base_dir))?;
         let (http_listen, http_access) =
             http::load_http(&file.http, overrides.http_listen, (source_name, base_dir))?;
+        let opcua = armtwin_opcua::OpcUaSettings::from_section(
+            &file.opcua,
+            overrides.opcua_endpoint.as_deref(),
+            base_dir,
+        )
+        .map_err(|e| ConfigError::Invalid {
+            source_name: source_name.to_owned(),
+            field: format!("opcua.{}", e.field),
+            problem: e.problem,
+        })?;
         let sources = load_sources(
             &file.sources,
             &SourceContext {
@@ -302,6 +314,7 @@ impl ServiceConfig {
             snapshots,
             http_listen,
             http_access,
+            opcua,
         })
     }
 

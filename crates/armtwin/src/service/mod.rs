@@ -28,6 +28,7 @@
 //! `memory`, `requests`, `calibration_slot`, `shard`, and `publish`, the Zenoh I/O); `sink`;
 //! `fleet`; the duties over the fleet (`queries`, `self_calibration`, `snapshot`, `view`); what
 //! runs them (`intake`, Zenoh's callbacks, and `control`, the control thread); and this file.
+//! `opcua_view` is the OPC UA server's read of the fleet, a duty beside `view`.
 
 mod calibration_slot;
 mod control;
@@ -36,6 +37,7 @@ mod events;
 mod fleet;
 mod intake;
 mod memory;
+mod opcua_view;
 mod publish;
 mod queries;
 mod requests;
@@ -72,6 +74,10 @@ pub async fn serve(
 ) -> Result<ServeReport, ServiceError> {
     // Bound first: an address in use fails the start before anything joins the mesh.
     let http_listener = bind_http(config.http_listen).await?;
+    let opcua = match &config.opcua {
+        Some(settings) => Some(armtwin_opcua::OpcUaServer::bind(settings).await?),
+        None => None,
+    };
     let mut zenoh_config = zenoh_config_of(&config.zenoh)?;
     let keys = &config.keys;
     // The outputs with a publisher per streaming robot: at the sample rate, and the metrics.
@@ -139,9 +145,20 @@ pub async fn serve(
         )
     });
 
+    // Read at its own sampling interval, never on the sample path.
+    let opcua = opcua.and_then(|bound| {
+        bound
+            .start(Arc::new(opcua_view::OpcUaView::new(Arc::clone(&fleet))))
+            .inspect_err(|e| warn!(error = %e, "OPC UA server not started"))
+            .ok()
+    });
+
     shutdown.await;
     if let Some(dashboard) = dashboard {
         dashboard.stop().await;
+    }
+    if let Some(opcua) = opcua {
+        opcua.stop().await;
     }
     info!("shutting down: stopping intake");
     intake.undeclare().await;

@@ -277,6 +277,23 @@ impl Tree<'_> {
         id
     }
 
+    /// An object at `path`, a component of `parent`.
+    fn component(
+        &mut self,
+        path: &str,
+        browse_name: QualifiedName,
+        type_definition: NodeId,
+        parent: &NodeId,
+    ) -> NodeId {
+        let id = self.id(path);
+        self.object(
+            id,
+            browse_name,
+            type_definition,
+            (parent, ReferenceTypeId::HasComponent),
+        )
+    }
+
     fn folder(&mut self, path: &str, browse_name: QualifiedName, parent: &NodeId) -> NodeId {
         let id = self.id(path);
         self.object(
@@ -495,12 +512,11 @@ impl Tree<'_> {
             QualifiedName::new(r, "MotionDevices"),
             root,
         );
-        let device_id = self.id(DEVICE);
-        let device = self.object(
-            device_id,
+        let device = self.component(
+            DEVICE,
             QualifiedName::new(a, identity.1),
             NodeId::new(r, MOTION_DEVICE_TYPE),
-            (&devices, ReferenceTypeId::HasComponent),
+            &devices,
         );
         self.nameplate(DEVICE, &device, identity);
         self.property(
@@ -533,12 +549,11 @@ impl Tree<'_> {
             QualifiedName::new(r, "PowerTrains"),
             &device,
         );
-        let load_id = self.id(&format!("{DEVICE}/FlangeLoad"));
-        let load = self.object(
-            load_id,
+        let load = self.component(
+            &format!("{DEVICE}/FlangeLoad"),
             QualifiedName::new(r, "FlangeLoad"),
             NodeId::new(r, LOAD_TYPE),
-            (&device, ReferenceTypeId::HasComponent),
+            &device,
         );
         self.analog(
             &format!("{DEVICE}/FlangeLoad/Mass"),
@@ -554,13 +569,12 @@ impl Tree<'_> {
         let (r, a) = (self.ns.robotics, self.ns.armtwin);
         let name = format!("Axis{}", j + 1);
         let path = format!("{DEVICE}/Axes/{name}");
-        let axis_id = self.id(&path);
         let axes = self.id(&format!("{DEVICE}/Axes"));
-        let axis = self.object(
-            axis_id,
+        let axis = self.component(
+            &path,
             QualifiedName::new(a, name.as_str()),
             NodeId::new(r, AXIS_TYPE),
-            (&axes, ReferenceTypeId::HasComponent),
+            &axes,
         );
         self.property(
             &format!("{path}/MotionProfile"),
@@ -585,23 +599,21 @@ impl Tree<'_> {
 
         let train_name = format!("PowerTrain{}", j + 1);
         let train_path = format!("{DEVICE}/PowerTrains/{train_name}");
-        let train_id = self.id(&train_path);
         let trains = self.id(&format!("{DEVICE}/PowerTrains"));
-        let train = self.object(
-            train_id,
+        let train = self.component(
+            &train_path,
             QualifiedName::new(a, train_name.as_str()),
             NodeId::new(r, POWER_TRAIN_TYPE),
-            (&trains, ReferenceTypeId::HasComponent),
+            &trains,
         );
         self.space
             .insert_reference(&train, &axis, NodeId::new(r, MOVES));
         let motor_path = format!("{train_path}/Motor");
-        let motor_id = self.id(&motor_path);
-        let motor = self.object(
-            motor_id,
+        let motor = self.component(
+            &motor_path,
             QualifiedName::new(a, "Motor"),
             NodeId::new(r, MOTOR_TYPE),
-            (&train, ReferenceTypeId::HasComponent),
+            &train,
         );
         self.nameplate(&motor_path, &motor, identity);
         let parameters = self.parameter_set(&motor_path, &motor);
@@ -636,20 +648,18 @@ impl Tree<'_> {
         let (r, a) = (self.ns.robotics, self.ns.armtwin);
         let controllers = self.folder("Controllers", QualifiedName::new(r, "Controllers"), root);
         let path = "Controllers/Controller";
-        let controller_id = self.id(path);
-        let controller = self.object(
-            controller_id,
+        let controller = self.component(
+            path,
             QualifiedName::new(a, "Controller"),
             NodeId::new(r, CONTROLLER_TYPE),
-            (&controllers, ReferenceTypeId::HasComponent),
+            &controllers,
         );
         self.nameplate(path, &controller, (manufacturer, ""));
-        let user_id = self.id(&format!("{path}/CurrentUser"));
-        let user = self.object(
-            user_id,
+        let user = self.component(
+            &format!("{path}/CurrentUser"),
             QualifiedName::new(r, "CurrentUser"),
             NodeId::new(r, USER_TYPE),
-            (&controller, ReferenceTypeId::HasComponent),
+            &controller,
         );
         self.property(
             &format!("{path}/CurrentUser/Level"),
@@ -672,12 +682,11 @@ impl Tree<'_> {
         let (r, a) = (self.ns.robotics, self.ns.armtwin);
         let states = self.folder("SafetyStates", QualifiedName::new(r, "SafetyStates"), root);
         let path = "SafetyStates/SafetyState";
-        let safety_id = self.id(path);
-        let safety = self.object(
-            safety_id,
+        let safety = self.component(
+            path,
             QualifiedName::new(a, "SafetyState"),
             NodeId::new(r, SAFETY_STATE_TYPE),
-            (&states, ReferenceTypeId::HasComponent),
+            &states,
         );
         let parameters = self.parameter_set(path, &safety);
         for (name, quantity) in [
@@ -712,12 +721,11 @@ impl Tree<'_> {
     /// armtwin's own object of the robot: what no controller offers.
     fn twin(&mut self, root: &NodeId) {
         let a = self.ns.armtwin;
-        let twin_id = self.id("Twin");
-        let twin = self.object(
-            twin_id,
+        let twin = self.component(
+            "Twin",
             QualifiedName::new(a, "Twin"),
             ObjectTypeId::BaseObjectType.into(),
-            (root, ReferenceTypeId::HasComponent),
+            root,
         );
         for (name, unit, quantity) in [
             ("SourceTime", Unit::Second, Quantity::SourceTime),

@@ -336,6 +336,10 @@ pub struct ServeArgs {
     /// configuration's `[http] listen`).
     #[arg(long = "http", value_name = "ADDRESS")]
     pub http_listen: Option<std::net::SocketAddr>,
+    /// Serve every twin over OPC UA (OPC 40010 Robotics) on this endpoint, e.g.
+    /// `opc.tcp://127.0.0.1:4840` (replaces the configuration's `[opcua] endpoint`).
+    #[arg(long = "opcua", value_name = "URL")]
+    pub opcua_endpoint: Option<String>,
 }
 
 /// How a command joins the Zenoh mesh, in Zenoh's own style (as `zenohd`): the same flags, with
@@ -371,6 +375,7 @@ impl ZenohArgs {
             connect: self.connect.clone(),
             cfg: self.cfg.clone(),
             http_listen: None,
+            opcua_endpoint: None,
         }
     }
 }

@@ -59,6 +59,7 @@ const SERVICE_LAYERS: &[(&str, &[&str])] = &[
         "duties, each over the fleet",
         &[
             "controller",
+            "opcua_view",
             "queries",
             "self_calibration",
             "snapshot",

@@ -13,6 +13,7 @@ use crate::flags::ServeArgs;
 pub(super) fn run(args: &ServeArgs) -> Result<()> {
     let overrides = Overrides {
         http_listen: args.http_listen,
+        opcua_endpoint: args.opcua_endpoint.clone(),
         ..args.zenoh.overrides()
     };
     let config = ServiceConfig::load(args.config.as_deref(), &overrides)?;

@@ -39,6 +39,7 @@ pub(super) struct File {
     pub(super) http: HttpSection,
     #[serde(default)]
     pub(super) recorder: super::recorder::RecorderSection,
+    pub(super) opcua: armtwin_opcua::OpcUaSection,
 }
 
 /// `[http]`: the dashboard and `/metrics` (off unless `listen` is set), its TLS and tokens.

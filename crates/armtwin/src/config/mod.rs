@@ -209,6 +209,8 @@ pub struct ServiceConfig {
     pub http_access: crate::http_access::HttpAccess,
     /// `[recorder]`: the flight recorder.
     pub recorder: RecorderConfig,
+    /// `[opcua]` (or `--opcua`): the OPC UA server; `None`, none.
+    pub opcua: Option<armtwin_opcua::OpcUaSettings>,
 }
 
 /// The text of the configuration at `path` (the embedded default when `None`), its name for
@@ -312,6 +314,16 @@ impl ServiceConfig {
             http::load_http(&file.http, overrides.http_listen, (source_name, base_dir))?;
         let recorder =
             recorder::load_recorder(&file.recorder, &file.robots, (source_name, base_dir))?;
+        let opcua = armtwin_opcua::OpcUaSettings::from_section(
+            &file.opcua,
+            overrides.opcua_endpoint.as_deref(),
+            base_dir,
+        )
+        .map_err(|e| ConfigError::Invalid {
+            source_name: source_name.to_owned(),
+            field: format!("opcua.{}", e.field),
+            problem: e.problem,
+        })?;
         let sources = load_sources(
             &file.sources,
             &SourceContext {
@@ -358,6 +370,7 @@ impl ServiceConfig {
             http_listen,
             http_access,
             recorder,
+            opcua,
         })
     }
 

@@ -186,6 +186,8 @@ pub struct Overrides {
     pub cfg: Vec<ZenohInsert>,
     /// `--http ADDRESS` (replaces `[http] listen`).
     pub http_listen: Option<SocketAddr>,
+    /// `--opcua opc.tcp://HOST:PORT` (replaces `[opcua] endpoint`).
+    pub opcua_endpoint: Option<String>,
 }
 
 /// Zenoh's error message without the source location it ends with (` at …/file.rs:line.`):
@@ -219,6 +221,7 @@ mod tests {
                     .expect("KEY:VALUE"),
             ],
             http_listen: None,
+            opcua_endpoint: None,
         };
         let config = ServiceConfig::parse(text, "test", Path::new(""), &overrides).expect("valid");
         let zenoh = &config.zenoh;

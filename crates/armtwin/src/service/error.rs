@@ -39,6 +39,16 @@ pub enum ServiceError {
         /// Why.
         source: std::io::Error,
     },
+    /// The OPC UA server could not start (`[opcua]`).
+    #[error("{0}")]
+    OpcUa(String),
+}
+
+/// The OPC UA server could not start.
+impl From<armtwin_opcua::OpcUaError> for ServiceError {
+    fn from(error: armtwin_opcua::OpcUaError) -> Self {
+        Self::OpcUa(error.to_string())
+    }
 }
 
 impl From<MeshError> for ServiceError {

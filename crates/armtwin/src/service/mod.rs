@@ -29,6 +29,7 @@
 //! `publish`, the Zenoh I/O); `sink`; `fleet`; the duties over the fleet (`controller`,
 //! `queries`, `self_calibration`, `snapshot`, `view`); what runs them (`intake`, Zenoh's
 //! callbacks, and `control`, the control thread); and this file.
+//! `opcua_view` is the OPC UA server's read of the fleet, a duty beside `view`.
 
 mod calibration_slot;
 mod control;
@@ -40,6 +41,7 @@ mod gateways;
 mod intake;
 mod memory;
 mod peers;
+mod opcua_view;
 mod publish;
 mod queries;
 mod recording;
@@ -79,6 +81,10 @@ pub async fn serve(
 ) -> Result<ServeReport, ServiceError> {
     // Bound first: an address in use fails the start before anything joins the mesh.
     let http_listener = bind_http(config.http_listen).await?;
+    let opcua = match &config.opcua {
+        Some(settings) => Some(armtwin_opcua::OpcUaServer::bind(settings).await?),
+        None => None,
+    };
     let mut zenoh_config = zenoh_config_of(&config.zenoh)?;
     let keys = &config.keys;
     // The outputs with a publisher per streaming robot: at the sample rate, and the metrics.
@@ -147,6 +153,14 @@ pub async fn serve(
         }
     };
 
+    // Read at its own sampling interval, never on the sample path.
+    let opcua = opcua.and_then(|bound| {
+        bound
+            .start(Arc::new(opcua_view::OpcUaView::new(Arc::clone(&fleet))))
+            .inspect_err(|e| warn!(error = %e, "OPC UA server not started"))
+            .ok()
+    });
+
     shutdown.await;
     if let Some(dashboard) = dashboard {
         dashboard.stop().await;
@@ -156,6 +170,9 @@ pub async fn serve(
         if let Some(Err(e)) = bounded(step, TEARDOWN_STEP, subscriber.undeclare()).await {
             warn!(error = %e, step, "undeclaring failed");
         }
+    }
+    if let Some(opcua) = opcua {
+        opcua.stop().await;
     }
     info!("shutting down: stopping intake");
     intake.undeclare().await;

@@ -1,0 +1,33 @@
+//! armtwin's OPC UA server: every twinned robot as an OPC 40010 (Robotics) `MotionDeviceSystem`
+//! under DI's `DeviceSet`, with armtwin's own `Twin` object beside its motion device, for the
+//! SCADA, MES and historians of a plant.
+//!
+//! Layout:
+//! - `settings`: `[opcua]` as written and checked (endpoint, users, certificates, sampling);
+//! - `password`: the users' PBKDF2 digests;
+//! - `access`: who may sign in, and read-only for all;
+//! - `reading`: what the server reads of the fleet ([`TwinSource`], implemented by the service);
+//! - `manager`: the DI and Robotics `NodeSet`s imported, armtwin's namespace, no writes;
+//! - `robot`: one robot's nodes and what each variable shows;
+//! - `alarms`: alarm changes and the events they become;
+//! - `server`: the server and the sampler thread that copies the fleet into the nodes.
+//!
+//! Knows nothing of armtwin's twins: the service hands it [`RobotReading`]s.
+
+mod access;
+mod alarms;
+mod manager;
+mod password;
+mod reading;
+mod robot;
+mod server;
+mod settings;
+
+pub use manager::NodeSetError;
+pub use password::{PasswordHash, PasswordHashError};
+pub use reading::{
+    ControllerReading, DeviationStats, IdentifiedPayload, PayloadReading, PoseReading,
+    RobotReading, TwinSource,
+};
+pub use server::{BoundServer, OpcUaError, OpcUaServer};
+pub use settings::{OpcUaSection, OpcUaSettings, SettingsError, User, UserSection};

@@ -1,0 +1,368 @@
+//! The OPC UA server: its endpoints, certificate and users, and the sampler thread that copies
+//! the fleet into the robots' nodes at the sampling interval.
+//!
+//! The sampler is the only writer of the robots' nodes. It reads the fleet through
+//! [`TwinSource`] once per interval, adds the nodes of robots newly twinned, removes those of
+//! robots retired, sets the variables whose value changed (which notifies the subscriptions
+//! watching them) and turns alarm changes into events. Nothing here runs on the twins' sample
+//! path.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::sync::mpsc::{self, RecvTimeoutError};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use opcua::crypto::SecurityPolicy;
+use opcua::nodes::{BaseEventType, Event};
+use opcua::server::{
+    ANONYMOUS_USER_TOKEN_ID, Server, ServerBuilder, ServerEndpoint, ServerHandle, ServerUserToken,
+    SubscriptionCache,
+};
+use opcua::types::{ByteString, DataValue, DateTime, MessageSecurityMode, NodeId, ObjectTypeId};
+use ring::rand::{SecureRandom, SystemRandom};
+use tracing::{debug, info, warn};
+
+use crate::access::{Access, USERS_TOKEN_ID};
+use crate::alarms::{AlarmChange, AlarmStates};
+use crate::manager::{self, Namespaces, NodeSetError, TwinNodeManager};
+use crate::reading::{RobotReading, TwinSource};
+use crate::robot::{self, RobotNodes};
+use crate::settings::OpcUaSettings;
+
+/// Why the OPC UA server could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum OpcUaError {
+    /// The endpoint's address could not be bound.
+    #[error("OPC UA: cannot listen on {address}: {source}")]
+    Listen {
+        /// `HOST:PORT`.
+        address: String,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The information models could not be read.
+    #[error("OPC UA: {0}")]
+    NodeSet(#[from] NodeSetError),
+    /// The server's configuration was refused by the OPC UA stack.
+    #[error("OPC UA: {0}")]
+    Server(String),
+}
+
+/// How long stopping may wait for the server's sessions to close.
+const STOP_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// A running OPC UA server.
+pub struct OpcUaServer {
+    handle: ServerHandle,
+    server: tokio::task::JoinHandle<Result<(), String>>,
+    stop_sampler: mpsc::Sender<()>,
+    sampler: JoinHandle<()>,
+}
+
+/// The endpoints: the encrypted ones for users (and anonymous clients, when let in); policy None
+/// for anonymous clients alone, when offered.
+fn endpoints(settings: &OpcUaSettings) -> Vec<(String, ServerEndpoint)> {
+    let mut secure_tokens = vec![USERS_TOKEN_ID.to_owned()];
+    if settings.anonymous {
+        secure_tokens.push(ANONYMOUS_USER_TOKEN_ID.to_owned());
+    }
+    let mut endpoints: Vec<(String, ServerEndpoint)> = [
+        (SecurityPolicy::Basic256Sha256, "basic256sha256"),
+        (SecurityPolicy::Aes128Sha256RsaOaep, "aes128sha256rsaoaep"),
+        (SecurityPolicy::Aes256Sha256RsaPss, "aes256sha256rsapss"),
+    ]
+    .into_iter()
+    .map(|(policy, name)| {
+        (
+            format!("{name}_sign_encrypt"),
+            ServerEndpoint::new(
+                "/",
+                policy,
+                MessageSecurityMode::SignAndEncrypt,
+                &secure_tokens,
+            ),
+        )
+    })
+    .collect();
+    if settings.security_none && settings.anonymous {
+        endpoints.push((
+            "none".to_owned(),
+            ServerEndpoint::new_none("/", &[ANONYMOUS_USER_TOKEN_ID.to_owned()]),
+        ));
+    }
+    endpoints
+}
+
+/// A server built and bound, not yet serving: what can fail at start has failed here, before
+/// the service takes any input.
+pub struct BoundServer {
+    server: Server,
+    handle: ServerHandle,
+    listener: tokio::net::TcpListener,
+    nodes: Arc<TwinNodeManager>,
+    namespaces: Namespaces,
+    period: Duration,
+}
+
+impl OpcUaServer {
+    /// Binds the endpoint and builds the server with the DI and Robotics models. Call from
+    /// within a Tokio runtime.
+    pub async fn bind(settings: &OpcUaSettings) -> Result<BoundServer, OpcUaError> {
+        let nodesets = manager::parse_nodesets()?;
+        let address = format!("{}:{}", settings.host, settings.port);
+        let listener = tokio::net::TcpListener::bind(&address)
+            .await
+            .map_err(|source| OpcUaError::Listen {
+                address: address.clone(),
+                source,
+            })?;
+        let mut builder = ServerBuilder::new()
+            .application_name("armtwin")
+            .application_uri("urn:armtwin:server")
+            .product_uri("urn:armtwin")
+            .host(settings.host.clone())
+            .port(settings.port)
+            .discovery_urls(vec![settings.url.clone()])
+            .pki_dir(settings.pki_dir.clone())
+            .trust_client_certs(false)
+            .with_authenticator(Arc::new(Access::new(&settings.users, settings.anonymous)))
+            .with_node_manager(manager::builder(nodesets));
+        builder = match &settings.certificate {
+            Some((certificate, key)) => builder
+                .certificate_path(certificate.clone())
+                .private_key_path(key.clone()),
+            None => builder
+                .create_sample_keypair(true)
+                .certificate_path("own/cert.der")
+                .private_key_path("private/private.pem"),
+        };
+        // The stack checks every endpoint's token ids against its user table; the passwords
+        // themselves are checked by `Access`, against their digests.
+        builder = builder.add_user_token(
+            USERS_TOKEN_ID,
+            ServerUserToken {
+                user: USERS_TOKEN_ID.to_owned(),
+                pass: Some(String::new()),
+                ..ServerUserToken::default()
+            },
+        );
+        for (id, endpoint) in endpoints(settings) {
+            builder = builder.add_endpoint(id, endpoint);
+        }
+        let (server, handle) = builder.build().map_err(OpcUaError::Server)?;
+        let nodes = handle
+            .node_managers()
+            .get_of_type::<TwinNodeManager>()
+            .ok_or_else(|| OpcUaError::Server("the twins' node manager is missing".to_owned()))?;
+        let namespaces = Namespaces::of(&nodes)
+            .ok_or_else(|| OpcUaError::Server("a namespace is missing".to_owned()))?;
+        info!(
+            endpoint = %settings.url,
+            sampling_interval_ms = settings.sampling_interval.as_millis(),
+            anonymous = settings.anonymous,
+            security_none = settings.security_none && settings.anonymous,
+            users = settings.users.len(),
+            "OPC UA server bound"
+        );
+        Ok(BoundServer {
+            server,
+            handle,
+            listener,
+            nodes,
+            namespaces,
+            period: settings.sampling_interval,
+        })
+    }
+
+    /// Stops the sampler, then the server, bounded in time.
+    pub async fn stop(self) {
+        // The sampler wakes on the message (or on the channel's close) at once.
+        let _ = self.stop_sampler.send(());
+        let sampler = self.sampler;
+        let _ = tokio::task::spawn_blocking(move || sampler.join()).await;
+        self.handle.cancel();
+        match tokio::time::timeout(STOP_TIMEOUT, self.server).await {
+            Ok(Ok(Ok(()))) => info!("OPC UA server stopped"),
+            Ok(Ok(Err(e))) => warn!(error = %e, "OPC UA server stopped with an error"),
+            Ok(Err(e)) => warn!(error = %e, "OPC UA server task failed"),
+            Err(_) => warn!("OPC UA server did not stop in time"),
+        }
+    }
+}
+
+impl BoundServer {
+    /// Starts serving, and the sampler, which reads `source` every sampling interval.
+    pub fn start(self, source: Arc<dyn TwinSource>) -> Result<OpcUaServer, OpcUaError> {
+        let (stop_sampler, stopped) = mpsc::channel();
+        let sampler = Sampler {
+            source,
+            nodes: self.nodes,
+            subscriptions: Arc::clone(self.handle.subscriptions()),
+            namespaces: self.namespaces,
+            robots: HashMap::new(),
+            readings: Vec::new(),
+            random: SystemRandom::new(),
+        };
+        let period = self.period;
+        let sampler = std::thread::Builder::new()
+            .name("armtwin-opcua".to_owned())
+            .spawn(move || sampler.run(period, &stopped))
+            .map_err(|e| OpcUaError::Server(format!("the sampler thread: {e}")))?;
+        let server = tokio::spawn(self.server.run_with(self.listener));
+        info!("OPC UA server serving");
+        Ok(OpcUaServer {
+            handle: self.handle,
+            server,
+            stop_sampler,
+            sampler,
+        })
+    }
+}
+
+/// One robot on the server: its nodes and its alarms as last published.
+struct Published {
+    nodes: RobotNodes,
+    alarms: AlarmStates,
+    /// The sampler's turn that last saw the robot.
+    seen: u64,
+}
+
+/// The sampler thread's state.
+struct Sampler {
+    source: Arc<dyn TwinSource>,
+    nodes: Arc<TwinNodeManager>,
+    subscriptions: Arc<SubscriptionCache>,
+    namespaces: Namespaces,
+    robots: HashMap<Arc<str>, Published>,
+    readings: Vec<RobotReading>,
+    random: SystemRandom,
+}
+
+impl Sampler {
+    fn run(mut self, period: Duration, stop: &mpsc::Receiver<()>) {
+        let mut turn = 0_u64;
+        let mut next = Instant::now();
+        loop {
+            turn += 1;
+            let started = Instant::now();
+            self.sample(turn);
+            debug!(
+                robots = self.robots.len(),
+                took_us = started.elapsed().as_micros(),
+                "OPC UA nodes updated"
+            );
+            next += period;
+            let now = Instant::now();
+            if next < now {
+                // Behind (a long turn): skip the turns missed rather than run them back to back.
+                next = now + period;
+            }
+            match stop.recv_timeout(next - now) {
+                Err(RecvTimeoutError::Timeout) => {}
+                Ok(()) | Err(RecvTimeoutError::Disconnected) => break,
+            }
+        }
+    }
+
+    /// One turn: the fleet read and copied into the nodes.
+    fn sample(&mut self, turn: u64) {
+        let mut readings = std::mem::take(&mut self.readings);
+        readings.clear();
+        self.source.read_fleet(&mut readings);
+        let mut updates: Vec<(NodeId, DataValue)> = Vec::new();
+        let mut changes: Vec<(NodeId, Arc<str>, AlarmChange)> = Vec::new();
+        {
+            let mut space = self.nodes.address_space().write();
+            for reading in &readings {
+                let rebuild = self
+                    .robots
+                    .get(&reading.id)
+                    .is_some_and(|known| known.nodes.joint_count != reading.joint_count);
+                if rebuild && let Some(stale) = self.robots.remove(&reading.id) {
+                    robot::remove(&mut space, &stale.nodes);
+                }
+                let published = self
+                    .robots
+                    .entry(Arc::clone(&reading.id))
+                    .or_insert_with(|| {
+                        info!(robot = %reading.id, "OPC UA: robot added");
+                        Published {
+                            nodes: robot::build(&mut space, self.namespaces, reading),
+                            alarms: AlarmStates::default(),
+                            seen: turn,
+                        }
+                    });
+                published.seen = turn;
+                let now = DateTime::now();
+                for slot in &mut published.nodes.slots {
+                    let value = slot.quantity.read(reading);
+                    if slot.last.as_ref() != Some(&value) {
+                        let (variant, status) = value.clone();
+                        updates.push((
+                            slot.node.clone(),
+                            DataValue {
+                                value: Some(variant),
+                                status: Some(status),
+                                source_timestamp: Some(now),
+                                server_timestamp: Some(now),
+                                ..DataValue::default()
+                            },
+                        ));
+                        slot.last = Some(value);
+                    }
+                }
+                let alarms = AlarmStates::of(reading);
+                for change in published.alarms.changes(alarms) {
+                    changes.push((
+                        published.nodes.root.clone(),
+                        Arc::clone(&reading.id),
+                        change,
+                    ));
+                }
+                published.alarms = alarms;
+            }
+            self.robots.retain(|id, published| {
+                let present = published.seen == turn;
+                if !present {
+                    robot::remove(&mut space, &published.nodes);
+                    info!(robot = %id, "OPC UA: robot removed");
+                }
+                present
+            });
+        }
+        if !updates.is_empty()
+            && let Err(status) = self.nodes.set_values(
+                &self.subscriptions,
+                updates
+                    .iter()
+                    .map(|(node, value)| (node, None, value.clone())),
+            )
+        {
+            warn!(%status, "OPC UA: updating the robots' nodes failed");
+        }
+        self.notify(&changes);
+        self.readings = readings;
+    }
+
+    /// Each alarm change as an event from the robot's system node: a client watching the node,
+    /// or the Server object (which every event reaches), receives it.
+    fn notify(&self, changes: &[(NodeId, Arc<str>, AlarmChange)]) {
+        for (root, robot, change) in changes {
+            let mut id = [0_u8; 16];
+            // Without randomness the id is zero: events stay distinct by time and source.
+            let _ = self.random.fill(&mut id);
+            let event = BaseEventType::new_now(
+                ObjectTypeId::BaseEventType,
+                ByteString::from(id.to_vec()),
+                change.message(robot),
+            )
+            .set_source_node(root.clone())
+            .set_source_name(robot.as_ref().into())
+            .set_severity(change.severity());
+            info!(robot = %robot, severity = change.severity(), message = %change.message(robot), "OPC UA event");
+            self.subscriptions
+                .notify_events([(&event as &dyn Event, root)].into_iter());
+        }
+    }
+}

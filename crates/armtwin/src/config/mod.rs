@@ -28,8 +28,8 @@ use serde::Deserialize;
 use thiserror::Error;
 
 use self::file::{AlignSection, File, SelfCalibrationSection, ServiceSection};
-pub use self::robots::ConfiguredTools;
 pub use self::recorder::RecorderConfig;
+pub use self::robots::ConfiguredTools;
 use self::robots::{SharedSettings, load_pose_outputs, load_robots};
 pub use self::sources::{Ros2Source, SourceConfig, SourceRobot, SourceStream};
 use self::sources::{SourceContext, load_sources};

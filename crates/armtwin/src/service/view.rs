@@ -10,7 +10,6 @@ use std::sync::Arc;
 use super::fleet::Fleet;
 use super::gateways::GatewayTokens;
 use super::peers::Peers;
-use crate::codec::json;
 use crate::dashboard::{FleetRow, FleetSource, PeerFleet, RobotCounts, RobotDetail, ServiceTotals};
 
 /// The fleet as the dashboard reads it.

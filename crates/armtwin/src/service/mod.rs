@@ -153,27 +153,10 @@ pub async fn serve(
         }
     };
 
-    // Read at its own sampling interval, never on the sample path.
-    let opcua = opcua.and_then(|bound| {
-        bound
-            .start(Arc::new(opcua_view::OpcUaView::new(Arc::clone(&fleet))))
-            .inspect_err(|e| warn!(error = %e, "OPC UA server not started"))
-            .ok()
-    });
+    let opcua = opcua.and_then(|bound| start_opcua(bound, &fleet));
 
     shutdown.await;
-    if let Some(dashboard) = dashboard {
-        dashboard.stop().await;
-    }
-    for subscriber in gateway_watch {
-        let step = "undeclaring the gateway token subscriber";
-        if let Some(Err(e)) = bounded(step, TEARDOWN_STEP, subscriber.undeclare()).await {
-            warn!(error = %e, step, "undeclaring failed");
-        }
-    }
-    if let Some(opcua) = opcua {
-        opcua.stop().await;
-    }
+    close_doors(dashboard, gateway_watch, opcua).await;
     info!("shutting down: stopping intake");
     intake.undeclare().await;
     // Samples that arrive after this are ignored: the control thread finishes the pipeline.
@@ -205,6 +188,39 @@ pub async fn serve(
 
 /// Starts the dashboard on `listener`, with the subscribers of the gateways' tokens it reads
 /// (heard only for `/metrics`: a service without the dashboard holds no table of them).
+/// Starts the bound OPC UA server over `fleet`, which it reads at its own sampling interval, never
+/// on the sample path; a server that cannot start is a warning, and the twin goes on.
+fn start_opcua(
+    bound: armtwin_opcua::BoundServer,
+    fleet: &Arc<Fleet>,
+) -> Option<armtwin_opcua::OpcUaServer> {
+    bound
+        .start(Arc::new(opcua_view::OpcUaView::new(Arc::clone(fleet))))
+        .inspect_err(|e| warn!(error = %e, "OPC UA server not started"))
+        .ok()
+}
+
+/// Stops what serves people rather than gateways (the dashboard, with its watch of the gateways'
+/// tokens, and the OPC UA server), first: nobody reads a twin that is being finished.
+async fn close_doors(
+    dashboard: Option<dashboard::Dashboard>,
+    gateway_watch: Vec<zenoh::pubsub::Subscriber<()>>,
+    opcua: Option<armtwin_opcua::OpcUaServer>,
+) {
+    if let Some(dashboard) = dashboard {
+        dashboard.stop().await;
+    }
+    for subscriber in gateway_watch {
+        let step = "undeclaring the gateway token subscriber";
+        if let Some(Err(e)) = bounded(step, TEARDOWN_STEP, subscriber.undeclare()).await {
+            warn!(error = %e, step, "undeclaring failed");
+        }
+    }
+    if let Some(opcua) = opcua {
+        opcua.stop().await;
+    }
+}
+
 async fn start_dashboard(
     listener: tokio::net::TcpListener,
     session: &zenoh::Session,

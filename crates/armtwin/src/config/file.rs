@@ -39,6 +39,7 @@ pub(super) struct File {
     pub(super) http: HttpSection,
     #[serde(default)]
     pub(super) recorder: super::recorder::RecorderSection,
+    #[serde(default)]
     pub(super) opcua: armtwin_opcua::OpcUaSection,
 }
 

@@ -22,6 +22,7 @@ metrics_period_ms = 100
 [robots.default]
 model = "ur10e"
 alarm_position_m = 0.0005
+alarm_hold_s = 0.0
 """
 FLEET = {"site-a/r1": "site-a/**", "site-a/r2": "site-a/**", "site-b/r1": "site-b/**"}
 

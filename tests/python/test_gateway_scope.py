@@ -13,7 +13,7 @@ from support.gateway import Gateway
 from support.paths import REPO_ROOT
 from support.process import wait_until
 from support.secured_fleet import ROUTER_CONFIG, denied, secured_fleet, send
-from support.zenoh_clients import get_json, paired_of
+from support.zenoh_clients import get_json, wait_paired
 
 
 def test_a_gateway_puts_its_own_robots_joints_only(tmp_path, certs, armtwin_bin):
@@ -21,14 +21,14 @@ def test_a_gateway_puts_its_own_robots_joints_only(tmp_path, certs, armtwin_bin)
         g1, g2, dashboard = sessions["g1"], sessions["g2"], sessions["dashboard"]
         send(Gateway(g1, "r1"), router)
         send(Gateway(g1, "r2"), router)
-        assert wait_until(lambda: paired_of(dashboard, "r1") == 20, 15), router.logs()
+        assert not (why := wait_paired(dashboard, "r1", 20)), why + "\n" + router.logs()
         assert wait_until(lambda: denied(router, "g1", "Put (ingress) on", "twin/joints/r2"), 10), router.logs()
         time.sleep(1.0)
         assert get_json(dashboard, "twin/state/r2", timeout=3.0) == [], "g1 cannot speak for r2"
 
         # r2's own gateway can.
         send(Gateway(g2, "r2"), router, count=10)
-        assert wait_until(lambda: paired_of(dashboard, "r2") == 10, 15), router.logs()
+        assert not (why := wait_paired(dashboard, "r2", 10)), why + "\n" + router.logs()
         assert not denied(router, "g2", "Put (ingress) on", "twin/joints/r2")
         assert not denied(router, "g1", "Put (ingress) on", "twin/joints/r1")
 

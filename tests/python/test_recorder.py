@@ -26,7 +26,7 @@ from support.gateway import Gateway
 from support.process import ArmtwinProcess, free_port, run_armtwin, wait_until
 from support.secured_fleet import secured_fleet, send
 from support.twin_reference import joint_message, load_lasttest_naive
-from support.zenoh_clients import TwinClient, get_json, paired_of, wait_queryable
+from support.zenoh_clients import TwinClient, get_json, wait_paired, wait_queryable
 
 PRE_S = 4.0
 POST_S = 2.0
@@ -246,7 +246,7 @@ def test_an_operator_records_behind_the_secured_router_and_a_dashboard_may_not(t
         dashboard, operator = sessions["dashboard"], sessions["operator"]
         assert wait_queryable(operator, "twin/admin/record/**"), router.logs()
         send(Gateway(sessions["g1"], "r1"), router, count=50)
-        assert wait_until(lambda: paired_of(dashboard, "r1") == 50, 15)
+        assert not (why := wait_paired(dashboard, "r1", 50)), why + "\n" + router.logs()
         events = []
         dashboard.declare_subscriber("twin/events/r1", lambda s: events.append(json.loads(s.payload.to_bytes())))
 

@@ -17,7 +17,7 @@ from support.gateway import Gateway
 from support.paths import router_path
 from support.process import Router, free_port, wait_until
 from support.secured_fleet import ROUTER_CONFIG, denied, secured_fleet, send
-from support.zenoh_clients import get_json, paired_of
+from support.zenoh_clients import get_json, paired_of, wait_paired
 
 STATE_TIMEOUT_S = 15.0
 
@@ -43,7 +43,7 @@ def test_an_anonymous_rest_client_reads_but_can_neither_reset_nor_forge(tmp_path
     with secured_fleet(tmp_path, certs, armtwin_bin, ["g1", "dashboard"], rest=REST_IDENTITY) as (router, sessions):
         dashboard = sessions["dashboard"]
         send(Gateway(sessions["g1"], "r1"), router)
-        assert wait_until(lambda: paired_of(dashboard, "r1") == 20, STATE_TIMEOUT_S)
+        assert not (why := wait_paired(dashboard, "r1", 20, STATE_TIMEOUT_S)), why
 
         # REST reads, as a dashboard does.
         status, body = rest(router, "GET", "/twin/state/r1")

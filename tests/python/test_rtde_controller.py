@@ -110,10 +110,13 @@ def test_the_controllers_tcp_serial_and_model_reach_the_twin(tmp_path, rows, ser
     _, gateway = started(recording_with_tcp(tmp_path, rows),
                          ["--fast", "--dashboard-port", 0, "--model", "UR5", "--serial", SERIAL])
 
-    def serial_shown():
-        return (state(service).get("controller") or {}).get("serial") == SERIAL
+    # The gateway puts what the dashboard server said when it connects, and the TCP with the first
+    # RTDE packet (before that packet's joints): the state answer may show the one without the other.
+    def facts_shown():
+        controller = state(service).get("controller") or {}
+        return controller.get("serial") == SERIAL and controller.get("tcp_offset") is not None
 
-    assert wait_until(serial_shown, TIMEOUT_S, interval=0.1), (state(service), gateway.logs())
+    assert wait_until(facts_shown, TIMEOUT_S, interval=0.1), (state(service), gateway.logs())
     answer = state(service)
     assert answer["controller"]["model"] == "UR5"
     assert answer["controller"]["tcp_offset"] == TCP_OFFSET

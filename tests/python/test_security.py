@@ -17,7 +17,7 @@ from support.gateway import Gateway
 from support.pki import tls_of
 from support.process import wait_until
 from support.secured_fleet import denied, open_as, send, tls_client_config, tls_router_and_twin
-from support.zenoh_clients import get_json, paired_of, wait_queryable
+from support.zenoh_clients import get_json, wait_paired, wait_queryable
 
 
 def test_access_control_lets_each_role_do_only_its_part(
@@ -100,7 +100,7 @@ def test_only_an_operator_may_reset_a_twin(tmp_path, certs, armtwin_bin):
         assert wait_queryable(dashboard, "twin/state/**"), router.logs()
         assert wait_queryable(operator, "twin/admin/reset/**"), router.logs()
         send(Gateway(gateway_session, "r1"), router)
-        assert wait_until(lambda: paired_of(dashboard, "r1") == 20, 15)
+        assert not (why := wait_paired(dashboard, "r1", 20)), why + "\n" + twin.logs() + router.logs()
 
         # The dashboard reads, and every change it asks for is dropped at the router or refused.
         for selector in ("twin/admin/reset/r1", "twin/admin/calibrate/r1?action=apply",

@@ -57,6 +57,11 @@ ROBOTS = ("a", "b")
 # A small receive buffer on the slow subscriber's side, so its link congests within the sleep
 # rather than after the kernel has buffered tens of megabytes.
 SLOW_RCVBUF = 16384
+# And a bounded send buffer on the service's side. Linux grows a socket's send buffer up to
+# tcp_wmem's maximum (4 MB) while its peer does not read: the sleeper woke to 3.6 MB of poses
+# queued before it slept, which Python on a busy machine drained at ~0.5 MB/s, so the stream
+# ended before it reached a pose published after it woke. The kernel doubles what is asked.
+SERVICE_SNDBUF = 131072
 # Poses the fast subscriber may miss: with the `drop` default a subscriber loses poses when its own
 # process is starved of CPU (it shares a Python interpreter with the gateway), which is not a stall;
 # a few percent with busy loops beside the test on 2 cores, none without them.
@@ -69,7 +74,7 @@ STALL_S = 2.0
 
 @pytest.fixture
 def twin(armtwin_bin, tmp_path):
-    proc = ArmtwinProcess(armtwin_bin, tmp_path, CONFIG, WATCHDOG_S)
+    proc = ArmtwinProcess(armtwin_bin, tmp_path, CONFIG, WATCHDOG_S, listen_options=f"so_sndbuf={SERVICE_SNDBUF}")
     proc.start()
     try:
         yield proc

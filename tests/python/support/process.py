@@ -196,15 +196,19 @@ class Process:
 
 
 class ArmtwinProcess(Process):
-    """``armtwin serve -c CONFIG -l tcp/127.0.0.1:PORT``: a peer on a private loopback port."""
+    """``armtwin serve -c CONFIG -l tcp/127.0.0.1:PORT``: a peer on a private loopback port;
+    ``listen_options``, if given, are the listening endpoint's Zenoh link options
+    (``so_sndbuf=65536``), left out of ``endpoint``, which clients connect to."""
 
-    def __init__(self, binary: Path, workdir: Path, config_text: str, watchdog_s: float):
+    def __init__(self, binary: Path, workdir: Path, config_text: str, watchdog_s: float,
+                 listen_options: str = ""):
         workdir = Path(workdir)
         self.config_path = workdir / "armtwin.toml"
         self.config_path.write_text(config_text)
         self.port = free_port()
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
-        argv = [binary, "serve", "-c", self.config_path, "-l", self.endpoint]
+        listen = f"{self.endpoint}#{listen_options}" if listen_options else self.endpoint
+        argv = [binary, "serve", "-c", self.config_path, "-l", listen]
         super().__init__("armtwin", argv, workdir, watchdog_s=watchdog_s)
 
     def start(self) -> ArmtwinProcess:

@@ -65,6 +65,9 @@ def secured_fleet(tmp_path, certs, armtwin_bin, names: list[str], rest: list[str
         sessions = {name: open_as(router, certs, name) for name in names}
         assert wait_queryable(sessions["dashboard"], "twin/state/**"), router.logs()
         yield router, sessions
+    except BaseException:
+        print(f"armtwin's log:\n{twin.logs()}")  # shown with the failure
+        raise
     finally:
         for session in sessions.values():
             session.close()

@@ -30,6 +30,9 @@ use crate::recorder::store::{robot_directory, with_causes};
 /// How often the progress callback is called.
 const PROGRESS_PERIOD: Duration = Duration::from_millis(250);
 
+/// How long to wait for the mesh to answer the query behind the subscribers' declarations.
+const DECLARED_LIMIT: Duration = Duration::from_secs(5);
+
 /// Where the files go.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum RecordOutput {
@@ -182,7 +185,7 @@ pub async fn record(
     let (queue, arrivals) = sync_channel::<Arrived>(settings.queue.max(1));
     let shared = Arc::new(Shared::default());
     let writer = {
-        let writer = Writer::new(settings, keys, Arc::clone(&shared));
+        let writer = Writer::new(settings, keys.clone(), Arc::clone(&shared));
         std::thread::Builder::new()
             .name("armtwin-record".to_owned())
             .spawn(move || writer.run(&arrivals))
@@ -212,6 +215,8 @@ pub async fn record(
         subscribers.push(subscriber);
     }
     drop(queue);
+    declared(&session, &keys, &settings.robots).await;
+    info!("recording started");
     let interrupted = wait(settings.duration, shutdown, &shared, &mut progress).await;
     for subscriber in subscribers {
         if let Some(result) = bounded(
@@ -244,6 +249,22 @@ pub async fn record(
         "recording done"
     );
     Ok(report)
+}
+
+/// Waits until the peer this session joined through has taken its subscribers: a query for the
+/// robots' state travels behind the declarations on the same link, so its final reply is a
+/// barrier (a publisher that starts after it reaches this recorder from its first message).
+/// Without an `armtwin serve` answering it returns at once.
+async fn declared(session: &zenoh::Session, keys: &KeySpace, robots: &[String]) {
+    for robots in robots {
+        let key = keys.key(Stream::State, robots);
+        match session.get(&key).timeout(DECLARED_LIMIT).await {
+            Ok(replies) => while replies.recv_async().await.is_ok() {},
+            Err(e) => {
+                warn!(error = %e, %key, "could not wait for the mesh to take the subscribers")
+            }
+        }
+    }
 }
 
 /// Waits for the duration or `shutdown`, calling `progress` meanwhile; whether `shutdown` ended

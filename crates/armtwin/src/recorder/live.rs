@@ -149,18 +149,27 @@ pub fn decode(
 ) -> Result<LiveMessage, DecodeError> {
     let message = match stream {
         LiveStream::Joints => {
-            let decoded = codec
+            let mut sample = codec
                 .read_joints(payload, joint_count)
-                .map_err(|refused| refused.error)?;
+                .map_err(|refused| refused.error)?
+                .sample;
+            if let Some(pose) = &mut sample.measured {
+                keep_as_sent(
+                    pose,
+                    quaternion_as_sent(stream, codec, payload, joint_count),
+                );
+            }
             LiveMessage::Joints {
-                stamp_s: decoded.sample.stamp_s.unwrap_or(fallback_s),
-                sample: Box::new(decoded.sample),
+                stamp_s: sample.stamp_s.unwrap_or(fallback_s),
+                sample: Box::new(sample),
             }
         }
         LiveStream::Measured => {
-            let measured = codec
+            let mut measured = codec
                 .read_measured(payload)
                 .map_err(|refused| refused.error)?;
+            let as_sent = quaternion_as_sent(stream, codec, payload, joint_count);
+            keep_as_sent(&mut measured.pose, as_sent);
             LiveMessage::Measured {
                 stamp_s: measured.stamp_s.unwrap_or(fallback_s),
                 pose: measured.pose,
@@ -174,6 +183,71 @@ pub fn decode(
         Ok(message)
     } else {
         Err(DecodeError::Stamp(stamp_s))
+    }
+}
+
+/// A measured quaternion's components as the gateway sent them (JSON).
+#[derive(Deserialize)]
+struct QuaternionJson {
+    qx: f64,
+    qy: f64,
+    qz: f64,
+    qw: f64,
+}
+
+/// A joint message's embedded measured pose, its quaternion as sent (JSON).
+#[derive(Deserialize)]
+struct EmbeddedJson {
+    measured: QuaternionJson,
+}
+
+/// The quaternion of a decoded measured pose (its own message's, or embedded in a joint
+/// message) as the gateway sent it, when it sent one: the decoder normalises it, and a reader of
+/// the file (`validate`, `replay`) normalises what it reads, so the file keeps what came in and
+/// a reader computes what the twin computed. `None` for another orientation form (the decoded
+/// quaternion is then kept).
+fn quaternion_as_sent(
+    stream: LiveStream,
+    codec: Codec,
+    payload: &[u8],
+    joint_count: usize,
+) -> Option<[f64; 4]> {
+    let from = |q: QuaternionJson| [q.qx, q.qy, q.qz, q.qw];
+    match (codec, stream) {
+        (Codec::Json, LiveStream::Joints) => serde_json::from_slice::<EmbeddedJson>(payload)
+            .ok()
+            .map(|m| from(m.measured)),
+        (Codec::Json, _) => serde_json::from_slice::<QuaternionJson>(payload)
+            .ok()
+            .map(from),
+        // `(t, q: seq, seq: u64, measured: seq)` and `(t, pose: seq)`, each sequence's length one
+        // byte (LEB128 below 128), the framing already checked by the decoder.
+        (Codec::ZenohSerialized(_), stream) => {
+            let at = match stream {
+                LiveStream::Joints => 8 + 1 + 8 * joint_count + 8 + 1 + 24,
+                _ => 8 + 1 + 24,
+            };
+            let fits = joint_count < 128 && payload.len() >= at + 32;
+            fits.then(|| std::array::from_fn(|i| f64_at(payload, at + 8 * i)))
+        }
+    }
+}
+
+/// `pose`'s quaternion replaced by the one sent, if it is the same rotation (a check that the
+/// bytes read are the ones the decoder read).
+fn keep_as_sent(pose: &mut PoseReadout, as_sent: Option<[f64; 4]>) {
+    let Some(xyzw) = as_sent else {
+        return;
+    };
+    let norm = xyzw.iter().map(|c| c * c).sum::<f64>().sqrt();
+    let dot: f64 = xyzw
+        .iter()
+        .zip(&pose.quaternion_xyzw)
+        .map(|(a, b)| a * b)
+        .sum();
+    // Normalised, the two agree to rounding (or one is the other's negation).
+    if norm.is_finite() && norm > 0.0 && (dot.abs() / norm - 1.0).abs() < 1e-9 {
+        pose.quaternion_xyzw = xyzw;
     }
 }
 
@@ -458,6 +532,27 @@ mod tests {
         assert_eq!(metadata.metadata["trigger"], "record");
         assert_eq!(metadata.metadata["from_s"], STAMP_S.to_string());
         assert_eq!(metadata.metadata["until_s"], (STAMP_S + 0.002).to_string());
+    }
+
+    #[test]
+    fn a_binary_measured_quaternion_is_kept_as_sent() {
+        let measured = [0.5, 0.25, 0.125, -0.408, -0.9, -0.014, 0.152];
+        let q = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6];
+        let payload = zser::joints_bytes(STAMP_S, &q, 7, Some(&measured));
+        let message = decode(
+            LiveStream::Joints,
+            Codec::ZenohSerialized(Some(zser::Schema::Joints)),
+            &payload,
+            6,
+            0.0,
+        )
+        .expect("decodes");
+        let super::LiveMessage::Joints { sample, .. } = message else {
+            panic!("a joint message");
+        };
+        let pose = sample.measured.expect("its measured pose");
+        assert_eq!(pose.position_m, [0.5, 0.25, 0.125]);
+        assert_eq!(pose.quaternion_xyzw, [-0.408, -0.9, -0.014, 0.152]);
     }
 
     #[test]

@@ -53,11 +53,10 @@ def test_a_recording_reads_back_and_replays_to_the_same_metrics(armtwin_bin, tmp
     rows = first_rows(csv)
     service = ArmtwinProcess(armtwin_bin, tmp_path, CONFIG, 120.0).start()
     out = tmp_path / "recordings"
-    # A client of the service, as a tool on an operator's machine joins a mesh; the service
-    # routes the gateway's messages to it.
+    # A client of the service (the default): the service routes the gateway's messages to it.
     recorder = Process(
         "record",
-        [armtwin_bin, "record", "r1", "-o", out, "-m", "client", "-e", service.endpoint],
+        [armtwin_bin, "record", "r1", "-o", out, "-e", service.endpoint],
         tmp_path,
         watchdog_s=120.0,
     )

@@ -311,8 +311,8 @@ pub struct RecordArgs {
     /// The key prefix of the streams: the service's `[service] key_prefix`.
     #[arg(long, default_value = armtwin::keys::DEFAULT_PREFIX)]
     pub prefix: String,
-    /// How to join the mesh; without flags, as `armtwin replay` does (a peer, multicast scouting
-    /// off, connecting to tcp/127.0.0.1:7447).
+    /// How to join the mesh; without flags, as a client of the default `armtwin serve` (multicast
+    /// scouting off, connecting to tcp/127.0.0.1:7447), which routes every robot's streams to it.
     #[command(flatten)]
     pub zenoh: ZenohArgs,
 }

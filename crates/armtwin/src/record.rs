@@ -261,7 +261,7 @@ async fn declared(session: &zenoh::Session, keys: &KeySpace, robots: &[String]) 
         match session.get(&key).timeout(DECLARED_LIMIT).await {
             Ok(replies) => while replies.recv_async().await.is_ok() {},
             Err(e) => {
-                warn!(error = %e, %key, "could not wait for the mesh to take the subscribers")
+                warn!(error = %e, %key, "could not wait for the mesh to take the subscribers");
             }
         }
     }

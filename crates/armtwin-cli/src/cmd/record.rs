@@ -7,7 +7,7 @@ use std::fmt::Write as _;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
-use armtwin::config::ZenohSection;
+use armtwin::config::{ZenohMode, ZenohSection};
 use armtwin::record::{self, Progress, RecordOutput, RecordSettings};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
@@ -37,8 +37,14 @@ pub(super) fn run(args: &RecordArgs) -> Result<()> {
     } else {
         RecordOutput::Directory(args.out.clone())
     };
+    // A client: the peer it joins (a bare `armtwin serve`) routes every robot's streams to it,
+    // the gateways' included, where a peer would hear only what that peer publishes itself.
+    let zenoh = ZenohSection {
+        mode: ZenohMode::Client,
+        ..ZenohSection::joining_default_service()
+    };
     let settings = RecordSettings {
-        zenoh: ZenohSection::joining_default_service().overridden(&args.zenoh.overrides()),
+        zenoh: zenoh.overridden(&args.zenoh.overrides()),
         key_prefix: args.prefix.clone(),
         robots: args.robots.clone(),
         output,

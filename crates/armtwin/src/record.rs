@@ -22,7 +22,7 @@ use zenoh::key_expr::KeyExpr;
 use crate::codec::gateway::Codec;
 use crate::config::ZenohSection;
 use crate::ingest;
-use crate::keys::{KeySpace, PlainKeyError, Stream};
+use crate::keys::{KeyPrefixError, KeySpace, Stream};
 use crate::mesh::{MeshError, TEARDOWN_STEP, bounded, transport_stamp_s, zenoh_config_of};
 use crate::recorder::live::{self, LiveFile, LiveStream};
 use crate::recorder::store::{robot_directory, with_causes};
@@ -109,13 +109,8 @@ pub enum RecordError {
     #[error("zenoh: {0}")]
     Zenoh(#[from] zenoh::Error),
     /// `--prefix` is not a plain key.
-    #[error("key prefix '{prefix}' {problem}")]
-    KeyPrefix {
-        /// The prefix given.
-        prefix: String,
-        /// What is wrong with it.
-        problem: PlainKeyError,
-    },
+    #[error(transparent)]
+    KeyPrefix(#[from] KeyPrefixError),
     /// A robot expression that makes no key expression.
     #[error("robots '{robots}': {reason}")]
     Robots {
@@ -161,10 +156,7 @@ pub async fn record(
     shutdown: impl Future<Output = ()>,
     mut progress: impl FnMut(&Progress),
 ) -> Result<RecordReport, RecordError> {
-    let keys = KeySpace::new(&settings.key_prefix).map_err(|problem| RecordError::KeyPrefix {
-        prefix: settings.key_prefix.clone(),
-        problem,
-    })?;
+    let keys = KeySpace::of_prefix(&settings.key_prefix)?;
     let mut subscribed = Vec::new();
     for robots in &settings.robots {
         for (stream, key_stream) in STREAMS {

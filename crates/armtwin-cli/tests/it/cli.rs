@@ -212,7 +212,10 @@ fn example_configs_work_as_documented() {
 #[test]
 fn record_refuses_what_it_cannot_record_before_any_session() {
     let error = failure(&["record", "r1", "-o", "out", "--duration", "0"], None);
-    assert!(error.contains("--duration must be a positive number"), "{error}");
+    assert!(
+        error.contains("--duration must be a positive number"),
+        "{error}"
+    );
     // `?` is no key expression's: the robots and Zenoh's reason are named.
     let error = failure(&["record", "r1?x", "-o", "out", "--duration", "1"], None);
     assert!(error.contains("robots 'r1?x'"), "{error}");

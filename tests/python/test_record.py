@@ -131,3 +131,45 @@ def test_a_recording_reads_back_and_replays_to_the_same_metrics(armtwin_bin, tmp
             session.close()
         recorder.stop()
         service.stop()
+
+
+def test_robots_beyond_the_bound_are_refused_and_malformed_messages_skipped(armtwin_bin, tmp_path):
+    service = ArmtwinProcess(armtwin_bin, tmp_path, CONFIG, 120.0).start()
+    out = tmp_path / "recordings"
+    # Another prefix than the service's: the service routes these keys, twins none of them.
+    recorder = Process(
+        "record",
+        [armtwin_bin, "record", "**", "-o", out, "--prefix", "elsewhere", "--max-robots", "2",
+         "-e", service.endpoint],
+        tmp_path,
+        watchdog_s=120.0,
+    )
+    session = None
+    try:
+        recorder.start()
+        assert recorder.wait_log("recording started"), recorder.logs()
+        session = open_session(service.endpoint)
+        q = [0.1, -1.2, 1.3, -0.4, 1.5, 0.6]
+        sent = [("cell-1/r1", 3), ("r2", 2), ("r3", 1)]
+        for robot, count in sent:
+            for i in range(count):
+                session.put(f"elsewhere/joints/{robot}", json.dumps({"t": 100.0 + i, "q": q}))
+        session.put("elsewhere/joints/cell-1/r1", "{not json")
+        session.put("elsewhere/joints/r2", json.dumps({"t": 200.0, "q": q[:5]}))
+        # What is left after the puts is loopback transit through the service.
+        time.sleep(1.0)
+        stopped = recorder.stop()
+        assert stopped.code == 0, recorder.logs()
+    finally:
+        if session is not None:
+            session.close()
+        recorder.stop()
+        service.stop()
+    logs = recorder.logs()
+    assert "recorded 2 robots; 0 messages dropped (queue full), 2 malformed, 1 of refused robots" in logs, logs
+    assert sorted(p.name for p in out.iterdir()) == ["cell-1%2Fr1.mcap", "r2.mcap"]
+    for name, count in (("cell-1%2Fr1.mcap", 3), ("r2.mcap", 2)):
+        _, messages, metadata = read_mcap(out / name)
+        assert len(messages["/joint_states"]) == count, name
+        assert [stamp_of(m.header) for _, m, _ in messages["/joint_states"]] == [100.0 + i for i in range(count)]
+        assert metadata["armtwin"]["from_s"] == "100", metadata

@@ -44,6 +44,16 @@ def first_rows(path) -> list[list[str]]:
     return [line.split(",") for line in lines[1:]]
 
 
+def start_recorder(armtwin_bin, tmp_path, service: ArmtwinProcess, *args) -> Process:
+    """``armtwin record ARGS -e <service>``, a client of the service (the default), which routes
+    every robot's streams to it; returned once it has subscribed."""
+    recorder = Process("record", [armtwin_bin, "record", *args, "-e", service.endpoint], tmp_path,
+                       watchdog_s=120.0)
+    recorder.start()
+    assert recorder.wait_log("recording started"), recorder.logs()
+    return recorder
+
+
 def report(out) -> dict:
     return json.loads((out / "report.json").read_text())
 
@@ -53,17 +63,9 @@ def test_a_recording_reads_back_and_replays_to_the_same_metrics(armtwin_bin, tmp
     rows = first_rows(csv)
     service = ArmtwinProcess(armtwin_bin, tmp_path, CONFIG, 120.0).start()
     out = tmp_path / "recordings"
-    # A client of the service (the default): the service routes the gateway's messages to it.
-    recorder = Process(
-        "record",
-        [armtwin_bin, "record", "r1", "-o", out, "-e", service.endpoint],
-        tmp_path,
-        watchdog_s=120.0,
-    )
-    session = None
+    recorder = session = None
     try:
-        recorder.start()
-        assert recorder.wait_log("recording started"), recorder.logs()
+        recorder = start_recorder(armtwin_bin, tmp_path, service, "r1", "-o", out)
         res = run_armtwin("replay", csv, "--robot", "r1", "-e", service.endpoint, "--max-rate")
         assert res.returncode == 0, res.stderr
         # The replay returns once the service has taken every message, and the service has
@@ -129,25 +131,19 @@ def test_a_recording_reads_back_and_replays_to_the_same_metrics(armtwin_bin, tmp
     finally:
         if session is not None:
             session.close()
-        recorder.stop()
+        if recorder is not None:
+            recorder.stop()
         service.stop()
 
 
 def test_robots_beyond_the_bound_are_refused_and_malformed_messages_skipped(armtwin_bin, tmp_path):
     service = ArmtwinProcess(armtwin_bin, tmp_path, CONFIG, 120.0).start()
     out = tmp_path / "recordings"
-    # Another prefix than the service's: the service routes these keys, twins none of them.
-    recorder = Process(
-        "record",
-        [armtwin_bin, "record", "**", "-o", out, "--prefix", "elsewhere", "--max-robots", "2",
-         "-e", service.endpoint],
-        tmp_path,
-        watchdog_s=120.0,
-    )
-    session = None
+    recorder = session = None
     try:
-        recorder.start()
-        assert recorder.wait_log("recording started"), recorder.logs()
+        # Another prefix than the service's: the service routes these keys, twins none of them.
+        recorder = start_recorder(armtwin_bin, tmp_path, service, "**", "-o", out, "--prefix", "elsewhere",
+                                  "--max-robots", "2")
         session = open_session(service.endpoint)
         q = [0.1, -1.2, 1.3, -0.4, 1.5, 0.6]
         sent = [("cell-1/r1", 3), ("r2", 2), ("r3", 1)]
@@ -163,7 +159,8 @@ def test_robots_beyond_the_bound_are_refused_and_malformed_messages_skipped(armt
     finally:
         if session is not None:
             session.close()
-        recorder.stop()
+        if recorder is not None:
+            recorder.stop()
         service.stop()
     logs = recorder.logs()
     assert "recorded 2 robots; 0 messages dropped (queue full), 2 malformed, 1 of refused robots" in logs, logs

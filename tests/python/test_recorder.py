@@ -18,11 +18,10 @@ import time
 import urllib.request
 from pathlib import Path
 
-from mcap.reader import make_reader
-from mcap_ros2.decoder import DecoderFactory
 from rosbags.typesys import Stores, get_typestore
 
 from support.gateway import Gateway
+from support.mcap_files import TOPICS, read_mcap, seconds, stamp_of
 from support.process import ArmtwinProcess, free_port, run_armtwin, wait_until
 from support.secured_fleet import secured_fleet, send
 from support.twin_reference import joint_message, load_lasttest_naive
@@ -37,15 +36,6 @@ PERIOD_S = 0.002
 ROWS = 6000
 # The measured pose is pushed 20 mm off (threshold 5 mm) for these rows (1.2 s, over the 0.5-s hold).
 PUSHED = range(3000, 3600)
-
-TOPICS = {
-    "/joint_states": "sensor_msgs/msg/JointState",
-    "/twin/pose": "geometry_msgs/msg/PoseStamped",
-    "/tcp_pose_broadcaster/pose": "geometry_msgs/msg/PoseStamped",
-    "/twin/deviation": "armtwin_msgs/msg/Deviation",
-    "/twin/effort": "armtwin_msgs/msg/Effort",
-    "/rosout": "rcl_interfaces/msg/Log",
-}
 
 
 def config(recordings: Path, extra: str = "") -> str:
@@ -83,32 +73,6 @@ def send_all(client: TwinClient, robot: str, t, q, meas) -> None:
     pub = client.joints(robot)
     for i in range(len(t)):
         pub.put(json.dumps(joint_message(t[i], q[i], meas[i])))
-
-
-def read_mcap(path: Path):
-    """(channels {topic: (schema name, schema encoding, message encoding)}, decoded messages by
-    topic as (log time, message, raw bytes), metadata by name)."""
-    with open(path, "rb") as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        summary = reader.get_summary()
-        channels = {
-            c.topic: (summary.schemas[c.schema_id].name, summary.schemas[c.schema_id].encoding, c.message_encoding)
-            for c in summary.channels.values()
-        }
-        messages: dict[str, list] = {topic: [] for topic in channels}
-        for _, channel, message, decoded in reader.iter_decoded_messages():
-            messages[channel.topic].append((message.log_time, decoded, message.data))
-        metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
-    return channels, messages, metadata
-
-
-def stamp_of(header) -> float:
-    return seconds(header.stamp)
-
-
-def seconds(time) -> float:
-    """A ``builtin_interfaces/Time`` read back as armtwin's stamps are: sec + nanosec·1e-9."""
-    return time.sec + time.nanosec * 1e-9
 
 
 def test_an_alarm_leaves_one_mcap_file_with_what_was_streamed(armtwin_bin, tmp_path):

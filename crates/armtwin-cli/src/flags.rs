@@ -30,6 +30,9 @@ pub enum Command {
     Serve(ServeArgs),
     /// Publish a recording (CSV) to the mesh as a gateway would, for `armtwin serve` to twin.
     Replay(ReplayArgs),
+    /// Record the live streams of robots (joints, measured, and the twin pose and deviation when
+    /// a service publishes them) as MCAP files, for a duration or until Ctrl-C.
+    Record(RecordArgs),
     /// Run a recording through the twin offline: report (JSON, Markdown), per-row CSV and plots;
     /// exits 3 when --max-position-error or --max-angle-error is exceeded.
     Validate(ValidateArgs),
@@ -279,6 +282,37 @@ pub struct ReplayArgs {
     pub prefix: String,
     /// How to join the mesh; without flags, as the default `armtwin serve` configuration says
     /// (a peer, multicast scouting off), connecting to where it listens (tcp/127.0.0.1:7447).
+    #[command(flatten)]
+    pub zenoh: ZenohArgs,
+}
+
+/// `armtwin record` arguments.
+#[derive(Debug, Args)]
+pub struct RecordArgs {
+    /// Robot ids, or key expressions over them (`r1`, `cell-1/*`, `**`).
+    #[arg(required = true, value_name = "ROBOTS")]
+    pub robots: Vec<String>,
+    /// A directory for one file per robot (`<robot, escaped>.mcap`), or a file ending in
+    /// `.mcap` for a single robot (the first heard; others are refused).
+    #[arg(short = 'o', long = "out", value_name = "DIR|FILE.mcap")]
+    pub out: PathBuf,
+    /// Seconds to record [default: until Ctrl-C].
+    #[arg(long, value_name = "SECONDS")]
+    pub duration: Option<f64>,
+    /// Joints of the robots' arms: a joint message with another count is skipped as malformed.
+    #[arg(long, default_value_t = 6)]
+    pub joints: usize,
+    /// Robots recorded at most: ids are the mesh's to choose, and each costs an open file.
+    #[arg(long, default_value_t = 64)]
+    pub max_robots: usize,
+    /// Messages waiting to be written; more are dropped, and counted.
+    #[arg(long, value_name = "MESSAGES", default_value_t = 65_536)]
+    pub queue: usize,
+    /// The key prefix of the streams: the service's `[service] key_prefix`.
+    #[arg(long, default_value = armtwin::keys::DEFAULT_PREFIX)]
+    pub prefix: String,
+    /// How to join the mesh; without flags, as a client of the default `armtwin serve` (multicast
+    /// scouting off, connecting to tcp/127.0.0.1:7447), which routes every robot's streams to it.
     #[command(flatten)]
     pub zenoh: ZenohArgs,
 }

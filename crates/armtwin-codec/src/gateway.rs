@@ -80,6 +80,33 @@ impl Codec {
         }
     }
 
+    /// A joint message of this codec, for an arm with `joint_count` joints.
+    pub fn read_joints(
+        self,
+        payload: &[u8],
+        joint_count: usize,
+    ) -> Result<DecodedJoints, Undecodable> {
+        match self {
+            Self::Json => json::read_joints(payload, joint_count),
+            Self::ZenohSerialized(Some(zser::Schema::Joints)) => {
+                zser::read_joints(payload, joint_count)
+            }
+            Self::ZenohSerialized(Some(zser::Schema::JointsState)) => {
+                zser::read_joints_with_state(payload, joint_count)
+            }
+            Self::ZenohSerialized(_) => Err(self.wrong_schema(payload, zser::Schema::Joints)),
+        }
+    }
+
+    /// A measured-pose message of this codec.
+    pub fn read_measured(self, payload: &[u8]) -> Result<MeasuredSample, Undecodable> {
+        match self {
+            Self::Json => json::read_measured(payload),
+            Self::ZenohSerialized(Some(zser::Schema::Pose)) => zser::read_measured(payload),
+            Self::ZenohSerialized(_) => Err(self.wrong_schema(payload, zser::Schema::Pose)),
+        }
+    }
+
     /// The error of a `zenoh/serialized` message on a key that takes `expected`.
     fn wrong_schema(self, payload: &[u8], expected: zser::Schema) -> Undecodable {
         Refused {
@@ -101,17 +128,8 @@ impl Decoder for Joints {
     type Error = WireError;
 
     fn read(&self, robot: &Robot, payload: &[u8]) -> Result<DecodedJoints, Undecodable> {
-        let joint_count = robot.settings().model.joint_count();
-        match self.0 {
-            Codec::Json => json::read_joints(payload, joint_count),
-            Codec::ZenohSerialized(Some(zser::Schema::Joints)) => {
-                zser::read_joints(payload, joint_count)
-            }
-            Codec::ZenohSerialized(Some(zser::Schema::JointsState)) => {
-                zser::read_joints_with_state(payload, joint_count)
-            }
-            Codec::ZenohSerialized(_) => Err(self.0.wrong_schema(payload, zser::Schema::Joints)),
-        }
+        self.0
+            .read_joints(payload, robot.settings().model.joint_count())
     }
 
     fn stamp_hint(&self, payload: &[u8]) -> Option<f64> {
@@ -128,11 +146,7 @@ impl Decoder for Pose {
     type Error = WireError;
 
     fn read(&self, _robot: &Robot, payload: &[u8]) -> Result<MeasuredSample, Undecodable> {
-        match self.0 {
-            Codec::Json => json::read_measured(payload),
-            Codec::ZenohSerialized(Some(zser::Schema::Pose)) => zser::read_measured(payload),
-            Codec::ZenohSerialized(_) => Err(self.0.wrong_schema(payload, zser::Schema::Pose)),
-        }
+        self.0.read_measured(payload)
     }
 
     fn stamp_hint(&self, payload: &[u8]) -> Option<f64> {

@@ -172,6 +172,16 @@ pub enum PlainKeyError {
     },
 }
 
+/// A key prefix given to a command that is no plain key.
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+#[error("key prefix '{prefix}' {problem}")]
+pub struct KeyPrefixError {
+    /// The prefix given.
+    pub prefix: String,
+    /// What is wrong with it.
+    pub problem: PlainKeyError,
+}
+
 /// Why a key names no robot of a stream.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Error)]
 pub enum RobotKeyError {
@@ -246,6 +256,14 @@ impl KeySpace {
     pub fn new(prefix: &str) -> Result<Self, PlainKeyError> {
         Ok(Self {
             prefix: plain_key(prefix)?.into(),
+        })
+    }
+
+    /// [`Self::new`] for a command's `--prefix`, the error naming it.
+    pub fn of_prefix(prefix: &str) -> Result<Self, KeyPrefixError> {
+        Self::new(prefix).map_err(|problem| KeyPrefixError {
+            prefix: prefix.to_owned(),
+            problem,
         })
     }
 

@@ -25,6 +25,7 @@
 //! - [`http_access`]: who may reach it: its TLS identity, tokens and their roles.
 //! - [`recorder`]: the flight recorder: each robot's recent streams, incidents as MCAP files.
 //! - [`replay`]: `armtwin replay`, a recording published as a gateway would.
+//! - [`record`]: `armtwin record`, live streams of chosen robots written as MCAP files.
 //! - [`gateway`]: `armtwin gateway rtde`, Universal Robots controllers streamed over RTDE.
 //! - [`controller`]: what a gateway learns of a controller beyond its samples (its TCP, model
 //!   and serial number), as the message the service reads.
@@ -56,6 +57,7 @@ pub mod keys;
 pub mod mesh;
 #[cfg(test)]
 mod module_graph;
+pub mod record;
 pub mod recorder;
 pub mod replay;
 pub mod ros2;

@@ -18,6 +18,7 @@ const FORBIDDEN: &[(&str, &str)] = &[
     ("mesh", "dashboard"),
     // Offline modes and benchmarks take the mesh, never the service's internals.
     ("replay", "service"),
+    ("record", "service"),
     ("validate", "service"),
     ("calibrate", "service"),
     // Codecs know the core, not the network or the modes that use them.

@@ -16,7 +16,7 @@ use zenoh::qos::CongestionControl;
 
 use crate::codec::recording::{self, Recording};
 use crate::config::ZenohSection;
-use crate::keys::{KeySpace, PlainKeyError, Stream};
+use crate::keys::{KeyPrefixError, KeySpace, Stream};
 use crate::mesh::{MeshError, TEARDOWN_STEP, bounded, zenoh_config_of};
 
 /// How long to wait for a subscriber (the service) before giving up.
@@ -73,13 +73,8 @@ pub enum ReplayError {
     #[error("zenoh: {0}")]
     Zenoh(#[from] zenoh::Error),
     /// `--prefix` is not a plain key.
-    #[error("key prefix '{prefix}' {problem}")]
-    KeyPrefix {
-        /// The prefix given.
-        prefix: String,
-        /// What is wrong with it.
-        problem: PlainKeyError,
-    },
+    #[error(transparent)]
+    KeyPrefix(#[from] KeyPrefixError),
     /// No subscriber (no service) took the recording's key in time.
     #[error(
         "nobody subscribes to {key} after {waited_s} s: is `armtwin serve` running and reachable ({connect:?})?"
@@ -104,10 +99,7 @@ pub async fn replay(
     mut progress: impl FnMut(usize),
 ) -> Result<ReplayReport, ReplayError> {
     // A prefix that is no plain key would fail at the publisher's declaration: fail before.
-    let keys = KeySpace::new(&settings.key_prefix).map_err(|problem| ReplayError::KeyPrefix {
-        prefix: settings.key_prefix.clone(),
-        problem,
-    })?;
+    let keys = KeySpace::of_prefix(&settings.key_prefix)?;
     let session = zenoh::open(zenoh_config_of(&settings.zenoh)?).await?;
     let key = keys.key(Stream::Joints, &settings.robot);
     let publisher = session

@@ -11,6 +11,8 @@
 * ``pki``: a certificate authority and certificates (openssl), a client's TLS settings;
   ``secured_fleet``: the shipped router with TLS and access control, armtwin behind it, sessions
   per certificate, and the router's denials read from its log.
+* ``mcap_files``: armtwin's MCAP files read back with the ``mcap`` package and
+  ``mcap-ros2-support``.
 * ``checks``, ``twin_reference``, ``fk_csv``: soft checks, and outputs checked against the
   references ``ur_reference`` (numpy FK) and ``ur_dynamics`` (Pinocchio).
 * Generators of test inputs: ``effort_recording``, ``rtde_recording``, ``ros2_fixtures``.

@@ -18,6 +18,7 @@ mod gateway;
 mod http_token;
 mod ik;
 mod models;
+mod record;
 mod replay;
 mod serve;
 mod validate;
@@ -45,6 +46,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Models(args) => models::run(&args),
         Command::Serve(args) => serve::run(&args),
         Command::Replay(args) => replay::run(&args),
+        Command::Record(args) => record::run(&args),
         Command::Validate(args) => validate::run(&args),
         Command::Fmu(FmuArgs {
             command: FmuCommand::Build(args),

@@ -210,11 +210,26 @@ fn example_configs_work_as_documented() {
 }
 
 #[test]
+fn record_refuses_what_it_cannot_record_before_any_session() {
+    let error = failure(&["record", "r1", "-o", "out", "--duration", "0"], None);
+    assert!(
+        error.contains("--duration must be a positive number"),
+        "{error}"
+    );
+    // `?` is no key expression's: the robots and Zenoh's reason are named.
+    let error = failure(&["record", "r1?x", "-o", "out", "--duration", "1"], None);
+    assert!(error.contains("robots 'r1?x'"), "{error}");
+    let error = failure(&["record", "r1", "-o", "out", "--max-robots", "0"], None);
+    assert!(error.contains("--max-robots"), "{error}");
+}
+
+#[test]
 fn a_bad_zenoh_flag_is_a_clear_error_before_any_session() {
     // Not KEY:VALUE: refused by the argument parser, for every command that opens a session.
     for command in [
         &["serve"][..],
         &["replay", "recording.csv", "--robot", "r1"],
+        &["record", "r1", "-o", "recordings"],
     ] {
         let error = failure(&[command, &["--cfg", "shared_memory"]].concat(), None);
         assert!(

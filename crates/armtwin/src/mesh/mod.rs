@@ -5,4 +5,6 @@
 
 pub mod session;
 
-pub use session::{MeshError, TEARDOWN_STEP, aggregate_publishers, bounded, zenoh_config_of};
+pub use session::{
+    MeshError, TEARDOWN_STEP, aggregate_publishers, bounded, transport_stamp_s, zenoh_config_of,
+};

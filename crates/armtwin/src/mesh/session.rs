@@ -115,3 +115,18 @@ pub async fn bounded<T>(
     }
     outcome
 }
+
+/// The stamp (s) of a message without its own: the Zenoh timestamp, else the arrival time. Read
+/// only for such a message where that can be told apart: most carry `t`, and a clock read per
+/// message adds up.
+#[must_use]
+pub fn transport_stamp_s(sample: &zenoh::sample::Sample) -> f64 {
+    sample.timestamp().map_or_else(
+        || {
+            std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0.0, |d| d.as_secs_f64())
+        },
+        |t| t.get_time().as_secs_f64(),
+    )
+}

@@ -9,33 +9,13 @@ use std::collections::BTreeMap;
 use std::io::{Seek, Write};
 use std::time::SystemTime;
 
-use super::ros2_messages::{self as msg, MessageType};
-use crate::codec::cdr::JointNames;
+use super::mcap_file::{self, McapFile, PoseTopic, pose_of};
 use crate::dynamics::monitor::EffortReadout;
 use crate::kinematics::PoseReadout;
 use crate::metrics::Deviation;
-use crate::model::catalog::UR_JOINT_NAMES;
 use crate::sample::{JointQuantity, JointSample};
 
-/// Topics of an incident file, and what each carries.
-pub mod topics {
-    /// `sensor_msgs/msg/JointState`: the joints and their state, as they came in.
-    pub const JOINT_STATES: &str = "/joint_states";
-    /// `geometry_msgs/msg/PoseStamped`: the twin pose of each joint sample.
-    pub const TWIN_POSE: &str = "/twin/pose";
-    /// `geometry_msgs/msg/PoseStamped`: the measured pose of each pair (the UR driver's topic,
-    /// so the file reads back as a bag of the robot).
-    pub const MEASURED_POSE: &str = "/tcp_pose_broadcaster/pose";
-    /// `armtwin_msgs/msg/Deviation`: twin minus measured, per pair.
-    pub const DEVIATION: &str = "/twin/deviation";
-    /// `armtwin_msgs/msg/Effort`: torques per joint sample of a robot whose effort is watched.
-    pub const EFFORT: &str = "/twin/effort";
-    /// `rcl_interfaces/msg/Log`: the trigger, and every trigger folded into the incident.
-    pub const ROSOUT: &str = "/rosout";
-}
-
-/// The name of the MCAP metadata record an incident file carries.
-pub const METADATA_NAME: &str = "armtwin";
+pub use super::mcap_file::{METADATA_NAME, WriteError, topics};
 
 /// Joint samples as records: `[stamp_s, present, q…, velocity…, effort…, x, y, z, qx, qy, qz, qw]`
 /// with `joint_count` values per joint quantity; `present` says which of velocity (bit 0) and
@@ -87,7 +67,7 @@ impl JointRecord {
 }
 
 /// Values of a measured-pose record: `[stamp_s, x, y, z, qx, qy, qz, qw]` and the deviation's
-/// nine values in [`msg::DEVIATION`]'s order.
+/// nine values in [`super::ros2_messages::DEVIATION`]'s order.
 pub const MEASURED_STRIDE: usize = 1 + 7 + 9;
 
 /// Writes a measured pose's record into `out` (`MEASURED_STRIDE` long).
@@ -203,87 +183,17 @@ impl Incident {
             + self.log.len()
     }
 
-    /// The joint names a `JointState` carries: the UR driver's for six joints (so the file
-    /// reads back as a bag of the robot), else `joint_1`, `joint_2`, ….
+    /// The joint names a `JointState` carries ([`mcap_file::joint_names`]).
     #[must_use]
     pub fn joint_names(&self) -> Vec<String> {
-        let n = self.joint_record.joint_count;
-        if n == UR_JOINT_NAMES.len() {
-            JointNames::ur("").as_slice().to_vec()
-        } else {
-            (1..=n).map(|i| format!("joint_{i}")).collect()
-        }
+        mcap_file::joint_names(self.joint_record.joint_count)
     }
-}
-
-/// Why an incident file was not written.
-#[derive(Debug, thiserror::Error)]
-pub enum WriteError {
-    /// The MCAP writer failed (its I/O among the causes).
-    #[error("MCAP")]
-    Mcap(#[from] mcap::McapError),
-}
-
-/// Channels of one file, by stream.
-struct Channels {
-    joint_states: u16,
-    twin_pose: u16,
-    measured_pose: u16,
-    deviation: u16,
-    effort: u16,
-    rosout: u16,
-}
-
-/// Declares the file's schemas and channels.
-fn channels<W: Write + Seek>(writer: &mut mcap::Writer<W>) -> Result<Channels, WriteError> {
-    let mut schema = |message: MessageType| {
-        writer.add_schema(message.name, "ros2msg", message.definition.as_bytes())
-    };
-    let schemas = [
-        schema(msg::JOINT_STATE)?,
-        schema(msg::POSE_STAMPED)?,
-        schema(msg::DEVIATION)?,
-        schema(msg::EFFORT)?,
-        schema(msg::LOG)?,
-    ];
-    let none = BTreeMap::new();
-    let mut channel =
-        |schema_id: u16, topic: &str| writer.add_channel(schema_id, topic, "cdr", &none);
-    Ok(Channels {
-        joint_states: channel(schemas[0], topics::JOINT_STATES)?,
-        twin_pose: channel(schemas[1], topics::TWIN_POSE)?,
-        measured_pose: channel(schemas[1], topics::MEASURED_POSE)?,
-        deviation: channel(schemas[2], topics::DEVIATION)?,
-        effort: channel(schemas[3], topics::EFFORT)?,
-        rosout: channel(schemas[4], topics::ROSOUT)?,
-    })
 }
 
 /// Writes `incident` as an MCAP file (uncompressed: a few MB at most, written once) to `out`;
 /// the messages written.
 pub fn write_mcap<W: Write + Seek>(out: W, incident: &Incident) -> Result<u64, WriteError> {
-    let mut writer = mcap::WriteOptions::new()
-        .compression(None)
-        .profile("ros2")
-        .library(concat!("armtwin ", env!("CARGO_PKG_VERSION")))
-        .create(out)?;
-    let channels = channels(&mut writer)?;
-    let mut written = 0_u64;
-    let mut sequence = 0_u32;
-    let mut put = |writer: &mut mcap::Writer<W>, channel_id: u16, stamp_s: f64, data: &[u8]| {
-        sequence += 1;
-        written += 1;
-        let time = msg::stamp_ns(stamp_s);
-        writer.write_to_known_channel(
-            &mcap::records::MessageHeader {
-                channel_id,
-                sequence,
-                log_time: time,
-                publish_time: time,
-            },
-            data,
-        )
-    };
+    let mut file = McapFile::create(out)?;
     let frame = incident.frame_id.as_str();
     let names = incident.joint_names();
     let n = incident.joint_record.joint_count;
@@ -297,26 +207,25 @@ pub fn write_mcap<W: Write + Seek>(out: W, incident: &Incident) -> Result<u64, W
                 &record[at..at + n]
             }
         };
-        let payload = msg::joint_state(
+        file.joint_state(
             stamp_s,
             frame,
             &names,
             &record[2..2 + n],
             part(HAS_VELOCITY, 2 + n),
             part(HAS_EFFORT, 2 + 2 * n),
-        );
-        put(&mut writer, channels.joint_states, stamp_s, &payload)?;
-        let pose = pose_of(&record[2 + 3 * n..]);
-        let payload = crate::codec::cdr::encode_pose_stamped(stamp_s, frame, &pose);
-        put(&mut writer, channels.twin_pose, stamp_s, &payload)?;
+        )?;
+        file.pose(
+            PoseTopic::Twin,
+            stamp_s,
+            frame,
+            &pose_of(&record[2 + 3 * n..]),
+        )?;
     }
     for record in incident.measured.chunks_exact(MEASURED_STRIDE) {
         let stamp_s = record[0];
-        let payload =
-            crate::codec::cdr::encode_pose_stamped(stamp_s, frame, &pose_of(&record[1..8]));
-        put(&mut writer, channels.measured_pose, stamp_s, &payload)?;
-        let payload = msg::deviation(stamp_s, frame, &record[8..]);
-        put(&mut writer, channels.deviation, stamp_s, &payload)?;
+        file.pose(PoseTopic::Measured, stamp_s, frame, &pose_of(&record[1..8]))?;
+        file.deviation(stamp_s, frame, &record[8..])?;
     }
     for record in incident.efforts.chunks_exact(EFFORT_STRIDE) {
         let present = present_bits(record[1]);
@@ -327,19 +236,12 @@ pub fn write_mcap<W: Write + Seek>(out: W, incident: &Incident) -> Result<u64, W
                 &record[2 + i * EFFORT_JOINTS..2 + (i + 1) * EFFORT_JOINTS]
             }
         };
-        let payload = msg::effort(record[0], [array(0), array(1), array(2), array(3)]);
-        put(&mut writer, channels.effort, record[0], &payload)?;
+        file.effort(record[0], [array(0), array(1), array(2), array(3)])?;
     }
     for line in &incident.log {
-        let payload = msg::log(line.stamp_s, line.level, "armtwin", &line.text);
-        put(&mut writer, channels.rosout, line.stamp_s, &payload)?;
+        file.log(line.stamp_s, line.level, &line.text)?;
     }
-    writer.write_metadata(&mcap::records::Metadata {
-        name: METADATA_NAME.to_owned(),
-        metadata: metadata(incident),
-    })?;
-    writer.finish()?;
-    Ok(written)
+    file.finish(metadata(incident))
 }
 
 /// The metadata record: who, what model, why, and the span.
@@ -369,16 +271,4 @@ fn metadata(incident: &Incident) -> BTreeMap<String, String> {
 )]
 fn present_bits(value: f64) -> u32 {
     value as u32
-}
-
-/// A pose from `[x, y, z, qx, qy, qz, qw]` as recorded (the quaternion was canonical).
-fn pose_of(values: &[f64]) -> PoseReadout {
-    let quaternion = nalgebra::UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(
-        values[6], values[3], values[4], values[5],
-    ));
-    let mut pose =
-        PoseReadout::from_position_quaternion([values[0], values[1], values[2]], &quaternion);
-    // The recorded components, not a renormalised copy: the file holds what the twin gave.
-    pose.quaternion_xyzw.copy_from_slice(&values[3..7]);
-    pose
 }

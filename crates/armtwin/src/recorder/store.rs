@@ -212,7 +212,7 @@ pub fn write(settings: &StoreSettings, incident: &Incident) -> Outcome {
 }
 
 /// `error: its cause: …`: the MCAP writer's own message does not name the I/O error under it.
-fn with_causes(error: &dyn std::error::Error) -> String {
+pub(crate) fn with_causes(error: &dyn std::error::Error) -> String {
     let mut text = error.to_string();
     let mut cause = error.source();
     while let Some(next) = cause {

@@ -4,7 +4,6 @@
 //! Must not block in a callback beyond the robot's own lock and its outputs' `put`.
 
 use std::sync::Arc;
-use std::time::{SystemTime, UNIX_EPOCH};
 
 use tracing::{debug, info, warn};
 use zenoh::sample::Sample;
@@ -21,7 +20,7 @@ use crate::codec::{cdr, zser};
 use crate::config::{ServiceConfig, SourceConfig, SourceRobot, SourceStream};
 use crate::ingest;
 use crate::keys::{KeySpace, Stream};
-use crate::mesh::{TEARDOWN_STEP, bounded};
+use crate::mesh::{TEARDOWN_STEP, bounded, transport_stamp_s};
 use crate::pipeline::{MeasuredStream, Robot, Untracked};
 use crate::ros2::{Attachment, KeyScheme, PublisherSeq};
 
@@ -230,20 +229,6 @@ impl SourceIntake {
         }
         seq
     }
-}
-
-fn unix_now_s() -> f64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
-}
-
-/// The stamp of a message without its own: the Zenoh timestamp, else the arrival time (read only
-/// for such a message: most carry `t`, and a clock read per message adds up).
-fn transport_stamp_s(sample: &Sample) -> f64 {
-    sample
-        .timestamp()
-        .map_or_else(unix_now_s, |t| t.get_time().as_secs_f64())
 }
 
 /// Each sample's way from its key to its robot's twin, in Zenoh's callbacks.

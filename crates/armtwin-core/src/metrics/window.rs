@@ -181,6 +181,24 @@ impl<const M: usize> SlicedWindow<M> {
         (stamp_s * self.slices_per_s).floor() as i64
     }
 
+    /// Where slice `slice` starts (source time, s): `slice · window_s / slices`.
+    #[must_use]
+    pub fn slice_start_s(&self, slice: i64) -> f64 {
+        slice as f64 / self.slices_per_s
+    }
+
+    /// Count, sums, sums of squares and maxima of the samples in the newest slice alone.
+    #[must_use]
+    pub fn newest_totals(&self) -> WindowTotals<M> {
+        let newest = self.newest_slot();
+        WindowTotals {
+            n: newest.count,
+            sums: newest.sums,
+            sums_of_squares: newest.sums_of_squares,
+            maxima: newest.maxima,
+        }
+    }
+
     /// The newest slice: that of the newest stamp added or time advanced to; `None` before any.
     #[must_use]
     pub fn newest_slice(&self) -> Option<i64> {

@@ -326,6 +326,18 @@ impl Twin {
         }
     }
 
+    /// Its newest source time (s): the newest stamp of its accepted samples; `None` before any.
+    #[must_use]
+    pub fn newest_s(&self) -> Option<f64> {
+        self.newest_s.is_finite().then_some(self.newest_s)
+    }
+
+    /// The seconds of history it keeps ([`PipelineConfig::history_s`]).
+    #[must_use]
+    pub fn history_s(&self) -> usize {
+        self.history_s
+    }
+
     /// The completed seconds of its window's history within `seconds` (source time), oldest
     /// first: those before the second its window's newest slice lies in. Empty when no history
     /// is kept or before the first pair.

@@ -353,6 +353,7 @@ impl ServiceConfig {
             pipeline: PipelineConfig {
                 window_s: service.window_s,
                 window_slices: service.window_slices,
+                history_s: file.recorder.history_s,
                 align,
             },
             default_robot: if service.reject_unknown {

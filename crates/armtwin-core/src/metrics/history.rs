@@ -7,6 +7,7 @@
 
 use std::ops::RangeInclusive;
 
+use super::stats::stats_from_sums;
 use super::{METRIC_COUNT, Metric, Stats, StatsSet, WindowStats, WindowTotals, acceptable};
 
 /// Seconds of history a robot keeps unless configured otherwise: an hour.
@@ -47,15 +48,12 @@ impl HistoryRow {
 /// Mean, RMS and maximum of each of the [`HISTORY_METRICS`] from their totals.
 #[must_use]
 pub fn stats_of(totals: &SecondTotals) -> [Stats; 2] {
-    if totals.n == 0 {
-        return [Stats::default(); 2];
-    }
-    let count = totals.n as f64;
-    std::array::from_fn(|m| Stats {
-        mae: totals.sums[m] / count,
-        rmse: (totals.sums_of_squares[m] / count).sqrt(),
-        max: totals.maxima[m],
-    })
+    stats_from_sums(
+        totals.n,
+        &totals.sums,
+        &totals.sums_of_squares,
+        &totals.maxima,
+    )
 }
 
 /// The totals of the [`HISTORY_METRICS`] in `totals` of the nine metrics.

@@ -954,6 +954,40 @@ mod tests {
     }
 
     #[test]
+    fn the_history_answers_completed_seconds_until_the_clock_goes_back() {
+        let (model, r1) = ur10e_robot(AlarmConfig::default());
+        let mut twin = Twin::new(r1, &PipelineConfig::default());
+        let q_rad = vec![0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
+        let mut off = model.pose(&q_rad).expect("valid").readout();
+        off.position_m[1] += 0.002;
+        let sample = |measured| JointSample {
+            stamp_s: None,
+            seq: None,
+            q_rad: JointAngles::from_slice(&q_rad),
+            measured,
+            state: None,
+        };
+        // 100 pairs a second from 10 s to 12.49 s: second 12 is still open.
+        for i in 0..250_u32 {
+            let stamp_s = 10.0 + f64::from(i) * 0.01;
+            twin.joints("j", stamp_s, &sample(Some(off)), &mut Discard);
+        }
+        let rows = twin.history(i64::MIN..=i64::MAX);
+        let seconds: Vec<(i64, u64)> = rows.iter().map(|row| (row.second, row.totals.n)).collect();
+        assert_eq!(seconds, [(10, 100), (11, 100)]);
+        assert!((rows[0].stats()[0].mae - 0.002).abs() < 1e-9, "{rows:?}");
+        assert_eq!(twin.history(11..=20).len(), 1);
+        assert_eq!(twin.history_s(), 3600);
+        // A joint sample alone moves the time on and completes second 12.
+        twin.joints("j", 13.0, &sample(None), &mut Discard);
+        assert_eq!(twin.history(12..=12)[0].totals.n, 50);
+        // The clock goes back by more than `restart_s`: the seconds of the old clock go.
+        twin.joints("j", 1.0, &sample(None), &mut Discard);
+        assert!(twin.history(i64::MIN..=i64::MAX).is_empty());
+        assert_eq!(twin.newest_s(), Some(1.0));
+    }
+
+    #[test]
     fn a_restored_twin_is_due_and_refuses_another_arm() {
         let (model, r1) = ur10e_robot(AlarmConfig::default());
         let config = PipelineConfig::default();

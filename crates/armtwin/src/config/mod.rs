@@ -615,6 +615,24 @@ mod tests {
     }
 
     #[test]
+    fn the_history_is_an_hour_unless_set_and_at_most_a_day() {
+        let parse =
+            |text: &str| ServiceConfig::parse(text, "test", Path::new(""), &Overrides::default());
+        assert_eq!(parse("").expect("valid").pipeline.history_s, 3600);
+        for seconds in [0, 86_400] {
+            let text = format!("[recorder]\nhistory_s = {seconds}\n");
+            assert_eq!(parse(&text).expect("valid").pipeline.history_s, seconds);
+        }
+        let error = parse("[recorder]\nhistory_s = 86401\n")
+            .expect_err("over a day")
+            .to_string();
+        assert!(
+            error.contains("recorder.history_s: 86401 is over a day"),
+            "{error}"
+        );
+    }
+
+    #[test]
     fn the_window_is_set_in_slices_and_its_old_cap_is_refused_with_why() {
         let parse =
             |text: &str| ServiceConfig::parse(text, "test", Path::new(""), &Overrides::default());

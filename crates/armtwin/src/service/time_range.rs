@@ -12,6 +12,10 @@ use zenoh::query::{TimeBound, TimeExpr, TimeRange};
 /// The whole seconds `s` of source time with `s` in `range`, `now()` being `newest_s`; an empty
 /// range when `range` names `now()` and the robot has no time yet.
 pub(super) fn seconds_in(range: &TimeRange, newest_s: Option<f64>) -> RangeInclusive<i64> {
+    #[allow(
+        clippy::reversed_empty_ranges,
+        reason = "no second: the range is meant to be empty"
+    )]
     const EMPTY: RangeInclusive<i64> = 1..=0;
     let at = |expr: &TimeExpr| match expr {
         TimeExpr::Fixed(time) => Some(unix_s(*time)),

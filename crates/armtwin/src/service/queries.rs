@@ -135,17 +135,10 @@ impl Queries {
             }
         };
         for (cell, key) in self.matching_robots(query, Stream::History) {
-            let message = cell.lock().twin().map(|twin| {
-                let newest_s = twin.newest_s();
-                let seconds = range
+            let message = cell.lock().history_message(cell.robot().id(), |newest_s| {
+                range
                     .as_ref()
-                    .map_or(i64::MIN..=i64::MAX, |range| seconds_in(range, newest_s));
-                json::HistoryMessage::new(
-                    cell.robot().id(),
-                    newest_s,
-                    twin.history_s(),
-                    &twin.history(seconds),
-                )
+                    .map_or(i64::MIN..=i64::MAX, |range| seconds_in(range, newest_s))
             });
             if let Some(message) = message {
                 Self::reply(query, &key, json::to_json_bytes(&message));

@@ -258,15 +258,21 @@ impl WindowWithHistory {
     /// Adds a pair stamped `stamp_s` ([`WindowStats::add`]); `false` if it did not enter the
     /// window (nor the history).
     pub fn add(&mut self, stamp_s: f64, magnitudes: &[f64; METRIC_COUNT]) -> bool {
-        let (Some(newest), true) = (self.window.newest_slice(), self.history.is_some()) else {
-            return self.window.add(stamp_s, magnitudes);
-        };
+        if !stamp_s.is_finite() || !acceptable(magnitudes) {
+            return false;
+        }
         let slice = self.window.slice_of(stamp_s);
+        let (Some(newest), true) = (self.window.newest_slice(), self.history.is_some()) else {
+            return self.window.add_to_slice(slice, magnitudes);
+        };
+        if slice == newest {
+            return self.window.add_to_slice(slice, magnitudes);
+        }
         // The window moves on exactly when the sample enters a newer slice.
-        if slice > newest && stamp_s.is_finite() && acceptable(magnitudes) {
+        if slice > newest {
             self.fold_newest();
         }
-        let entered = self.window.add(stamp_s, magnitudes);
+        let entered = self.window.add_to_slice(slice, magnitudes);
         if entered && slice < newest {
             let second = self.second_of_slice(slice);
             if let Some(history) = &mut self.history {

@@ -227,7 +227,13 @@ impl<const M: usize> SlicedWindow<M> {
         if !stamp_s.is_finite() || !acceptable(values) {
             return false;
         }
-        let slice = self.slice_of(stamp_s);
+        self.add_to_slice(self.slice_of(stamp_s), values)
+    }
+
+    /// [`add`](Self::add) of a sample whose stamp is finite, whose values are acceptable and
+    /// whose slice the caller already computed.
+    #[inline]
+    pub(super) fn add_to_slice(&mut self, slice: i64, values: &[f64; M]) -> bool {
         match self.newest {
             Some((newest, slot)) if slice == newest => self.ring[slot].add(values),
             Some((newest, _)) if slice < newest => return self.add_late(slice, newest, values),

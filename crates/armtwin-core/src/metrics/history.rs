@@ -207,9 +207,10 @@ impl History {
 /// row spans its slices: from the start of its first to the end of its last, up to a slice
 /// beyond the second.
 ///
-/// **Cost.** Per pair, beside the window's own work: one slice computation (a multiply and a
-/// floor). Per slice that closes: a division and a floor for its second, and per kept metric an
-/// add, an add and a max. Per late pair into a folded slice: the same into its row.
+/// **Cost.** Per pair, beside the window's own work: a comparison of its slice with the newest
+/// (the slice is computed once, for both). Per slice that closes: a division and a floor for its
+/// second, and per kept metric an add, an add and a max. Per late pair into a folded slice: the
+/// same into its row.
 #[derive(Debug, Clone)]
 pub struct WindowWithHistory {
     window: WindowStats,

@@ -1,7 +1,8 @@
 """The robot page's per-second error history in a real headless Chromium (Playwright driving
 Debian's chromium) against the real service, after a Python gateway streamed five seconds of the
-sample UR10e recording: ``/api/robot/history`` answers what ``get twin/history/<robot>`` answers,
-and the page draws one point per completed second, the highest where the error was largest.
+sample UR10e recording, its measured poses 1 cm off: ``/api/robot/history`` answers what
+``get twin/history/<robot>`` answers, and the page draws one point per completed second, the
+highest where the error was largest, and the position alarm as a mark at its source time.
 
 Run: ``ARMTWIN_BIN=$PWD/target/debug/armtwin .venv/bin/python -m pytest tests/python/test_dashboard_history.py -q``
 (after ``bash scripts/test-tools.sh``).
@@ -29,6 +30,8 @@ enabled = false
 
 [robots.default]
 model = "ur10e"
+alarm_position_m = 0.005
+alarm_hold_s = 0.2
 """
 ROBOT = "plant-a/cell-1/ur10e-history"
 # Stamps 1000 s + 2 ms a row: 3000 rows end at 1005.998, in second 1005, still open.
@@ -43,7 +46,8 @@ def path_points(d: str) -> list[tuple[str, float, float]]:
 
 def test_the_robot_page_draws_the_seconds_the_service_keeps(armtwin_bin, tmp_path):
     with DashboardService(armtwin_bin, tmp_path, CONFIG) as service:
-        gateway = Gateway(service.client, ROBOT, rate_hz=2000.0, recording=True, rows=ROWS)
+        gateway = Gateway(service.client, ROBOT, rate_hz=2000.0, recording=True, rows=ROWS,
+                          measured_offset_m={ROBOT: 0.01})
         gateway.start()
         gateway.join(timeout=60)
         assert wait_until(lambda: service.state(ROBOT)["metrics"]["paired"] == ROWS, 30.0, 0.1)
@@ -80,6 +84,14 @@ def test_the_robot_page_draws_the_seconds_the_service_keeps(armtwin_bin, tmp_pat
                 assert heights.index(min(heights)) == values.index(max(values))
                 assert all(y_max <= y_mae for (_, _, y_max), (_, _, y_mae) in zip(top, mae))
                 assert "1000 … 1004" in page.inner_text("#history-span")
+                # The alarm, raised 0.2 s of source time into the stream, between seconds 1000 and 1001.
+                page.wait_for_function("() => Number(document.getElementById('history').dataset.marks) >= 1",
+                                       timeout=15_000)
+                [alarm_t] = [e["t"] for e in http_json(service.url("/api/robot?id=" + ROBOT))["events"]
+                             if e["kind"] == "alarm"]
+                assert 1000.0 < alarm_t < 1001.0, alarm_t
+                mark_x = float(page.get_attribute('#history line[data-event="alarm"]', "x1"))
+                assert mae[0][1] < mark_x < mae[1][1], (mark_x, mae[:2])
                 page.screenshot(path=str(tmp_path / "robot-history.png"), full_page=True)
             finally:
                 browser.close()

@@ -174,14 +174,24 @@ function historyPaths(seconds, x, y, value) {
   }
   return d;
 }
+// Incidents among the robot's recent events (the live stream's last ten), marked on the history
+// at their source time: alarms (position, angle, collision, payload), restarts, gaps and the
+// flight recorder's files.
+const INCIDENTS = { alarm: "#dc2626", restart: "#7c3aed", gap: "#d97706", recorded: "#059669" };
+let recentEvents = [];
+let lastHistory = null;
 function drawHistory(history) {
+  lastHistory = history;
   const seconds = history.seconds;
   const width = historySvg.clientWidth || 600, height = historySvg.clientHeight || 160;
   historySvg.setAttribute("viewBox", `0 0 ${width} ${height}`);
   const left = 44, bottom = height - 18, top = 6, right = width - 8;
   const children = [];
   const last = history.t === null ? 0 : Math.floor(history.t);
-  const first = last - history.history_s;
+  // The span grows with the history kept, from a minute up to all of it (an hour by default),
+  // so that a young robot's seconds are not squeezed into the right edge.
+  const oldest = seconds.length ? seconds[0].t : last;
+  const first = Math.max(last - history.history_s, Math.min(oldest, last - 60));
   let max = 0;
   for (const s of seconds) max = Math.max(max, s.position.max * 1000, s.angle.mae * 1000);
   max = max > 0 ? max * 1.15 : 1;
@@ -192,14 +202,28 @@ function drawHistory(history) {
     children.push(svgElement("line", { x1: left, x2: right, y1: level, y2: level, stroke: "#dde1ea" }));
     children.push(svgElement("text", { x: 2, y: level + 4 }, (max * i / 4).toPrecision(3)));
   }
-  children.push(svgElement("text", { x: right - 150, y: height - 3 }, `last ${(history.history_s / 60).toFixed(0)} min of source time`));
+  const span = last - first;
+  const spanText = span >= 120 ? `${(span / 60).toFixed(0)} min` : `${span} s`;
+  children.push(svgElement("text", { x: right - 150, y: height - 3 }, `last ${spanText} of source time`));
   for (const [name, color, value] of [
     ["position-max", "#93c5fd", (s) => s.position.max * 1000],
     ["position-mae", "#2563eb", (s) => s.position.mae * 1000],
     ["angle-mae", "#dc2626", (s) => s.angle.mae * 1000]]) {
     children.push(svgElement("path", { "data-series": name, d: historyPaths(seconds, x, y, value), fill: "none", stroke: color, "stroke-width": 1.5 }));
   }
+  let marks = 0;
+  for (const event of recentEvents) {
+    const color = INCIDENTS[event.kind];
+    const t = Number(event.t);
+    if (!color || !(t >= first && t <= last + 1)) continue;
+    const title = svgElement("title", {}, `t=${t.toFixed(3)} ${event.kind}: ${event.reason}`);
+    const mark = svgElement("line", { "data-event": event.kind, x1: x(t), x2: x(t), y1: top, y2: bottom, stroke: color, "stroke-dasharray": "3 2" });
+    mark.appendChild(title);
+    children.push(mark);
+    marks++;
+  }
   historySvg.replaceChildren(...children);
+  historySvg.dataset.marks = String(marks);
   historySvg.dataset.seconds = String(seconds.length);
   historySvg.dataset.last = seconds.length ? String(seconds[seconds.length - 1].t) : "";
   document.getElementById("history-span").textContent = seconds.length
@@ -289,6 +313,10 @@ function update(message) {
   const tool = state.tool.map((v) => v.toFixed(4)).join(", ");
   document.getElementById("model").textContent =
     `model        ${state.model}\ncalibration  ${state.calibration ?? "none (nominal)"}\ntool         [${tool}] (m, rotation vector rad)\nframe        ${state.frame}${controllerText(state.controller)}\njoints (rad) ${state.joints ? state.joints.q.map((q) => q.toFixed(4)).join(", ") : "–"}${jointStateText(state.joint_state)}${effortText(state.effort)}`;
+  const newestEvent = message.events.length ? message.events[message.events.length - 1] : null;
+  const previousEvent = recentEvents.length ? recentEvents[recentEvents.length - 1] : null;
+  recentEvents = message.events;
+  if (lastHistory && JSON.stringify(newestEvent) !== JSON.stringify(previousEvent)) drawHistory(lastHistory);
   const list = document.getElementById("events");
   list.replaceChildren(...message.events.slice().reverse().map((event) => {
     const li = document.createElement("li");

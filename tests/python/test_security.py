@@ -112,6 +112,9 @@ def test_only_an_operator_may_reset_a_twin(tmp_path, certs, armtwin_bin):
         list(dashboard.get("twin/**", timeout=5.0))
         [(_, state)] = get_json(dashboard, "twin/state/r1")
         assert state["metrics"]["paired"] == 20, "the dashboard changed nothing"
+        # The history is a read like the state (its 20 pairs lie in the robot's current second).
+        [(_, history)] = get_json(dashboard, "twin/history/r1?_time=[now(-1h)..]")
+        assert (history["robot"], history["seconds"]) == ("r1", []), history
 
         assert wait_until(lambda: denied(router, "dashboard", "Query", "twin/admin/reset/r1"), 10), router.logs()
         assert denied(router, "dashboard", "Query", "twin/admin/calibrate/r1")

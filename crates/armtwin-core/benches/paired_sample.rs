@@ -18,7 +18,8 @@ use std::time::{Duration, Instant};
 use armtwin_core::align::{AlignConfig, Aligner};
 use armtwin_core::kinematics::PoseReadout;
 use armtwin_core::metrics::{
-    CumulativeStats, DEFAULT_WINDOW_SLICES, Deviation, METRIC_COUNT, WindowStats,
+    CumulativeStats, DEFAULT_HISTORY_S, DEFAULT_WINDOW_SLICES, Deviation, METRIC_COUNT,
+    WindowStats, WindowWithHistory,
 };
 use armtwin_core::model::RobotModel;
 use armtwin_core::pipeline::{
@@ -56,6 +57,25 @@ fn statistics(c: &mut Criterion) {
         ("window/add_steady_state_500hz", 500),
     ] {
         let (mut window, mut next) = full_window(rate_hz);
+        c.bench_function(name, |b| {
+            b.iter(|| {
+                let x = &samples[(next % 4096) as usize];
+                window.add(black_box(next as f64 / f64::from(rate_hz)), black_box(x));
+                next += 1;
+            });
+        });
+    }
+    // The same with the hour of per-second history the twin keeps by default, its ring full.
+    for (name, rate_hz) in [
+        ("window_with_history/add_steady_state", 100_u32),
+        ("window_with_history/add_steady_state_500hz", 500),
+    ] {
+        let mut window = WindowWithHistory::new(10.0, DEFAULT_WINDOW_SLICES, DEFAULT_HISTORY_S);
+        let filled = u64::try_from(DEFAULT_HISTORY_S).unwrap_or(u64::MAX) * u64::from(rate_hz);
+        for i in 0..filled {
+            window.add(i as f64 / f64::from(rate_hz), &magnitudes(i));
+        }
+        let mut next = filled;
         c.bench_function(name, |b| {
             b.iter(|| {
                 let x = &samples[(next % 4096) as usize];

@@ -51,7 +51,7 @@ pub use self::twin::Twin;
 use crate::align::AlignConfig;
 use crate::dynamics::monitor::{EffortConfig, EffortSummary};
 use crate::kinematics::PoseReadout;
-use crate::metrics::{DEFAULT_WINDOW_SLICES, StatsSet};
+use crate::metrics::{DEFAULT_HISTORY_S, DEFAULT_WINDOW_SLICES, StatsSet};
 use crate::model::RobotModel;
 use crate::sample::{JointSample, JointState};
 use crate::self_calibration::{PairReservoir, ReservoirConfig};
@@ -91,6 +91,9 @@ pub struct PipelineConfig {
     /// moves in steps of `window_s / window_slices`, and a robot's window holds this many slices
     /// whatever the rate.
     pub window_slices: usize,
+    /// Seconds of per-second window history a robot keeps ([`crate::metrics::History`]); 0
+    /// keeps none.
+    pub history_s: usize,
     /// Time alignment limits.
     pub align: AlignConfig,
 }
@@ -100,6 +103,7 @@ impl Default for PipelineConfig {
         Self {
             window_s: 10.0,
             window_slices: DEFAULT_WINDOW_SLICES,
+            history_s: DEFAULT_HISTORY_S,
             align: AlignConfig::default(),
         }
     }

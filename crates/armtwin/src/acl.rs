@@ -28,7 +28,7 @@ use crate::keys::{self, KeySpace, Stream};
 
 /// Outputs, tokens and queryables armtwin declares per robot: every stream but the inputs and
 /// the gateways' own tokens.
-const ARMTWIN_DECLARES: [Stream; 16] = [
+const ARMTWIN_DECLARES: [Stream; 17] = [
     Stream::Pose,
     Stream::Deviation,
     Stream::Metrics,
@@ -38,6 +38,7 @@ const ARMTWIN_DECLARES: [Stream; 16] = [
     Stream::Payload,
     Stream::Alive,
     Stream::State,
+    Stream::History,
     Stream::Fk,
     Stream::Ik,
     Stream::Calibrate,
@@ -52,7 +53,13 @@ const INPUTS: [Stream; 3] = [Stream::Joints, Stream::Measured, Stream::Controlle
 const GATEWAY_TOKENS: [Stream; 2] = [Stream::GatewayStreaming, Stream::GatewayWaiting];
 /// Queryables that only read: the ACL sees a query's key, never its parameters, so every change
 /// lives under `<prefix>/admin/`, which these leave out.
-const READS: [Stream; 4] = [Stream::State, Stream::Fk, Stream::Ik, Stream::Calibrate];
+const READS: [Stream; 5] = [
+    Stream::State,
+    Stream::History,
+    Stream::Fk,
+    Stream::Ik,
+    Stream::Calibrate,
+];
 /// Queryables that change a twin.
 const CHANGES: [Stream; 4] = [
     Stream::Reset,

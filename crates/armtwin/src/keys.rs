@@ -57,6 +57,9 @@ pub enum Stream {
     Controller,
     /// The robot's state (queryable).
     State,
+    /// The robot's per-second window statistics over the last `[recorder] history_s`
+    /// (queryable, read-only).
+    History,
     /// FK under the robot's model (queryable).
     Fk,
     /// Resets the robot's metrics (queryable, a change: under `admin/`, which an ACL keeps
@@ -87,7 +90,7 @@ pub enum Stream {
 impl Stream {
     /// Every subtree, outputs first: a key expression reaching into several is named by the
     /// first it meets here, and feeding armtwin its own outputs is the worse mistake.
-    pub const ALL: [Self; 21] = [
+    pub const ALL: [Self; 22] = [
         Self::Pose,
         Self::Deviation,
         Self::Metrics,
@@ -99,6 +102,7 @@ impl Stream {
         Self::Measured,
         Self::Controller,
         Self::State,
+        Self::History,
         Self::Fk,
         Self::Reset,
         Self::Ik,
@@ -126,6 +130,7 @@ impl Stream {
             Self::Measured => "measured",
             Self::Controller => "controller",
             Self::State => "state",
+            Self::History => "history",
             Self::Fk => "fk",
             Self::Reset => "admin/reset",
             Self::Ik => "ik",
@@ -368,6 +373,7 @@ mod tests {
                 "measured",
                 "controller",
                 "state",
+                "history",
                 "fk",
                 "admin/reset",
                 "ik",

@@ -49,6 +49,7 @@ const SERVICE_LAYERS: &[(&str, &[&str])] = &[
             "recording",
             "requests",
             "shard",
+            "time_range",
         ],
     ),
     ("a robot's results, onto `publish`", &["sink"]),

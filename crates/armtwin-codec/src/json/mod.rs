@@ -26,7 +26,8 @@
 //! (its one pass of `serde_json`'s parser into fixed slots), with `fast` (the usual shapes, held
 //! equal to it by the tests); `state` (the `state` object's own decoder, on a parsed value) and
 //! `pose` (a measured pose's orientation forms, shared with the binary codecs); `encode` (the
-//! fixed-layout writer), `messages` (the output messages) and `effort` (the effort outputs).
+//! fixed-layout writer), `messages` (the output messages), `effort` (the effort outputs) and
+//! `history` (the per-second history answer).
 
 use armtwin_core::pipeline::RejectCause;
 use thiserror::Error;
@@ -37,6 +38,7 @@ mod decode;
 mod effort;
 mod encode;
 mod fast;
+mod history;
 mod messages;
 mod pose;
 mod slots;
@@ -50,6 +52,7 @@ pub use effort::{
     payload_readout_json,
 };
 pub use encode::to_json_bytes;
+pub use history::{HistoryMessage, SecondJson};
 pub use messages::{
     AlarmsJson, DeviationMessage, ErrorsJson, EstimateMessage, EventMessage, MetricsMessage,
     ParameterJson, PoseMessage, StampedJointsJson, StampedPoseJson, StateMessage, StatsJson,

@@ -9,15 +9,21 @@
 //! time, passed in by the caller, and formatting belongs to the codecs.
 //!
 //! Files: `deviation` (one pair's deviation), `stats` (statistics of a set of samples), `cumulative`
-//! (since start, compensated sums), `window` (the sliced window).
+//! (since start, compensated sums), `window` (the sliced window), `history` (the window's
+//! per-second totals over the last hour).
 
 mod cumulative;
 mod deviation;
+mod history;
 mod stats;
 mod window;
 
 pub use cumulative::{CumulativeParts, CumulativeStats};
 pub use deviation::Deviation;
+pub use history::{
+    DEFAULT_HISTORY_S, HISTORY_METRICS, History, HistoryRow, SecondTotals, WindowWithHistory,
+    stats_of,
+};
 pub use stats::{Stats, StatsSet};
 pub use window::{DEFAULT_WINDOW_SLICES, SlicedWindow, WindowStats, WindowTotals};
 

@@ -38,17 +38,28 @@ impl StatsSet {
         sums_of_squares: [f64; METRIC_COUNT],
         maxima: [f64; METRIC_COUNT],
     ) -> Self {
-        if n == 0 {
-            return Self::default();
-        }
-        let count = n as f64;
         Self {
             n,
-            stats: std::array::from_fn(|m| Stats {
-                mae: sums[m] / count,
-                rmse: (sums_of_squares[m] / count).sqrt(),
-                max: maxima[m],
-            }),
+            stats: stats_from_sums(n, &sums, &sums_of_squares, &maxima),
         }
     }
+}
+
+/// Per metric, the statistics of `n` samples from their sums, sums of squares and maxima; all 0
+/// when `n` is 0.
+pub(super) fn stats_from_sums<const M: usize>(
+    n: u64,
+    sums: &[f64; M],
+    sums_of_squares: &[f64; M],
+    maxima: &[f64; M],
+) -> [Stats; M] {
+    if n == 0 {
+        return [Stats::default(); M];
+    }
+    let count = n as f64;
+    std::array::from_fn(|m| Stats {
+        mae: sums[m] / count,
+        rmse: (sums_of_squares[m] / count).sqrt(),
+        max: maxima[m],
+    })
 }

@@ -181,6 +181,24 @@ impl<const M: usize> SlicedWindow<M> {
         (stamp_s * self.slices_per_s).floor() as i64
     }
 
+    /// Where slice `slice` starts (source time, s): `slice · window_s / slices`.
+    #[must_use]
+    pub fn slice_start_s(&self, slice: i64) -> f64 {
+        slice as f64 / self.slices_per_s
+    }
+
+    /// Count, sums, sums of squares and maxima of the samples in the newest slice alone.
+    #[must_use]
+    pub fn newest_totals(&self) -> WindowTotals<M> {
+        let newest = self.newest_slot();
+        WindowTotals {
+            n: newest.count,
+            sums: newest.sums,
+            sums_of_squares: newest.sums_of_squares,
+            maxima: newest.maxima,
+        }
+    }
+
     /// The newest slice: that of the newest stamp added or time advanced to; `None` before any.
     #[must_use]
     pub fn newest_slice(&self) -> Option<i64> {
@@ -209,7 +227,13 @@ impl<const M: usize> SlicedWindow<M> {
         if !stamp_s.is_finite() || !acceptable(values) {
             return false;
         }
-        let slice = self.slice_of(stamp_s);
+        self.add_to_slice(self.slice_of(stamp_s), values)
+    }
+
+    /// [`add`](Self::add) of a sample whose stamp is finite, whose values are acceptable and
+    /// whose slice the caller already computed.
+    #[inline]
+    pub(super) fn add_to_slice(&mut self, slice: i64, values: &[f64; M]) -> bool {
         match self.newest {
             Some((newest, slot)) if slice == newest => self.ring[slot].add(values),
             Some((newest, _)) if slice < newest => return self.add_late(slice, newest, values),

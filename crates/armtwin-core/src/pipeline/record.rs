@@ -11,7 +11,7 @@ use super::alarm::AlarmStates;
 use super::twin::{DeviationStats, Twin};
 use super::{Alarms, PipelineConfig, Robot};
 use crate::kinematics::TcpOffset;
-use crate::metrics::{CumulativeParts, CumulativeStats, WindowStats};
+use crate::metrics::{CumulativeParts, CumulativeStats, WindowWithHistory};
 use crate::model::{CalibrationForm, MountingDeltas};
 
 /// What of a robot's twin outlives the process: the cumulative metrics and counters of its
@@ -143,7 +143,7 @@ impl Twin {
         if record.cumulative.n > 0 {
             twin.stats = Some(Box::new(DeviationStats {
                 cumulative,
-                window: WindowStats::new(twin.window_s, twin.window_slices),
+                window: WindowWithHistory::new(twin.window_s, twin.window_slices, twin.history_s),
             }));
         }
         twin.alarms = AlarmStates::restored(record.alarms_active);

@@ -12,6 +12,7 @@
 //! fields they use are `pub(super)`; the rest of the pipeline reaches a twin by its methods.
 
 use std::error::Error;
+use std::ops::RangeInclusive;
 use std::sync::Arc;
 
 use nalgebra::{IsometryMatrix3, Matrix3, Rotation3, Vector3};
@@ -25,7 +26,7 @@ use super::{
 use crate::align::{self, Aligner, Bracket, Pending, UnpairedReason};
 use crate::dynamics::monitor::EffortMonitor;
 use crate::kinematics::{KinematicsError, OutputFrame, PoseReadout, TcpOffset};
-use crate::metrics::{CumulativeStats, Deviation, WindowStats};
+use crate::metrics::{CumulativeStats, Deviation, HistoryRow, WindowWithHistory};
 use crate::model::{ModelError, RobotModel};
 use crate::orientation;
 use crate::sample::{JointSample, JointState};
@@ -55,7 +56,8 @@ struct Waiting {
 /// A robot's deviation statistics.
 pub(super) struct DeviationStats {
     pub(super) cumulative: CumulativeStats,
-    pub(super) window: WindowStats,
+    /// The window, and the history of its seconds.
+    pub(super) window: WindowWithHistory,
 }
 
 /// One robot's twin: everything the pipeline keeps for it, stepped by that robot's inputs alone.
@@ -77,9 +79,10 @@ pub struct Twin {
     /// Created by the first paired measurement (the window's slices are most of a twin's
     /// memory): a robot that only streams joints never needs them.
     pub(super) stats: Option<Box<DeviationStats>>,
-    /// The metrics window's length (s) and slices.
+    /// The metrics window's length (s) and slices, and the seconds of its history.
     pub(super) window_s: f64,
     pub(super) window_slices: usize,
+    pub(super) history_s: usize,
     pub(super) paired: u64,
     pub(super) unpaired: u64,
     pub(super) rejected: u64,
@@ -123,6 +126,7 @@ impl Twin {
             stats: None,
             window_s: config.window_s,
             window_slices: config.window_slices,
+            history_s: config.history_s,
             paired: 0,
             unpaired: 0,
             rejected: 0,
@@ -322,6 +326,33 @@ impl Twin {
         }
     }
 
+    /// Its newest source time (s): the newest stamp of its accepted samples; `None` before any.
+    #[must_use]
+    pub fn newest_s(&self) -> Option<f64> {
+        self.newest_s.is_finite().then_some(self.newest_s)
+    }
+
+    /// The seconds of history it keeps ([`PipelineConfig::history_s`]).
+    #[must_use]
+    pub fn history_s(&self) -> usize {
+        self.history_s
+    }
+
+    /// The completed seconds of its window's history within `seconds` (source time), oldest
+    /// first: those before the second its window's newest slice lies in. Empty when no history
+    /// is kept or before the first pair.
+    #[must_use]
+    pub fn history(&self, seconds: RangeInclusive<i64>) -> Vec<HistoryRow> {
+        let Some(window) = self.stats.as_ref().map(|stats| &stats.window) else {
+            return Vec::new();
+        };
+        let (Some(history), Some(open)) = (window.history(), window.open_second()) else {
+            return Vec::new();
+        };
+        let last = (*seconds.end()).min(open.saturating_sub(1));
+        history.rows(*seconds.start()..=last).collect()
+    }
+
     /// End of input: waiting measured poses become unpaired, and its final metrics go out.
     pub fn finish(&mut self, sink: &mut impl Sink) {
         for (pending, reason) in self.aligner.finish() {
@@ -356,7 +387,7 @@ impl Twin {
     fn restart_statistics(&mut self) {
         if let Some(stats) = &mut self.stats {
             stats.cumulative.reset();
-            stats.window.reset();
+            stats.window.reset_window();
         }
         if let Some(monitor) = &mut self.effort {
             monitor.reset_statistics();
@@ -488,7 +519,7 @@ impl Twin {
         }
         self.aligner = Aligner::new(config);
         if let Some(stats) = &mut self.stats {
-            stats.window.reset();
+            stats.window.restart();
         }
         if let Some(monitor) = &mut self.effort {
             monitor.restart_clock();
@@ -671,7 +702,8 @@ impl Twin {
         }
         sink.deviation(&self.robot, stamp_s, &measured, &deviation);
         let stats = self.stats.get_or_insert_with(|| {
-            let mut window = WindowStats::new(self.window_s, self.window_slices);
+            let mut window =
+                WindowWithHistory::new(self.window_s, self.window_slices, self.history_s);
             // As if it had followed source time all along.
             window.advance_to(self.newest_s);
             Box::new(DeviationStats {
@@ -919,6 +951,40 @@ mod tests {
         );
         assert_eq!(alone, through_pipeline);
         assert_eq!(records, vec![record]);
+    }
+
+    #[test]
+    fn the_history_answers_completed_seconds_until_the_clock_goes_back() {
+        let (model, r1) = ur10e_robot(AlarmConfig::default());
+        let mut twin = Twin::new(r1, &PipelineConfig::default());
+        let q_rad = vec![0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
+        let mut off = model.pose(&q_rad).expect("valid").readout();
+        off.position_m[1] += 0.002;
+        let sample = |measured| JointSample {
+            stamp_s: None,
+            seq: None,
+            q_rad: JointAngles::from_slice(&q_rad),
+            measured,
+            state: None,
+        };
+        // 100 pairs a second from 10 s to 12.49 s: second 12 is still open.
+        for i in 0..250_u32 {
+            let stamp_s = 10.0 + f64::from(i) * 0.01;
+            twin.joints("j", stamp_s, &sample(Some(off)), &mut Discard);
+        }
+        let rows = twin.history(i64::MIN..=i64::MAX);
+        let seconds: Vec<(i64, u64)> = rows.iter().map(|row| (row.second, row.totals.n)).collect();
+        assert_eq!(seconds, [(10, 100), (11, 100)]);
+        assert!((rows[0].stats()[0].mae - 0.002).abs() < 1e-9, "{rows:?}");
+        assert_eq!(twin.history(11..=20).len(), 1);
+        assert_eq!(twin.history_s(), 3600);
+        // A joint sample alone moves the time on and completes second 12.
+        twin.joints("j", 13.0, &sample(None), &mut Discard);
+        assert_eq!(twin.history(12..=12)[0].totals.n, 50);
+        // The clock goes back by more than `restart_s`: the seconds of the old clock go.
+        twin.joints("j", 1.0, &sample(None), &mut Discard);
+        assert!(twin.history(i64::MIN..=i64::MAX).is_empty());
+        assert_eq!(twin.newest_s(), Some(1.0));
     }
 
     #[test]

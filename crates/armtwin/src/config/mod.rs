@@ -353,6 +353,7 @@ impl ServiceConfig {
             pipeline: PipelineConfig {
                 window_s: service.window_s,
                 window_slices: service.window_slices,
+                history_s: file.recorder.history_s,
                 align,
             },
             default_robot: if service.reject_unknown {
@@ -611,6 +612,24 @@ mod tests {
         assert!(!Arc::ptr_eq(&model("c"), &default));
         assert!(!Arc::ptr_eq(&model("e"), &default));
         assert_eq!(model("e").arm().name, "ur5e");
+    }
+
+    #[test]
+    fn the_history_is_an_hour_unless_set_and_at_most_a_day() {
+        let parse =
+            |text: &str| ServiceConfig::parse(text, "test", Path::new(""), &Overrides::default());
+        assert_eq!(parse("").expect("valid").pipeline.history_s, 3600);
+        for seconds in [0, 86_400] {
+            let text = format!("[recorder]\nhistory_s = {seconds}\n");
+            assert_eq!(parse(&text).expect("valid").pipeline.history_s, seconds);
+        }
+        let error = parse("[recorder]\nhistory_s = 86401\n")
+            .expect_err("over a day")
+            .to_string();
+        assert!(
+            error.contains("recorder.history_s: 86401 is over a day"),
+            "{error}"
+        );
     }
 
     #[test]

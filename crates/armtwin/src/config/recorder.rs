@@ -6,9 +6,14 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use armtwin_core::metrics::DEFAULT_HISTORY_S;
+
 use super::ConfigError;
 use super::file::RobotSection;
 use crate::recorder::StoreSettings;
+
+/// Most seconds `[recorder] history_s` may ask for: a day, 4.8 MB per robot.
+const MAX_HISTORY_S: usize = 86_400;
 
 /// `[recorder]` as written.
 #[derive(Debug, Deserialize)]
@@ -23,6 +28,7 @@ pub(super) struct RecorderSection {
     pub(super) max_bytes: u64,
     pub(super) robot_bytes: usize,
     pub(super) fleet_bytes: usize,
+    pub(super) history_s: usize,
 }
 
 impl Default for RecorderSection {
@@ -37,6 +43,7 @@ impl Default for RecorderSection {
             max_bytes: 1 << 30,
             robot_bytes: 8 << 20,
             fleet_bytes: 1 << 30,
+            history_s: DEFAULT_HISTORY_S,
         }
     }
 }
@@ -134,6 +141,15 @@ pub(super) fn load_recorder(
         return Err(invalid(
             "pre_s",
             "pre_s + post_s is over an hour: the rings are for seconds".to_owned(),
+        ));
+    }
+    if section.history_s > MAX_HISTORY_S {
+        return Err(invalid(
+            "history_s",
+            format!(
+                "{} is over a day ({MAX_HISTORY_S} s): each second costs every robot 56 bytes",
+                section.history_s
+            ),
         ));
     }
     if section.max_files == 0 {

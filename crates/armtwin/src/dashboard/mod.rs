@@ -274,6 +274,7 @@ fn router(state: AppState) -> Router {
         .route("/api/fleet/stream", get(fleet_stream))
         .route("/api/robot", get(robot_json))
         .route("/api/robot/frames", get(robot_frames))
+        .route("/api/robot/history", get(robot_history))
         .route("/api/robot/stream", get(robot_stream))
         .fallback(not_found)
         .with_state(state)
@@ -557,6 +558,13 @@ async fn robot_frames(State(state): State<AppState>, Query(query): Query<RobotQu
     });
     let _ = write!(body, "{message}");
     json_response(body)
+}
+
+async fn robot_history(State(state): State<AppState>, Query(query): Query<RobotQuery>) -> Response {
+    match state.view.history(&query.id) {
+        Some(message) => json_response(serde_json::to_string(&message).unwrap_or_default()),
+        None => unknown_robot(&query.id),
+    }
 }
 
 /// Where a robot page's stream is: the pose count it last sent at, and when.

@@ -20,6 +20,8 @@ pub trait FleetSource: Send + Sync + 'static {
     fn fleet(&self) -> (ServiceTotals, Vec<FleetRow>);
     /// Robot `id`'s state, model and recent events, if it is tracked.
     fn robot(&self, id: &str) -> Option<RobotDetail>;
+    /// Robot `id`'s per-second history: every completed second it keeps, if it is tracked.
+    fn history(&self, id: &str) -> Option<json::HistoryMessage>;
     /// Robot `id`'s twin pose count (`None` if it is not tracked): changes whenever it moves.
     fn poses_of(&self, id: &str) -> Option<u64>;
     /// The robots whose gateway holds a liveliness token, or held one while the robot is

@@ -6,6 +6,7 @@
 
 #[cfg(debug_assertions)]
 use std::cell::Cell;
+use std::ops::RangeInclusive;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::{Duration, Instant};
@@ -283,6 +284,24 @@ impl CellState {
             .as_ref()
             .and_then(|facts| serde_json::to_value(facts).ok());
         Some(message)
+    }
+
+    /// The robot's history answer for the completed seconds in `seconds` (`None` before its
+    /// first input); `resolve` turns the robot's newest stamp into those seconds.
+    pub(super) fn history_message(
+        &self,
+        robot: &str,
+        resolve: impl FnOnce(Option<f64>) -> RangeInclusive<i64>,
+    ) -> Option<json::HistoryMessage> {
+        let twin = self.twin.as_ref()?;
+        let newest_s = twin.newest_s();
+        let rows = twin.history(resolve(newest_s));
+        Some(json::HistoryMessage::new(
+            robot,
+            newest_s,
+            twin.history_s(),
+            &rows,
+        ))
     }
 
     /// The robot's self-calibration fits.

@@ -25,8 +25,8 @@
 //! disconnected after Zenoh's `wait_before_close`. Every output carries its encoding.
 //!
 //! Its files depend one way (`module_graph.rs` holds the order): `error`; the leaves (`events`,
-//! `memory`, `recording`, `requests`, `calibration_slot`, `shard`, `gateways`, `peers`, and
-//! `publish`, the Zenoh I/O); `sink`; `fleet`; the duties over the fleet (`controller`,
+//! `memory`, `recording`, `requests`, `calibration_slot`, `shard`, `gateways`, `peers`,
+//! `time_range`, and `publish`, the Zenoh I/O); `sink`; `fleet`; the duties over the fleet (`controller`,
 //! `queries`, `self_calibration`, `snapshot`, `view`); what runs them (`intake`, Zenoh's
 //! callbacks, and `control`, the control thread); and this file.
 //! `opcua_view` is the OPC UA server's read of the fleet, a duty beside `view`.
@@ -50,6 +50,7 @@ mod self_calibration;
 mod shard;
 mod sink;
 mod snapshot;
+mod time_range;
 mod view;
 
 use std::future::Future;

@@ -1,4 +1,4 @@
-//! The queryables: `state`, `fk`, `ik` and `calibrate` (reads), `admin/reset`,
+//! The queryables: `state`, `history`, `fk`, `ik` and `calibrate` (reads), `admin/reset`,
 //! `admin/calibrate`, `admin/payload` and `admin/record` (changes, on keys of their own so that an access control list can keep them
 //! from those who only watch), each answered from the robots it names, one cell at a time,
 //! replying once that cell's lock is released.
@@ -11,10 +11,11 @@ use tracing::{info, warn};
 use zenoh::Wait;
 use zenoh::bytes::Encoding;
 use zenoh::key_expr::KeyExpr;
-use zenoh::query::Query;
+use zenoh::query::{Query, ZenohParameters};
 
 use super::calibration_slot::CalibrationStatus;
 use super::fleet::{Fleet, RobotCell};
+use super::time_range::seconds_in;
 use crate::codec::ik::{IkAnswerJson, IkRequest};
 use crate::codec::json;
 use crate::keys::{KeySpace, Stream};
@@ -38,8 +39,9 @@ impl Queries {
     }
 
     /// The handlers, by the stream their queryable is declared on.
-    pub(super) const HANDLERS: [(Stream, QueryHandler); 8] = [
+    pub(super) const HANDLERS: [(Stream, QueryHandler); 9] = [
         (Stream::State, Self::state),
+        (Stream::History, Self::history),
         (Stream::Fk, Self::fk),
         (Stream::Reset, Self::reset),
         (Stream::Ik, Self::ik),
@@ -116,6 +118,30 @@ impl Queries {
                 .map(|message| json::to_json_bytes(&message));
             if let Some(payload) = payload {
                 Self::reply(query, &key, payload);
+            }
+        }
+    }
+
+    /// `<prefix>/history/<robot>[?_time=<range>]`: each matching robot's completed seconds of
+    /// history whose second lies in the range (`now()` being the robot's newest stamp; all it
+    /// keeps without one), one reply per robot that has had input.
+    fn history(&self, query: &Query) {
+        let range = match query.parameters().time_range() {
+            None => None,
+            Some(Ok(range)) => Some(range),
+            Some(Err(e)) => {
+                Self::reply_err(query, &format!("_time: {e}"));
+                return;
+            }
+        };
+        for (cell, key) in self.matching_robots(query, Stream::History) {
+            let message = cell.lock().history_message(cell.robot().id(), |newest_s| {
+                range
+                    .as_ref()
+                    .map_or(i64::MIN..=i64::MAX, |range| seconds_in(range, newest_s))
+            });
+            if let Some(message) = message {
+                Self::reply(query, &key, json::to_json_bytes(&message));
             }
         }
     }

@@ -10,6 +10,7 @@ use std::sync::Arc;
 use super::fleet::Fleet;
 use super::gateways::GatewayTokens;
 use super::peers::Peers;
+use crate::codec::json;
 use crate::dashboard::{FleetRow, FleetSource, PeerFleet, RobotCounts, RobotDetail, ServiceTotals};
 
 /// The fleet as the dashboard reads it.
@@ -82,6 +83,11 @@ impl FleetSource for FleetView {
             model: Arc::clone(guard.twin()?.model()),
             counts: guard.outputs().counts().clone(),
         })
+    }
+
+    fn history(&self, id: &str) -> Option<json::HistoryMessage> {
+        let cell = self.fleet.existing_cell_of(id)?;
+        cell.lock().history_message(id, |_| i64::MIN..=i64::MAX)
     }
 
     fn poses_of(&self, id: &str) -> Option<u64> {

@@ -1,6 +1,7 @@
 // The robot page: the arm drawn from armtwin's own FK link frames of the model in use, the twin
 // and measured TCP, the window error chart, the metrics table, the model and recent events, all
-// from one live stream of the robot's state (at most 30 updates a second).
+// from one live stream of the robot's state (at most 30 updates a second); and the error per
+// second over the history the service keeps (the last hour by default), read every 5 s.
 import * as THREE from "three";
 
 const id = decodeURIComponent(location.pathname.replace(/^\/robot\//, ""));
@@ -154,6 +155,91 @@ function drawChart() {
   chart.dataset.points = String(series.length);
 }
 
+// ---- history (per-second window statistics the service keeps, read every 5 s)
+const SVG = "http://www.w3.org/2000/svg";
+const historySvg = document.getElementById("history");
+function svgElement(name, attributes, text) {
+  const element = document.createElementNS(SVG, name);
+  for (const [key, value] of Object.entries(attributes)) element.setAttribute(key, value);
+  if (text !== undefined) element.textContent = text;
+  return element;
+}
+// Seconds without pairs are absent from the answer: a line breaks across them rather than
+// joining two seconds over a gap.
+function historyPaths(seconds, x, y, value) {
+  let d = "", previous = null;
+  for (const second of seconds) {
+    d += `${previous !== null && second.t === previous + 1 ? "L" : "M"}${x(second.t).toFixed(1)},${y(value(second)).toFixed(1)}`;
+    previous = second.t;
+  }
+  return d;
+}
+// Incidents among the robot's recent events (the live stream's last ten), marked on the history
+// at their source time: alarms (position, angle, collision, payload), restarts, gaps and the
+// flight recorder's files.
+const INCIDENTS = { alarm: "#dc2626", restart: "#7c3aed", gap: "#d97706", recorded: "#059669" };
+let recentEvents = [];
+let lastHistory = null;
+function drawHistory(history) {
+  lastHistory = history;
+  const seconds = history.seconds;
+  const width = historySvg.clientWidth || 600, height = historySvg.clientHeight || 160;
+  historySvg.setAttribute("viewBox", `0 0 ${width} ${height}`);
+  const left = 44, bottom = height - 18, top = 6, right = width - 8;
+  const children = [];
+  const last = history.t === null ? 0 : Math.floor(history.t);
+  // The span grows with the history kept, from a minute up to all of it (an hour by default),
+  // so that a young robot's seconds are not squeezed into the right edge.
+  const oldest = seconds.length ? seconds[0].t : last;
+  const first = Math.max(last - history.history_s, Math.min(oldest, last - 60));
+  let max = 0;
+  for (const s of seconds) max = Math.max(max, s.position.max * 1000, s.angle.mae * 1000);
+  max = max > 0 ? max * 1.15 : 1;
+  const x = (t) => left + (t - first) / Math.max(1, last - first) * (right - left);
+  const y = (v) => bottom - v / max * (bottom - top);
+  for (let i = 0; i <= 4; i++) {
+    const level = bottom - (bottom - top) * i / 4;
+    children.push(svgElement("line", { x1: left, x2: right, y1: level, y2: level, stroke: "#dde1ea" }));
+    children.push(svgElement("text", { x: 2, y: level + 4 }, (max * i / 4).toPrecision(3)));
+  }
+  const span = last - first;
+  const spanText = span >= 120 ? `${(span / 60).toFixed(0)} min` : `${span} s`;
+  children.push(svgElement("text", { x: right - 150, y: height - 3 }, `last ${spanText} of source time`));
+  for (const [name, color, value] of [
+    ["position-max", "#93c5fd", (s) => s.position.max * 1000],
+    ["position-mae", "#2563eb", (s) => s.position.mae * 1000],
+    ["angle-mae", "#dc2626", (s) => s.angle.mae * 1000]]) {
+    children.push(svgElement("path", { "data-series": name, d: historyPaths(seconds, x, y, value), fill: "none", stroke: color, "stroke-width": 1.5 }));
+  }
+  let marks = 0;
+  for (const event of recentEvents) {
+    const color = INCIDENTS[event.kind];
+    const t = Number(event.t);
+    if (!color || !(t >= first && t <= last + 1)) continue;
+    const title = svgElement("title", {}, `t=${t.toFixed(3)} ${event.kind}: ${event.reason}`);
+    const mark = svgElement("line", { "data-event": event.kind, x1: x(t), x2: x(t), y1: top, y2: bottom, stroke: color, "stroke-dasharray": "3 2" });
+    mark.appendChild(title);
+    children.push(mark);
+    marks++;
+  }
+  historySvg.replaceChildren(...children);
+  historySvg.dataset.marks = String(marks);
+  historySvg.dataset.seconds = String(seconds.length);
+  historySvg.dataset.last = seconds.length ? String(seconds[seconds.length - 1].t) : "";
+  document.getElementById("history-span").textContent = seconds.length
+    ? `${seconds.length} s with pairs, t ${seconds[0].t} … ${seconds[seconds.length - 1].t}` : "no completed second yet";
+}
+async function readHistory() {
+  try {
+    const response = await fetch("/api/robot/history?id=" + encodeURIComponent(id));
+    if (response.ok) drawHistory(await response.json());
+  } catch (error) {
+    // The next read tries again; the live stream's status says whether the service is there.
+  }
+}
+readHistory();
+setInterval(readHistory, 5000);
+
 // ---- tables
 const ROWS = [["position", "mm", 1000], ["x", "mm", 1000], ["y", "mm", 1000], ["z", "mm", 1000],
   ["angle", "mrad", 1000], ["roll", "mrad", 1000], ["pitch", "mrad", 1000], ["yaw", "mrad", 1000], ["quat_distance", "", 1]];
@@ -227,6 +313,10 @@ function update(message) {
   const tool = state.tool.map((v) => v.toFixed(4)).join(", ");
   document.getElementById("model").textContent =
     `model        ${state.model}\ncalibration  ${state.calibration ?? "none (nominal)"}\ntool         [${tool}] (m, rotation vector rad)\nframe        ${state.frame}${controllerText(state.controller)}\njoints (rad) ${state.joints ? state.joints.q.map((q) => q.toFixed(4)).join(", ") : "–"}${jointStateText(state.joint_state)}${effortText(state.effort)}`;
+  const newestEvent = message.events.length ? message.events[message.events.length - 1] : null;
+  const previousEvent = recentEvents.length ? recentEvents[recentEvents.length - 1] : null;
+  recentEvents = message.events;
+  if (lastHistory && JSON.stringify(newestEvent) !== JSON.stringify(previousEvent)) drawHistory(lastHistory);
   const list = document.getElementById("events");
   list.replaceChildren(...message.events.slice().reverse().map((event) => {
     const li = document.createElement("li");

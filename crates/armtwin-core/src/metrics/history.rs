@@ -1,0 +1,523 @@
+//! The history of a window: per second of source time, the count, sums, sums of squares and
+//! maxima of the position and angle deviations, kept in a ring of a fixed number of seconds.
+//!
+//! Owns [`History`] (the ring) and [`WindowWithHistory`] (the deviation window that folds each
+//! slice into the history as the slice closes). Must not keep samples, nor recompute anything
+//! per sample: a second is the sum of its slices, and a slice's totals are the window's own.
+
+use std::ops::RangeInclusive;
+
+use super::stats::stats_from_sums;
+use super::{METRIC_COUNT, Metric, Stats, StatsSet, WindowStats, WindowTotals, acceptable};
+
+/// Seconds of history a robot keeps unless configured otherwise: an hour.
+pub const DEFAULT_HISTORY_S: usize = 3600;
+
+/// The metrics a history keeps, in the order of [`HistoryRow::stats`].
+pub const HISTORY_METRICS: [Metric; 2] = [Metric::Position, Metric::Angle];
+
+/// What one second holds: the totals of the [`HISTORY_METRICS`] over its pairs.
+pub type SecondTotals = WindowTotals<{ HISTORY_METRICS.len() }>;
+
+const EMPTY: SecondTotals = WindowTotals {
+    n: 0,
+    sums: [0.0; 2],
+    sums_of_squares: [0.0; 2],
+    maxima: [0.0; 2],
+};
+
+/// One second of a [`History`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HistoryRow {
+    /// The second (source time, s): the row holds the slices whose start falls in
+    /// `[second, second + 1)`.
+    pub second: i64,
+    /// Its pairs' totals.
+    pub totals: SecondTotals,
+}
+
+impl HistoryRow {
+    /// Mean, RMS and maximum of each of the [`HISTORY_METRICS`]; all 0 when the row counts no
+    /// pair.
+    #[must_use]
+    pub fn stats(&self) -> [Stats; 2] {
+        stats_of(&self.totals)
+    }
+}
+
+/// Mean, RMS and maximum of each of the [`HISTORY_METRICS`] from their totals.
+#[must_use]
+pub fn stats_of(totals: &SecondTotals) -> [Stats; 2] {
+    stats_from_sums(
+        totals.n,
+        &totals.sums,
+        &totals.sums_of_squares,
+        &totals.maxima,
+    )
+}
+
+/// The totals of the [`HISTORY_METRICS`] in `totals` of the nine metrics.
+fn history_part(totals: &WindowTotals<METRIC_COUNT>) -> SecondTotals {
+    let pick = |values: &[f64; METRIC_COUNT]| HISTORY_METRICS.map(|metric| values[metric.index()]);
+    WindowTotals {
+        n: totals.n,
+        sums: pick(&totals.sums),
+        sums_of_squares: pick(&totals.sums_of_squares),
+        maxima: pick(&totals.maxima),
+    }
+}
+
+/// Adds `part` to `row`.
+fn merge(row: &mut SecondTotals, part: &SecondTotals) {
+    row.n += part.n;
+    for m in 0..HISTORY_METRICS.len() {
+        row.sums[m] += part.sums[m];
+        row.sums_of_squares[m] += part.sums_of_squares[m];
+        row.maxima[m] = row.maxima[m].max(part.maxima[m]);
+    }
+}
+
+/// Per-second totals of the last `seconds` seconds of source time, on the grid of whole seconds:
+/// second `s` lives at `s mod seconds`, so the ring never grows and a second without pairs costs
+/// nothing more than its empty row. Memory fixed at construction: `seconds × 56` bytes (197 KB
+/// for an hour).
+#[derive(Debug, Clone)]
+pub struct History {
+    rows: Box<[SecondTotals]>,
+    /// The newest second holding anything; every row older than `seconds` before it is empty.
+    newest: Option<i64>,
+}
+
+impl History {
+    /// An empty history of `seconds` seconds.
+    ///
+    /// # Panics
+    ///
+    /// If `seconds` is 0 (no history is `None`, not an empty ring: the configuration layer
+    /// decides).
+    #[must_use]
+    pub fn new(seconds: usize) -> Self {
+        assert!(seconds > 0, "a history needs at least one second");
+        Self {
+            rows: vec![EMPTY; seconds].into_boxed_slice(),
+            newest: None,
+        }
+    }
+
+    /// The seconds it keeps.
+    #[must_use]
+    pub fn seconds(&self) -> usize {
+        self.rows.len()
+    }
+
+    /// The newest second holding anything; `None` before any.
+    #[must_use]
+    pub fn newest_second(&self) -> Option<i64> {
+        self.newest
+    }
+
+    fn span(&self) -> i64 {
+        // A ring of more than 2⁶³ rows could not be allocated.
+        i64::try_from(self.rows.len()).unwrap_or(i64::MAX)
+    }
+
+    fn slot_of(&self, second: i64) -> usize {
+        // In `0..seconds`.
+        second.rem_euclid(self.span()).unsigned_abs() as usize
+    }
+
+    /// The row of `second`, moving the ring on to it if it is newer than the newest; `None` if
+    /// it is older than the ring keeps.
+    fn row_mut(&mut self, second: i64) -> Option<&mut SecondTotals> {
+        match self.newest {
+            Some(newest) if second <= newest.saturating_sub(self.span()) => return None,
+            Some(newest) if second > newest => {
+                let steps = second.saturating_sub(newest);
+                if steps >= self.span() {
+                    self.rows.fill(EMPTY);
+                } else {
+                    for passed in newest + 1..=second {
+                        let slot = self.slot_of(passed);
+                        self.rows[slot] = EMPTY;
+                    }
+                }
+                self.newest = Some(second);
+            }
+            Some(_) => {}
+            None => self.newest = Some(second),
+        }
+        let slot = self.slot_of(second);
+        Some(&mut self.rows[slot])
+    }
+
+    /// Adds the totals of a closed slice (of the nine metrics) to `second`; nothing if it holds
+    /// no pair or the second is older than the ring keeps.
+    pub fn fold(&mut self, second: i64, totals: &WindowTotals<METRIC_COUNT>) {
+        if totals.n == 0 {
+            return;
+        }
+        let part = history_part(totals);
+        if let Some(row) = self.row_mut(second) {
+            merge(row, &part);
+        }
+    }
+
+    /// Adds one pair's nine magnitudes to `second`: a pair that came late, into a slice already
+    /// folded.
+    pub fn add(&mut self, second: i64, magnitudes: &[f64; METRIC_COUNT]) {
+        let part = history_part(&WindowTotals {
+            n: 1,
+            sums: *magnitudes,
+            sums_of_squares: magnitudes.map(|x| x * x),
+            maxima: *magnitudes,
+        });
+        if let Some(row) = self.row_mut(second) {
+            merge(row, &part);
+        }
+    }
+
+    /// The rows of the seconds in `seconds` that hold pairs, oldest first.
+    pub fn rows(&self, seconds: RangeInclusive<i64>) -> impl Iterator<Item = HistoryRow> + '_ {
+        let (first, last) = match self.newest {
+            Some(newest) => (
+                (*seconds.start()).max(newest.saturating_sub(self.span()) + 1),
+                (*seconds.end()).min(newest),
+            ),
+            None => (1, 0),
+        };
+        (first..=last).filter_map(move |second| {
+            let totals = self.rows[self.slot_of(second)];
+            (totals.n > 0).then_some(HistoryRow { second, totals })
+        })
+    }
+
+    /// Forgets every second.
+    pub fn clear(&mut self) {
+        self.rows.fill(EMPTY);
+        self.newest = None;
+    }
+}
+
+/// The deviation window ([`WindowStats`]) and, when kept, its [`History`]: each slice of the
+/// window is folded into the history when it closes (the window moves past it), into the second
+/// its start falls in; a pair stamped late into a slice already folded is added to its second
+/// directly. So the history's second `s` holds exactly the pairs of the slices starting in
+/// `[s, s + 1)`, and a second is complete once the window's newest slice lies in a later second
+/// ([`WindowWithHistory::open_second`]). With slices that do not divide a second (e.g. 0.3 s), a
+/// row spans its slices: from the start of its first to the end of its last, up to a slice
+/// beyond the second.
+///
+/// **Cost.** Per pair, beside the window's own work: a comparison of its slice with the newest
+/// (the slice is computed once, for both). Per slice that closes: a division and a floor for its
+/// second, and per kept metric an add, an add and a max. Per late pair into a folded slice: the
+/// same into its row.
+#[derive(Debug, Clone)]
+pub struct WindowWithHistory {
+    window: WindowStats,
+    history: Option<History>,
+}
+
+impl WindowWithHistory {
+    /// A window of `window_s` in `slices` ([`WindowStats::new`]), with a history of
+    /// `history_s` seconds, none when 0.
+    #[must_use]
+    pub fn new(window_s: f64, slices: usize, history_s: usize) -> Self {
+        Self {
+            window: WindowStats::new(window_s, slices),
+            history: (history_s > 0).then(|| History::new(history_s)),
+        }
+    }
+
+    /// The window.
+    #[must_use]
+    pub fn window(&self) -> &WindowStats {
+        &self.window
+    }
+
+    /// The history, when kept.
+    #[must_use]
+    pub fn history(&self) -> Option<&History> {
+        self.history.as_ref()
+    }
+
+    /// The second slice `slice` of the window is folded into: the one its start falls in.
+    #[must_use]
+    pub fn second_of_slice(&self, slice: i64) -> i64 {
+        self.window.slice_start_s(slice).floor() as i64
+    }
+
+    /// The second whose slices are still coming in: that of the window's newest slice. Every
+    /// earlier second of the history is complete (but for pairs paired late, into slices still
+    /// in the window); `None` before any time.
+    #[must_use]
+    pub fn open_second(&self) -> Option<i64> {
+        self.window
+            .newest_slice()
+            .map(|slice| self.second_of_slice(slice))
+    }
+
+    /// Adds a pair stamped `stamp_s` ([`WindowStats::add`]); `false` if it did not enter the
+    /// window (nor the history).
+    pub fn add(&mut self, stamp_s: f64, magnitudes: &[f64; METRIC_COUNT]) -> bool {
+        if !stamp_s.is_finite() || !acceptable(magnitudes) {
+            return false;
+        }
+        let slice = self.window.slice_of(stamp_s);
+        let (Some(newest), true) = (self.window.newest_slice(), self.history.is_some()) else {
+            return self.window.add_to_slice(slice, magnitudes);
+        };
+        if slice == newest {
+            return self.window.add_to_slice(slice, magnitudes);
+        }
+        // The window moves on exactly when the sample enters a newer slice.
+        if slice > newest {
+            self.fold_newest();
+        }
+        let entered = self.window.add_to_slice(slice, magnitudes);
+        if entered && slice < newest {
+            let second = self.second_of_slice(slice);
+            if let Some(history) = &mut self.history {
+                history.add(second, magnitudes);
+            }
+        }
+        entered
+    }
+
+    /// Moves the window's end to `now_s` ([`WindowStats::advance_to`]).
+    pub fn advance_to(&mut self, now_s: f64) {
+        if let Some(newest) = self.window.newest_slice()
+            && now_s.is_finite()
+            && self.window.slice_of(now_s) > newest
+        {
+            self.fold_newest();
+        }
+        self.window.advance_to(now_s);
+    }
+
+    /// The window starts afresh (a reset, a new epoch); the history keeps what the window held,
+    /// as source time goes on.
+    pub fn reset_window(&mut self) {
+        self.fold_newest();
+        self.window.reset();
+    }
+
+    /// Both start afresh: source time went back (a restart of the gateway's clock), and seconds
+    /// of the new clock must not mix with those of the old.
+    pub fn restart(&mut self) {
+        self.window.reset();
+        if let Some(history) = &mut self.history {
+            history.clear();
+        }
+    }
+
+    /// The window's statistics ([`WindowStats::readout`]).
+    #[must_use]
+    pub fn readout(&self) -> StatsSet {
+        self.window.readout()
+    }
+
+    /// Folds the window's newest slice, which is about to close, into the history.
+    fn fold_newest(&mut self) {
+        let Some(newest) = self.window.newest_slice() else {
+            return;
+        };
+        let second = self.second_of_slice(newest);
+        if let Some(history) = &mut self.history {
+            history.fold(second, &self.window.newest_totals());
+        }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::float_cmp, reason = "exact results are expected where tested")]
+mod tests {
+    use proptest::prelude::*;
+
+    use super::*;
+
+    /// The totals of `pairs` over the history's metrics, summed naively.
+    fn naive(pairs: &[(f64, [f64; METRIC_COUNT])]) -> SecondTotals {
+        let mut totals = EMPTY;
+        for (_, magnitudes) in pairs {
+            let mut one = EMPTY;
+            one.n = 1;
+            for (m, metric) in HISTORY_METRICS.iter().enumerate() {
+                let x = magnitudes[metric.index()];
+                one.sums[m] = x;
+                one.sums_of_squares[m] = x * x;
+                one.maxima[m] = x;
+            }
+            merge(&mut totals, &one);
+        }
+        totals
+    }
+
+    fn close(a: f64, b: f64) -> bool {
+        (a - b).abs() <= 1e-12 * a.abs().max(b.abs()) || a == b
+    }
+
+    fn assert_stats_agree(got: &[Stats; 2], expected: &[Stats; 2], what: &str) {
+        for m in 0..2 {
+            assert!(
+                close(got[m].mae, expected[m].mae),
+                "{what} mae {got:?} {expected:?}"
+            );
+            assert!(
+                close(got[m].rmse, expected[m].rmse),
+                "{what} rmse {got:?} {expected:?}"
+            );
+            assert_eq!(got[m].max, expected[m].max, "{what} max");
+        }
+    }
+
+    /// Magnitudes with distinct position and angle values.
+    fn magnitudes(position: f64, angle: f64) -> [f64; METRIC_COUNT] {
+        let mut values = [0.5; METRIC_COUNT];
+        values[Metric::Position.index()] = position;
+        values[Metric::Angle.index()] = angle;
+        values
+    }
+
+    #[test]
+    fn seconds_hold_their_slices_and_late_pairs() {
+        // Slices of 0.25 s.
+        let mut window = WindowWithHistory::new(2.0, 8, 10);
+        assert!(window.add(10.1, &magnitudes(1.0, 2.0)));
+        assert!(window.add(10.6, &magnitudes(3.0, 1.0)));
+        assert_eq!(window.open_second(), Some(10));
+        assert_eq!(window.history().expect("kept").rows(0..=100).count(), 1);
+        assert!(window.add(11.05, &magnitudes(5.0, 5.0)));
+        // Late into second 10, whose slices are folded.
+        assert!(window.add(10.9, &magnitudes(2.0, 0.0)));
+        window.advance_to(12.0);
+        let rows: Vec<HistoryRow> = window.history().expect("kept").rows(0..=100).collect();
+        assert_eq!(rows.len(), 2);
+        assert_eq!((rows[0].second, rows[0].totals.n), (10, 3));
+        assert_eq!(rows[0].totals.sums, [6.0, 3.0]);
+        assert_eq!(rows[0].totals.maxima, [3.0, 2.0]);
+        assert_eq!((rows[1].second, rows[1].totals.n), (11, 1));
+        assert_eq!(rows[1].stats()[0].rmse, 5.0);
+    }
+
+    #[test]
+    fn a_reset_window_keeps_its_history_and_a_restart_clears_it() {
+        let mut window = WindowWithHistory::new(10.0, 100, 60);
+        assert!(window.add(5.5, &magnitudes(1.0, 1.0)));
+        window.reset_window();
+        assert!(window.add(5.7, &magnitudes(1.0, 1.0)));
+        window.advance_to(6.0);
+        let history = window.history().expect("kept");
+        assert_eq!(history.rows(5..=5).next().map(|row| row.totals.n), Some(2));
+        window.restart();
+        assert_eq!(window.history().expect("kept").rows(0..=100).count(), 0);
+        assert!(window.window().is_empty());
+    }
+
+    #[test]
+    fn the_ring_keeps_its_seconds_and_no_more() {
+        let mut history = History::new(3);
+        let one = |x: f64| WindowTotals {
+            n: 1,
+            sums: [x; METRIC_COUNT],
+            sums_of_squares: [x * x; METRIC_COUNT],
+            maxima: [x; METRIC_COUNT],
+        };
+        for second in 0..5 {
+            history.fold(
+                second,
+                &one(f64::from(u8::try_from(second).expect("small"))),
+            );
+        }
+        let seconds: Vec<i64> = history
+            .rows(i64::MIN..=i64::MAX)
+            .map(|row| row.second)
+            .collect();
+        assert_eq!(seconds, [2, 3, 4]);
+        // Too old: dropped; a long gap empties the ring.
+        history.fold(1, &one(9.0));
+        assert_eq!(history.rows(0..=1).count(), 0);
+        history.fold(100, &one(1.0));
+        assert_eq!(history.rows(0..=100).count(), 1);
+        assert_eq!(history.seconds(), 3);
+        assert!(WindowWithHistory::new(1.0, 10, 0).history().is_none());
+    }
+
+    proptest! {
+        /// Every second's totals equal those of its pairs summed naively, and the seconds a
+        /// window covered add up to what the window read out then.
+        #[test]
+        fn seconds_agree_with_their_pairs_and_the_window(
+            steps in prop::collection::vec((0.001..0.05_f64, 0.0..1.0_f64, 0.0..1.0_f64, any::<bool>()), 50..600),
+            slices in prop::sample::select(vec![40_usize, 100, 30, 7]),
+        ) {
+            // 4-s window in `slices` slices (0.1 s, 0.04 s, 0.133 s, 0.571 s).
+            let mut window = WindowWithHistory::new(4.0, slices, 100);
+            let mut pairs: Vec<(f64, [f64; METRIC_COUNT])> = Vec::new();
+            let mut newest_s = 100.0;
+            for (step, position, angle, late) in steps {
+                // A late pair: behind the newest, as when a measured pose pairs after the
+                // joint sample past it.
+                let stamp_s = if late {
+                    newest_s - step
+                } else {
+                    newest_s += step;
+                    newest_s
+                };
+                let values = magnitudes(position, angle);
+                if window.add(stamp_s, &values) {
+                    pairs.push((stamp_s, values));
+                }
+            }
+            // The window now holds whole seconds' slices up to the newest only when its edge is
+            // on a second: read it out at the end of the last slice before the next second.
+            let slice_s = 4.0 / slices as f64;
+            let open = window.open_second().expect("time");
+            let end_s = (open + 1) as f64 - slice_s / 2.0;
+            window.advance_to(end_s);
+            let readout = window.readout();
+            let newest_slice = window.window().newest_slice().expect("time");
+            // Past every slice of `open`: every second with pairs is complete.
+            window.advance_to((open + 2) as f64 + slice_s);
+            prop_assert!(window.open_second() > Some(open));
+            let history = window.history().expect("kept");
+            prop_assert_eq!(
+                history.rows(i64::MIN..=i64::MAX).map(|row| row.totals.n).sum::<u64>(),
+                pairs.len() as u64
+            );
+            let slice_of = |stamp_s: f64| (stamp_s * (slices as f64 / 4.0)).floor() as i64;
+            let second_of = |slice: i64| window.second_of_slice(slice);
+            for row in history.rows(i64::MIN..=i64::MAX) {
+                let of_second: Vec<_> = pairs
+                    .iter()
+                    .filter(|(stamp_s, _)| second_of(slice_of(*stamp_s)) == row.second)
+                    .copied()
+                    .collect();
+                let expected = naive(&of_second);
+                prop_assert_eq!(row.totals.n, expected.n);
+                assert_stats_agree(&row.stats(), &stats_of(&expected), "second");
+            }
+            // The seconds whose slices were all in the window at `end_s`.
+            let first_slice = newest_slice - i64::try_from(slices).expect("small") + 1;
+            let first_second = second_of(first_slice) + i64::from(second_of(first_slice - 1) == second_of(first_slice));
+            let mut span = EMPTY;
+            for row in history.rows(first_second..=open) {
+                merge(&mut span, &row.totals);
+            }
+            let in_window: Vec<_> = pairs
+                .iter()
+                .filter(|(stamp_s, _)| (first_slice..=newest_slice).contains(&slice_of(*stamp_s)))
+                .filter(|(stamp_s, _)| second_of(slice_of(*stamp_s)) >= first_second)
+                .copied()
+                .collect();
+            let expected = naive(&in_window);
+            prop_assert_eq!(span.n, expected.n);
+            assert_stats_agree(&stats_of(&span), &stats_of(&expected), "span");
+            // When the window's edge fell on a second, the span is the window itself.
+            if second_of(first_slice - 1) != second_of(first_slice) {
+                prop_assert_eq!(span.n, readout.n);
+                let window_stats = HISTORY_METRICS.map(|metric| *readout.of(metric));
+                assert_stats_agree(&stats_of(&span), &window_stats, "window");
+            }
+        }
+    }
+}

@@ -1,0 +1,129 @@
+"""``get twin/history/<robot>?_time=…`` on the real binary while a Python gateway streams the
+sample UR10e recording: every completed second equals the count, mean, RMS and maximum of the
+position and angle deviations published for the pairs of that second, and ten seconds of them
+add up to the window the state query reported over the same ten seconds.
+
+Run: ``ARMTWIN_BIN=$PWD/target/debug/armtwin .venv/bin/python -m pytest tests/python/test_history.py -q``
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+from support.gateway import Gateway, lasttest_rows
+from support.process import ArmtwinProcess, wait_until
+from support.zenoh_clients import TwinClient, get_json
+
+ROBOT = "cell-1/ur10e-h"
+# Stamps 1000 s + 2 ms a row: the last of 6000 rows is 1011.998, in the last 0.1-s slice of
+# second 1011, so the 10-s window then holds seconds 1002 … 1011 whole.
+ROWS = 6000
+CONFIG = """\
+[service]
+metrics_period_ms = 50
+pose_congestion = "block"
+
+[recorder]
+enabled = false
+history_s = 60
+
+[robots.default]
+model = "ur10e"
+"""
+# The window's slices: 10 s in 100 (the defaults), so 10 slices a second.
+SLICES_PER_S = 100 / 10.0
+
+
+def second_of(stamp_s: float) -> int:
+    """The history's second of a pair: that of the start of its window slice."""
+    return math.floor(math.floor(stamp_s * SLICES_PER_S) / SLICES_PER_S)
+
+
+def aggregate(deviations: list[dict]) -> dict:
+    """Count, and mean, RMS and maximum of position and angle, of some deviation messages."""
+    n = len(deviations)
+    out = {"n": n}
+    for metric in ("position", "angle"):
+        values = [d[metric] for d in deviations]
+        out[metric] = {
+            "mae": sum(values) / n,
+            "rmse": math.sqrt(sum(v * v for v in values) / n),
+            "max": max(values),
+        }
+    return out
+
+
+def combine(seconds: list[dict]) -> dict:
+    """The statistics of the union of some seconds' pairs, from their rows."""
+    n = sum(s["n"] for s in seconds)
+    out = {"n": n}
+    for metric in ("position", "angle"):
+        out[metric] = {
+            "mae": sum(s[metric]["mae"] * s["n"] for s in seconds) / n,
+            "rmse": math.sqrt(sum(s[metric]["rmse"] ** 2 * s["n"] for s in seconds) / n),
+            "max": max(s[metric]["max"] for s in seconds),
+        }
+    return out
+
+
+def assert_agree(got: dict, expected: dict, what: str, rel: float = 1e-9) -> None:
+    assert got["n"] == expected["n"], (what, got, expected)
+    for metric in ("position", "angle"):
+        assert got[metric]["max"] == expected[metric]["max"], (what, metric, got, expected)
+        for stat in ("mae", "rmse"):
+            assert math.isclose(got[metric][stat], expected[metric][stat], rel_tol=rel), (
+                what, metric, stat, got, expected)
+
+
+def test_history_seconds_agree_with_the_pairs_and_the_window(armtwin_bin, tmp_path, processes):
+    service = ArmtwinProcess(armtwin_bin, tmp_path, CONFIG, watchdog_s=120.0).start()
+    processes.append(service)
+    client = TwinClient(service.endpoint)
+    try:
+        gateway = Gateway(client, ROBOT, rate_hz=2000.0, recording=True, rows=ROWS)
+        gateway.start()
+        gateway.join(timeout=60)
+        assert gateway.sent == ROWS
+        state = lambda: get_json(client.session, f"twin/state/{ROBOT}")[0][1]  # noqa: E731
+        assert wait_until(lambda: state()["metrics"]["paired"] == ROWS, 30.0, 0.1), state()["metrics"]
+        window = state()["metrics"]["window"]
+        assert window["seconds"] == 10.0
+        assert wait_until(lambda: client.collector.count("deviation", ROBOT) == ROWS, 20.0, 0.05), (
+            client.collector.count("deviation", ROBOT))
+        deviations = client.collector.messages("deviation", ROBOT)
+
+        # Second 1011 is still open (the newest stamp lies in it): the history answers 1000 … 1010.
+        answers = get_json(client.session, f"twin/history/{ROBOT}?_time=[now(-10m)..]")
+        assert [key for key, _ in answers] == [f"twin/history/{ROBOT}"]
+        history = answers[0][1]
+        assert history["robot"] == ROBOT and history["history_s"] == 60
+        assert history["t"] == 1000.0 + (ROWS - 1) * 0.002
+        assert [row["t"] for row in history["seconds"]] == list(range(1000, 1011))
+        by_second: dict[int, list[dict]] = {}
+        for deviation in deviations:
+            by_second.setdefault(second_of(deviation["t"]), []).append(deviation)
+        for row in history["seconds"]:
+            assert_agree(row, aggregate(by_second[row["t"]]), f"second {row['t']}")
+        # A real error, and every second counted, 500 pairs a second (± the slices' rounding).
+        assert history["seconds"][0]["position"]["mae"] > 1e-5
+        assert sum(row["n"] for row in history["seconds"]) == sum(len(by_second[s]) for s in range(1000, 1011))
+
+        # A joint sample half a second on closes second 1011; the ten seconds the window held at
+        # 1011.998 add up to what it reported then.
+        q, _ = lasttest_rows()[ROWS - 1]
+        client.joints(ROBOT).put(json.dumps({"t": 1012.5, "q": q}))
+        assert wait_until(lambda: state()["metrics"]["t"] == 1012.5, 20.0, 0.05)
+        answers = get_json(client.session, f"twin/history/{ROBOT}?_time=[now(-10.5s)..now(-0.5s)]")
+        seconds = answers[0][1]["seconds"]
+        assert [row["t"] for row in seconds] == list(range(1002, 1012))
+        assert_agree(combine(seconds), window, "the window at 1011.998", rel=1e-9)
+
+        # An absolute range is source time since 1970; a malformed one is refused.
+        answers = get_json(client.session, f"twin/history/{ROBOT}?_time=[1970-01-01T00:16:45Z..1970-01-01T00:16:47Z]")
+        assert [row["t"] for row in answers[0][1]["seconds"]] == [1005, 1006, 1007]
+        replies = list(client.session.get(f"twin/history/{ROBOT}?_time=yesterday", timeout=10.0))
+        assert replies and replies[0].err is not None, replies
+        assert "_time" in json.loads(replies[0].err.payload.to_bytes())["error"]
+    finally:
+        client.close()

@@ -15,8 +15,8 @@ mod source;
 mod tls;
 
 pub use source::{
-    FleetRow, FleetSource, PeerFleet, PeerRow, RecorderTotals, RobotCounts, RobotDetail,
-    ServiceTotals,
+    FleetRow, FleetSource, PeerFleet, PeerRow, RecorderTotals, RecordingFile, RobotCounts,
+    RobotDetail, ServiceTotals,
 };
 
 use std::collections::BTreeMap;
@@ -275,6 +275,8 @@ fn router(state: AppState) -> Router {
         .route("/api/robot", get(robot_json))
         .route("/api/robot/frames", get(robot_frames))
         .route("/api/robot/history", get(robot_history))
+        .route("/api/robot/recordings", get(robot_recordings))
+        .route("/api/robot/recording", get(robot_recording))
         .route("/api/robot/stream", get(robot_stream))
         .fallback(not_found)
         .with_state(state)
@@ -564,6 +566,82 @@ async fn robot_history(State(state): State<AppState>, Query(query): Query<RobotQ
     match state.view.history(&query.id) {
         Some(message) => json_response(serde_json::to_string(&message).unwrap_or_default()),
         None => unknown_robot(&query.id),
+    }
+}
+
+async fn robot_recordings(
+    State(state): State<AppState>,
+    Query(query): Query<RobotQuery>,
+) -> Response {
+    match state.view.recordings(&query.id) {
+        Some(files) => {
+            json_response(serde_json::json!({"robot": query.id, "files": files}).to_string())
+        }
+        None => unknown_robot(&query.id),
+    }
+}
+
+#[derive(Deserialize)]
+struct RecordingQuery {
+    id: String,
+    name: String,
+}
+
+/// The largest file the dashboard hands out: incident files are a few MB; a longer
+/// `armtwin record` file is read from the recorder's directory, not downloaded here.
+const MAX_DOWNLOAD_BYTES: u64 = 256 * 1024 * 1024;
+
+async fn robot_recording(
+    State(state): State<AppState>,
+    Query(query): Query<RecordingQuery>,
+) -> Response {
+    // Only a name the listing gives is looked up, so no request names a path of its own.
+    let Some(path) = state.view.recording_path(&query.id, &query.name) else {
+        return bad_request(
+            StatusCode::NOT_FOUND,
+            &format!("robot '{}' has no recording '{}'", query.id, query.name),
+        );
+    };
+    let size = tokio::fs::metadata(&path).await.map(|m| m.len());
+    match size {
+        Ok(size) if size > MAX_DOWNLOAD_BYTES => {
+            return bad_request(
+                StatusCode::PAYLOAD_TOO_LARGE,
+                &format!(
+                    "'{}' is {size} bytes: read it from the recorder's directory",
+                    query.name
+                ),
+            );
+        }
+        Ok(_) => {}
+        Err(error) => {
+            return bad_request(
+                StatusCode::NOT_FOUND,
+                &format!("'{}' cannot be read: {error}", query.name),
+            );
+        }
+    }
+    match tokio::fs::read(&path).await {
+        Ok(bytes) => (
+            [
+                (
+                    header::CONTENT_TYPE,
+                    HeaderValue::from_static("application/octet-stream"),
+                ),
+                (
+                    header::CONTENT_DISPOSITION,
+                    // The listed names are ASCII letters, digits, `.`, `-` and `T`/`Z`.
+                    HeaderValue::from_str(&format!("attachment; filename=\"{}\"", query.name))
+                        .unwrap_or_else(|_| HeaderValue::from_static("attachment")),
+                ),
+            ],
+            bytes,
+        )
+            .into_response(),
+        Err(error) => bad_request(
+            StatusCode::NOT_FOUND,
+            &format!("'{}' cannot be read: {error}", query.name),
+        ),
     }
 }
 

@@ -22,6 +22,11 @@ pub trait FleetSource: Send + Sync + 'static {
     fn robot(&self, id: &str) -> Option<RobotDetail>;
     /// Robot `id`'s per-second history: every completed second it keeps, if it is tracked.
     fn history(&self, id: &str) -> Option<json::HistoryMessage>;
+    /// Robot `id`'s incident and recording files, oldest first (`None` if it is neither tracked
+    /// nor has files).
+    fn recordings(&self, id: &str) -> Option<Vec<RecordingFile>>;
+    /// Where robot `id`'s file `name` (as [`recordings`](Self::recordings) lists it) is on disk.
+    fn recording_path(&self, id: &str, name: &str) -> Option<std::path::PathBuf>;
     /// Robot `id`'s twin pose count (`None` if it is not tracked): changes whenever it moves.
     fn poses_of(&self, id: &str) -> Option<u64>;
     /// The robots whose gateway holds a liveliness token, or held one while the robot is
@@ -33,6 +38,15 @@ pub trait FleetSource: Send + Sync + 'static {
     /// The robots the fleet's other instances twin, read through the mesh (blocks for up to a
     /// few seconds).
     fn peers(&self) -> PeerFleet;
+}
+
+/// One file the flight recorder wrote for a robot.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct RecordingFile {
+    /// Its name in the robot's directory: `<UTC time>-<trigger>.mcap`.
+    pub name: String,
+    /// Its size (bytes).
+    pub bytes: u64,
 }
 
 /// The robots of the fleet's other instances, as their state answers gave them.

@@ -318,6 +318,34 @@ pub fn files(dir: &Path) -> Vec<(PathBuf, u64)> {
     found
 }
 
+/// The most files [`robot_files`] lists: retention keeps far fewer by default.
+pub const MAX_LISTED: usize = 10_000;
+
+/// Robot `robot`'s files under `dir` (their names in its directory, and sizes), oldest first;
+/// at most [`MAX_LISTED`] of them, the newest kept. `robot` is untrusted: it names a directory only
+/// through [`robot_directory`], so it cannot climb out of `dir`.
+#[must_use]
+pub fn robot_files(dir: &Path, robot: &str) -> Vec<(String, u64)> {
+    let mut found = Vec::new();
+    let Ok(entries) = fs::read_dir(dir.join(robot_directory(robot))) else {
+        return found;
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        if path.extension().is_some_and(|ext| ext == "mcap")
+            && let (Some(name), Ok(metadata)) =
+                (path.file_name().and_then(|n| n.to_str()), entry.metadata())
+            && metadata.is_file()
+        {
+            found.push((name.to_owned(), metadata.len()));
+        }
+    }
+    found.sort();
+    let cut = found.len().saturating_sub(MAX_LISTED);
+    found.drain(..cut);
+    found
+}
+
 /// Removes the oldest files under `dir` until at most `max_files` of at most `max_bytes` are
 /// left; how many went.
 fn prune(dir: &Path, max_files: usize, max_bytes: u64) -> u64 {

@@ -11,7 +11,10 @@ use super::fleet::Fleet;
 use super::gateways::GatewayTokens;
 use super::peers::Peers;
 use crate::codec::json;
-use crate::dashboard::{FleetRow, FleetSource, PeerFleet, RobotCounts, RobotDetail, ServiceTotals};
+use crate::dashboard::{
+    FleetRow, FleetSource, PeerFleet, RecordingFile, RobotCounts, RobotDetail, ServiceTotals,
+};
+use crate::recorder::store;
 
 /// The fleet as the dashboard reads it.
 pub(super) struct FleetView {
@@ -88,6 +91,28 @@ impl FleetSource for FleetView {
     fn history(&self, id: &str) -> Option<json::HistoryMessage> {
         let cell = self.fleet.existing_cell_of(id)?;
         cell.lock().history_message(id, |_| i64::MIN..=i64::MAX)
+    }
+
+    fn recordings(&self, id: &str) -> Option<Vec<RecordingFile>> {
+        let dir = &self.fleet.recorder().config().store.dir;
+        let files = store::robot_files(dir, id);
+        if files.is_empty() && self.fleet.existing_cell_of(id).is_none() {
+            return None;
+        }
+        Some(
+            files
+                .into_iter()
+                .map(|(name, bytes)| RecordingFile { name, bytes })
+                .collect(),
+        )
+    }
+
+    fn recording_path(&self, id: &str, name: &str) -> Option<std::path::PathBuf> {
+        let dir = &self.fleet.recorder().config().store.dir;
+        store::robot_files(dir, id)
+            .into_iter()
+            .any(|(listed, _)| listed == name)
+            .then(|| dir.join(store::robot_directory(id)).join(name))
     }
 
     fn poses_of(&self, id: &str) -> Option<u64> {

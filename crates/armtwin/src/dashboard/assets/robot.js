@@ -240,6 +240,36 @@ async function readHistory() {
 readHistory();
 setInterval(readHistory, 5000);
 
+// ---- the flight recorder's files of this robot, newest first, each a download
+const recordingsList = document.getElementById("recordings");
+async function readRecordings() {
+  try {
+    const response = await fetch("/api/robot/recordings?id=" + encodeURIComponent(id));
+    if (!response.ok) return;
+    const files = (await response.json()).files.slice().reverse();
+    const items = files.map((file) => {
+      const li = document.createElement("li");
+      const a = document.createElement("a");
+      a.href = "/api/robot/recording?id=" + encodeURIComponent(id) + "&name=" + encodeURIComponent(file.name);
+      a.download = file.name;
+      a.textContent = file.name;
+      li.append(a, ` (${(file.bytes / 1e6).toFixed(2)} MB)`);
+      return li;
+    });
+    if (!items.length) {
+      const li = document.createElement("li");
+      li.textContent = "none yet";
+      items.push(li);
+    }
+    recordingsList.replaceChildren(...items);
+    recordingsList.dataset.files = String(files.length);
+  } catch (error) {
+    // The next read tries again.
+  }
+}
+readRecordings();
+setInterval(readRecordings, 5000);
+
 // ---- tables
 const ROWS = [["position", "mm", 1000], ["x", "mm", 1000], ["y", "mm", 1000], ["z", "mm", 1000],
   ["angle", "mrad", 1000], ["roll", "mrad", 1000], ["pitch", "mrad", 1000], ["yaw", "mrad", 1000], ["quat_distance", "", 1]];

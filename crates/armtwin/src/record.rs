@@ -23,7 +23,9 @@ use crate::codec::gateway::Codec;
 use crate::config::ZenohSection;
 use crate::ingest;
 use crate::keys::{KeyPrefixError, KeySpace, Stream};
-use crate::mesh::{MeshError, TEARDOWN_STEP, bounded, transport_stamp_s, zenoh_config_of};
+use crate::mesh::{
+    MeshError, TEARDOWN_STEP, bounded, close_session, transport_stamp_s, zenoh_config_of,
+};
 use crate::recorder::live::{self, LiveFile, LiveStream};
 use crate::recorder::store::{robot_directory, with_causes};
 
@@ -221,9 +223,7 @@ pub async fn record(
             result?;
         }
     }
-    if let Some(result) = bounded("closing the session", TEARDOWN_STEP, session.close()).await {
-        result?;
-    }
+    close_session(&session).await?;
     // The callbacks' queue senders went with the subscribers: the thread ends once it has
     // written what is queued.
     let mut report = tokio::task::spawn_blocking(move || writer.join())

@@ -17,7 +17,7 @@ use zenoh::qos::CongestionControl;
 use crate::codec::recording::{self, Recording};
 use crate::config::ZenohSection;
 use crate::keys::{KeyPrefixError, KeySpace, Stream};
-use crate::mesh::{MeshError, TEARDOWN_STEP, bounded, zenoh_config_of};
+use crate::mesh::{MeshError, TEARDOWN_STEP, bounded, close_session, zenoh_config_of};
 
 /// How long to wait for a subscriber (the service) before giving up.
 const WAIT_FOR_SUBSCRIBER: Duration = Duration::from_secs(10);
@@ -109,7 +109,7 @@ pub async fn replay(
     let deadline = Instant::now() + WAIT_FOR_SUBSCRIBER;
     while !publisher.matching_status().await?.matching() {
         if Instant::now() >= deadline {
-            bounded("closing the session", TEARDOWN_STEP, session.close()).await;
+            let _ = close_session(&session).await;
             return Err(ReplayError::NoSubscriber {
                 key,
                 waited_s: WAIT_FOR_SUBSCRIBER.as_secs(),
@@ -166,9 +166,7 @@ pub async fn replay(
     {
         result?;
     }
-    if let Some(result) = bounded("closing the session", TEARDOWN_STEP, session.close()).await {
-        result?;
-    }
+    close_session(&session).await?;
     info!(
         published = report.published,
         malformed = report.malformed,

@@ -28,7 +28,9 @@ use tracing::info;
 use crate::codec::rtde::DEFAULT_PORT;
 use crate::config::ZenohSection;
 use crate::keys::{self, KeySpace, PlainKeyError, Stream};
-use crate::mesh::{MeshError, TEARDOWN_STEP, aggregate_publishers, bounded, zenoh_config_of};
+use crate::mesh::{
+    MeshError, TEARDOWN_STEP, aggregate_publishers, bounded, close_session, zenoh_config_of,
+};
 
 /// The output frequency asked for unless one is given: an e-Series controller's rate (a CB3
 /// streams at most 125 Hz and says so by refusing more).
@@ -214,9 +216,7 @@ pub async fn run(
         while links.join_next().await.is_some() {}
     })
     .await;
-    if let Some(result) = bounded("closing the session", TEARDOWN_STEP, session.close()).await {
-        result?;
-    }
+    close_session(&session).await?;
     Ok(())
 }
 

@@ -6,5 +6,6 @@
 pub mod session;
 
 pub use session::{
-    MeshError, TEARDOWN_STEP, aggregate_publishers, bounded, transport_stamp_s, zenoh_config_of,
+    MeshError, TEARDOWN_STEP, aggregate_publishers, bounded, close_session, transport_stamp_s,
+    zenoh_config_of,
 };

@@ -116,6 +116,17 @@ pub async fn bounded<T>(
     outcome
 }
 
+/// Closes `session` within [`TEARDOWN_STEP`]: Zenoh's error if it failed, `Ok` if it closed or
+/// took too long (then abandoned, and logged by [`bounded`]).
+///
+/// # Errors
+/// Zenoh's, when closing failed.
+pub async fn close_session(session: &zenoh::Session) -> zenoh::Result<()> {
+    bounded("closing the session", TEARDOWN_STEP, session.close())
+        .await
+        .unwrap_or(Ok(()))
+}
+
 /// The stamp (s) of a message without its own: the Zenoh timestamp, else the arrival time. Read
 /// only for such a message where that can be told apart: most carry `t`, and a clock read per
 /// message adds up.

@@ -71,7 +71,7 @@ use self::snapshot::restore_snapshot;
 use crate::config::ServiceConfig;
 use crate::dashboard;
 use crate::keys::Stream;
-use crate::mesh::{TEARDOWN_STEP, aggregate_publishers, bounded, zenoh_config_of};
+use crate::mesh::{TEARDOWN_STEP, aggregate_publishers, bounded, close_session, zenoh_config_of};
 use crate::snapshot::SnapshotStore;
 
 /// Runs the service until `shutdown` completes, then tears down in order: stop intake, finish
@@ -141,7 +141,7 @@ pub async fn serve(
                 tokio::task::spawn_blocking(move || control.join()),
             )
             .await;
-            bounded("closing the session", TEARDOWN_STEP, session.close()).await;
+            let _ = close_session(&session).await;
             return Err(e);
         }
     };
@@ -173,7 +173,7 @@ pub async fn serve(
     )
     .await;
     // Closed even when the control thread failed: the session's links go down either way.
-    if let Some(Err(e)) = bounded("closing the session", TEARDOWN_STEP, session.close()).await {
+    if let Err(e) = close_session(&session).await {
         warn!(error = %e, "closing the session failed");
     }
     let report = report?;

@@ -64,6 +64,24 @@ impl Deviation {
         }
     }
 
+    /// The nine fields, signed, in their declared order: dx, dy, dz, position, quaternion
+    /// distance, angle, droll, dpitch, dyaw (the deviation columns of a validation CSV and the
+    /// fields of a recorded `Deviation` message).
+    #[must_use]
+    pub fn fields(&self) -> [f64; 9] {
+        [
+            self.dx_m,
+            self.dy_m,
+            self.dz_m,
+            self.position_m,
+            self.quat_distance,
+            self.angle_rad,
+            self.droll_rad,
+            self.dpitch_rad,
+            self.dyaw_rad,
+        ]
+    }
+
     /// The nine non-negative error magnitudes, in [`METRIC_NAMES`] order: position, |dx|, |dy|,
     /// |dz|, quaternion distance, angle, |droll|, |dpitch|, |dyaw|.
     #[must_use]

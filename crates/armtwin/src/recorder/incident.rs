@@ -75,17 +75,7 @@ pub fn fill_measured(out: &mut [f64], stamp_s: f64, measured: &PoseReadout, d: &
     out[0] = stamp_s;
     out[1..4].copy_from_slice(&measured.position_m);
     out[4..8].copy_from_slice(&measured.quaternion_xyzw);
-    out[8..].copy_from_slice(&[
-        d.dx_m,
-        d.dy_m,
-        d.dz_m,
-        d.position_m,
-        d.quat_distance,
-        d.angle_rad,
-        d.droll_rad,
-        d.dpitch_rad,
-        d.dyaw_rad,
-    ]);
+    out[8..].copy_from_slice(&d.fields());
 }
 
 /// Joints of an effort record (the effort monitor's arms have six).

@@ -488,17 +488,7 @@ pub fn write_rows_csv(validation: &Validation, out: &mut impl Write) -> io::Resu
         pose_cells(row.paired.as_ref().map(|(m, _)| m));
         match &row.paired {
             Some((_, d)) => {
-                for v in [
-                    d.dx_m,
-                    d.dy_m,
-                    d.dz_m,
-                    d.position_m,
-                    d.quat_distance,
-                    d.angle_rad,
-                    d.droll_rad,
-                    d.dpitch_rad,
-                    d.dyaw_rad,
-                ] {
+                for v in d.fields() {
                     let _ = write!(line, ",{v}");
                 }
             }

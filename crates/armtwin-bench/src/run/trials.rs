@@ -55,7 +55,18 @@ pub(super) struct Orchestrator {
     pub(super) clock_origin_s: f64,
     pub(super) bench: PathBuf,
     pub(super) armtwin: PathBuf,
+    /// TOML appended to every armtwin configuration (`--armtwin-config-extra`).
+    pub(super) config_extra: String,
     pub(super) work_dir: PathBuf,
+}
+
+/// `text` with `extra` appended as tables of its own: after a newline, since `text` may end
+/// inside a robot's table.
+pub(super) fn with_config_extra(text: &str, extra: &str) -> String {
+    if extra.is_empty() {
+        return text.to_owned();
+    }
+    format!("{text}\n{extra}\n")
 }
 
 impl Orchestrator {
@@ -82,7 +93,11 @@ impl Orchestrator {
 
     /// `armtwin serve` with `config` (a file name in the work directory, written with `text`).
     pub(super) fn start_armtwin_with(&self, config: &str, text: &str) -> Result<SystemUnderTest> {
-        SystemUnderTest::armtwin(&self.armtwin, &self.work_dir.join(config), text)
+        SystemUnderTest::armtwin(
+            &self.armtwin,
+            &self.work_dir.join(config),
+            &with_config_extra(text, &self.config_extra),
+        )
     }
 
     pub(super) fn start_armtwin(

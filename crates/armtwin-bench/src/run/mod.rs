@@ -366,22 +366,9 @@ pub fn run(args: &RunArgs) -> Result<Report> {
     let wall = Instant::now();
     let settings = Settings::of(args);
     let (bench, armtwin) = bench_and_armtwin(args.armtwin.as_ref())?;
-    let config_extra = match &settings.armtwin_config_extra {
-        Some(path) => {
-            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?
-        }
-        None => String::new(),
-    };
     let work_dir = std::env::temp_dir().join(format!("armtwin-bench-{}", std::process::id()));
     std::fs::create_dir_all(&work_dir)?;
-    let orchestrator = Orchestrator {
-        settings: settings.clone(),
-        clock_origin_s: unix_now_s(),
-        bench,
-        armtwin,
-        config_extra,
-        work_dir: work_dir.clone(),
-    };
+    let orchestrator = Orchestrator::new(settings.clone(), bench, armtwin, work_dir.clone())?;
     let started_unix_s = SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| d.as_secs());

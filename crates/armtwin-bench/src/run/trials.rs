@@ -70,6 +70,29 @@ pub(super) fn with_config_extra(text: &str, extra: &str) -> String {
 }
 
 impl Orchestrator {
+    /// The runs of `settings`, from `bench` and `armtwin`, in `work_dir`; reads
+    /// `--armtwin-config-extra` now, so a missing file fails before anything runs.
+    pub(super) fn new(
+        settings: Settings,
+        bench: PathBuf,
+        armtwin: PathBuf,
+        work_dir: PathBuf,
+    ) -> Result<Self> {
+        let config_extra = match &settings.armtwin_config_extra {
+            Some(path) => std::fs::read_to_string(path)
+                .with_context(|| format!("reading {}", path.display()))?,
+            None => String::new(),
+        };
+        Ok(Self {
+            settings,
+            clock_origin_s: super::unix_now_s(),
+            bench,
+            armtwin,
+            config_extra,
+            work_dir,
+        })
+    }
+
     pub(super) fn start_echo(&self, robots: usize, lazy: bool) -> Result<SystemUnderTest> {
         let port = free_port()?;
         let endpoint = net::loopback_endpoint(port);

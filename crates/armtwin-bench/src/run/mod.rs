@@ -160,6 +160,10 @@ pub struct RunArgs {
     /// The `armtwin` binary (default: next to this one).
     #[arg(long)]
     pub armtwin: Option<PathBuf>,
+    /// TOML appended to every configuration `armtwin serve` is started with, e.g. an `[opcua]`
+    /// section: the same run with and without a part of the service switched on.
+    #[arg(long, value_name = "FILE")]
+    pub armtwin_config_extra: Option<PathBuf>,
     /// Where to write the report.
     #[arg(long, default_value = "bench.json")]
     pub out: PathBuf,
@@ -230,6 +234,8 @@ pub struct Settings {
     pub first_contact_duration_s: f64,
     /// Measured poses embedded in the joint messages.
     pub embedded: bool,
+    /// The file whose TOML is appended to armtwin's configurations.
+    pub armtwin_config_extra: Option<PathBuf>,
 }
 
 impl Settings {
@@ -302,6 +308,7 @@ impl Settings {
             first_contact_rate: args.first_contact_rate,
             first_contact_duration_s: pick(args.first_contact_duration, 3.0, 0.5),
             embedded: args.embedded,
+            armtwin_config_extra: args.armtwin_config_extra.clone(),
         }
     }
 
@@ -361,13 +368,7 @@ pub fn run(args: &RunArgs) -> Result<Report> {
     let (bench, armtwin) = bench_and_armtwin(args.armtwin.as_ref())?;
     let work_dir = std::env::temp_dir().join(format!("armtwin-bench-{}", std::process::id()));
     std::fs::create_dir_all(&work_dir)?;
-    let orchestrator = Orchestrator {
-        settings: settings.clone(),
-        clock_origin_s: unix_now_s(),
-        bench,
-        armtwin,
-        work_dir: work_dir.clone(),
-    };
+    let orchestrator = Orchestrator::new(settings.clone(), bench, armtwin, work_dir.clone())?;
     let started_unix_s = SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| d.as_secs());
@@ -461,7 +462,30 @@ pub fn run(args: &RunArgs) -> Result<Report> {
 
 #[cfg(test)]
 mod tests {
+    use std::path::Path;
+
+    use armtwin::config::{Overrides, ServiceConfig};
+
+    use super::trials::with_config_extra;
     use crate::net;
+
+    #[test]
+    fn extra_configuration_is_appended_after_the_robots() {
+        let text = with_config_extra(
+            &crate::fleet::service_config_encoded(2, "zenoh-serialized"),
+            "[opcua]\nendpoint = \"opc.tcp://127.0.0.1:4840\"\nanonymous = true",
+        );
+        let config = ServiceConfig::parse(&text, "generated", Path::new(""), &Overrides::default())
+            .expect("valid configuration");
+        assert_eq!(config.robots.len(), 2);
+        let opcua = config.opcua.expect("the OPC UA server configured");
+        assert_eq!(
+            opcua.sampling_interval,
+            std::time::Duration::from_millis(100)
+        );
+        let unchanged = with_config_extra("[service]\n", "");
+        assert_eq!(unchanged, "[service]\n");
+    }
 
     #[test]
     fn the_generated_configuration_lists_every_robot() {

@@ -55,10 +55,44 @@ pub(super) struct Orchestrator {
     pub(super) clock_origin_s: f64,
     pub(super) bench: PathBuf,
     pub(super) armtwin: PathBuf,
+    /// TOML appended to every armtwin configuration (`--armtwin-config-extra`).
+    pub(super) config_extra: String,
     pub(super) work_dir: PathBuf,
 }
 
+/// `text` with `extra` appended as tables of its own: after a newline, since `text` may end
+/// inside a robot's table.
+pub(super) fn with_config_extra(text: &str, extra: &str) -> String {
+    if extra.is_empty() {
+        return text.to_owned();
+    }
+    format!("{text}\n{extra}\n")
+}
+
 impl Orchestrator {
+    /// The runs of `settings`, from `bench` and `armtwin`, in `work_dir`; reads
+    /// `--armtwin-config-extra` now, so a missing file fails before anything runs.
+    pub(super) fn new(
+        settings: Settings,
+        bench: PathBuf,
+        armtwin: PathBuf,
+        work_dir: PathBuf,
+    ) -> Result<Self> {
+        let config_extra = match &settings.armtwin_config_extra {
+            Some(path) => std::fs::read_to_string(path)
+                .with_context(|| format!("reading {}", path.display()))?,
+            None => String::new(),
+        };
+        Ok(Self {
+            settings,
+            clock_origin_s: super::unix_now_s(),
+            bench,
+            armtwin,
+            config_extra,
+            work_dir,
+        })
+    }
+
     pub(super) fn start_echo(&self, robots: usize, lazy: bool) -> Result<SystemUnderTest> {
         let port = free_port()?;
         let endpoint = net::loopback_endpoint(port);
@@ -82,7 +116,11 @@ impl Orchestrator {
 
     /// `armtwin serve` with `config` (a file name in the work directory, written with `text`).
     pub(super) fn start_armtwin_with(&self, config: &str, text: &str) -> Result<SystemUnderTest> {
-        SystemUnderTest::armtwin(&self.armtwin, &self.work_dir.join(config), text)
+        SystemUnderTest::armtwin(
+            &self.armtwin,
+            &self.work_dir.join(config),
+            &with_config_extra(text, &self.config_extra),
+        )
     }
 
     pub(super) fn start_armtwin(

@@ -79,8 +79,8 @@ fn merge(row: &mut SecondTotals, part: &SecondTotals) {
 
 /// Per-second totals of the last `seconds` seconds of source time, on the grid of whole seconds:
 /// second `s` lives at `s mod seconds`, so the ring never grows and a second without pairs costs
-/// nothing more than its empty row. Memory fixed at construction: `seconds × 56` bytes (197 KB
-/// for an hour).
+/// nothing more than its empty row. Memory fixed at construction, in proportion to `seconds`
+/// (BENCHMARKS.md gives the bytes).
 #[derive(Debug, Clone)]
 pub struct History {
     rows: Box<[SecondTotals]>,

@@ -12,7 +12,7 @@ use super::ConfigError;
 use super::file::RobotSection;
 use crate::recorder::StoreSettings;
 
-/// Most seconds `[recorder] history_s` may ask for: a day, 4.8 MB per robot.
+/// Most seconds `[recorder] history_s` may ask for: a day (the ring is allocated whole).
 const MAX_HISTORY_S: usize = 86_400;
 
 /// `[recorder]` as written.

@@ -57,10 +57,11 @@ ROBOTS = ("a", "b")
 # A small receive buffer on the slow subscriber's side, so its link congests within the sleep
 # rather than after the kernel has buffered tens of megabytes.
 SLOW_RCVBUF = 16384
-# And a bounded send buffer on the service's side. Linux grows a socket's send buffer up to
-# tcp_wmem's maximum (4 MB) while its peer does not read: the sleeper woke to 3.6 MB of poses
-# queued before it slept, which Python on a busy machine drained at ~0.5 MB/s, so the stream
-# ended before it reached a pose published after it woke. The kernel doubles what is asked.
+# And a bounded send buffer on the service's side of the sleeper's link alone (a listener of its
+# own). Linux grows a socket's send buffer up to tcp_wmem's maximum while its peer does not
+# read: the sleeper woke to megabytes of poses queued before it slept, which Python on a busy
+# machine could not drain before the stream ended. The fast subscriber keeps the grown buffer,
+# which carries it over its own process's pauses. The kernel doubles what is asked.
 SERVICE_SNDBUF = 131072
 # Poses the fast subscriber may miss: with the `drop` default a subscriber loses poses when its own
 # process is starved of CPU (it shares a Python interpreter with the gateway), which is not a stall;
@@ -224,7 +225,7 @@ def test_a_subscriber_asleep_in_its_callback_stalls_nothing(twin, tmp_path):
         assert wait_until(lambda: alive() == {f"{PREFIX}/alive/{r}" for r in ROBOTS}, 30), alive()
 
         fast = PoseLog()
-        sleeper = Sleeper(f"{twin.endpoint}#so_rcvbuf={SLOW_RCVBUF}", tmp_path)
+        sleeper = Sleeper(f"{twin.option_endpoint}#so_rcvbuf={SLOW_RCVBUF}", tmp_path)
         sleeper.wait_ready(30)
         fast_sub = fast_session.declare_subscriber(f"{PREFIX}/pose/*", fast)
         # A session's subscriber is known to the service once a query from it came back.

@@ -197,8 +197,8 @@ class Process:
 
 class ArmtwinProcess(Process):
     """``armtwin serve -c CONFIG -l tcp/127.0.0.1:PORT``: a peer on a private loopback port;
-    ``listen_options``, if given, are the listening endpoint's Zenoh link options
-    (``so_sndbuf=65536``), left out of ``endpoint``, which clients connect to."""
+    with ``listen_options`` (Zenoh link options, ``so_sndbuf=65536``) it also listens on a second
+    port with them, ``option_endpoint``, so that only the clients that connect there get them."""
 
     def __init__(self, binary: Path, workdir: Path, config_text: str, watchdog_s: float,
                  listen_options: str = ""):
@@ -207,8 +207,11 @@ class ArmtwinProcess(Process):
         self.config_path.write_text(config_text)
         self.port = free_port()
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
-        listen = f"{self.endpoint}#{listen_options}" if listen_options else self.endpoint
-        argv = [binary, "serve", "-c", self.config_path, "-l", listen]
+        argv = [binary, "serve", "-c", self.config_path, "-l", self.endpoint]
+        self.option_endpoint = None
+        if listen_options:
+            self.option_endpoint = f"tcp/127.0.0.1:{free_port()}"
+            argv += ["-l", f"{self.option_endpoint}#{listen_options}"]
         super().__init__("armtwin", argv, workdir, watchdog_s=watchdog_s)
 
     def start(self) -> ArmtwinProcess:

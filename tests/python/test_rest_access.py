@@ -16,10 +16,8 @@ from pathlib import Path
 from support.gateway import Gateway
 from support.paths import router_path
 from support.process import Router, free_port, wait_until
-from support.secured_fleet import ROUTER_CONFIG, denied, secured_fleet, send
-from support.zenoh_clients import get_json, paired_of, wait_paired
-
-STATE_TIMEOUT_S = 15.0
+from support.secured_fleet import ROUTER_CONFIG, denied, secured_fleet, stream_until_paired
+from support.zenoh_clients import get_json, paired_of
 
 
 # REST on a loopback port, speaking as the certificate `rest` (a dashboard in config/fleet.toml).
@@ -42,20 +40,19 @@ def rest(router: Router, method: str, path: str, body: bytes | None = None,
 def test_an_anonymous_rest_client_reads_but_can_neither_reset_nor_forge(tmp_path, certs, armtwin_bin):
     with secured_fleet(tmp_path, certs, armtwin_bin, ["g1", "dashboard"], rest=REST_IDENTITY) as (router, sessions):
         dashboard = sessions["dashboard"]
-        send(Gateway(sessions["g1"], "r1"), router)
-        assert not (why := wait_paired(dashboard, "r1", 20, STATE_TIMEOUT_S)), why
+        paired = stream_until_paired(Gateway(sessions["g1"], "r1"), router, dashboard, "r1")
 
         # REST reads, as a dashboard does.
         status, body = rest(router, "GET", "/twin/state/r1")
         assert status == 200, body
         [answer] = json.loads(body)
-        assert answer["key"] == "twin/state/r1" and answer["value"]["metrics"]["paired"] == 20, answer
+        assert answer["key"] == "twin/state/r1" and answer["value"]["metrics"]["paired"] == paired, answer
 
         # The reset: the query is dropped at the router, armtwin never sees it.
         status, body = rest(router, "GET", "/twin/admin/reset/r1")
         assert json.loads(body) == [], (status, body)
         assert wait_until(lambda: denied(router, "rest", "Query", "twin/admin/reset/r1"), 10), router.logs()
-        assert paired_of(dashboard, "r1") == 20, "the twin was not reset"
+        assert paired_of(dashboard, "r1") == paired, "the twin was not reset"
 
         # The forged sample: the plugin's own session takes the put (200), the router
         # drops it, and armtwin never twins r2.
@@ -71,7 +68,7 @@ def test_an_anonymous_rest_client_reads_but_can_neither_reset_nor_forge(tmp_path
         rest(router, "PUT", "/twin/pose/r1", json.dumps({"robot": "r1", "seq": -1}).encode())
         assert wait_until(lambda: denied(router, "rest", "Put (ingress) on", "twin/pose/r1"), 10), router.logs()
         [(_, state)] = get_json(dashboard, "twin/state/r1")
-        assert state["metrics"]["paired"] == 20
+        assert state["metrics"]["paired"] == paired
 
 
 def run_router(armtwin_bin: Path, workdir: Path, *args: str) -> subprocess.CompletedProcess:

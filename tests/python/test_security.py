@@ -16,8 +16,8 @@ import zenoh
 from support.gateway import Gateway
 from support.pki import tls_of
 from support.process import wait_until
-from support.secured_fleet import denied, open_as, send, tls_client_config, tls_router_and_twin
-from support.zenoh_clients import get_json, wait_paired, wait_queryable
+from support.secured_fleet import denied, open_as, stream_until_paired, tls_client_config, tls_router_and_twin
+from support.zenoh_clients import get_json, wait_queryable
 
 
 def test_access_control_lets_each_role_do_only_its_part(
@@ -37,10 +37,10 @@ def test_access_control_lets_each_role_do_only_its_part(
         assert wait_queryable(dashboard, "twin/state/**"), router.logs()
         assert wait_queryable(watcher, "twin/state/**"), router.logs()
 
-        send(Gateway(gateway_session, "r1"), router)
-        assert wait_until(lambda: len(poses) == 20, 15), (len(poses), router.logs())
+        paired = stream_until_paired(Gateway(gateway_session, "r1"), router, dashboard, "r1")
+        assert wait_until(lambda: poses, 15), router.logs()
         [(_, state)] = get_json(dashboard, "twin/state/r1")
-        assert state["metrics"]["paired"] == 20
+        assert state["metrics"]["paired"] == paired
 
         # A dashboard's joints are dropped at the router: the twin does not change.
         forged = Gateway(dashboard, "r1", start_seq=1000, start_t=100.0)
@@ -51,8 +51,9 @@ def test_access_control_lets_each_role_do_only_its_part(
         gateway_session.put("twin/pose/r1", json.dumps({"robot": "r1", "seq": -2}))
         time.sleep(1.5)
         [(_, after)] = get_json(dashboard, "twin/state/r1")
-        assert after["metrics"]["paired"] == 20 and after["joints"]["t"] == state["joints"]["t"]
-        assert [p["seq"] for p in poses] == list(range(20)), "only armtwin's poses arrive"
+        assert after["metrics"]["paired"] == paired and after["joints"]["t"] == state["joints"]["t"]
+        seqs = [p["seq"] for p in poses]
+        assert seqs == sorted(set(seqs)) and seqs[0] >= 0, "only armtwin's poses arrive (the forged ones have negative seqs)"
         # The router's log names each denial (access control at trace level).
         assert wait_until(lambda: denied(router, "dashboard", "Put (ingress) on", "twin/joints/r1"), 10)
         assert denied(router, "dashboard", "Put (ingress) on", "twin/pose/r1")
@@ -99,8 +100,7 @@ def test_only_an_operator_may_reset_a_twin(tmp_path, certs, armtwin_bin):
         sessions += [gateway_session, dashboard, operator]
         assert wait_queryable(dashboard, "twin/state/**"), router.logs()
         assert wait_queryable(operator, "twin/admin/reset/**"), router.logs()
-        send(Gateway(gateway_session, "r1"), router)
-        assert not (why := wait_paired(dashboard, "r1", 20)), why + "\n" + twin.logs() + router.logs()
+        paired = stream_until_paired(Gateway(gateway_session, "r1"), router, dashboard, "r1")
 
         # The dashboard reads, and every change it asks for is dropped at the router or refused.
         for selector in ("twin/admin/reset/r1", "twin/admin/calibrate/r1?action=apply",
@@ -111,19 +111,19 @@ def test_only_an_operator_may_reset_a_twin(tmp_path, certs, armtwin_bin):
         # A wide read that reaches the admin queryables changes nothing either.
         list(dashboard.get("twin/**", timeout=5.0))
         [(_, state)] = get_json(dashboard, "twin/state/r1")
-        assert state["metrics"]["paired"] == 20, "the dashboard changed nothing"
-        # The history is a read like the state (its 20 pairs lie in the robot's current second).
+        assert state["metrics"]["paired"] == paired, "the dashboard changed nothing"
+        # The history is a read like the state.
         [(_, history)] = get_json(dashboard, "twin/history/r1?_time=[now(-1h)..]")
-        assert (history["robot"], history["seconds"]) == ("r1", []), history
+        assert history["robot"] == "r1" and isinstance(history["seconds"], list), history
 
         assert wait_until(lambda: denied(router, "dashboard", "Query", "twin/admin/reset/r1"), 10), router.logs()
         assert denied(router, "dashboard", "Query", "twin/admin/calibrate/r1")
 
         # The operator reads and changes.
         [(_, by_operator)] = get_json(operator, "twin/state/r1")
-        assert by_operator["metrics"]["paired"] == 20
+        assert by_operator["metrics"]["paired"] == paired
         oks, errs = replies(operator, "twin/admin/reset/r1")
-        assert errs == [] and len(oks) == 1 and oks[0]["paired"] == 20, (oks, errs)
+        assert errs == [] and len(oks) == 1 and oks[0]["paired"] == paired, (oks, errs)
         [(_, after)] = get_json(dashboard, "twin/state/r1")
         assert after["metrics"]["paired"] == 0, "reset by the operator"
         oks, [answer] = replies(operator, "twin/admin/calibrate/r1?action=discard")

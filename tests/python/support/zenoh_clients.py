@@ -254,22 +254,6 @@ def paired_of(session: zenoh.Session, robot: str) -> int | None:
     return answers[0][1]["metrics"]["paired"] if answers else None
 
 
-def wait_paired(session: zenoh.Session, robot: str, count: int, timeout: float = 15.0) -> str:
-    """Waits until the robot's state answer pairs ``count`` samples; returns "" then, or what the
-    answers said meanwhile (each distinct paired count with the seconds it was first seen)."""
-    started = time.monotonic()
-    seen: dict[int | None, float] = {}
-
-    def reached() -> bool:
-        paired = paired_of(session, robot)
-        seen.setdefault(paired, round(time.monotonic() - started, 2))
-        return paired == count
-
-    if wait_until(reached, timeout):
-        return ""
-    return f"{robot} did not pair {count} samples in {timeout} s; paired counts seen (at s): {seen}"
-
-
 def get_json(session: zenoh.Session, selector: str, timeout: float = 10.0) -> list[tuple[str, dict]]:
     replies = session.get(selector, timeout=timeout, consolidation=zenoh.ConsolidationMode.NONE)
     out = []

@@ -2,7 +2,8 @@
 while a gateway streams the real UR10e recording: Basic256Sha256 with a user name and password
 (refused with a wrong password, anonymously, and before the client's certificate is trusted),
 DI's ``DeviceSet`` browsed to the robot's OPC 40010 motion device, each axis's ``ActualPosition``
-the last joints streamed in its ``EngineeringUnits``, changes at the sampling interval, an event
+the last joints streamed in its ``EngineeringUnits``, the arm's nameplate with the serial number its
+gateway reported of the controller, changes at the sampling interval, an event
 when the twin's position alarm is raised and one when it clears, no write accepted, and the
 robot's node gone once it is retired.
 
@@ -45,6 +46,7 @@ PHASES = ((0, 1500, 0.0), (1500, 3000, 0.02), (3000, 4500, 0.0))
 RATE_HZ = 1000.0
 TIMEOUT_S = 20.0
 APP_URI = "urn:armtwin:test-client"
+SERIAL = "20235500001"
 
 
 def password_hash(password: str) -> str:
@@ -206,6 +208,12 @@ async def scenario(workdir: Path, service: ArmtwinProcess, url: str) -> None:
             positions = [await axis.get_child([f"{di}:ParameterSet", f"{r}:ActualPosition"]) for _, axis in axis_nodes]
             source_time = await system.get_child([f"{a}:Twin", f"{a}:SourceTime"])
 
+            # The nameplate: the serial number once the gateway reports the controller's.
+            serial = await device.get_child(f"{di}:SerialNumber")
+            assert await serial.read_value() == ""
+            assert (await (await device.get_child(f"{di}:Manufacturer")).read_value()).Text == "Universal Robots"
+            twin.session.put(f"twin/controller/{ROBOT}", json.dumps({"model": "UR10", "serial": SERIAL}))
+
             # Changes at the sampling interval while the robot streams.
             await subscription.subscribe_data_change([source_time, positions[0]])
             await asyncio.sleep(1.5)
@@ -220,6 +228,7 @@ async def scenario(workdir: Path, service: ArmtwinProcess, url: str) -> None:
             written = await client.uaclient.write_attributes(
                 [positions[0].nodeid], [ua.DataValue(ua.Variant(0.0, ua.VariantType.Double))], ua.AttributeIds.Value)
             assert written[0].is_bad(), written
+            assert await serial.read_value() == SERIAL
 
             sender.join(timeout=TIMEOUT_S)
             assert done.is_set() and sent, "the recording was not streamed"

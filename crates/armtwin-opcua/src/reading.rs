@@ -20,6 +20,9 @@ pub struct RobotReading {
     pub id: Arc<str>,
     /// The arm's model name (`ur10e`, or a custom arm's own).
     pub model: String,
+    /// The arm's serial number, as its controller reports it (UR: the dashboard server's
+    /// `get serial number`), once a gateway said it.
+    pub serial_number: Option<String>,
     /// The arm's joint count.
     pub joint_count: usize,
     /// The newest source time of the robot (s).

@@ -123,6 +123,7 @@ pub(crate) enum Quantity {
     IdentifiedMassStd,
     IdentifiedSamples,
     Calibration,
+    SerialNumber,
 }
 
 /// A variable's value, or why there is none.
@@ -224,6 +225,8 @@ impl Quantity {
                 .identified_payload
                 .map_or_else(missing, |fit| good(fit.samples as u64)),
             Self::Calibration => good(reading.calibration.as_str()),
+            // DI's nameplate property is mandatory: empty until the controller's is known.
+            Self::SerialNumber => good(reading.serial_number.as_deref().unwrap_or("")),
         }
     }
 }
@@ -350,14 +353,14 @@ impl Tree<'_> {
         data_type: NodeId,
         value: Variant,
         parent: &NodeId,
-    ) {
+    ) -> NodeId {
         self.variable(
             path,
             browse_name,
             (data_type, VariableTypeId::PropertyType.into()),
             (parent, ReferenceTypeId::HasProperty),
             value,
-        );
+        )
     }
 
     /// A variable that changes: `quantity` of the robot.
@@ -379,12 +382,17 @@ impl Tree<'_> {
             (parent, ReferenceTypeId::HasComponent),
             Variant::Empty,
         );
+        self.keep_up(&id, quantity);
+        id
+    }
+
+    /// Keeps variable `node` showing `quantity` of the robot.
+    fn keep_up(&mut self, node: &NodeId, quantity: Quantity) {
         self.slots.push(Slot {
-            node: id.clone(),
+            node: node.clone(),
             quantity,
             last: None,
         });
-        id
     }
 
     /// An `AnalogUnitType` variable of `quantity` in `unit`, with its `EngineeringUnits`.
@@ -421,8 +429,15 @@ impl Tree<'_> {
         id
     }
 
-    /// DI's nameplate properties, mandatory on 40010's components.
-    fn nameplate(&mut self, path: &str, parent: &NodeId, (manufacturer, model): (&str, &str)) {
+    /// DI's nameplate properties, mandatory on 40010's components; `serial`, where the
+    /// component's serial number can become known, keeps that property up to date.
+    fn nameplate(
+        &mut self,
+        path: &str,
+        parent: &NodeId,
+        (manufacturer, model): (&str, &str),
+        serial: Option<Quantity>,
+    ) {
         let di = self.ns.di;
         for (name, data_type, value) in [
             (
@@ -436,16 +451,20 @@ impl Tree<'_> {
                 Variant::from(LocalizedText::new("", model)),
             ),
             ("ProductCode", DataTypeId::String, Variant::from(model)),
-            // Not reported by any source armtwin reads.
             ("SerialNumber", DataTypeId::String, Variant::from("")),
         ] {
-            self.property(
+            let id = self.property(
                 &format!("{path}/{name}"),
                 QualifiedName::new(di, name),
                 data_type.into(),
                 value,
                 parent,
             );
+            if name == "SerialNumber"
+                && let Some(quantity) = serial
+            {
+                self.keep_up(&id, quantity);
+            }
         }
     }
 }
@@ -518,7 +537,8 @@ impl Tree<'_> {
             NodeId::new(r, MOTION_DEVICE_TYPE),
             &devices,
         );
-        self.nameplate(DEVICE, &device, identity);
+        // UR's dashboard server gives the arm's serial number (the controller's is its own).
+        self.nameplate(DEVICE, &device, identity, Some(Quantity::SerialNumber));
         self.property(
             &format!("{DEVICE}/MotionDeviceCategory"),
             QualifiedName::new(r, "MotionDeviceCategory"),
@@ -615,7 +635,7 @@ impl Tree<'_> {
             NodeId::new(r, MOTOR_TYPE),
             &train,
         );
-        self.nameplate(&motor_path, &motor, identity);
+        self.nameplate(&motor_path, &motor, identity, None);
         let parameters = self.parameter_set(&motor_path, &motor);
         // Current and torque are not in 40010 1.01: armtwin's, beside the motor's temperature.
         for (name, namespace, unit, quantity) in [
@@ -654,7 +674,7 @@ impl Tree<'_> {
             NodeId::new(r, CONTROLLER_TYPE),
             &controllers,
         );
-        self.nameplate(path, &controller, (manufacturer, ""));
+        self.nameplate(path, &controller, (manufacturer, ""), None);
         let user = self.component(
             &format!("{path}/CurrentUser"),
             QualifiedName::new(r, "CurrentUser"),
@@ -902,6 +922,22 @@ mod tests {
         assert_eq!(
             Quantity::FlangeMass.read(&configured).1,
             StatusCode::BadOutOfRange
+        );
+    }
+
+    #[test]
+    fn the_serial_number_is_empty_until_a_gateway_reports_it() {
+        assert_eq!(
+            Quantity::SerialNumber.read(&RobotReading::default()),
+            (Variant::from(""), StatusCode::Good)
+        );
+        let reported = RobotReading {
+            serial_number: Some("20235500001".to_owned()),
+            ..RobotReading::default()
+        };
+        assert_eq!(
+            Quantity::SerialNumber.read(&reported).0,
+            Variant::from("20235500001")
         );
     }
 

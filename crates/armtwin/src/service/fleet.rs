@@ -260,6 +260,11 @@ impl CellState {
         self.twin.as_ref()
     }
 
+    /// What a gateway last said of the robot's controller.
+    pub(super) fn controller(&self) -> Option<&ControllerFacts> {
+        self.controller.as_ref()
+    }
+
     /// The same, to change.
     pub(super) fn twin_mut(&mut self) -> Option<&mut Twin> {
         self.twin.as_mut()

@@ -11,6 +11,7 @@ use armtwin_opcua::{
 };
 
 use super::fleet::Fleet;
+use crate::controller::ControllerFacts;
 use crate::dynamics::Payload;
 use crate::metrics::{Metric, StatsSet};
 use crate::pipeline::RobotState;
@@ -35,6 +36,7 @@ impl TwinSource for OpcUaView {
                 readings.push(reading_of(
                     Arc::clone(cell.robot().shared_id()),
                     &twin.state(),
+                    guard.controller(),
                 ));
             }
         });
@@ -60,8 +62,12 @@ fn payload_of(payload: &Payload) -> PayloadReading {
     }
 }
 
-/// One robot's reading, from its twin's state.
-fn reading_of(id: Arc<str>, state: &RobotState<'_>) -> RobotReading {
+/// One robot's reading, from its twin's state and what its gateway said of its controller.
+fn reading_of(
+    id: Arc<str>,
+    state: &RobotState<'_>,
+    facts: Option<&ControllerFacts>,
+) -> RobotReading {
     let joint_state: Option<&JointState> = state.last_state.map(|(_, joint_state)| joint_state);
     let quantity = |quantity| {
         joint_state
@@ -73,6 +79,7 @@ fn reading_of(id: Arc<str>, state: &RobotState<'_>) -> RobotReading {
     RobotReading {
         id,
         model: model.arm().name.clone(),
+        serial_number: facts.and_then(|facts| facts.serial.clone()),
         joint_count: model.joint_count(),
         stamp_s: state.metrics.stamp_s,
         positions_rad: state.last_joints.map(|(_, q)| q.to_vec()),

@@ -64,8 +64,9 @@ def certs(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("pki") / "certs"
     folder.mkdir()
     make_ca(folder, "ca")
-    # The names config/fleet.toml gives roles: gateways g1 (robot r1) and g2 (r2), REST's `rest`.
-    for name in ("router", "armtwin", "g1", "g2", "rest", "dashboard", "operator"):
+    # The names config/fleet.toml gives roles: gateways g1 (robot r1), g2 (r2) and cell-a
+    # (site-a/**), REST's `rest`.
+    for name in ("router", "armtwin", "g1", "g2", "cell-a", "rest", "dashboard", "operator"):
         make_cert(folder, name)
     # A certificate named like a gateway, signed by a CA the router does not trust.
     make_ca(folder, "stranger-ca")

@@ -17,7 +17,7 @@ from support.zenoh_clients import get_json
 
 
 def test_a_gateway_puts_its_own_robots_joints_only(tmp_path, certs, armtwin_bin):
-    with secured_fleet(tmp_path, certs, armtwin_bin, ["g1", "g2", "dashboard"]) as (router, sessions):
+    with secured_fleet(tmp_path, certs, armtwin_bin, ["g1", "g2", "dashboard"]) as (router, sessions, _):
         g1, g2, dashboard = sessions["g1"], sessions["g2"], sessions["dashboard"]
         stream_until_paired(Gateway(g1, "r1"), router, dashboard, "r1")
         send(Gateway(g1, "r2"), router)

@@ -206,7 +206,7 @@ def test_a_recorder_that_cannot_write_counts_it_and_loses_no_twin_sample(armtwin
 
 
 def test_an_operator_records_behind_the_secured_router_and_a_dashboard_may_not(tmp_path, certs, armtwin_bin):
-    with secured_fleet(tmp_path, certs, armtwin_bin, ["g1", "dashboard", "operator"]) as (router, sessions):
+    with secured_fleet(tmp_path, certs, armtwin_bin, ["g1", "dashboard", "operator"]) as (router, sessions, _):
         dashboard, operator = sessions["dashboard"], sessions["operator"]
         assert wait_queryable(operator, "twin/admin/record/**"), router.logs()
         paired = stream_until_paired(Gateway(sessions["g1"], "r1"), router, dashboard, "r1", at_least=50)

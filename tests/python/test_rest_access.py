@@ -38,7 +38,7 @@ def rest(router: Router, method: str, path: str, body: bytes | None = None,
 
 
 def test_an_anonymous_rest_client_reads_but_can_neither_reset_nor_forge(tmp_path, certs, armtwin_bin):
-    with secured_fleet(tmp_path, certs, armtwin_bin, ["g1", "dashboard"], rest=REST_IDENTITY) as (router, sessions):
+    with secured_fleet(tmp_path, certs, armtwin_bin, ["g1", "dashboard"], rest=REST_IDENTITY) as (router, sessions, _):
         dashboard = sessions["dashboard"]
         paired = stream_until_paired(Gateway(sessions["g1"], "r1"), router, dashboard, "r1")
 

@@ -23,16 +23,20 @@ CLIENT_CONFIG = REPO_ROOT / "config" / "zenoh-client-tls.json5"
 ACL_LOG = "z=info,zenoh::net::routing::interceptor::access_control=trace"
 
 
-def tls_router_and_twin(tmp_path, certs, armtwin_bin) -> tuple[Router, Armtwin]:
-    """The shipped TLS + ACL router and armtwin behind it with its certificate, not started."""
+def tls_router_and_twin(tmp_path, certs, armtwin_bin, log: str = "") -> tuple[Router, Armtwin]:
+    """The shipped TLS + ACL router and armtwin behind it with its certificate, not started;
+    ``log`` adds tracing directives to both's logs."""
     (tmp_path / "certs").symlink_to(certs)
-    router = Router(router_path(armtwin_bin), tmp_path, config=ROUTER_CONFIG, scheme="tls", env={"RUST_LOG": ACL_LOG})
+    more = f",{log}" if log else ""
+    router = Router(router_path(armtwin_bin), tmp_path, config=ROUTER_CONFIG, scheme="tls",
+                    env={"RUST_LOG": ACL_LOG + more})
     twin = Armtwin(
         armtwin_bin, tmp_path, "twin",
         f'[zenoh]\nfile = "{CLIENT_CONFIG}"\n[service]\npose_congestion = "block"\n',
         router.endpoint,
     )
     (tmp_path / "twin" / "certs").symlink_to(certs)
+    twin.env = {"RUST_LOG": "armtwin=info" + more}
     return router, twin
 
 
@@ -75,11 +79,12 @@ def send(gateway: Gateway, router: Router, count: int = 20) -> None:
 
 
 @contextmanager
-def secured_fleet(tmp_path, certs, armtwin_bin, names: list[str], rest: list[str] | None = None):
+def secured_fleet(tmp_path, certs, armtwin_bin, names: list[str], rest: list[str] | None = None, log: str = ""):
     """The shipped secured router (with ``rest``, REST flags, if given) and armtwin behind it,
     started, with a session per certificate name in ``names`` and a dashboard's view of armtwin's
-    queryables; yields the router and the sessions by name; stops everything after."""
-    router, twin = tls_router_and_twin(tmp_path, certs, armtwin_bin)
+    queryables; yields the router, the sessions by name and armtwin; stops everything after.
+    ``log`` adds tracing directives to the router's and armtwin's logs."""
+    router, twin = tls_router_and_twin(tmp_path, certs, armtwin_bin, log)
     if rest is not None:
         router.rest_port = free_port()
         router.argv += ["--rest-http-port", f"127.0.0.1:{router.rest_port}", *rest]
@@ -89,7 +94,7 @@ def secured_fleet(tmp_path, certs, armtwin_bin, names: list[str], rest: list[str
         twin.start()
         sessions = {name: open_as(router, certs, name) for name in names}
         assert wait_queryable(sessions["dashboard"], "twin/state/**"), router.logs()
-        yield router, sessions
+        yield router, sessions, twin
     except BaseException:
         print(f"armtwin's log:\n{twin.logs()}")  # shown with the failure
         raise

@@ -24,11 +24,12 @@ use zenoh::sample::SampleKind;
 const TEST_LIMIT: Duration = Duration::from_secs(180);
 
 /// The service on `config_toml` (files it names relative to the repository's `config/`), and a
-/// client whose joints publishers the service's subscribers match.
+/// client whose joints publishers the service's subscribers match. Its incident files go to
+/// Cargo's scratch folder for tests, not beside the repository's configuration.
 async fn start(config_toml: &str) -> Harness {
     Harness::start(
         |endpoint| {
-            ServiceConfig::parse(
+            let mut config = ServiceConfig::parse(
                 config_toml,
                 "test config",
                 Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
@@ -39,7 +40,9 @@ async fn start(config_toml: &str) -> Harness {
                     ..Overrides::default()
                 },
             )
-            .expect("valid test config")
+            .expect("valid test config");
+            config.recorder.store.dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("recordings");
+            config
         },
         &["twin/joints/probe"],
     )

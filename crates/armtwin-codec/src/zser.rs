@@ -638,17 +638,7 @@ pub const DEVIATION_BYTES: usize = 8 + 1 + 8 * DEVIATION_NAMES.len();
 /// [`DEVIATION_NAMES`] order (81 bytes).
 #[must_use]
 pub fn deviation_bytes(stamp_s: f64, deviation: &Deviation) -> [u8; DEVIATION_BYTES] {
-    let values = [
-        deviation.dx_m,
-        deviation.dy_m,
-        deviation.dz_m,
-        deviation.position_m,
-        deviation.quat_distance,
-        deviation.angle_rad,
-        deviation.droll_rad,
-        deviation.dpitch_rad,
-        deviation.dyaw_rad,
-    ];
+    let values = deviation.fields();
     let mut bytes = [0; DEVIATION_BYTES];
     bytes[..8].copy_from_slice(&stamp_s.to_le_bytes());
     write_f64s(&mut bytes[8..], &values);

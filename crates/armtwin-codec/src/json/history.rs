@@ -3,6 +3,12 @@
 //! Owns the answer's JSON field set. Must not choose the seconds: the service does.
 
 use armtwin_core::metrics::{HISTORY_METRICS, HistoryRow, Metric};
+
+// `HistoryRow::stats` is in this order.
+const _: () = assert!(
+    matches!(HISTORY_METRICS, [Metric::Position, Metric::Angle]),
+    "the history keeps position, then angle"
+);
 use serde::Serialize;
 
 use super::StatsJson;
@@ -22,19 +28,12 @@ pub struct SecondJson {
 
 impl From<&HistoryRow> for SecondJson {
     fn from(row: &HistoryRow) -> Self {
-        let stats = row.stats();
-        let of = |metric: Metric| {
-            let index = HISTORY_METRICS
-                .iter()
-                .position(|kept| *kept == metric)
-                .unwrap_or_default();
-            StatsJson::from(&stats[index])
-        };
+        let [position, angle] = row.stats();
         Self {
             t: row.second,
             n: row.totals.n,
-            position: of(Metric::Position),
-            angle: of(Metric::Angle),
+            position: StatsJson::from(&position),
+            angle: StatsJson::from(&angle),
         }
     }
 }

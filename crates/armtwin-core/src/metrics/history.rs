@@ -21,9 +21,9 @@ pub type SecondTotals = WindowTotals<{ HISTORY_METRICS.len() }>;
 
 const EMPTY: SecondTotals = WindowTotals {
     n: 0,
-    sums: [0.0; 2],
-    sums_of_squares: [0.0; 2],
-    maxima: [0.0; 2],
+    sums: [0.0; HISTORY_METRICS.len()],
+    sums_of_squares: [0.0; HISTORY_METRICS.len()],
+    maxima: [0.0; HISTORY_METRICS.len()],
 };
 
 /// One second of a [`History`].

@@ -147,8 +147,9 @@ pub(super) fn load_recorder(
         return Err(invalid(
             "history_s",
             format!(
-                "{} is over a day ({MAX_HISTORY_S} s): each second costs every robot 56 bytes",
-                section.history_s
+                "{} is over a day ({MAX_HISTORY_S} s): each second costs every robot {} bytes",
+                section.history_s,
+                size_of::<armtwin_core::metrics::SecondTotals>()
             ),
         ));
     }

@@ -573,7 +573,12 @@ async fn robot_recordings(
     State(state): State<AppState>,
     Query(query): Query<RobotQuery>,
 ) -> Response {
-    match state.view.recordings(&query.id) {
+    // A directory listing: off the runtime's threads.
+    let (view, id) = (Arc::clone(&state.view), query.id.clone());
+    let files = tokio::task::spawn_blocking(move || view.recordings(&id))
+        .await
+        .unwrap_or_default();
+    match files {
         Some(files) => {
             json_response(serde_json::json!({"robot": query.id, "files": files}).to_string())
         }
@@ -587,7 +592,7 @@ struct RecordingQuery {
     name: String,
 }
 
-/// The largest file the dashboard hands out: incident files are a few MB; a longer
+/// The largest file the dashboard hands out: incident files hold seconds of streams; a longer
 /// `armtwin record` file is read from the recorder's directory, not downloaded here.
 const MAX_DOWNLOAD_BYTES: u64 = 256 * 1024 * 1024;
 
@@ -595,31 +600,30 @@ async fn robot_recording(
     State(state): State<AppState>,
     Query(query): Query<RecordingQuery>,
 ) -> Response {
-    // Only a name the listing gives is looked up, so no request names a path of its own.
-    let Some(path) = state.view.recording_path(&query.id, &query.name) else {
+    // Only a name the listing gives is looked up, so no request names a path of its own; the
+    // listing reads a directory, off the runtime's threads.
+    let (view, id, name) = (
+        Arc::clone(&state.view),
+        query.id.clone(),
+        query.name.clone(),
+    );
+    let found = tokio::task::spawn_blocking(move || view.recording_file(&id, &name))
+        .await
+        .unwrap_or_default();
+    let Some((path, size)) = found else {
         return bad_request(
             StatusCode::NOT_FOUND,
             &format!("robot '{}' has no recording '{}'", query.id, query.name),
         );
     };
-    let size = tokio::fs::metadata(&path).await.map(|m| m.len());
-    match size {
-        Ok(size) if size > MAX_DOWNLOAD_BYTES => {
-            return bad_request(
-                StatusCode::PAYLOAD_TOO_LARGE,
-                &format!(
-                    "'{}' is {size} bytes: read it from the recorder's directory",
-                    query.name
-                ),
-            );
-        }
-        Ok(_) => {}
-        Err(error) => {
-            return bad_request(
-                StatusCode::NOT_FOUND,
-                &format!("'{}' cannot be read: {error}", query.name),
-            );
-        }
+    if size > MAX_DOWNLOAD_BYTES {
+        return bad_request(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            &format!(
+                "'{}' is {size} bytes: read it from the recorder's directory",
+                query.name
+            ),
+        );
     }
     match tokio::fs::read(&path).await {
         Ok(bytes) => (

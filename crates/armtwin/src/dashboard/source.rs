@@ -25,8 +25,9 @@ pub trait FleetSource: Send + Sync + 'static {
     /// Robot `id`'s incident and recording files, oldest first (`None` if it is neither tracked
     /// nor has files).
     fn recordings(&self, id: &str) -> Option<Vec<RecordingFile>>;
-    /// Where robot `id`'s file `name` (as [`recordings`](Self::recordings) lists it) is on disk.
-    fn recording_path(&self, id: &str, name: &str) -> Option<std::path::PathBuf>;
+    /// Where robot `id`'s file `name` (as [`recordings`](Self::recordings) lists it) is on disk,
+    /// and its size.
+    fn recording_file(&self, id: &str, name: &str) -> Option<(std::path::PathBuf, u64)>;
     /// Robot `id`'s twin pose count (`None` if it is not tracked): changes whenever it moves.
     fn poses_of(&self, id: &str) -> Option<u64>;
     /// The robots whose gateway holds a liveliness token, or held one while the robot is

@@ -302,20 +302,27 @@ pub fn files(dir: &Path) -> Vec<(PathBuf, u64)> {
         return found;
     };
     for robot in robots.flatten() {
-        let Ok(entries) = fs::read_dir(robot.path()) else {
-            continue;
-        };
-        for entry in entries.flatten() {
-            let path = entry.path();
-            if path.extension().is_some_and(|ext| ext == "mcap")
-                && let Ok(metadata) = entry.metadata()
-            {
-                found.push((path, metadata.len()));
-            }
-        }
+        mcap_files_in(&robot.path(), &mut found);
     }
     found.sort_by(|a, b| a.0.file_name().cmp(&b.0.file_name()));
     found
+}
+
+/// Adds the `.mcap` files of one robot's directory to `found`, with their sizes (folders and
+/// symbolic links left out).
+fn mcap_files_in(robot_dir: &Path, found: &mut Vec<(PathBuf, u64)>) {
+    let Ok(entries) = fs::read_dir(robot_dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        if path.extension().is_some_and(|ext| ext == "mcap")
+            && let Ok(metadata) = entry.metadata()
+            && metadata.is_file()
+        {
+            found.push((path, metadata.len()));
+        }
+    }
 }
 
 /// The most files [`robot_files`] lists: retention keeps far fewer by default.
@@ -326,24 +333,26 @@ pub const MAX_LISTED: usize = 10_000;
 /// through [`robot_directory`], so it cannot climb out of `dir`.
 #[must_use]
 pub fn robot_files(dir: &Path, robot: &str) -> Vec<(String, u64)> {
-    let mut found = Vec::new();
-    let Ok(entries) = fs::read_dir(dir.join(robot_directory(robot))) else {
-        return found;
-    };
-    for entry in entries.flatten() {
-        let path = entry.path();
-        if path.extension().is_some_and(|ext| ext == "mcap")
-            && let (Some(name), Ok(metadata)) =
-                (path.file_name().and_then(|n| n.to_str()), entry.metadata())
-            && metadata.is_file()
-        {
-            found.push((name.to_owned(), metadata.len()));
-        }
-    }
+    let mut paths = Vec::new();
+    mcap_files_in(&dir.join(robot_directory(robot)), &mut paths);
+    let mut found: Vec<(String, u64)> = paths
+        .into_iter()
+        .filter_map(|(path, bytes)| Some((path.file_name()?.to_str()?.to_owned(), bytes)))
+        .collect();
     found.sort();
     let cut = found.len().saturating_sub(MAX_LISTED);
     found.drain(..cut);
     found
+}
+
+/// Robot `robot`'s file `name` under `dir`, and its size, if [`robot_files`] lists it: a name
+/// that is not one of the listing's never becomes a path.
+#[must_use]
+pub fn robot_file(dir: &Path, robot: &str, name: &str) -> Option<(PathBuf, u64)> {
+    let (name, bytes) = robot_files(dir, robot)
+        .into_iter()
+        .find(|(listed, _)| listed == name)?;
+    Some((dir.join(robot_directory(robot)).join(name), bytes))
 }
 
 /// Removes the oldest files under `dir` until at most `max_files` of at most `max_bytes` are

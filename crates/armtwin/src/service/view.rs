@@ -107,12 +107,8 @@ impl FleetSource for FleetView {
         )
     }
 
-    fn recording_path(&self, id: &str, name: &str) -> Option<std::path::PathBuf> {
-        let dir = &self.fleet.recorder().config().store.dir;
-        store::robot_files(dir, id)
-            .into_iter()
-            .any(|(listed, _)| listed == name)
-            .then(|| dir.join(store::robot_directory(id)).join(name))
+    fn recording_file(&self, id: &str, name: &str) -> Option<(std::path::PathBuf, u64)> {
+        store::robot_file(&self.fleet.recorder().config().store.dir, id, name)
     }
 
     fn poses_of(&self, id: &str) -> Option<u64> {

@@ -86,13 +86,16 @@ def one_round(args, opcua: bool, work: Path) -> dict:
     if opcua:
         text += OPCUA.format(port=opc_port, sampling_ms=args.sampling_ms, pki=work.parent / "pki")
     service = ArmtwinProcess(args.armtwin, work, text, 600.0).start()
+    loads: list[subprocess.Popen] = []
     try:
         if opcua:
             service.wait_port(opc_port, "serve OPC UA")
         pid = service.proc.pid
         rate = args.robots * args.hz
-        load(args.bench, service.endpoint, pid, args.robots, rate, 3.0).communicate(timeout=120)
+        loads.append(load(args.bench, service.endpoint, pid, args.robots, rate, 3.0))
+        loads[-1].communicate(timeout=120)
         streaming = load(args.bench, service.endpoint, pid, args.robots, rate, args.seconds)
+        loads.append(streaming)
         time.sleep(3.0)
         cpu0, t0 = cpu_s(pid), time.monotonic()
         time.sleep(args.seconds - 6.0)
@@ -109,6 +112,9 @@ def one_round(args, opcua: bool, work: Path) -> dict:
         return {"opcua": opcua, "stream_cores": stream_cores, "idle_cores": idle_cores,
                 "rss_mib": rss_mib(pid), "idle_threads_cores": busiest}
     finally:
+        for running in loads:
+            running.kill()
+            running.wait()
         service.stop()
 
 

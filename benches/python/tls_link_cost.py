@@ -23,9 +23,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests" / "python"))
 import zenoh  # noqa: E402
 
-from support.pki import make_ca, make_cert, tls_of  # noqa: E402
+from support.pki import make_ca, make_cert  # noqa: E402
 from support.process import Router, cpu_s, wait_until  # noqa: E402
-from support.secured_fleet import ROUTER_CONFIG, tls_client_config  # noqa: E402
+from support.secured_fleet import ROUTER_CONFIG, open_as  # noqa: E402
 
 
 def main() -> int:
@@ -51,8 +51,7 @@ def main() -> int:
 
 
 def forward(router: Router, certs: Path, messages: int, payload: bytes) -> int:
-    gateway = zenoh.open(tls_client_config(router.endpoint, tls_of(certs, "g1")))
-    dashboard = zenoh.open(tls_client_config(router.endpoint, tls_of(certs, "dashboard")))
+    gateway, dashboard = open_as(router, certs, "g1"), open_as(router, certs, "dashboard")
     try:
         arrived = [0]
         done = threading.Event()

@@ -20,7 +20,7 @@ def test_a_gateway_puts_its_own_robots_joints_only(tmp_path, certs, armtwin_bin)
     with secured_fleet(tmp_path, certs, armtwin_bin, ["g1", "g2", "dashboard"]) as (router, sessions, _):
         g1, g2, dashboard = sessions["g1"], sessions["g2"], sessions["dashboard"]
         stream_until_paired(Gateway(g1, "r1"), router, dashboard, "r1")
-        send(Gateway(g1, "r2"), router)
+        send(Gateway(g1, "r2"))
         assert wait_until(lambda: denied(router, "g1", "Put (ingress) on", "twin/joints/r2"), 10), router.logs()
         time.sleep(1.0)
         assert get_json(dashboard, "twin/state/r2", timeout=3.0) == [], "g1 cannot speak for r2"

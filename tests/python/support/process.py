@@ -209,14 +209,18 @@ class ArmtwinProcess(Process):
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
         argv = [binary, "serve", "-c", self.config_path, "-l", self.endpoint]
         self.option_endpoint = None
+        self.option_port = None
         if listen_options:
-            self.option_endpoint = f"tcp/127.0.0.1:{free_port()}"
+            self.option_port = free_port()
+            self.option_endpoint = f"tcp/127.0.0.1:{self.option_port}"
             argv += ["-l", f"{self.option_endpoint}#{listen_options}"]
         super().__init__("armtwin", argv, workdir, watchdog_s=watchdog_s)
 
     def start(self) -> ArmtwinProcess:
         super().start()
         self.wait_port(self.port, f"listen on {self.endpoint}")
+        if self.option_port is not None:
+            self.wait_port(self.option_port, f"listen on {self.option_endpoint}")
         return self
 
 

@@ -16,7 +16,7 @@ from support.gateway import Gateway
 from support.paths import REPO_ROOT, router_path
 from support.pki import tls_of
 from support.process import Armtwin, Router, free_port, wait_until
-from support.zenoh_clients import paired_of, wait_queryable
+from support.zenoh_clients import paired_of, wait_matched, wait_queryable
 
 ROUTER_CONFIG = REPO_ROOT / "config" / "router-tls-acl.json5"
 CLIENT_CONFIG = REPO_ROOT / "config" / "zenoh-client-tls.json5"
@@ -36,7 +36,7 @@ def tls_router_and_twin(tmp_path, certs, armtwin_bin, log: str = "") -> tuple[Ro
         router.endpoint,
     )
     (tmp_path / "twin" / "certs").symlink_to(certs)
-    twin.env = {"RUST_LOG": "armtwin=info" + more}
+    twin.env["RUST_LOG"] += more
     return router, twin
 
 
@@ -52,10 +52,10 @@ def stream_until_paired(gateway: Gateway, router: Router, reader: zenoh.Session,
     returns the paired count once two answers 0.3 s apart agree.
 
     These tests are about who may speak for a robot, so they stream until the twin has heard
-    enough rather than count what one burst delivered: on a loaded two-core machine a burst
-    through this router once arrived short (6 of 10 paired, never more), a loss whose place
-    is not found yet."""
-    assert wait_until(lambda: gateway.pub.matching_status.matching, 20), router.logs()
+    enough rather than count what one burst delivered: the Python sessions' TLS link (the
+    wheel's, without armtwin's fix: vendor/zenoh-link-tls/PATCHED.md) may be reopened under
+    load, losing what was in flight. Delivery itself is test_tls_link.py's."""
+    wait_matched(gateway.pub)
     gateway.start()
     try:
         reached = wait_until(lambda: (paired_of(reader, robot) or 0) >= at_least, timeout)
@@ -63,16 +63,19 @@ def stream_until_paired(gateway: Gateway, router: Router, reader: zenoh.Session,
         gateway.stop()
     assert reached, f"{robot} paired {paired_of(reader, robot)} < {at_least} in {timeout} s\n{router.logs()}"
     counts = [paired_of(reader, robot)]
-    while True:
-        time.sleep(0.3)
+    time.sleep(0.3)
+
+    def settled() -> bool:
         counts.append(paired_of(reader, robot))
-        if counts[-1] == counts[-2]:
-            return counts[-1]
+        return counts[-1] is not None and counts[-1] == counts[-2]
+
+    assert wait_until(settled, 10.0, interval=0.3), f"{robot}'s paired count did not settle: {counts}"
+    return counts[-1]
 
 
-def send(gateway: Gateway, router: Router, count: int = 20) -> None:
+def send(gateway: Gateway, count: int = 20) -> None:
     """Waits until ``gateway``'s publisher knows armtwin's subscriber, then sends ``count`` samples."""
-    assert wait_until(lambda: gateway.pub.matching_status.matching, 20), router.logs()
+    wait_matched(gateway.pub)
     for _ in range(count):
         gateway.send_one()
         time.sleep(0.005)

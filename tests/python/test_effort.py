@@ -1,8 +1,8 @@
 """``armtwin serve``'s live effort monitoring end to end: collisions and payload, against recordings
 made by an independent Pinocchio generator (effort_recording.py).
 
-A robot with ``effort = true`` gets joint messages with the joint ``state`` (docs/protocol.md) as
-an RTDE gateway would send them, stamped with the recording's timestamps, as fast as the service
+A robot with ``effort = true`` gets joint messages with the joint ``state``
+(docs/protocol/messages.md) as an RTDE gateway would send them, stamped with the recording's timestamps, as fast as the service
 takes them (no real-time pacing: the publisher waits only when the ``twin/effort`` stream falls
 more than a few seconds of data behind). Checked:
 

@@ -1,4 +1,4 @@
-"""End-to-end tests of ``armtwin serve`` over Zenoh, against docs/protocol.md.
+"""End-to-end tests of ``armtwin serve`` over Zenoh, against the protocol (docs/protocol/).
 
 Each test starts the real binary on a private loopback port, connects one Python Zenoh peer,
 streams real UR10e recordings (tests/data) and checks every output against an independent
@@ -259,7 +259,8 @@ def test_bad_input_interleaved(twin):
     quat = meas[2, 3:7] / np.linalg.norm(meas[2, 3:7]) * 1.2
     rpy_fields = dict(zip(("roll", "pitch", "yaw"), measured_arrays(meas[2:3])[2][0].tolist()))
     # (publisher, payload, expected: "pose" | "deviation" | (cause, key))
-    # Causes: not_json, joint_count, out_of_order, duplicate_stamp are named in protocol.md;
+    # Causes: not_json, joint_count, out_of_order, duplicate_stamp are named in
+    # docs/protocol/messages.md;
     # the doc's cause list ends in "…" and does not name the quaternion-norm and two-forms causes:
     # quaternion_norm / orientation_forms are the names armtwin reports (kind() in codec/wire.rs).
     plan = [

@@ -1,4 +1,4 @@
-"""A slow subscriber must not stall the twin (docs/protocol.md, "Delivery").
+"""A slow subscriber must not stall the twin (docs/protocol/delivery.md, "Delivery").
 
 Two robots stream joint messages (with embedded measured poses) into the real ``armtwin serve``
 while one subscriber, in a process and session of its own on a link with a small receive buffer,

@@ -1,4 +1,4 @@
-"""``armtwin serve`` with Zenoh-serialized messages (docs/protocol.md, "Binary messages").
+"""``armtwin serve`` with Zenoh-serialized messages (docs/protocol/messages.md, "Binary messages").
 
 The gateway side is eclipse-zenoh's own ``zenoh.ext.z_serialize``, an implementation independent of
 armtwin's reader: each recording is streamed once as JSON and once in binary into the same service,

@@ -1,5 +1,5 @@
 //! The messages of the load: joint samples and measured poses shaped exactly like the contract's
-//! (`docs/protocol.md`), as a gateway streaming an RTDE-like robot sends them.
+//! (`docs/protocol/messages.md`), as a gateway streaming an RTDE-like robot sends them.
 //!
 //! Owns the payloads, JSON text or Zenoh-serialized bytes; knows nothing of the network. The joint angles cycle through a few
 //! fixed configurations of a `ur10e`, and each measured pose is the nominal FK of its joint sample

@@ -276,8 +276,8 @@ pub fn read_joints(payload: &[u8], joint_count: usize) -> Result<DecodedJoints, 
 }
 
 /// Decodes an `armtwin/joints/v2` message: [`read_joints`]'s fields, then the joint state
-/// (see [`JOINTS_STATE_SCHEMA`] in `docs/protocol.md`). A state part that is well framed but
-/// holds a non-finite value or a bad payload length is reported in
+/// (see [`JOINTS_STATE_SCHEMA`] in `docs/protocol/messages.md`). A state part that is well
+/// framed but holds a non-finite value or a bad payload length is reported in
 /// [`DecodedJoints::state_error`], and the joints stay valid; a per-joint sequence of another
 /// length than the arm's joint count (or 0) refuses the whole message.
 pub fn read_joints_with_state(

@@ -1,7 +1,7 @@
 //! What a gateway learns of a controller beyond its samples, as one message on
-//! `<prefix>/controller/<robot>` (docs/protocol.md, *Controller facts*): the TCP its measured
-//! poses are of (RTDE `tcp_offset`), its software version, its model and serial number (its
-//! dashboard server), and why the dashboard server could not be read, if it could not. The
+//! `<prefix>/controller/<robot>` (docs/protocol/sources.md, *Controller facts*): the TCP its
+//! measured poses are of (RTDE `tcp_offset`), its software version, its model and serial number
+//! (its dashboard server), and why the dashboard server could not be read, if it could not. The
 //! gateway writes it, the service reads it: both through here.
 //!
 //! Owns the message's JSON and its bounds (every text in it came from a controller, through a

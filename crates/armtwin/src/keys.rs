@@ -1,4 +1,4 @@
-//! armtwin's key space on Zenoh (docs/protocol.md, *Keys*): every key armtwin declares, puts,
+//! armtwin's key space on Zenoh (docs/protocol/keys.md): every key armtwin declares, puts,
 //! queries or reads a robot from is built and parsed here, and nowhere else.
 //!
 //! Owns the grammar of a robot id and of the key prefix, the one list of armtwin's own per-robot
@@ -30,7 +30,7 @@ pub const MAX_ROBOT_ID_BYTES: usize = 256;
 pub const DEFAULT_PREFIX: &str = "twin";
 
 /// One of armtwin's own per-robot subtrees, `<prefix>/<stream>/<robot>`: its inputs, outputs,
-/// queryables and liveliness tokens (docs/protocol.md's key table).
+/// queryables and liveliness tokens (docs/protocol/keys.md's key table).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Stream {
     /// Twin poses, one per valid joint sample (out).

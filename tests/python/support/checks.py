@@ -54,4 +54,4 @@ class Checks:
     def done(self, logs: str = ""):
         if self.failures:
             text = "\n".join(f"- {f}" for f in self.failures)
-            pytest.fail(f"{len(self.failures)} mismatch(es) with docs/protocol.md:\n{text}\n{logs}")
+            pytest.fail(f"{len(self.failures)} mismatch(es) with docs/protocol/:\n{text}\n{logs}")

@@ -1,6 +1,6 @@
 """The shell commands of the Markdown documentation, read from the files, and how each is run here.
 
-The convention, for README.md and docs/*.md:
+The convention, for README.md and docs/**/*.md:
 
 * A fenced block whose info string is ``sh`` holds commands: one per line, a line ending in ``\\``,
   a here-document or an open quote continuing it. ``#`` lines are prose.
@@ -55,7 +55,7 @@ class Block:
 
 
 def documents() -> list[Path]:
-    return [REPO_ROOT / "README.md", *sorted((REPO_ROOT / "docs").glob("*.md"))]
+    return [REPO_ROOT / "README.md", *sorted((REPO_ROOT / "docs").rglob("*.md"))]
 
 
 def blocks(path: Path) -> list[Block]:

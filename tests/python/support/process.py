@@ -1,6 +1,6 @@
 """The one harness for the processes a test starts, and one-shot runs of the armtwin CLI.
 
-Written against docs/protocol.md and Zenoh's own configuration keys, not the Rust source.
+Written against docs/protocol/ and Zenoh's own configuration keys, not the Rust source.
 
 * :class:`Process` runs any command with its output (stdout and stderr) in a file of its own per
   run, a watchdog that kills it if a test overruns, and a bounded SIGINT stop.

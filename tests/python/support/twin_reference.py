@@ -1,5 +1,6 @@
 """The twin's outputs checked against the independent numpy/scipy reference (ur_reference.py),
-the fields docs/protocol.md gives them, and the recordings (tests/data) the service tests stream.
+the fields docs/protocol/messages.md gives them, and the recordings (tests/data) the service
+tests stream.
 
 Expected values never come from armtwin itself.
 """

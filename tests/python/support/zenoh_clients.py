@@ -1,6 +1,6 @@
 """The Python side of the wire: Zenoh sessions that reach armtwin, what they receive, what they ask.
 
-Written against docs/protocol.md (the wire contract), not the Rust source.
+Written against docs/protocol/ (the wire contract), not the Rust source.
 
 * :func:`open_session` is a peer of one armtwin's listener; :func:`open_client` a client of a
   router (TLS if asked).

@@ -59,7 +59,7 @@ fn expect_refused<T: std::fmt::Debug>(
 
 #[test]
 fn the_byte_example_of_the_protocol_reads_as_documented() {
-    // docs/protocol.md: t = 0.5, q = [0.0, -1.5707963267948966], seq = 7, measured empty.
+    // docs/protocol/messages.md: t = 0.5, q = [0.0, -1.5707963267948966], seq = 7, measured empty.
     let bytes: Vec<u8> = [
         &[0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0xe0, 0x3f][..],
         &[0x02],

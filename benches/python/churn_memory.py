@@ -2,7 +2,7 @@
 are retired (``[service] forget_after_s``): RSS at the baseline, with each wave tracked, and after
 it is retired; with gdb on the machine also glibc's own count of the heap in use (``malloc_stats``),
 which tells memory the service still holds from memory the allocator keeps. A measurement, not a
-test (BENCHMARKS.md, "Robots that come and go").
+test (README.md beside it, "Robots that come and go").
 
 Run: ``.venv/bin/python benches/python/churn_memory.py target/release/armtwin [--waves 3] [--ids 40000]``.
 """

@@ -1,5 +1,5 @@
 """The OPC UA server's cost: ``armtwin serve``'s CPU and RSS with 1 000 robots exposed, with and
-without ``[opcua]``, alternated (BENCHMARKS.md, "OPC UA server").
+without ``[opcua]``, alternated (README.md beside it, "OPC UA server").
 
     .venv/bin/python benches/python/opcua_cost.py target/release/armtwin target/release/armtwin-bench \\
         [--robots 1000] [--hz 10] [--seconds 20] [--idle-seconds 20] [--rounds 2] [--sampling-ms 100]

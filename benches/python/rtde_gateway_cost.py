@@ -1,5 +1,6 @@
 """The RTDE gateway's cost: CPU per controller at the controllers' pace, and the latency from a
-controller's data package to the twin pose (BENCHMARKS.md, "The RTDE gateway").
+controller's data package to the twin pose (README.md beside it,
+"The RTDE gateway").
 
     .venv/bin/python benches/python/rtde_gateway_cost.py target/release/armtwin \\
         [--controllers 20] [--rate-hz 500] [--seconds 30]

@@ -1,7 +1,7 @@
 """What the TLS links cost the router: ``armtwin-router`` with the shipped TLS + access-control
 configuration forwards ``--messages`` joint messages from a gateway session (certificate ``g1``)
 to a dashboard session subscribed to them; prints the seconds from the first put to the last
-arrival and the router's CPU seconds over the same span (BENCHMARKS.md, "TLS links").
+arrival and the router's CPU seconds over the same span (README.md beside it, "TLS links").
 
     .venv/bin/python benches/python/tls_link_cost.py target/release/armtwin-router \\
         [--messages 200000] [--bytes 200]

@@ -1,5 +1,5 @@
 //! `armtwin-bench`: the service next to a plain-Zenoh echo under the same load (how to run it is
-//! in BENCHMARKS.md).
+//! in this crate's README.md).
 //!
 //! - `run`: the orchestrator; starts the systems under test and the load generator as
 //!   subprocesses and writes `bench.json`.

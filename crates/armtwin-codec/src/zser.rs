@@ -19,7 +19,8 @@
 //! compared with the schema and with the bytes left before anything is read, so a damaged
 //! message is a [`WireError`] naming the field and nothing is allocated by a length. Speed is no
 //! reason either way: with the allocation a joint sample needs for its angles, both read in the
-//! same order of time (BENCHMARKS.md, `decode/joints_zser` against `decode/joints_zenoh_ext`).
+//! same order of time (crates/armtwin-bench/README.md, `decode/joints_zser` against
+//! `decode/joints_zenoh_ext`).
 //! zenoh-ext is the oracle of this module's tests. Must not know the network or the filesystem.
 
 use std::fmt;

@@ -1,7 +1,7 @@
 //! Inverse dynamics cost: one six-joint recursive Newton–Euler call (what a torque residual needs
 //! per sample), gravity torques, the mass matrix and the momentum terms an observer needs, with
-//! the nominal FK of the same arm as an in-run baseline (figures: BENCHMARKS.md, "Inverse
-//! dynamics").
+//! the nominal FK of the same arm as an in-run baseline (figures: README.md beside
+//! this file, "Inverse dynamics").
 //!
 //! `cargo bench -p armtwin-core --bench dynamics`.
 #![allow(

@@ -2,7 +2,7 @@
 // inertia as armature), timed exactly as `examples/dynamics_min_time.rs` times armtwin's: 3 000
 // rounds of 200 calls, per-call time of each round, reporting the fastest round and the median.
 // Prints the torques so that they can be compared with armtwin's for the same state; the figures
-// are in BENCHMARKS.md ("Inverse dynamics").
+// are in README.md beside this file ("Inverse dynamics").
 
 /* Build from the workspace root with the headers and libpinocchio of the test venv's `pin` wheel
    (tests/run_all.sh), Eigen 3.4 headers from PyPI's cmeel-eigen and g++ 12; the defines are those

@@ -302,7 +302,7 @@ fn fmt_rate(rate: f64) -> String {
     }
 }
 
-/// The table printed at the end (also the one in BENCHMARKS.md).
+/// The table printed at the end (also the one in this crate's README.md).
 pub(super) fn table(report: &Report) -> String {
     let mut text = String::new();
     let _ = writeln!(

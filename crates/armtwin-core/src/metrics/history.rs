@@ -80,7 +80,7 @@ fn merge(row: &mut SecondTotals, part: &SecondTotals) {
 /// Per-second totals of the last `seconds` seconds of source time, on the grid of whole seconds:
 /// second `s` lives at `s mod seconds`, so the ring never grows and a second without pairs costs
 /// nothing more than its empty row. Memory fixed at construction, in proportion to `seconds`
-/// (BENCHMARKS.md gives the bytes).
+/// (`benches/README.md` gives the bytes).
 #[derive(Debug, Clone)]
 pub struct History {
     rows: Box<[SecondTotals]>,

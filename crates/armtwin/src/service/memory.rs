@@ -2,8 +2,8 @@
 //!
 //! glibc's malloc keeps what its per-thread arenas free for reuse, so after a flood of robots is
 //! retired most of the service's RSS is free heap; `malloc_trim` returns those pages
-//! (BENCHMARKS.md, "Robots that come and go", with the allocators tried instead). Elsewhere
-//! this does nothing.
+//! (benches/python/README.md, "Robots that come and go", with the allocators tried instead).
+//! Elsewhere this does nothing.
 #![allow(
     unsafe_code,
     reason = "malloc_trim is a C function of glibc; this module is the service's only unsafe code"

@@ -28,7 +28,8 @@ use crate::ros2::{self, PoseOutput, PoseOutputs};
 /// declared so Zenoh caches their routes, once the robot streams at the rate the sink's route
 /// demand sets; then, once every streaming robot has those, its metrics publisher (one message
 /// per metrics period: worth a route cache in a large fleet, but never ahead of another robot's
-/// poses, which would slow a fleet's first contact: BENCHMARKS.md, "The per-sample path").
+/// poses, which would slow a fleet's first contact: crates/armtwin-bench/README.md, "The
+/// per-sample path").
 /// Events and calibration go out without a publisher: every declaration costs in proportion to
 /// the keys beside it, on this side and on every subscriber's.
 pub(super) struct RobotPublishers {

@@ -37,7 +37,7 @@ const RECENT_EVENTS: usize = 10;
 /// costs in proportion to the keys beside it and holds memory for as long as the robot is
 /// tracked. A robot that streams repays it; one under the rate spends less CPU on its plain keys
 /// than the declarations' memory and their cost to every later declaration are worth (the
-/// figures: BENCHMARKS.md, "The service next to a plain Zenoh echo").
+/// figures: crates/armtwin-bench/README.md, "The service next to a plain Zenoh echo").
 const ROUTE_CACHE_POSES: u32 = 64;
 
 /// The span of source time (s) [`ROUTE_CACHE_POSES`] poses must fall in.

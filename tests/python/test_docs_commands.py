@@ -1,5 +1,6 @@
-"""Every shell command of README.md and docs/*.md, read from the Markdown and run, so that the docs
-cannot drift from the code; the few that cannot run here are marked in the Markdown and counted.
+"""Every shell command of README.md and docs/**/*.md, read from the Markdown and run, so that the
+docs cannot drift from the code; the few that cannot run here are marked in the Markdown and
+counted.
 The convention and how each command is mapped onto this checkout: support/doc_commands.py. Also:
 the README stays a front door, and every relative link of the docs leads to a file."""
 

@@ -85,6 +85,57 @@ def blocks(path: Path) -> list[Block]:
     return found
 
 
+@dataclass
+class Paragraph:
+    """One prose paragraph: where it starts and its words, normalised."""
+
+    path: Path
+    line: int
+    words: list[str]
+
+
+LIST_ITEM = re.compile(r"^\s*(?:[-*+]|\d+\.)\s")
+NOT_PROSE = ("|", "#", "<!--", "![")
+
+
+def paragraphs(path: Path) -> list[Paragraph]:
+    """The prose of the Markdown file: runs of text lines between blank lines, each list item a
+    paragraph of its own. Fenced blocks (indented ones too), tables, headings, comments and images
+    are not prose. Words are compared as read: links by their text, without `` ` ``, ``*`` and
+    ``_``, in lower case, whitespace collapsed."""
+    found: list[Paragraph] = []
+    current: list[str] = []
+    start = 0
+    in_fence = False
+
+    def close() -> None:
+        if current:
+            found.append(Paragraph(path, start, _words(" ".join(current))))
+            current.clear()
+
+    for number, line in enumerate(path.read_text().splitlines(), 1):
+        text = line.strip()
+        if text.startswith("```"):
+            close()
+            in_fence = not in_fence
+            continue
+        if in_fence or not text or text.startswith(NOT_PROSE):
+            close()
+            continue
+        if LIST_ITEM.match(line):
+            close()
+        if not current:
+            start = number
+        current.append(text)
+    close()
+    return found
+
+
+def _words(text: str) -> list[str]:
+    text = re.sub(r"\[([^\]]*)\]\([^)]*\)", r"\1", text)
+    return re.sub(r"[`*_]", "", text).lower().split()
+
+
 def split_commands(lines: list[str]) -> list[str]:
     """The block's commands: continuation lines, here-documents and open quotes joined."""
     commands: list[str] = []

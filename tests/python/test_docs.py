@@ -1,0 +1,131 @@
+"""The guides say each thing once, and their links land: a prose paragraph shared by two places
+of README.md and docs/**/*.md fails (both places named, so one can link to the other), and so
+does a link to a Markdown heading that does not exist. The Markdown reader is
+support/doc_commands.py's."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+from itertools import combinations
+from pathlib import Path
+
+from support.doc_commands import Paragraph, documents, paragraphs
+from support.paths import REPO_ROOT
+
+# A paragraph shorter than this is a phrase, which two guides may well share.
+MIN_WORDS = 20
+# Copied text: this many words in a row in both places...
+SHARED_RUN_WORDS = 12
+# ...or this share of the shorter paragraph's three-word sequences found in the other (a copy
+# with a few words changed).
+SHARED_TRIGRAMS = 0.5
+
+
+def shared_run(a: list[str], b: list[str]) -> list[str]:
+    """The longest run of words both hold (dynamic programming; paragraphs are short)."""
+    best, best_end = 0, 0
+    previous = [0] * (len(b) + 1)
+    for i in range(1, len(a) + 1):
+        row = [0] * (len(b) + 1)
+        for j in range(1, len(b) + 1):
+            if a[i - 1] == b[j - 1]:
+                row[j] = previous[j - 1] + 1
+                if row[j] > best:
+                    best, best_end = row[j], i
+        previous = row
+    return a[best_end - best:best_end]
+
+
+def trigrams(words: list[str]) -> set[tuple[str, ...]]:
+    return set(zip(words, words[1:], words[2:]))
+
+
+def duplicates(found: list[Paragraph], root: Path = REPO_ROOT) -> list[str]:
+    """Every pair of prose paragraphs that share a passage, each named by its file and line."""
+    prose = [p for p in found if len(p.words) >= MIN_WORDS]
+    grams = {id(p): trigrams(p.words) for p in prose}
+    reports = []
+    for a, b in combinations(prose, 2):
+        common = grams[id(a)] & grams[id(b)]
+        if not common:
+            continue
+        share = len(common) / min(len(grams[id(a)]), len(grams[id(b)]))
+        run = shared_run(a.words, b.words)
+        if len(run) >= SHARED_RUN_WORDS or share >= SHARED_TRIGRAMS:
+            where = [f"{p.path.relative_to(root)}:{p.line}" for p in (a, b)]
+            reports.append(f"{where[0]} and {where[1]} share a paragraph ({share:.0%} of its "
+                           f"three-word sequences; in a row: \"{' '.join(run)}\")")
+    return reports
+
+
+def test_no_two_places_of_the_guides_share_a_paragraph():
+    found = [paragraph for document in documents() for paragraph in paragraphs(document)]
+    assert len(found) > 100, "the reader found too little prose to judge"
+    reports = duplicates(found)
+    assert not reports, "say it in one place and link to it there:\n" + "\n".join(reports)
+
+
+def test_the_duplicate_check_names_both_places_of_a_copied_paragraph(tmp_path):
+    # The check itself, on a copy with a few words changed: it must not pass everything.
+    text = ("A robot is tracked from its first sample on, if it is configured or covered by the "
+            "default section; other robots get a rejection event and nothing else, and their "
+            "samples are counted.")
+    one, two = tmp_path / "one.md", tmp_path / "two.md"
+    one.write_text(f"# One\n\n{text}\n")
+    changed = text.replace("counted", "dropped")
+    two.write_text(f"# Two\n\nIntro.\n\n{changed}\n\n```sh\n{text}\n```\n")
+    found = [p for path in (one, two) for p in paragraphs(path)]
+    copied = [p for p in found if len(p.words) >= MIN_WORDS]
+    assert [(p.path.name, p.line) for p in copied] == [("one.md", 3), ("two.md", 5)]
+    reports = duplicates(copied, root=tmp_path)
+    assert len(reports) == 1 and "one.md:3" in reports[0] and "two.md:5" in reports[0]
+
+
+def slug(heading: str) -> str:
+    """A heading's anchor as GitHub makes it: lower case, punctuation dropped, spaces as hyphens."""
+    text = re.sub(r"[^\w\- ]", "", heading.strip().lower())
+    return text.replace(" ", "-")
+
+
+def anchors(path: Path) -> set[str]:
+    found: set[str] = set()
+    seen: dict[str, int] = {}
+    in_fence = False
+    for line in path.read_text().splitlines():
+        if line.strip().startswith("```"):
+            in_fence = not in_fence
+            continue
+        heading = re.match(r"^#{1,6} (.+)$", line)
+        if heading and not in_fence:
+            base = slug(heading.group(1))
+            count = seen.get(base, 0)
+            seen[base] = count + 1
+            found.add(base if count == 0 else f"{base}-{count}")
+    return found
+
+
+def markdown_files() -> list[Path]:
+    listed = subprocess.run(["git", "ls-files", "*.md"], cwd=REPO_ROOT, capture_output=True,
+                            text=True, check=True).stdout.split()
+    return [REPO_ROOT / name for name in listed if not name.startswith("vendor/")]
+
+
+def test_every_link_to_a_heading_of_the_markdown_finds_it():
+    files = markdown_files()
+    assert REPO_ROOT / "docs" / "protocol" / "keys.md" in files
+    broken = []
+    for document in files:
+        text = re.sub(r"```.*?```", "", document.read_text(), flags=re.S)
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if re.match(r"^(https?:|mailto:)", target) or "#" not in target:
+                continue
+            file_part, anchor = target.split("#", 1)
+            linked = (document.parent / file_part).resolve() if file_part else document
+            if linked.suffix != ".md":
+                continue
+            if not linked.is_file():
+                broken.append(f"{document.relative_to(REPO_ROOT)}: {target} (no such file)")
+            elif anchor not in anchors(linked):
+                broken.append(f"{document.relative_to(REPO_ROOT)}: {target} (no such heading)")
+    assert not broken, "\n".join(broken)

@@ -59,7 +59,7 @@ fn full_rings() -> (RecordRing, RecordRing, f64) {
         fill_measured(&mut record[..MEASURED_STRIDE], stamp_s, &twin, &deviation);
         measured.push(&record[..MEASURED_STRIDE]);
     }
-    #[allow(clippy::print_stderr, reason = "the memory figure of benches/README.md")]
+    #[allow(clippy::print_stderr, reason = "the memory figure of README.md")]
     {
         eprintln!(
             "rings at 500 Hz over {SPAN_S} s: joints {} B ({} records), measured {} B, together {} B",

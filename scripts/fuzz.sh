@@ -3,19 +3,24 @@
 # with cargo-fuzz and libFuzzer on the stable toolchain (`-s none`: no sanitizer, which would
 # need nightly; Rust's own bounds and overflow checks still turn bad memory use into a panic).
 #
-#   scripts/fuzz.sh short [SECONDS]          each target SECONDS (15) from its committed corpus;
-#                                            new inputs go to a scratch folder (CI's pass)
+#   scripts/fuzz.sh SECONDS [TARGET…]        each target (all by default) SECONDS from its
+#                                            committed corpus, new inputs to a scratch folder:
+#                                            the pass before a release (`short` is the same)
 #   scripts/fuzz.sh long SECONDS [TARGET…]   each target (all by default) SECONDS, one at a time,
 #                                            then the inputs that add coverage merged into
 #                                            fuzz/corpus/<target>/
 #   scripts/fuzz.sh cmin [TARGET…]           minimise the committed corpora
-#   scripts/fuzz.sh build                    only build every target (tests/run_all.sh builds
-#                                            them beside its main build, then runs `short`)
+#   scripts/fuzz.sh build                    only build every target
+#
+# The test command does not fuzz: `cargo test` runs every committed corpus and regression input
+# (fuzz/regressions/<target>/) through the same checks (crates/armtwin-fuzz-checks), without
+# this instrumented build.
 #
 # cargo-fuzz is installed once into $ARMTWIN_CACHE/cargo-fuzz-<version>/ (~/.cache/armtwin unless
 # set, shared by every clone on the machine). A finding stops the script
 # with the input under fuzz/artifacts/<target>/; `cargo fuzz run -s none <target> <file>`
-# (from fuzz/) replays it.
+# (from fuzz/) replays it. Once fixed, the input goes to fuzz/regressions/<target>/, where
+# `cargo test` keeps it fixed.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -36,11 +41,15 @@ fi
 
 mode=${1:-short}
 shift || true
+if [[ "$mode" =~ ^[0-9]+$ ]]; then
+  set -- "$mode" "$@"
+  mode=short
+fi
 case "$mode" in
   short) seconds=${1:-15}; shift || true ;;
   long) seconds=${1:?"usage: scripts/fuzz.sh long SECONDS [TARGET…]"}; shift ;;
   cmin | build) ;;
-  *) echo "usage: scripts/fuzz.sh short [SECONDS] | long SECONDS [TARGET…] | cmin [TARGET…] | build" >&2; exit 2 ;;
+  *) echo "usage: scripts/fuzz.sh SECONDS [TARGET…] | long SECONDS [TARGET…] | cmin [TARGET…] | build" >&2; exit 2 ;;
 esac
 targets=("$@")
 cd fuzz

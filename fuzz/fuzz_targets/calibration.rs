@@ -1,45 +1,6 @@
-//! A robot's factory calibration as operators hand it in (`calibration.conf`, `ur_calibration`
-//! YAML): `[mounting]` deltas written back as `calibration.conf` must parse to the same deltas;
-//! anything else is an error naming the file, never a panic.
+//! Fuzz target `calibration`: generated inputs through the decoder's check
+//! (`armtwin_fuzz_checks::calibration`, which says what it keeps); `cargo test` runs the same check on
+//! this target's committed corpus.
 #![no_main]
 
-use armtwin_core::model::{Calibration, CalibrationForm};
-use libfuzzer_sys::fuzz_target;
-
-const SOURCE: &str = "fuzz/calibration";
-
-fuzz_target!(|bytes: &[u8]| {
-    let Ok(text) = std::str::from_utf8(bytes) else {
-        return;
-    };
-    for parsed in [
-        Calibration::parse(text, SOURCE),
-        Calibration::parse_conf(text, SOURCE),
-        Calibration::parse_yaml(text, SOURCE),
-    ] {
-        let calibration = match parsed {
-            Ok(calibration) => calibration,
-            Err(error) => {
-                assert!(error.to_string().contains(SOURCE), "{error}");
-                continue;
-            }
-        };
-        assert_eq!(calibration.source_name, SOURCE);
-        match &calibration.form {
-            CalibrationForm::MountingDeltas(deltas) => {
-                let text = deltas.to_conf_text("written back");
-                let again = Calibration::parse_conf(&text, SOURCE).expect("written deltas");
-                assert_eq!(again, calibration);
-            }
-            CalibrationForm::JointOrigins {
-                parent_from_joint, ..
-            } => {
-                assert_eq!(parent_from_joint.len(), 6);
-                for origin in parent_from_joint {
-                    let matrix = origin.to_homogeneous();
-                    assert!(matrix.iter().all(|v| v.is_finite()), "{matrix}");
-                }
-            }
-        }
-    }
-});
+libfuzzer_sys::fuzz_target!(|bytes: &[u8]| armtwin_fuzz_checks::calibration::check(bytes));

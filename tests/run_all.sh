@@ -1,19 +1,23 @@
 #!/usr/bin/env bash
 # Runs every armtwin test from a fresh clone: Rust (format, lints, unit, integration and doc tests,
-# every workspace member under crates/; a short fuzzing pass of every decoder) and the Python
-# tests (independent numpy/scipy reference, the FMU in FMPy, real ROS 2 nodes through the real
-# bridge), in virtualenvs this script creates. Ends with each step's seconds, passed or failed.
+# every workspace member under crates/, every fuzz target's committed corpus and regression inputs
+# through its decoder's checks) and the Python tests (independent numpy/scipy reference, the FMU in
+# FMPy, real ROS 2 nodes through the real bridge), in virtualenvs this script creates. Ends with
+# each step's seconds, passed or failed.
 #
 # One compilation serves the lints, `cargo test` and the Python tests: clippy-driver compiles the
 # workspace's own crates (see `linted` below), so dependencies are built once and never checked
-# a second time. What needs no CPU (apt, pip) and the fuzz targets' own instrumented build run
-# beside it; the fuzzing pass runs beside the Python tests, which mostly wait on sockets and
-# timers. Tools kept across clones (cargo-fuzz, Prometheus) live in $ARMTWIN_CACHE
-# (~/.cache/armtwin unless set), one folder per version.
+# a second time. What needs no CPU (apt, pip) runs beside it. The Python tests run in parallel
+# workers, since they mostly wait on sockets and timers. Tools kept across clones (Prometheus)
+# live in $ARMTWIN_CACHE (~/.cache/armtwin unless set), one folder per version. Fuzzing itself
+# (an instrumented build of its own) is not part of this command: `scripts/fuzz.sh SECONDS`,
+# docs/fuzzing.md.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export ARMTWIN_CACHE="${ARMTWIN_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/armtwin}"
 scratch=$(mktemp -d)
+# The Python tests' parallel workers: they mostly wait, so more than the cores.
+ARMTWIN_PYTEST_WORKERS=${ARMTWIN_PYTEST_WORKERS:-4}
 
 # step NAME TITLE: NAME is the step's row in the closing table.
 timings=()
@@ -130,11 +134,9 @@ cargo fmt --all -- --check
 cargo fmt --manifest-path fuzz/Cargo.toml -- --check
 [ -x "$clippy_driver" ] || { echo "clippy-driver not found: rustup component add clippy" >&2; exit 1; }
 
-# apt and pip wait on the network; the fuzz targets' instrumented build (a target dir of its own,
-# nothing shared) takes only the CPU the build below leaves idle.
+# apt and pip wait on the network, beside the build.
 beside "test tools" sh -c 'bash scripts/test-tools.sh > "$1"' sh "$scratch/tools.env"
 beside "virtualenvs" venvs
-beside "fuzz build" nice -n 19 bash scripts/fuzz.sh build
 
 step build "clippy and build, every target (pedantic, warnings are errors; no ROS 2 bridge)"
 # The targets of `cargo clippy --all-targets`, compiled: lib, bins, tests, benches, examples.
@@ -147,11 +149,19 @@ collect "test tools"
 . "$scratch/tools.env"
 export ARMTWIN_CHROMIUM ARMTWIN_PROMETHEUS
 # The Rust tests run with nothing beside them: their services stream at full rate, and a
-# compiler or a fuzzer on the other core made them miss samples.
-collect "fuzz build"
+# compiler on the other core made them miss samples.
 
-step test "cargo test (compiles only the doc tests)"
-linted cargo test --locked --workspace
+# cargo-nextest runs the test binaries side by side (a test waiting on its service no longer holds
+# up the next binary); `cargo test` runs them one after the other. Both build nothing new but the
+# doc tests.
+if cargo nextest --version >/dev/null 2>&1; then
+  step test "cargo nextest run, then the doc tests"
+  linted cargo nextest run --locked --workspace
+  linted cargo test --locked --workspace --doc
+else
+  step test "cargo test (compiles only the doc tests; cargo-nextest would run the binaries side by side)"
+  linted cargo test --locked --workspace
+fi
 
 step bridge "clippy and build armtwin-router with the ROS 2 bridge"
 # The same build with `ros2dds` on: only armtwin-router and the bridge's own crates (CycloneDDS,
@@ -161,17 +171,15 @@ linted cargo build --locked --workspace --all-targets --features armtwin-router/
 export ARMTWIN_BIN="$PWD/target/debug/armtwin"
 
 collect "virtualenvs"
-# The fuzzing pass (8 targets × 15 s) beside the Python tests, which mostly wait on sockets and
-# timers; niced, it takes only what they leave.
-beside "fuzz every decoder briefly" nice -n 10 bash scripts/fuzz.sh short
 
-step pytest "pytest tests/python"
-.venv/bin/python -m pytest tests/python -q --ignore=tests/python/test_ros2_real.py
+step pytest "pytest tests/python, $ARMTWIN_PYTEST_WORKERS workers"
+# A test module's tests stay on one worker (they share its module-scoped services); each worker
+# takes its ports from a block of its own (tests/python/support/process.py).
+.venv/bin/python -m pytest tests/python -q -n "$ARMTWIN_PYTEST_WORKERS" --dist loadfile \
+  --ignore=tests/python/test_ros2_real.py
 
 step ros2 "pytest tests/python/test_ros2_real.py: rclpy through the bridge, in a private network namespace"
 # DDS discovers by multicast: nothing of it leaves this namespace, whose only interface is loopback.
 unshare -n sh -c 'ip link set lo up && ip link set lo multicast on &&
   exec .venv/bin/python -m pytest tests/python/test_ros2_real.py -q'
 end_step
-
-collect "fuzz every decoder briefly"

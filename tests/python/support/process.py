@@ -9,13 +9,15 @@ Written against docs/protocol/ and Zenoh's own configuration keys, not the Rust 
   :class:`Armtwin` is ``armtwin serve`` as a client of such a router.
 * :func:`run_armtwin` runs one armtwin command to its end (60 s at most).
 
-Every process runs on 127.0.0.1 ports chosen free a moment before, with multicast scouting off.
+Every process runs on 127.0.0.1 ports chosen free a moment before from the test worker's own
+block (:func:`free_port`), with multicast scouting off.
 Every wait here is bounded.
 """
 
 from __future__ import annotations
 
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -32,11 +34,40 @@ WATCHDOG_S = 240.0
 RUN_TIMEOUT_S = 60
 
 
+# Ports handed out below Linux's ephemeral range (32768-60999 by default), where no outgoing
+# connection takes one: each pytest-xdist worker its own block, so two tests running at once
+# never get the same port, walked in turn from a random start so a port is seldom reused soon.
+PORT_BLOCK_START = 20000
+PORT_BLOCK_SIZE = 1500
+PORT_BLOCKS = 8
+
+
+def _port_block() -> range:
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw")
+    index = int(worker) % PORT_BLOCKS if worker.isdigit() else 0
+    start = PORT_BLOCK_START + index * PORT_BLOCK_SIZE
+    return range(start, start + PORT_BLOCK_SIZE)
+
+
+_block = _port_block()
+_next_port = [_block.start + random.randrange(len(_block))]
+_next_port_lock = threading.Lock()
+
+
 def free_port() -> int:
-    """A TCP port that was free on 127.0.0.1 a moment ago (bind to port 0, read, close)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
+    """A TCP port free on 127.0.0.1 a moment ago, from this test worker's own block: no other
+    worker is handed it, and this one hands it out again only after the rest of its block."""
+    for _ in range(len(_block)):
+        with _next_port_lock:
+            port = _next_port[0]
+            _next_port[0] = _block.start + (port + 1 - _block.start) % len(_block)
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+            try:
+                sock.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
+    raise RuntimeError(f"no free port in {_block}")
 
 
 def port_accepts(port: int) -> bool:

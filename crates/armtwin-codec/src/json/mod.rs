@@ -24,7 +24,8 @@
 //!
 //! Files by concern: `decode` (the entry points and the general decoder's checks) over `slots`
 //! (its one pass of `serde_json`'s parser into fixed slots), with `fast` (the usual shapes, held
-//! equal to it by the tests); `state` (the `state` object's own decoder, on a parsed value) and
+//! equal to it by the tests), both building `joints` (a decoded joint message and how it steps
+//! its twin); `state` (the `state` object's own decoder, on a parsed value) and
 //! `pose` (a measured pose's orientation forms, shared with the binary codecs); `encode` (the
 //! fixed-layout writer), `messages` (the output messages), `effort` (the effort outputs) and
 //! `history` (the per-second history answer).
@@ -39,20 +40,20 @@ mod effort;
 mod encode;
 mod fast;
 mod history;
+mod joints;
 mod messages;
 mod pose;
 mod slots;
 mod state;
 
-pub use decode::{
-    DecodedJoints, decode_joints, decode_measured, read_joints, read_measured, stamp_hint,
-};
+pub use decode::{decode_joints, decode_measured, read_joints, read_measured, stamp_hint};
 pub use effort::{
     effort_readout_bytes, effort_readout_json, effort_summary_json, payload_message_bytes,
     payload_readout_json,
 };
 pub use encode::to_json_bytes;
 pub use history::{HistoryMessage, SecondJson};
+pub use joints::DecodedJoints;
 pub use messages::{
     AlarmsJson, DeviationMessage, ErrorsJson, EstimateMessage, EventMessage, MetricsMessage,
     ParameterJson, PoseMessage, StampedJointsJson, StampedPoseJson, StateMessage, StatsJson,

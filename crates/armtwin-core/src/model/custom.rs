@@ -27,8 +27,8 @@
 
 use serde::Deserialize;
 
+use super::inertia::{ArmInertials, LinkInertial};
 use super::{ArmDescription, JointLimits, ModelError};
-use crate::dynamics::{ArmInertials, LinkInertial};
 use crate::kinematics::{DhConvention, DhParameters};
 
 #[derive(Debug, Deserialize)]

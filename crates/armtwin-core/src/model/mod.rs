@@ -8,15 +8,17 @@
 pub mod calibration;
 pub mod catalog;
 pub mod custom;
+pub mod inertia;
 mod reference;
+pub mod ur_inertia;
 
 use thiserror::Error;
 
-use crate::dynamics::ArmInertials;
 use crate::kinematics::{
     Chain, DhConvention, DhParameters, KinematicsError, OutputFrame, Pose, TcpOffset,
 };
 pub use calibration::{Calibration, CalibrationError, CalibrationForm, MountingDeltas};
+use inertia::ArmInertials;
 pub use reference::ModelRef;
 
 /// Position limits of one revolute joint (rad); `None` on a side means unlimited.

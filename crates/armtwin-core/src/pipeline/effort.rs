@@ -4,9 +4,9 @@
 //! [`crate::dynamics::monitor`]'s.
 
 use super::twin::Twin;
-use super::{EventDetail, EventKind, PipelineConfig, Reason, Robot, Sink};
+use super::{EventDetail, EventKind, Reason, Sink};
 use crate::dynamics::Payload;
-use crate::dynamics::monitor::{EffortAlarm, EffortMonitor, EffortSummary};
+use crate::dynamics::monitor::{EffortAlarm, EffortSummary};
 use crate::sample::{JointSample, JointState};
 
 impl Twin {
@@ -97,14 +97,4 @@ impl Twin {
             .map(|monitor| monitor.discard_applied())
             .is_some()
     }
-}
-
-/// The effort monitor `robot`'s settings ask for. The configuration checked the arm when it was
-/// loaded; an arm that still cannot be watched (a model replaced by one of another size) is
-/// watched by none.
-pub(super) fn effort_monitor(robot: &Robot, config: &PipelineConfig) -> Option<Box<EffortMonitor>> {
-    let effort = robot.settings().effort.as_ref()?;
-    EffortMonitor::new(robot.settings().model.arm(), effort, config.window_s)
-        .ok()
-        .map(Box::new)
 }

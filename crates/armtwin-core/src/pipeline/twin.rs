@@ -18,7 +18,6 @@ use std::sync::Arc;
 use nalgebra::{IsometryMatrix3, Matrix3, Rotation3, Vector3};
 
 use super::alarm::AlarmStates;
-use super::effort::effort_monitor;
 use super::{
     Event, EventDetail, EventKind, MeasuredStream, MetricsReadout, PipelineConfig, Reason,
     RejectCause, ReplaceModelError, Robot, RobotState, Sink,
@@ -812,6 +811,16 @@ fn transform(target_from_source: &IsometryMatrix3<f64>, pose: &PoseReadout) -> P
     let quaternion =
         orientation::quaternion_from_matrix(Rotation3::from_matrix_unchecked(rotation).matrix());
     PoseReadout::from_position_quaternion(position.coords.into(), &quaternion)
+}
+
+/// The effort monitor `robot`'s settings ask for. The configuration checked the arm when it was
+/// loaded; an arm that still cannot be watched (a model replaced by one of another size) is
+/// watched by none.
+fn effort_monitor(robot: &Robot, config: &PipelineConfig) -> Option<Box<EffortMonitor>> {
+    let effort = robot.settings().effort.as_ref()?;
+    EffortMonitor::new(robot.settings().model.arm(), effort, config.window_s)
+        .ok()
+        .map(Box::new)
 }
 
 #[cfg(test)]

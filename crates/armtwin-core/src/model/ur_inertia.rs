@@ -2,8 +2,9 @@
 //! mass and inertia tensors in the standard-DH link frames, and the reflected rotor inertia of
 //! each joint's drive.
 //!
-//! Owns these tables only; the recursion that uses them is in [`super`]. Values are copied digit
-//! for digit from the sources named on each table; nothing here is fitted or estimated.
+//! Owns these tables only; the recursion that uses them is in [`crate::dynamics`] (which names
+//! this module `dynamics::ur`). Values are copied digit for digit from the sources named on each
+//! table; nothing here is fitted or estimated.
 //!
 //! Sources (checked against each other):
 //! - **P**: Universal Robots, "DH Parameters for calculations of kinematics and dynamics"
@@ -18,7 +19,7 @@
 //! about the centre of mass; where a source publishes none the tensor is zero (a point mass), as
 //! in the controller's own model of the small arms.
 
-use super::{ArmInertials, LinkInertial};
+use super::inertia::{ArmInertials, LinkInertial};
 
 /// Gear ratio of every e-Series joint (C).
 pub const E_SERIES_GEAR_RATIO: f64 = 101.0;

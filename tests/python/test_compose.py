@@ -47,6 +47,57 @@ def shard_config(service: dict) -> tuple[Path, dict]:
     return source, tomllib.loads(source.read_text())
 
 
+LOOPBACK_HOSTS = ("127.0.0.1", "[::1]", "localhost")
+# Every file that ships a way to publish the image's ports.
+SHIPPED_RUNS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md")), *sorted(p for p in DOCKER.iterdir() if p.is_file())]
+
+
+def secured(command: list[str]) -> bool:
+    """Whether a router's or service's command takes Zenoh over TLS with the shipped access
+    control (config/router-tls-acl.json5) or as a TLS client of such a router."""
+    text = " ".join(command)
+    return "tls/" in text and not re.search(r"\btcp/", text) and (
+        "router-tls-acl.json5" in text or "zenoh-client-tls.json5" in text)
+
+
+def published_on_another_host_address(mapping: str) -> bool:
+    """Whether a port mapping (`[HOST:]HOSTPORT:PORT`, compose's or `docker run -p`'s) reaches
+    the host's other interfaces: no host address, or a non-loopback one."""
+    parts = mapping.split("/")[0].rsplit(":", 2)
+    return len(parts) < 3 or parts[0] not in LOOPBACK_HOSTS
+
+
+def test_no_shipped_file_publishes_an_open_door_beyond_the_hosts_loopback():
+    """Plain Zenoh takes any input from whoever reaches it, and this fleet's REST and dashboards
+    have no identity: a shipped file publishes them on the host's loopback, or gives them TLS
+    and access control first."""
+    offenders = []
+    for name, service in compose()["services"].items():
+        if name == "prometheus":
+            continue
+        for mapping in service.get("ports", []):
+            if published_on_another_host_address(str(mapping)) and not secured(service["command"]):
+                offenders.append(f"compose {name}: {mapping}")
+    for path in SHIPPED_RUNS:
+        for line in path.read_text().splitlines():
+            if "docker run" not in line:
+                continue
+            for mapping in re.findall(r"(?:-p|--publish)[ =](\S+)", line):
+                if published_on_another_host_address(mapping):
+                    offenders.append(f"{path.relative_to(REPO)}: {line.strip()}")
+    # The image's own command listens on plain TCP: only loopback publishing keeps it local.
+    dockerfile = (DOCKER / "Dockerfile").read_text()
+    [cmd] = re.findall(r"^CMD (\[.*\])$", dockerfile, re.M)
+    assert not secured(json.loads(cmd)) and "127.0.0.1:7447:7447" in dockerfile
+    assert offenders == [], offenders
+    # The checks themselves see an open door.
+    assert published_on_another_host_address("7447:7447")
+    assert published_on_another_host_address("0.0.0.0:7447:7447")
+    assert not published_on_another_host_address("127.0.0.1:7447:7447")
+    assert secured(["-c", "/etc/armtwin/router-tls-acl.json5", "-l", "tls/0.0.0.0:7447"])
+    assert not secured(["-l", "tcp/0.0.0.0:7447", "--rest-http-port", "0.0.0.0:8000"])
+
+
 def test_the_compose_file_describes_a_router_two_disjoint_shards_and_a_gateway():
     spec = compose()
     services = spec["services"]

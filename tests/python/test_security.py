@@ -135,3 +135,31 @@ def test_only_an_operator_may_reset_a_twin(tmp_path, certs, armtwin_bin):
             session.close()
         twin.stop()
         router.stop()
+
+
+def test_armtwin_behind_the_shipped_acl_hears_a_gateways_controller_facts_at_its_start(tmp_path, certs, armtwin_bin):
+    """armtwin asks `twin/controller/**` when it starts; behind the shipped access control the
+    gateway already streaming must be asked, and its answer must reach armtwin."""
+    router, twin = tls_router_and_twin(tmp_path, certs, armtwin_bin)
+    asked = []
+    try:
+        router.start()
+        g1 = open_as(router, certs, "g1")
+        facts = json.dumps({"model": "UR10", "serial": "20235500001"})
+
+        def answer(query: zenoh.Query) -> None:
+            asked.append(str(query.key_expr))
+            query.reply("twin/controller/r1", facts, encoding=zenoh.Encoding.APPLICATION_JSON)
+
+        queryable = g1.declare_queryable("twin/controller/r1", answer)
+        time.sleep(0.5)
+        twin.start()
+        assert wait_until(lambda: asked, 10), f"armtwin's start query never reached g1\n{router.logs()}"
+        # armtwin takes the answer (it would warn on facts it refuses).
+        time.sleep(1.0)
+        assert "controller facts refused" not in twin.logs(10**9), twin.logs()
+        queryable.undeclare()
+        g1.close()
+    finally:
+        twin.stop()
+        router.stop()

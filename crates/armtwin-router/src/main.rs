@@ -1,7 +1,8 @@
-//! `armtwin-router`: a Zenoh router with the REST plugin linked in, the way Zenoh's own bridges
-//! build theirs (`zenoh-bridge-ros2dds`): the same engine as `zenohd`, built from the zenoh
-//! crate the workspace already compiles, so a fleet's router and its tests need no separate
-//! `zenohd` build nor a plugin library whose compiler and feature set must match it exactly.
+//! `armtwin-router`: a Zenoh router with a REST API, built the way Zenoh's own bridges build
+//! theirs (`zenoh-bridge-ros2dds`): the same engine as `zenohd`, built from the zenoh crate the
+//! workspace already compiles, so a fleet's router and its tests need no separate `zenohd` build
+//! nor a plugin library whose compiler and feature set must match it exactly. REST speaks
+//! `zenohd`'s REST plugin's requests, bounded ([`rest_http`]).
 //! Built with the feature `ros2dds`, it is also `zenoh-bridge-ros2dds`: the configuration's
 //! `plugins/ros2dds` section (read exactly as that bridge reads it) or `--ros2dds` starts the
 //! ROS 2 ⇄ Zenoh bridge in the same process.
@@ -12,17 +13,18 @@
 //! rules name, or not at all unless trusted on loopback ([`rest`]).
 
 mod rest;
+mod rest_http;
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use zenoh::Config;
 use zenoh::internal::plugins::PluginsManager;
-use zenoh::internal::runtime::{Runtime, RuntimeBuilder};
+use zenoh::internal::runtime::{DynamicRuntime, Runtime, RuntimeBuilder};
+use zenoh::{Config, Session};
 
 use crate::rest::{RestDoor, RestFlags};
 
-/// A Zenoh router (`zenohd` 1.10) with the REST plugin (and, built with the feature `ros2dds`,
-/// the ROS 2 DDS bridge) built in.
+/// A Zenoh router (`zenohd` 1.10) with a bounded REST API (and, built with the feature
+/// `ros2dds`, the ROS 2 DDS bridge) built in.
 #[derive(Debug, Parser)]
 #[command(name = "armtwin-router", version)]
 struct Args {
@@ -53,6 +55,11 @@ struct Args {
     /// the REST port may put any input and change any twin. Loopback addresses only.
     #[arg(long)]
     rest_trusted: bool,
+    /// A web page's origin (`http://hmi.plant:8080`) allowed to call REST from a browser; repeat
+    /// for more. Replaces the file's `plugins/rest/allowed_origins`. Without any, requests that
+    /// carry an `Origin` are refused.
+    #[arg(long, value_name = "ORIGIN")]
+    rest_allow_origin: Vec<String>,
     /// Turn multicast scouting off (routers find each other through `--connect`).
     #[arg(long)]
     no_multicast_scouting: bool,
@@ -71,9 +78,9 @@ fn json_list(items: &[String]) -> String {
     format!("[{}]", quoted.join(","))
 }
 
-/// The router's configuration, with the REST plugin's section set for where REST runs (and
-/// removed unless it runs inside the router).
-fn config_from(args: &Args) -> Result<(Config, RestDoor)> {
+/// The router's configuration (without `plugins/rest`, which is read here and served by
+/// [`rest_http`], not by a plugin), where REST runs and the origins it serves.
+fn config_from(args: &Args) -> Result<(Config, RestDoor, Vec<String>)> {
     let mut config = match &args.config {
         Some(path) => Config::from_file(path)
             .map_err(|e| anyhow::anyhow!("{e}"))
@@ -115,61 +122,61 @@ fn config_from(args: &Args) -> Result<(Config, RestDoor)> {
             private_key: args.rest_private_key.clone(),
         },
     )?;
-    match &door {
-        RestDoor::Inside { address } => config
-            .insert_json5(
-                "plugins/rest/http_port",
-                &serde_json::to_string(&address.to_string())?,
-            )
-            .map_err(|e| anyhow::anyhow!("{e}"))?,
-        // REST as an identity runs in a client of its own, never in the router itself.
-        RestDoor::Off | RestDoor::Identity { .. } if config.plugin("rest").is_some() => config
+    let origins = rest::allowed_origins(
+        config
+            .plugin("rest")
+            .and_then(|rest| rest.get("allowed_origins")),
+        &args.rest_allow_origin,
+    )?;
+    if config.plugin("rest").is_some() {
+        config
             .remove("plugins/rest")
-            .map_err(|e| anyhow::anyhow!("{e}"))?,
-        RestDoor::Off | RestDoor::Identity { .. } => {}
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
     }
-    // The admin space serves the plugin's status under @/…; plugins are linked in, so loading is
-    // only the declaration below (no library is searched for).
+    // Plugins (the ROS 2 bridge) are linked in, so loading is only their declaration (no library
+    // is searched for).
     for key in ["adminspace/enabled", "plugins_loading/enabled"] {
         config
             .insert_json5(key, "true")
             .map_err(|e| anyhow::anyhow!("{e}"))
             .with_context(|| format!("cannot set Zenoh configuration {key} to true"))?;
     }
-    Ok((config, door))
+    Ok((config, door, origins))
 }
 
-/// Starts the Zenoh client that serves REST as an identity (after the router listens).
-async fn start_rest_client(router: &Config, door: &RestDoor) -> Result<Option<Runtime>> {
-    let RestDoor::Identity {
-        address,
-        certificate,
-        private_key,
-    } = door
-    else {
-        return Ok(None);
-    };
-    let config = rest::identity_client_config(router, *address, certificate, private_key)?;
-    let mut plugins = PluginsManager::static_plugins_only();
-    plugins.declare_static_plugin::<zenoh_plugin_rest::RestPlugin, &str>("rest", true);
-    let mut runtime = RuntimeBuilder::new(config)
-        .plugins_manager(plugins)
-        .build()
-        .await
-        .map_err(|e| anyhow::anyhow!("{e}"))
-        .context("cannot start REST (is its port taken?)")?;
-    runtime
-        .start()
-        .await
-        .map_err(|e| anyhow::anyhow!("{e}"))
-        .with_context(|| {
-            format!(
-                "REST's client cannot join the router with {}: is it a certificate of the \
-                 router's CA?",
-                certificate.display()
-            )
-        })?;
-    Ok(Some(runtime))
+/// The session REST speaks with: the router's own, or a client's with the identity's
+/// certificate (after the router listens).
+async fn rest_session(
+    runtime: &Runtime,
+    router: &Config,
+    door: &RestDoor,
+) -> Result<Option<Session>> {
+    match door {
+        RestDoor::Off => Ok(None),
+        RestDoor::Inside { .. } => zenoh::session::init(DynamicRuntime::from(runtime.clone()))
+            .await
+            .map(Some)
+            .map_err(|e| anyhow::anyhow!("{e}"))
+            .context("cannot open REST's session on the router"),
+        RestDoor::Identity {
+            certificate,
+            private_key,
+            ..
+        } => {
+            let config = rest::identity_client_config(router, certificate, private_key)?;
+            zenoh::open(config)
+                .await
+                .map(Some)
+                .map_err(|e| anyhow::anyhow!("{e}"))
+                .with_context(|| {
+                    format!(
+                        "REST's client cannot join the router with {}: is it a certificate of \
+                         the router's CA?",
+                        certificate.display()
+                    )
+                })
+        }
+    }
 }
 
 async fn shutdown_signal() -> Result<()> {
@@ -207,11 +214,17 @@ fn declare_ros2dds(_plugins: &mut PluginsManager) -> Result<()> {
 async fn main() -> Result<()> {
     zenoh::init_log_from_env_or("z=info,armtwin_router=info");
     let args = Args::parse();
-    let (config, door) = config_from(&args)?;
+    let (config, door, origins) = config_from(&args)?;
+    // Bound first: a taken port stops the router before it joins the mesh.
+    let rest_listener = match &door {
+        RestDoor::Inside { address } | RestDoor::Identity { address, .. } => Some(
+            rest_http::bind(*address)
+                .await
+                .with_context(|| format!("cannot serve REST on {address} (is it taken?)"))?,
+        ),
+        RestDoor::Off => None,
+    };
     let mut plugins = PluginsManager::static_plugins_only();
-    if config.plugin("rest").is_some() {
-        plugins.declare_static_plugin::<zenoh_plugin_rest::RestPlugin, &str>("rest", true);
-    }
     let bridge = config.plugin("ros2dds").is_some();
     if bridge {
         declare_ros2dds(&mut plugins)?;
@@ -228,11 +241,23 @@ async fn main() -> Result<()> {
         .map_err(|e| anyhow::anyhow!("{e}"))
         .context("cannot start the Zenoh router (is a listen port taken?)")?;
     tracing::info!(zid = %runtime.zid(), "armtwin-router started");
-    let rest_client = start_rest_client(&config, &door).await?;
+    let session = rest_session(&runtime, &config, &door).await?;
+    let (stop_rest, rest_stopped) = tokio::sync::oneshot::channel::<()>();
+    let rest_task = match (rest_listener, session.clone()) {
+        (Some(listener), Some(session)) => Some(tokio::spawn(rest_http::serve(
+            listener,
+            session,
+            origins.clone(),
+            async {
+                let _ = rest_stopped.await;
+            },
+        ))),
+        _ => None,
+    };
     match &door {
         RestDoor::Off => {}
         RestDoor::Inside { address } => {
-            tracing::info!(%address, "REST inside the router, past any access control");
+            tracing::info!(%address, ?origins, "REST inside the router, past any access control");
         }
         RestDoor::Identity {
             address,
@@ -240,18 +265,23 @@ async fn main() -> Result<()> {
             ..
         } => tracing::info!(
             %address,
+            ?origins,
             certificate = %certificate.display(),
             "REST as the certificate's subject, through the access control"
         ),
     }
     shutdown_signal().await?;
     tracing::info!("armtwin-router stopping");
-    if let Some(client) = rest_client {
-        client
+    let _ = stop_rest.send(());
+    if let Some(task) = rest_task {
+        let _ = task.await;
+    }
+    if let Some(session) = session {
+        session
             .close()
             .await
             .map_err(|e| anyhow::anyhow!("{e}"))
-            .context("cannot close REST's client")?;
+            .context("cannot close REST's session")?;
     }
     if bridge {
         // Zenoh 1.10.2 panics in its routing tables when a closing runtime still holds the

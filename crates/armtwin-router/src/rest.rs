@@ -1,15 +1,15 @@
 //! Where the REST API runs, and as whom: the decision, from the router's configuration and the
 //! `--rest-*` flags, and the configuration of the Zenoh client that carries REST as an identity.
 //!
-//! The REST plugin answers HTTP with a Zenoh session of its own. Started inside the router (as
-//! `zenohd` starts it), that session is the router's own: no link, so no certificate, and the
-//! router's access control never sees its puts and queries. Started in a Zenoh client of the
-//! router instead, over mutual TLS with a certificate of its own, every HTTP request reaches the
-//! router as that certificate's subject and is allowed or dropped by the same rules as any other
-//! session's. Hence, with access control on, REST runs as an identity, or inside the router only
-//! when the operator says it may (`--rest-trusted`) and only on loopback.
+//! REST answers HTTP with a Zenoh session ([`crate::rest_http`]). The router's own session has
+//! no link, so no certificate, and the router's access control never sees its puts and queries.
+//! A Zenoh client of the router instead, over mutual TLS with a certificate of its own, reaches
+//! the router as that certificate's subject, and every HTTP request is allowed or dropped by the
+//! same rules as any other session's. Hence, with access control on, REST runs as an identity,
+//! or on the router's session only when the operator says it may (`--rest-trusted`) and only on
+//! loopback.
 //!
-//! Owns no HTTP: the REST plugin serves it either way.
+//! Owns no HTTP: [`crate::rest_http`] serves it either way.
 
 use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr};
 use std::path::PathBuf;
@@ -64,8 +64,8 @@ pub fn flag_address(value: &str) -> Result<SocketAddr> {
         .with_context(|| format!("--rest-http-port '{value}' is not a port nor ADDRESS:PORT"))
 }
 
-/// The address of a configuration file's `plugins/rest/http_port`, read as the REST plugin reads
-/// it: a number or a string without an address listens on every interface.
+/// The address of a configuration file's `plugins/rest/http_port`, read as `zenohd`'s REST plugin
+/// reads it: a number or a string without an address listens on every interface.
 fn file_address(value: &Value) -> Result<SocketAddr> {
     let every = |port: u16| SocketAddr::new(IpAddr::V6(Ipv6Addr::UNSPECIFIED), port);
     match value {
@@ -140,6 +140,42 @@ pub fn door(
     }
 }
 
+/// The origins whose web pages may call REST: `--rest-allow-origin` (each `scheme://host[:port]`,
+/// as a browser writes `Origin`), else the file's `plugins/rest/allowed_origins`; none by default.
+/// No wildcard: any page a plant's browser opens could then drive the mesh.
+pub fn allowed_origins(file: Option<&Value>, flags: &[String]) -> Result<Vec<String>> {
+    let origins: Vec<String> = if flags.is_empty() {
+        match file {
+            None => Vec::new(),
+            Some(Value::Array(list)) => list
+                .iter()
+                .map(|o| {
+                    o.as_str().map(str::to_owned).with_context(|| {
+                        format!("plugins/rest/allowed_origins: {o} is not a string")
+                    })
+                })
+                .collect::<Result<_>>()?,
+            Some(other) => bail!("plugins/rest/allowed_origins {other} is not a list of origins"),
+        }
+    } else {
+        flags.to_vec()
+    };
+    for origin in &origins {
+        let well_formed = origin.split_once("://").is_some_and(|(scheme, authority)| {
+            matches!(scheme, "http" | "https")
+                && !authority.is_empty()
+                && !authority.contains(['/', '*', ' '])
+        });
+        if !well_formed {
+            bail!(
+                "REST's allowed origin '{origin}' is not scheme://host[:port] (no path, no \
+                 wildcard)"
+            );
+        }
+    }
+    Ok(origins)
+}
+
 /// Whether the configuration turns the router's access control on.
 pub fn access_control_enabled(config: &Config) -> bool {
     config
@@ -185,10 +221,9 @@ fn own_tls_endpoint(listen: &Value) -> Result<String> {
 
 /// The configuration of the Zenoh client that serves REST as an identity: the router's TLS
 /// settings (its CA) with the identity's certificate, connected to the router's own TLS
-/// endpoint, the REST plugin on `address`, nothing else (no scouting, no admin space).
+/// endpoint, nothing else (no scouting, no admin space).
 pub fn identity_client_config(
     router: &Config,
-    address: SocketAddr,
     certificate: &std::path::Path,
     private_key: &std::path::Path,
 ) -> Result<Config> {
@@ -226,11 +261,6 @@ pub fn identity_client_config(
         ("transport/link/protocols", "[\"tls\"]".to_owned()),
         ("transport/link/tls", tls.to_string()),
         ("adminspace/enabled", "false".to_owned()),
-        ("plugins_loading/enabled", "true".to_owned()),
-        (
-            "plugins/rest/http_port",
-            serde_json::to_string(&address.to_string())?,
-        ),
     ];
     for (key, value) in inserts {
         client
@@ -277,7 +307,7 @@ mod tests {
         );
         assert!(flag_address("localhost:8000").is_err());
         assert!(flag_address("80000").is_err());
-        // The file keeps the REST plugin's meaning: a port alone is every interface.
+        // The file keeps zenohd's meaning: a port alone is every interface.
         assert_eq!(
             file_address(&serde_json::json!(8000)).expect("a port"),
             at("[::]:8000")
@@ -362,6 +392,31 @@ mod tests {
     }
 
     #[test]
+    fn allowed_origins_are_exact_origins_and_none_by_default() {
+        let file = serde_json::json!(["http://hmi.plant:8080"]);
+        assert!(allowed_origins(None, &[]).expect("none").is_empty());
+        assert_eq!(
+            allowed_origins(Some(&file), &[]).expect("the file's"),
+            ["http://hmi.plant:8080"]
+        );
+        let flag = ["https://scada.plant".to_owned()];
+        assert_eq!(
+            allowed_origins(Some(&file), &flag).expect("the flag's"),
+            ["https://scada.plant"]
+        );
+        for bad in [
+            "*",
+            "http://*",
+            "hmi.plant",
+            "http://hmi.plant/",
+            "ftp://hmi.plant",
+        ] {
+            assert!(allowed_origins(None, &[bad.to_owned()]).is_err(), "{bad}");
+        }
+        assert!(allowed_origins(Some(&serde_json::json!("http://a")), &[]).is_err());
+    }
+
+    #[test]
     fn the_identity_client_reaches_the_router_over_its_own_tls_endpoint() {
         let endpoint = |listen: Value| own_tls_endpoint(&listen).map_err(|e| e.to_string());
         assert_eq!(
@@ -398,7 +453,6 @@ mod tests {
         }
         let client = identity_client_config(
             &router,
-            at("127.0.0.1:8000"),
             "certs/rest.pem".as_ref(),
             "certs/rest.key".as_ref(),
         )
@@ -415,18 +469,12 @@ mod tests {
             "\"certs/rest.pem\""
         );
         assert_eq!(get("transport/link/tls/listen_certificate"), "null");
-        assert_eq!(get("plugins/rest/http_port"), "\"127.0.0.1:8000\"");
 
         let mut without_ca = router.clone();
         without_ca
             .insert_json5("transport/link/tls/root_ca_certificate", "null")
             .expect("a setting");
-        let refused = identity_client_config(
-            &without_ca,
-            at("127.0.0.1:8000"),
-            "a".as_ref(),
-            "b".as_ref(),
-        );
+        let refused = identity_client_config(&without_ca, "a".as_ref(), "b".as_ref());
         assert!(refused.is_err());
     }
 }

@@ -413,7 +413,17 @@ impl Fleet {
                     &["declare_queryable", "reply"],
                     &of(&[Stream::Controller]),
                 ),
-                rule(&asked, &["egress"], &["query"], &of(&[Stream::Controller])),
+                // Asked by every armtwin instance at its start, on its whole shard
+                // (`<prefix>/controller/**`, `…/site-a/**`), wider than this gateway's robots:
+                // a rule on its own keys would never cover the query, and the service would
+                // run without the controller's TCP until the facts changed. Only armtwin may
+                // ask there, and the gateway answers for its own robots only (above).
+                rule(
+                    &asked,
+                    &["egress"],
+                    &["query"],
+                    &[self.keys.every_robot(Stream::Controller)],
+                ),
             ]);
             section
                 .subjects

@@ -5,7 +5,7 @@ Written against docs/protocol/ and Zenoh's own configuration keys, not the Rust 
 * :class:`Process` runs any command with its output (stdout and stderr) in a file of its own per
   run, a watchdog that kills it if a test overruns, and a bounded SIGINT stop.
 * :class:`ArmtwinProcess` is ``armtwin serve`` as a peer listening on a private loopback port;
-  :class:`Router` is ``armtwin-router`` (zenohd's engine with the REST plugin linked in);
+  :class:`Router` is ``armtwin-router`` (zenohd's engine with a bounded REST API);
   :class:`Armtwin` is ``armtwin serve`` as a client of such a router.
 * :func:`run_armtwin` runs one armtwin command to its end (60 s at most).
 

@@ -25,8 +25,6 @@ use std::error::Error;
 use armtwin_core::pipeline::{MeasuredStream, RejectCause, Robot, Sink, Twin};
 use armtwin_core::sample::{JointSample, MeasuredSample};
 
-use crate::json::DecodedJoints;
-
 /// An error a codec refuses a payload with: its rejection cause, for the event's
 /// `detail.cause` and the counts by cause. A class the core also has (a non-finite number, a
 /// wrong joint count) is the core's variant; any other is [`RejectCause::Decode`] with a name
@@ -204,23 +202,5 @@ impl Message for MeasuredSample {
 
     fn step(&self, twin: &mut Twin, arrival: Arrival<'_>, stamp_s: f64, sink: &mut impl Sink) {
         twin.measured(arrival.key, arrival.stream, stamp_s, &self.pose, sink);
-    }
-}
-
-/// A gateway's joint message: an invalid embedded measured part is rejected on its own, and the
-/// joints it came with still yield their pose.
-impl Message for DecodedJoints {
-    fn stamp_s(&self) -> Option<f64> {
-        self.sample.stamp_s
-    }
-
-    fn step(&self, twin: &mut Twin, arrival: Arrival<'_>, stamp_s: f64, sink: &mut impl Sink) {
-        for error in [&self.measured_error, &self.state_error]
-            .into_iter()
-            .flatten()
-        {
-            reject(twin, arrival.key, stamp_s, error, sink);
-        }
-        twin.joints(arrival.key, stamp_s, &self.sample, sink);
     }
 }

@@ -8,25 +8,13 @@
 use armtwin_core::kinematics::PoseReadout;
 use armtwin_core::sample::{JointAngles, JointSample, MeasuredSample};
 
+use super::joints::DecodedJoints;
 use super::pose::{OrientationForm, POSE_KEYS, pose_of};
 use super::slots::{
     Got, MessageSlots, PoseSlots, Schema, number, optional, read_message, wrong_type,
 };
 use super::state::joint_state;
 use super::{Undecodable, WireError, fast};
-
-/// A decoded joint message: the joint sample, and the error of its `measured` part when that
-/// part was invalid (the joint sample stays valid: a bad pose reading must not cost the twin its
-/// joint sample).
-#[derive(Debug, Clone, PartialEq)]
-pub struct DecodedJoints {
-    /// The joint sample (its `measured` is `None` when the part was invalid).
-    pub sample: JointSample,
-    /// Why the embedded `measured` part was refused, if it was.
-    pub measured_error: Option<WireError>,
-    /// Why the joint state beside the angles was refused, if it was (the sample then has none).
-    pub state_error: Option<WireError>,
-}
 
 /// The stamp (`t` or `time`) of a message, if it has a usable one, read without knowing what
 /// kind of message it is (a message of an unknown robot is rejected at its own time).

@@ -13,7 +13,7 @@
 //! general decoder skips them.
 
 use super::MAX_PAYLOAD_BYTES;
-use super::decode::DecodedJoints;
+use super::joints::DecodedJoints;
 use super::pose::{OrientationForm, pose_of};
 use super::slots::joint_index;
 use armtwin_core::kinematics::PoseReadout;

@@ -39,20 +39,20 @@ mod effort;
 mod encode;
 mod fast;
 mod history;
+mod joints;
 mod messages;
 mod pose;
 mod slots;
 mod state;
 
-pub use decode::{
-    DecodedJoints, decode_joints, decode_measured, read_joints, read_measured, stamp_hint,
-};
+pub use decode::{decode_joints, decode_measured, read_joints, read_measured, stamp_hint};
 pub use effort::{
     effort_readout_bytes, effort_readout_json, effort_summary_json, payload_message_bytes,
     payload_readout_json,
 };
 pub use encode::to_json_bytes;
 pub use history::{HistoryMessage, SecondJson};
+pub use joints::DecodedJoints;
 pub use messages::{
     AlarmsJson, DeviationMessage, ErrorsJson, EstimateMessage, EventMessage, MetricsMessage,
     ParameterJson, PoseMessage, StampedJointsJson, StampedPoseJson, StateMessage, StatsJson,

@@ -35,9 +35,6 @@ pub use self::robots::ConfiguredTools;
 use self::robots::{SharedSettings, load_pose_outputs, load_robots};
 pub use self::sources::{Ros2Source, SourceConfig, SourceRobot, SourceStream};
 use self::sources::{SourceContext, load_sources};
-pub use armtwin_mesh::zenoh_section::{
-    Overrides, ZenohInsert, ZenohInsertError, ZenohMode, ZenohSection, without_source_location,
-};
 use crate::align::AlignConfig;
 use crate::identify::IdentifyOptions;
 use crate::keys::KeySpace;
@@ -45,6 +42,9 @@ use crate::model::ModelError;
 use crate::pipeline::{PipelineConfig, RobotSettings};
 use crate::ros2::PoseOutputs;
 use crate::self_calibration::ReservoirConfig;
+pub use armtwin_mesh::zenoh_section::{
+    Overrides, ZenohInsert, ZenohInsertError, ZenohMode, ZenohSection, without_source_location,
+};
 
 /// The embedded default configuration (`config/armtwin.toml`).
 pub const DEFAULT_CONFIG_TOML: &str = include_str!("../../../../config/armtwin.toml");

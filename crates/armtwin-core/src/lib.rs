@@ -21,6 +21,8 @@
 //!   chains).
 //! - [`model`]: the Universal Robots catalog, custom arms, factory calibration
 //!   (`calibration.conf`, `ur_calibration` YAML) and [`model::RobotModel`].
+//! - [`inertia`]: arms' inertial parameters and the published UR tables the model carries and
+//!   the dynamics use.
 //! - [`pose_fields`]: a pose as the named output fields every mode writes.
 //! - [`sample`]: decoded joint and measured-pose samples, whatever their source.
 //! - [`metrics`]: deviation of one paired sample; cumulative statistics and a sliding window of
@@ -38,6 +40,7 @@ pub mod dynamics;
 pub mod fmi;
 pub mod identify;
 pub mod ik;
+pub mod inertia;
 pub mod kinematics;
 pub mod metrics;
 pub mod model;

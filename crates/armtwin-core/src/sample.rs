@@ -120,6 +120,9 @@ pub struct ControllerStatus {
 }
 
 impl ControllerStatus {
+    /// The bit of RTDE `robot_status_bits` set while the teach button is pressed.
+    pub const TEACH_BUTTON_BIT: u32 = 2;
+
     /// The arm is powered.
     #[must_use]
     pub fn power_on(&self) -> bool {
@@ -135,7 +138,7 @@ impl ControllerStatus {
     /// The teach button is held: the arm is in freedrive, moved by hand.
     #[must_use]
     pub fn freedrive(&self) -> bool {
-        self.status_bits & (1 << crate::dynamics::ControllerMode::TEACH_BUTTON_BIT) != 0
+        self.status_bits & (1 << Self::TEACH_BUTTON_BIT) != 0
     }
 }
 

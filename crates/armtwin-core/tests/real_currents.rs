@@ -12,11 +12,12 @@
     reason = "sample and contact counts far below 2⁵³"
 )]
 
+use armtwin_core::dynamics::ArmDynamics;
 use armtwin_core::dynamics::monitor::{
     DetectionSource, EffortAlarm, EffortConfig, EffortMonitor, ThresholdSource,
 };
 use armtwin_core::dynamics::payload::{PayloadIdentification, PayloadIdentifier};
-use armtwin_core::dynamics::{ArmDynamics, ur};
+use armtwin_core::inertia::ur;
 use armtwin_core::model::catalog;
 use armtwin_core::sample::{JointQuantity, JointState, Payload};
 

@@ -39,7 +39,7 @@
 pub use armtwin_codec as codec;
 // The mesh plumbing every door shares, under the module names the service's files use.
 pub use armtwin_core::{
-    align, dynamics, fmi, identify, ik, kinematics, metrics, model, orientation, pipeline,
+    align, dynamics, fmi, identify, ik, inertia, kinematics, metrics, model, orientation, pipeline,
     pose_fields, sample, self_calibration, trig,
 };
 pub use armtwin_mesh as mesh;

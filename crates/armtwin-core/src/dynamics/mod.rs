@@ -2,11 +2,12 @@
 //! velocities and accelerations (recursive Newton–Euler), gravity torques, the joint-space mass
 //! matrix, and the generalized momentum with the `C(q, q̇)ᵀ q̇` term a momentum observer needs.
 //!
-//! Owns: link inertial parameters ([`LinkInertial`], [`ArmInertials`]), the payload, the
+//! Owns: the payload, the
 //! reflected rotor inertia and friction of each joint, the gravity vector of the mounting, and
 //! the recursions over them. Must not: read files, keep caches, allocate per call, or know where
 //! the joint states come from (the service, a recording and the FMU hand them in alike). The
-//! published Universal Robots tables and drive data are in [`ur`]; the payload's identification
+//! links' inertial parameters and the published Universal Robots tables and drive data are in
+//! [`crate::inertia`]; the payload's identification
 //! from torques in [`payload`].
 //!
 //! Frames. Link i's inertial parameters are given in the DH frame of link i in the arm's
@@ -27,41 +28,17 @@
 
 pub mod monitor;
 pub mod payload;
-pub mod ur;
 
 use nalgebra::{Matrix3, SMatrix, Vector3};
 use thiserror::Error;
 
 use crate::kinematics::{DhConvention, DhParameters};
 use crate::model::ArmDescription;
+use crate::sample::ControllerStatus;
 use crate::trig;
 
 /// Standard gravity as Universal Robots' controller uses it in its torque model (m/s²).
 pub const UR_CONTROLLER_GRAVITY_M_S2: f64 = 9.82;
-
-/// One link's mass distribution, in its DH link frame (see the module doc for which frame).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LinkInertial {
-    /// Mass (kg).
-    pub mass_kg: f64,
-    /// Centre of mass (m) in the link frame.
-    pub com_link_m: [f64; 3],
-    /// Inertia tensor about the centre of mass, in the link frame's axes, as
-    /// `[Ixx, Iyy, Izz, Ixy, Ixz, Iyz]` (kg·m², the tensor's entries, not products of inertia
-    /// with flipped sign; RTDE's `payload_inertia` order).
-    pub inertia_com_kg_m2: [f64; 6],
-}
-
-/// An arm's inertial parameters: one [`LinkInertial`] and one reflected rotor inertia per joint,
-/// base to flange.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ArmInertials {
-    /// Per link, in its DH link frame.
-    pub links: Vec<LinkInertial>,
-    /// Per joint: the drive's rotor inertia seen at the joint, `J_rotor · ratio²` (kg·m²); 0 where
-    /// unknown.
-    pub reflected_rotor_inertia_kg_m2: Vec<f64>,
-}
 
 /// What a Universal Robots controller's torque model (RTDE `target_moment`) contains.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -75,9 +52,6 @@ pub enum ControllerMode {
 }
 
 impl ControllerMode {
-    /// The bit of RTDE `robot_status_bits` set while the teach button is pressed.
-    pub const TEACH_BUTTON_BIT: u32 = 2;
-
     /// The wire name: `program` or `freedrive`.
     #[must_use]
     pub fn as_str(self) -> &'static str {
@@ -90,7 +64,7 @@ impl ControllerMode {
     /// The mode RTDE's `robot_status_bits` report.
     #[must_use]
     pub fn from_robot_status_bits(bits: u32) -> Self {
-        if bits & (1 << Self::TEACH_BUTTON_BIT) == 0 {
+        if bits & (1 << ControllerStatus::TEACH_BUTTON_BIT) == 0 {
             Self::Program
         } else {
             Self::Freedrive

@@ -12,6 +12,7 @@ use std::fmt::Write as _;
 use nalgebra::{SMatrix, SVector, Vector3};
 
 use super::*;
+use crate::inertia::ur;
 use crate::kinematics::Chain;
 use crate::model::catalog;
 

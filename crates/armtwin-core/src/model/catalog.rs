@@ -6,7 +6,7 @@
 //! `α = [π/2, 0, 0, π/2, −π/2, 0]`, `a₁ = a₄ = a₅ = a₆ = 0`, `d₂ = d₃ = 0`, `θ = 0`, so an entry
 //! holds only `d₁, a₂, a₃, d₄, d₅, d₆`.
 //!
-//! Link inertial parameters, where published, are in [`crate::dynamics::ur`].
+//! Link inertial parameters, where published, are in [`crate::inertia::ur`].
 //!
 //! Joint limits are the controller's: ±360° on every joint, except the tool joint (wrist 3) of
 //! the `UR3` and `UR3e`, which turns without limit. (ROS descriptions halve the elbow to ±180° for
@@ -15,7 +15,6 @@
 use std::f64::consts::{FRAC_PI_2, TAU};
 
 use super::{ArmDescription, JointLimits, ModelError};
-use crate::dynamics;
 use crate::kinematics::{DhConvention, DhParameters};
 
 /// One catalog entry.
@@ -130,7 +129,7 @@ impl UrEntry {
                 row(0.0, 0.0, d6),
             ],
             joint_limits,
-            inertials: dynamics::ur::inertials(self.name),
+            inertials: crate::inertia::ur::inertials(self.name),
         }
     }
 }

@@ -28,7 +28,7 @@
 use serde::Deserialize;
 
 use super::{ArmDescription, JointLimits, ModelError};
-use crate::dynamics::{ArmInertials, LinkInertial};
+use crate::inertia::{ArmInertials, LinkInertial};
 use crate::kinematics::{DhConvention, DhParameters};
 
 #[derive(Debug, Deserialize)]

@@ -12,7 +12,7 @@ mod reference;
 
 use thiserror::Error;
 
-use crate::dynamics::ArmInertials;
+use crate::inertia::ArmInertials;
 use crate::kinematics::{
     Chain, DhConvention, DhParameters, KinematicsError, OutputFrame, Pose, TcpOffset,
 };

@@ -1,102 +1,74 @@
-//! The twin's effort glue: its effort monitor built from the robot's settings, stepped with each
-//! accepted joint sample (the readout to the sink, alarm changes as events), and what the
-//! monitor shows or is told through the twin. The monitoring itself is
+//! The twin's effort glue: its effort monitor built from the robot's settings and stepped with
+//! each accepted joint sample (the readout to the sink, alarm changes as event details). Must
+//! not know the twin: the twin holds the monitor and publishes the events. The monitoring itself is
 //! [`crate::dynamics::monitor`]'s.
 
-use super::twin::Twin;
-use super::{EventDetail, EventKind, PipelineConfig, Reason, Robot, Sink};
-use crate::dynamics::Payload;
-use crate::dynamics::monitor::{EffortAlarm, EffortMonitor, EffortSummary};
+use super::{EventDetail, EventKind, PipelineConfig, Robot, Sink};
+use crate::dynamics::monitor::{EffortAlarm, EffortMonitor};
 use crate::sample::{JointSample, JointState};
 
-impl Twin {
-    /// Steps the effort monitor, if the robot has one: its readout to the sink, its alarms as
-    /// events.
-    pub(super) fn step_effort(
-        &mut self,
-        key: &str,
-        stamp_s: f64,
-        sample: &JointSample,
-        sink: &mut impl Sink,
-    ) {
-        let Some(monitor) = &mut self.effort else {
-            return;
-        };
-        let empty = JointState::default();
-        let state = sample.state.as_deref().unwrap_or(&empty);
-        // At most one change per joint and one of the payload per sample.
-        let mut alarms = [None; 8];
-        let mut count = 0;
-        let readout = monitor.step(stamp_s, &sample.q_rad, state, |alarm| {
-            if let Some(slot) = alarms.get_mut(count) {
-                *slot = Some(alarm);
-                count += 1;
-            }
-        });
-        if let Some(readout) = readout {
-            sink.effort(&self.robot, &readout);
+/// Steps `monitor` with an accepted joint sample of `robot`: its readout to the sink; its alarm
+/// changes returned as events' kinds and details (at most one per joint and one of the payload),
+/// for the twin to publish as its own events.
+pub(super) fn step_effort(
+    monitor: &mut EffortMonitor,
+    robot: &Robot,
+    stamp_s: f64,
+    sample: &JointSample,
+    sink: &mut impl Sink,
+) -> [Option<(EventKind, EventDetail)>; 8] {
+    let empty = JointState::default();
+    let state = sample.state.as_deref().unwrap_or(&empty);
+    let mut alarms = [None; 8];
+    let mut count = 0;
+    let readout = monitor.step(stamp_s, &sample.q_rad, state, |alarm| {
+        if let Some(slot) = alarms.get_mut(count) {
+            *slot = Some(alarm);
+            count += 1;
         }
-        for alarm in alarms.into_iter().flatten() {
-            let (kind, detail) = match alarm {
-                EffortAlarm::Collision {
-                    joint,
+    });
+    if let Some(readout) = readout {
+        sink.effort(robot, &readout);
+    }
+    alarms.map(|alarm| {
+        let alarm = alarm?;
+        let (kind, detail) = match alarm {
+            EffortAlarm::Collision {
+                joint,
+                value_nm,
+                threshold_nm,
+                on,
+            } => (
+                on,
+                EventDetail::Collision {
+                    joint: joint + 1,
                     value_nm,
                     threshold_nm,
-                    on,
-                } => (
-                    on,
-                    EventDetail::Collision {
-                        joint: joint + 1,
-                        value_nm,
-                        threshold_nm,
-                    },
-                ),
-                EffortAlarm::Payload {
+                },
+            ),
+            EffortAlarm::Payload {
+                estimated_kg,
+                std_kg,
+                modelled_kg,
+                tolerance_kg,
+                on,
+            } => (
+                on,
+                EventDetail::Payload {
                     estimated_kg,
                     std_kg,
                     modelled_kg,
                     tolerance_kg,
-                    on,
-                } => (
-                    on,
-                    EventDetail::Payload {
-                        estimated_kg,
-                        std_kg,
-                        modelled_kg,
-                        tolerance_kg,
-                    },
-                ),
-            };
-            let kind = if kind {
-                EventKind::Alarm
-            } else {
-                EventKind::Recovered
-            };
-            sink.event(&self.event(stamp_s, kind, Some(key), detail, Reason::Effort));
-        }
-    }
-
-    /// What its effort monitor shows, if it has one.
-    #[must_use]
-    pub fn effort(&self) -> Option<EffortSummary> {
-        self.effort.as_ref().map(|monitor| monitor.summary())
-    }
-
-    /// Applies the identified payload to its effort model; `None` without an effort monitor or
-    /// an estimate.
-    pub fn apply_payload_estimate(&mut self) -> Option<Payload> {
-        self.dirty = true;
-        self.effort.as_mut()?.apply_estimate()
-    }
-
-    /// Drops an applied payload; `false` without an effort monitor.
-    pub fn discard_applied_payload(&mut self) -> bool {
-        self.dirty = true;
-        self.effort
-            .as_mut()
-            .map(|monitor| monitor.discard_applied())
-            .is_some()
-    }
+                },
+            ),
+        };
+        let kind = if kind {
+            EventKind::Alarm
+        } else {
+            EventKind::Recovered
+        };
+        Some((kind, detail))
+    })
 }
 
 /// The effort monitor `robot`'s settings ask for. The configuration checked the arm when it was

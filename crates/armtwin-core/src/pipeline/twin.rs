@@ -18,13 +18,14 @@ use std::sync::Arc;
 use nalgebra::{IsometryMatrix3, Matrix3, Rotation3, Vector3};
 
 use super::alarm::AlarmStates;
-use super::effort::effort_monitor;
+use super::effort::{effort_monitor, step_effort};
 use super::{
     Event, EventDetail, EventKind, MeasuredStream, MetricsReadout, PipelineConfig, Reason,
     RejectCause, ReplaceModelError, Robot, RobotState, Sink,
 };
 use crate::align::{self, Aligner, Bracket, Pending, UnpairedReason};
-use crate::dynamics::monitor::EffortMonitor;
+use crate::dynamics::Payload;
+use crate::dynamics::monitor::{EffortMonitor, EffortSummary};
 use crate::kinematics::{KinematicsError, OutputFrame, PoseReadout, TcpOffset};
 use crate::metrics::{CumulativeStats, Deviation, HistoryRow, WindowWithHistory};
 use crate::model::{ModelError, RobotModel};
@@ -152,6 +153,28 @@ impl Twin {
     #[must_use]
     pub fn robot(&self) -> &Robot {
         &self.robot
+    }
+
+    /// What its effort monitor shows, if it has one.
+    #[must_use]
+    pub fn effort(&self) -> Option<EffortSummary> {
+        self.effort.as_ref().map(|monitor| monitor.summary())
+    }
+
+    /// Applies the identified payload to its effort model; `None` without an effort monitor or
+    /// an estimate.
+    pub fn apply_payload_estimate(&mut self) -> Option<Payload> {
+        self.dirty = true;
+        self.effort.as_mut()?.apply_estimate()
+    }
+
+    /// Drops an applied payload; `false` without an effort monitor.
+    pub fn discard_applied_payload(&mut self) -> bool {
+        self.dirty = true;
+        self.effort
+            .as_mut()
+            .map(|monitor| monitor.discard_applied())
+            .is_some()
     }
 
     /// Rejects an input that could not be decoded (or was refused before reaching the twin):
@@ -494,7 +517,12 @@ impl Twin {
         }
         self.last_pose = Some((stamp_s, pose));
         self.last_pose_epoch = self.epoch;
-        self.step_effort(key, stamp_s, sample, sink);
+        if let Some(monitor) = &mut self.effort {
+            let alarms = step_effort(monitor, &self.robot, stamp_s, sample, sink);
+            for (kind, detail) in alarms.into_iter().flatten() {
+                sink.event(&self.event(stamp_s, kind, Some(key), detail, Reason::Effort));
+            }
+        }
         Ok(pose)
     }
 

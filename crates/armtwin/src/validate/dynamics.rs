@@ -16,7 +16,8 @@ use thiserror::Error;
 use crate::codec::recording::ColumnTable;
 pub use crate::dynamics::monitor::StateSource;
 use crate::dynamics::payload::{DEFAULT_REACH_M, PayloadIdentification, PayloadIdentifier};
-use crate::dynamics::{ArmDynamics, ControllerMode, DynamicsError, Payload, ur};
+use crate::dynamics::{ArmDynamics, ControllerMode, DynamicsError, Payload};
+use crate::inertia::ur;
 use crate::model::ArmDescription;
 
 pub use crate::dynamics::payload::AT_REST_RAD_S;

@@ -40,7 +40,8 @@ pub use types::{
 use super::payload::{
     AT_REST_RAD_S, AT_REST_RAD_S2, PayloadEstimate, PayloadIdentification, PayloadIdentifier,
 };
-use super::{ArmDynamics, ControllerMode, JointFriction, Payload, ur};
+use super::{ArmDynamics, ControllerMode, JointFriction, Payload};
+use crate::inertia::ur;
 use crate::metrics::SlicedWindow;
 use crate::model::ArmDescription;
 use crate::sample::{JointQuantity, JointState};

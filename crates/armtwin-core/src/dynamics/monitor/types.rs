@@ -14,7 +14,7 @@ pub struct EffortConfig {
     pub observer_gain_per_s: f64,
     /// Per joint, the observer output (N·m) beyond which a collision is reported; `None` to
     /// learn them from the arm's normal motion, never below the arm's rated-torque share
-    /// ([`ur::default_collision_threshold_nm`](crate::dynamics::ur::default_collision_threshold_nm)).
+    /// ([`ur::default_collision_threshold_nm`](crate::inertia::ur::default_collision_threshold_nm)).
     pub collision_threshold_nm: Option<[f64; J]>,
     /// Seconds of armed program-mode motion the thresholds are learnt from (0: the rated-torque
     /// share, unlearnt).

@@ -37,30 +37,28 @@
 //! The `armtwin` command line is the `armtwin-cli` crate, on this one.
 
 pub use armtwin_codec as codec;
+// The mesh plumbing every door shares, under the module names the service's files use.
 pub use armtwin_core::{
     align, dynamics, fmi, identify, ik, kinematics, metrics, model, orientation, pipeline,
     pose_fields, sample, self_calibration, trig,
 };
+pub use armtwin_mesh as mesh;
+pub use armtwin_mesh::{controller, ingest, keys, ros2};
 
 pub mod acl;
 pub mod calibrate;
 pub mod config;
-pub mod controller;
 pub mod dashboard;
 #[cfg(test)]
 mod file_sizes;
 pub mod fmu_package;
 pub mod gateway;
 pub mod http_access;
-pub mod ingest;
-pub mod keys;
-pub mod mesh;
 #[cfg(test)]
 mod module_graph;
 pub mod record;
 pub mod recorder;
 pub mod replay;
-pub mod ros2;
 pub mod rosbag;
 pub mod service;
 pub mod snapshot;

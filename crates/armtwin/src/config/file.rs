@@ -9,6 +9,8 @@ use std::path::PathBuf;
 use serde::Deserialize;
 
 use super::{Congestion, EventBudget, OutputEncoding, SourceStream, ZenohSection};
+use armtwin_core::metrics::DEFAULT_HISTORY_S;
+
 use crate::align::AlignConfig;
 use crate::codec::cdr::EffortMeaning;
 use crate::dynamics::monitor::EffortConfig;
@@ -38,7 +40,7 @@ pub(super) struct File {
     #[serde(default)]
     pub(super) http: HttpSection,
     #[serde(default)]
-    pub(super) recorder: super::recorder::RecorderSection,
+    pub(super) recorder: RecorderSection,
     #[serde(default)]
     pub(super) opcua: armtwin_opcua::OpcUaSection,
 }
@@ -288,4 +290,37 @@ pub(super) struct Ros2PoseSection {
     pub(super) topic: Option<String>,
     pub(super) tf_prefix: Option<String>,
     pub(super) type_hash: Option<String>,
+}
+
+/// `[recorder]` as written.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub(super) struct RecorderSection {
+    pub(super) enabled: bool,
+    pub(super) pre_s: f64,
+    pub(super) post_s: f64,
+    pub(super) gap_s: f64,
+    pub(super) dir: PathBuf,
+    pub(super) max_files: usize,
+    pub(super) max_bytes: u64,
+    pub(super) robot_bytes: usize,
+    pub(super) fleet_bytes: usize,
+    pub(super) history_s: usize,
+}
+
+impl Default for RecorderSection {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            pre_s: 10.0,
+            post_s: 5.0,
+            gap_s: 1.0,
+            dir: PathBuf::from("recordings"),
+            max_files: 1000,
+            max_bytes: 1 << 30,
+            robot_bytes: 8 << 20,
+            fleet_bytes: 1 << 30,
+            history_s: DEFAULT_HISTORY_S,
+        }
+    }
 }

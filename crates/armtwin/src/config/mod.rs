@@ -6,7 +6,8 @@
 //!
 //! A user's file is layered over the embedded default (`layers`): a key it leaves out keeps the
 //! default's value. The file's sections as written are in `file`; robots in `robots`;
-//! `[[sources]]` in `sources`; `[zenoh]` and the command line's Zenoh flags in `zenoh_section`.
+//! `[[sources]]` in `sources`; `[zenoh]` and the command line's Zenoh flags are the mesh crate's
+//! (`armtwin_mesh::zenoh_section`), read here as one section of the file.
 //! Must not open a session: the service does, with what this module checked.
 
 #[cfg(test)]
@@ -17,7 +18,8 @@ mod layers;
 mod recorder;
 mod robots;
 mod sources;
-mod zenoh_section;
+#[cfg(test)]
+mod zenoh_tests;
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
@@ -33,9 +35,6 @@ pub use self::robots::ConfiguredTools;
 use self::robots::{SharedSettings, load_pose_outputs, load_robots};
 pub use self::sources::{Ros2Source, SourceConfig, SourceRobot, SourceStream};
 use self::sources::{SourceContext, load_sources};
-pub use self::zenoh_section::{
-    Overrides, ZenohInsert, ZenohInsertError, ZenohMode, ZenohSection, without_source_location,
-};
 use crate::align::AlignConfig;
 use crate::identify::IdentifyOptions;
 use crate::keys::KeySpace;
@@ -43,6 +42,9 @@ use crate::model::ModelError;
 use crate::pipeline::{PipelineConfig, RobotSettings};
 use crate::ros2::PoseOutputs;
 use crate::self_calibration::ReservoirConfig;
+pub use armtwin_mesh::zenoh_section::{
+    Overrides, ZenohInsert, ZenohInsertError, ZenohMode, ZenohSection, without_source_location,
+};
 
 /// The embedded default configuration (`config/armtwin.toml`).
 pub const DEFAULT_CONFIG_TOML: &str = include_str!("../../../../config/armtwin.toml");

@@ -1,52 +1,15 @@
-//! `[recorder]` and each robot's `record`: the flight recorder's settings as written, and
-//! checked into [`RecorderConfig`].
+//! `[recorder]` and each robot's `record`: the flight recorder's settings checked into
+//! [`RecorderConfig`] (the section as written is `file`'s, beside the other sections).
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
-
-use serde::Deserialize;
-
-use armtwin_core::metrics::DEFAULT_HISTORY_S;
+use std::path::Path;
 
 use super::ConfigError;
-use super::file::RobotSection;
+use super::file::{RecorderSection, RobotSection};
 use crate::recorder::StoreSettings;
 
 /// Most seconds `[recorder] history_s` may ask for: a day (the ring is allocated whole).
 const MAX_HISTORY_S: usize = 86_400;
-
-/// `[recorder]` as written.
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub(super) struct RecorderSection {
-    pub(super) enabled: bool,
-    pub(super) pre_s: f64,
-    pub(super) post_s: f64,
-    pub(super) gap_s: f64,
-    pub(super) dir: PathBuf,
-    pub(super) max_files: usize,
-    pub(super) max_bytes: u64,
-    pub(super) robot_bytes: usize,
-    pub(super) fleet_bytes: usize,
-    pub(super) history_s: usize,
-}
-
-impl Default for RecorderSection {
-    fn default() -> Self {
-        Self {
-            enabled: true,
-            pre_s: 10.0,
-            post_s: 5.0,
-            gap_s: 1.0,
-            dir: PathBuf::from("recordings"),
-            max_files: 1000,
-            max_bytes: 1 << 30,
-            robot_bytes: 8 << 20,
-            fleet_bytes: 1 << 30,
-            history_s: DEFAULT_HISTORY_S,
-        }
-    }
-}
 
 /// The flight recorder's settings, checked.
 #[derive(Debug, Clone, PartialEq)]

@@ -15,7 +15,6 @@ use zenoh::key_expr::KeyExpr;
 
 use super::ConfigError;
 use super::file::{RobotSection, Ros2PoseSection};
-use super::zenoh_section::without_source_location;
 use crate::dynamics::Payload;
 use crate::dynamics::monitor::{EffortConfig, EffortMonitor};
 use crate::keys::{self, KeySpace};
@@ -25,6 +24,7 @@ use crate::orientation;
 use crate::pipeline::{AlarmConfig, RobotSettings, SensorStream};
 use crate::ros2::{self, PoseOutput, PoseOutputs};
 use crate::self_calibration::ReservoirConfig;
+use armtwin_mesh::zenoh_section::without_source_location;
 
 /// What every robot's settings start from: the sections shared by all robots.
 pub(super) struct SharedSettings {

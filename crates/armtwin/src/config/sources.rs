@@ -11,12 +11,12 @@ use zenoh::key_expr::KeyExpr;
 
 use super::ConfigError;
 use super::file::{RobotFromKey, SourceSection};
-use super::zenoh_section::without_source_location;
 use crate::codec::cdr::{EffortMeaning, JointNames};
 use crate::ingest::SourceCodec;
 use crate::keys::{self, KeySpace};
 use crate::pipeline::RobotSettings;
 use crate::ros2::{self, KeyScheme, NamespaceRule, PoseOutputs};
+use armtwin_mesh::zenoh_section::without_source_location;
 
 /// Which stream of its robot a source feeds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]

@@ -1,7 +1,7 @@
 //! ROS 2 robots on Zenoh as they publish: the key layouts of `rmw_zenoh` and of
 //! `zenoh-bridge-ros2dds`, the robot id a key names (its ROS namespace), and the key and
 //! publisher gid of the twin pose armtwin publishes for ROS tools. `rmw_zenoh`'s sample
-//! attachment is a codec's ([`crate::codec::ros2_attachment`], re-exported here).
+//! attachment is a codec's ([`armtwin_codec::ros2_attachment`], re-exported here).
 //!
 //! Key layouts (checked against `ros2/rmw_zenoh` `docs/design.md` and
 //! `eclipse-zenoh/zenoh-plugin-ros2dds` `src/ros2_utils.rs`):
@@ -11,17 +11,17 @@
 //! - the bridge: `<namespace…>/<topic…>` (its own `namespace` setting, if any, first), e.g.
 //!   `ur/joint_states`.
 //!
-//! Payloads are CDR either way ([`crate::codec::cdr`]); only `rmw_zenoh` attaches
+//! Payloads are CDR either way ([`armtwin_codec::cdr`]); only `rmw_zenoh` attaches
 //! `(i64 sequence number, i64 source timestamp ns, gid)` to each sample. Pure: strings and
 //! bytes in, values out; the service does the I/O.
 
 use serde::Deserialize;
 use thiserror::Error;
 
-pub use crate::codec::ros2_attachment::{
+use crate::keys;
+pub use armtwin_codec::ros2_attachment::{
     Attachment, AttachmentError, MAX_GID_BYTES, PublisherSeq, encode_attachment,
 };
-use crate::keys;
 
 /// The DDS type name `rmw_zenoh` puts in the key of `sensor_msgs/msg/JointState`.
 pub const JOINT_STATE_DDS_TYPE: &str = "sensor_msgs::msg::dds_::JointState_";

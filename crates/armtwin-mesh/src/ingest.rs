@@ -1,6 +1,6 @@
 //! A gateway message's transport into its codec: which decoder a Zenoh sample's encoding selects.
-//! Decoding and stepping the twin are the codec crate's ([`crate::codec::decoded`],
-//! [`crate::codec::gateway`], re-exported here for the callers that feed the pipeline: the
+//! Decoding and stepping the twin are the codec crate's ([`armtwin_codec::decoded`],
+//! [`armtwin_codec::gateway`], re-exported here for the callers that feed the pipeline: the
 //! service, `validate` and the benchmarks).
 //!
 //! Must not decode anything itself, nor know the filesystem: a Zenoh `Encoding` is a value, so
@@ -11,10 +11,10 @@ use std::sync::LazyLock;
 
 use zenoh::bytes::Encoding;
 
-pub use crate::codec::gateway::{
+pub use armtwin_codec::gateway::{
     Codec, SourceCodec, joint_message, measured_message, untracked_robot,
 };
-use crate::codec::zser;
+use armtwin_codec::zser;
 
 /// `zenoh/serialized;armtwin/joints/v1`, built once: comparing with it needs no allocation.
 static JOINTS_ENCODING: LazyLock<Encoding> =
@@ -51,7 +51,7 @@ pub fn codec_of(encoding: &Encoding) -> Codec {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::codec::zser::Schema;
+    use armtwin_codec::zser::Schema;
 
     #[test]
     fn the_encoding_selects_the_codec() {

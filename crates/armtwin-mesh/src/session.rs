@@ -9,7 +9,7 @@ use std::time::Duration;
 use thiserror::Error;
 use tracing::warn;
 
-use crate::config::{ZenohSection, without_source_location};
+use crate::zenoh_section::{ZenohSection, without_source_location};
 
 /// How long each teardown step may take.
 pub const TEARDOWN_STEP: Duration = Duration::from_secs(5);

@@ -2,8 +2,8 @@
 //! session (the router's own, or a client's with an identity, as [`crate::rest`] decides), and
 //! every request is bounded before it reaches Zenoh.
 //!
-//! Why not `zenoh-plugin-rest`: 1.10.2 reads a request body whole whatever its size (a 256 MiB
-//! `PUT` grew the router by 243 MiB), answers every origin with `Access-Control-Allow-Origin: *`,
+//! Why not `zenoh-plugin-rest`: 1.10.2 reads a request body whole whatever its size (the router
+//! grows by the body; `tests/python/test_rest_bounds.py` measures it), answers every origin with `Access-Control-Allow-Origin: *`,
 //! and turns any `GET` into a Zenoh query, so a link in a web page (`GET
 //! /twin/admin/reset/r1`) resets a twin. None of it is configurable and its router is private,
 //! so it cannot be bounded from inside; a bounded proxy in front of it would leave the plugin's
@@ -24,7 +24,7 @@
 //!   refused. armtwin changes a twin only for a query within `<prefix>/admin/<change>/**`, so a
 //!   change can only be asked with that chunk spelled out; queries are what a browser sends
 //!   from any page without asking (a link, an image, a form), so REST never carries them.
-//!   Changes stay on Zenoh, where access control and armtwin's `[service] admin` rule them.
+//!   Changes stay on Zenoh, where the router's access control rules them.
 //!
 //! Must not know armtwin's keys beyond the `admin` chunk, nor decide where REST runs.
 
@@ -344,12 +344,7 @@ async fn query(
         let item = match reply.result() {
             Ok(sample) => {
                 answer_bytes += sample.payload().len();
-                json_sample(
-                    sample.key_expr().as_str(),
-                    sample.payload(),
-                    sample.encoding(),
-                    sample,
-                )
+                json_sample(sample)
             }
             Err(e) => {
                 answer_bytes += e.payload().len();
@@ -383,16 +378,11 @@ fn json_response(value: &serde_json::Value) -> Response {
     response
 }
 
-fn json_sample(
-    key: &str,
-    payload: &ZBytes,
-    encoding: &Encoding,
-    sample: &Sample,
-) -> serde_json::Value {
+fn json_sample(sample: &Sample) -> serde_json::Value {
     serde_json::json!({
-        "key": key,
-        "value": json_value(payload, encoding),
-        "encoding": encoding.to_string(),
+        "key": sample.key_expr().as_str(),
+        "value": json_value(sample.payload(), sample.encoding()),
+        "encoding": sample.encoding().to_string(),
         "timestamp": sample.timestamp().map(ToString::to_string),
     })
 }
@@ -442,12 +432,7 @@ async fn subscribe(session: &Session, key_expr: KeyExpr<'static>) -> Response {
         (receiver, subscriber),
         |(mut receiver, subscriber)| async move {
             let sample = receiver.recv().await?;
-            let data = json_sample(
-                sample.key_expr().as_str(),
-                sample.payload(),
-                sample.encoding(),
-                &sample,
-            );
+            let data = json_sample(&sample);
             let event = Event::default()
                 .event(sample.kind().to_string())
                 .data(data.to_string());

@@ -49,7 +49,7 @@ def shard_config(service: dict) -> tuple[Path, dict]:
 
 LOOPBACK_HOSTS = ("127.0.0.1", "[::1]", "localhost")
 # Every file that ships a way to publish the image's ports.
-SHIPPED_RUNS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md")), *sorted(p for p in DOCKER.iterdir() if p.is_file())]
+SHIPPED_RUNS = [REPO / "README.md", *sorted((REPO / "docs").rglob("*.md")), *sorted(p for p in DOCKER.iterdir() if p.is_file())]
 
 
 def secured(command: list[str]) -> bool:

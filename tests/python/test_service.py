@@ -144,7 +144,7 @@ def test_fmpy_inputs_stream(twin):
 
     ref = reference_deviations(q, meas)
     stats = reference_stats(ref)
-    metrics, how = final_metrics(twin, robot, lambda m: m.get("paired") == n)
+    metrics, how = final_metrics(twin, robot, lambda m: m.get("paired") == n and m.get("t") == t[-1])
     check_metrics(checks, metrics, robot, n, 0, stats, f"fmpy ({how} metrics)", t=t[-1])
 
     p, qd = stats["position"], stats["quat_distance"]
@@ -223,7 +223,9 @@ def test_lasttest_naive_gateway(twin):
 
     stats = reference_stats(reference_deviations(q_good, meas_good))
     metrics, how = final_metrics(
-        twin, robot, lambda m: m.get("paired") == len(good) and m.get("rejected") == 7
+        twin,
+        robot,
+        lambda m: m.get("paired") == len(good) and m.get("rejected") == 7 and m.get("t") == t[-1],
     )
     check_metrics(checks, metrics, robot, len(good), 7, stats, f"lasttest ({how} metrics)", t=t[-1])
     p, qd = stats["position"], stats["quat_distance"]
@@ -298,7 +300,13 @@ def test_bad_input_interleaved(twin):
         [e.get("kind") for e in events if e.get("kind") != "rejected"], [], "bad input: other events"
     )
     metrics, how = final_metrics(
-        twin, robot, lambda m: m.get("rejected") == len(want_rejects) and m.get("paired") == 1
+        twin,
+        robot,
+        # Every field at its final value: a periodic message can fall between the last rejection
+        # and the last pose, so counts alone may still be one sample behind.
+        lambda m: m.get("rejected") == len(want_rejects)
+        and m.get("paired") == 1
+        and m.get("t") == max(want_poses),
     )
     if checks.true(metrics is not None, "bad input: no metrics"):
         checks.equal(metrics.get("rejected"), len(want_rejects), f"bad input: metrics rejected ({how})")

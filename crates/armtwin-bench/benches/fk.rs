@@ -10,10 +10,10 @@
 )]
 use std::hint::black_box;
 
-use armtwin::model::RobotModel;
-use armtwin::orientation::{quaternion_from_matrix, rpy_from_matrix};
-use armtwin::trig;
 use armtwin_bench::fk_fixture::{Q, calibrated_ur10e};
+use armtwin_core::model::RobotModel;
+use armtwin_core::orientation::{quaternion_from_matrix, rpy_from_matrix};
+use armtwin_core::trig;
 use criterion::{Criterion, criterion_group, criterion_main};
 
 fn fk(c: &mut Criterion) {

@@ -16,15 +16,15 @@
 use std::hint::black_box;
 use std::time::{Duration, Instant};
 
-use armtwin::codec::{PoseFields, cdr, json, zser};
-use armtwin::kinematics::OutputFrame;
-use armtwin::metrics::Deviation;
-use armtwin::model::RobotModel;
-use armtwin::pipeline::{Discard, Sink};
-use armtwin::ros2;
 use armtwin_bench::fleet::robot_id;
 use armtwin_bench::ingest_fixture::{Encode, Load, RENDERED};
 use armtwin_bench::workload::Workload;
+use armtwin_codec::{PoseFields, cdr, json, zser};
+use armtwin_core::kinematics::OutputFrame;
+use armtwin_core::metrics::Deviation;
+use armtwin_core::model::RobotModel;
+use armtwin_core::pipeline::{Discard, Sink};
+use armtwin_mesh::ros2;
 use criterion::{Criterion, criterion_group, criterion_main};
 use zenoh::bytes::ZBytes;
 

@@ -20,15 +20,15 @@
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicIsize, AtomicUsize, Ordering};
 
-use armtwin::align::Aligner;
-use armtwin::ingest::{self, Codec};
-use armtwin::keys::Stream;
-use armtwin::kinematics::PoseReadout;
-use armtwin::metrics::{CumulativeStats, Deviation, WindowStats};
-use armtwin::model::RobotModel;
-use armtwin::pipeline::{Discard, MeasuredStream, Pipeline, PipelineConfig, RobotDirectory};
 use armtwin_bench::fleet::{parsed_service_config, robot_id};
 use armtwin_bench::net;
+use armtwin_core::align::Aligner;
+use armtwin_core::kinematics::PoseReadout;
+use armtwin_core::metrics::{CumulativeStats, Deviation, WindowStats};
+use armtwin_core::model::RobotModel;
+use armtwin_core::pipeline::{Discard, MeasuredStream, Pipeline, PipelineConfig, RobotDirectory};
+use armtwin_mesh::ingest::{self, Codec};
+use armtwin_mesh::keys::Stream;
 
 /// `System`, counting the bytes live and the allocations made.
 struct Counting;

@@ -11,10 +11,10 @@
 use std::hint::black_box;
 use std::time::Instant;
 
-use armtwin::model::RobotModel;
-use armtwin::orientation::{quaternion_from_matrix, rpy_from_matrix};
-use armtwin::trig;
 use armtwin_bench::fk_fixture::{Q, calibrated_ur10e};
+use armtwin_core::model::RobotModel;
+use armtwin_core::orientation::{quaternion_from_matrix, rpy_from_matrix};
+use armtwin_core::trig;
 
 /// Prints the fastest per-call time of `f` (ns).
 fn time<R>(name: &str, mut f: impl FnMut() -> R) {

@@ -18,11 +18,11 @@
 
 use std::time::Instant;
 
-use armtwin::codec::json::{self, DecodedJoints};
-use armtwin::ingest::Codec;
-use armtwin::pipeline::{Discard, MeasuredStream, Pipeline, Robot};
-use armtwin::sample::MeasuredSample;
 use armtwin_bench::ingest_fixture::{Load, RENDERED, RobotKeys, Twin, feed};
+use armtwin_codec::json::{self, DecodedJoints};
+use armtwin_core::pipeline::{Discard, MeasuredStream, Pipeline, Robot};
+use armtwin_core::sample::MeasuredSample;
+use armtwin_mesh::ingest::Codec;
 
 /// How the samples enter the pipeline.
 #[derive(Clone, Copy, PartialEq)]

@@ -17,9 +17,9 @@ use std::collections::HashMap;
 use std::io::{Read, Write};
 use std::sync::{Arc, PoisonError, RwLock};
 
-use armtwin::keys::Stream;
-use armtwin::mesh::MeshError;
 use armtwin_cli::flags::ZenohArgs;
+use armtwin_mesh::MeshError;
+use armtwin_mesh::keys::Stream;
 use clap::Args;
 use thiserror::Error;
 use zenoh::Wait;

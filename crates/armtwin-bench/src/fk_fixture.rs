@@ -5,8 +5,8 @@
     reason = "the fixtures are the checkout's own constants and example files"
 )]
 
-use armtwin::kinematics::{OutputFrame, TcpOffset};
-use armtwin::model::{Calibration, RobotModel, catalog};
+use armtwin_core::kinematics::{OutputFrame, TcpOffset};
+use armtwin_core::model::{Calibration, RobotModel, catalog};
 
 /// The joint angles every FK benchmark evaluates (rad).
 pub const Q: [f64; 6] = [-0.693, -0.833, 0.951, 1.149, 1.515, 1.739];

@@ -5,7 +5,7 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use armtwin::config::{ConfigError, Overrides, ServiceConfig};
+use armtwin_service::config::{ConfigError, Overrides, ServiceConfig};
 
 /// The id of robot `index`: two key chunks, as a fleet's `site/robot` ids are.
 #[must_use]

@@ -9,13 +9,13 @@
 
 use std::hint::black_box;
 
-use armtwin::codec::{PoseFields, json, zser};
-use armtwin::ingest::{self, Codec};
-use armtwin::kinematics::{OutputFrame, PoseReadout};
-use armtwin::metrics::Deviation;
-use armtwin::pipeline::{
+use armtwin_codec::{PoseFields, json, zser};
+use armtwin_core::kinematics::{OutputFrame, PoseReadout};
+use armtwin_core::metrics::Deviation;
+use armtwin_core::pipeline::{
     Event, MeasuredStream, MetricsReadout, Pipeline, Robot, RobotDirectory, Sink,
 };
+use armtwin_mesh::ingest::{self, Codec};
 
 use crate::fleet::{parsed_service_config, robot_id};
 use crate::net;

@@ -6,10 +6,10 @@
 
 use std::sync::LazyLock;
 
-use armtwin::config::ZenohSection;
-use armtwin::keys::{KeySpace, Stream};
-use armtwin::mesh::{MeshError, aggregate_publishers, zenoh_config_of};
 use armtwin_cli::flags::ZenohArgs;
+use armtwin_mesh::keys::{KeySpace, Stream};
+use armtwin_mesh::zenoh_section::ZenohSection;
+use armtwin_mesh::{MeshError, aggregate_publishers, zenoh_config_of};
 
 /// Joint samples, gateway → twin.
 pub const JOINTS: Stream = Stream::Joints;

@@ -8,8 +8,8 @@
 
 use std::fmt::Write as _;
 
-use armtwin::kinematics::KinematicsError;
-use armtwin::model::{ModelError, RobotModel};
+use armtwin_core::kinematics::KinematicsError;
+use armtwin_core::model::{ModelError, RobotModel};
 use thiserror::Error;
 
 /// Joint configurations the samples cycle through.
@@ -127,7 +127,7 @@ impl Workload {
     #[must_use]
     pub fn joints_zser(&self, sample: u64, stamp_s: f64, seq: u64, embedded: bool) -> Vec<u8> {
         let configuration = self.configuration(sample);
-        armtwin::codec::zser::joints_bytes(
+        armtwin_codec::zser::joints_bytes(
             stamp_s,
             &configuration.q_rad,
             seq,
@@ -168,7 +168,7 @@ fn push_f64s(bytes: &mut Vec<u8>, values: &[f64]) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use armtwin::codec::{json, zser};
+    use armtwin_codec::{json, zser};
 
     #[test]
     fn messages_decode_as_the_contract_says() {

@@ -18,10 +18,10 @@
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 
-use armtwin::codec::zser;
-use armtwin::ingest::Codec;
 use armtwin_bench::ingest_fixture::{Encode, Load, RobotKeys, feed};
 use armtwin_bench::workload::Workload;
+use armtwin_codec::zser;
+use armtwin_mesh::ingest::Codec;
 
 thread_local! {
     /// Allocations (and reallocations) made by this thread.

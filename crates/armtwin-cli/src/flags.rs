@@ -6,8 +6,8 @@
 
 use std::path::PathBuf;
 
-use armtwin::config::{Overrides, ZenohInsert, ZenohMode};
-use armtwin::kinematics::{OutputFrame, TcpOffset};
+use armtwin_core::kinematics::{OutputFrame, TcpOffset};
+use armtwin_service::config::{Overrides, ZenohInsert, ZenohMode};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
 /// armtwin: live digital twin for robot arms.
@@ -127,17 +127,17 @@ pub struct RtdeArgs {
     #[arg(long, required_unless_present = "config", conflicts_with = "config")]
     pub host: Option<String>,
     /// The controller's RTDE port.
-    #[arg(long, default_value_t = armtwin::codec::rtde::DEFAULT_PORT)]
+    #[arg(long, default_value_t = armtwin_codec::rtde::DEFAULT_PORT)]
     pub port: u16,
     /// The controller's dashboard server port, read for its model and serial number (another
     /// one for a controller behind NAT).
-    #[arg(long, default_value_t = armtwin::gateway::dashboard::DEFAULT_PORT)]
+    #[arg(long, default_value_t = armtwin_gateway::dashboard::DEFAULT_PORT)]
     pub dashboard_port: u16,
     /// Robot id to publish as (may span several key chunks, e.g. plant-a/cell-3/ur10e-07).
     #[arg(long, required_unless_present = "config", conflicts_with = "config")]
     pub robot: Option<String>,
     /// Output frequency to ask the controller for (Hz; e-Series up to 500, CB3 up to 125).
-    #[arg(long, value_name = "HZ", default_value_t = armtwin::gateway::DEFAULT_FREQUENCY_HZ)]
+    #[arg(long, value_name = "HZ", default_value_t = armtwin_gateway::DEFAULT_FREQUENCY_HZ)]
     pub frequency: f64,
     /// Also write every data package to this CSV (`ur_rtde`'s form: `armtwin validate` reads it).
     #[arg(long, value_name = "FILE", conflicts_with = "config")]
@@ -148,7 +148,7 @@ pub struct RtdeArgs {
     pub config: Option<PathBuf>,
     /// The key prefix of the service to feed: its `[service] key_prefix` (keys
     /// `<prefix>/joints/<robot>`, …).
-    #[arg(long, default_value = armtwin::keys::DEFAULT_PREFIX)]
+    #[arg(long, default_value = armtwin_mesh::keys::DEFAULT_PREFIX)]
     pub prefix: String,
     /// How to join the mesh; without flags, as `armtwin replay` (a peer connecting to where a
     /// default `armtwin serve` listens).
@@ -278,7 +278,7 @@ pub struct ReplayArgs {
     pub max_rate: bool,
     /// The key prefix of the service to feed: its `[service] key_prefix` (keys
     /// `<prefix>/joints/<robot>`, …).
-    #[arg(long, default_value = armtwin::keys::DEFAULT_PREFIX)]
+    #[arg(long, default_value = armtwin_mesh::keys::DEFAULT_PREFIX)]
     pub prefix: String,
     /// How to join the mesh; without flags, as the default `armtwin serve` configuration says
     /// (a peer, multicast scouting off), connecting to where it listens (tcp/127.0.0.1:7447).
@@ -309,7 +309,7 @@ pub struct RecordArgs {
     #[arg(long, value_name = "MESSAGES", default_value_t = 65_536)]
     pub queue: usize,
     /// The key prefix of the streams: the service's `[service] key_prefix`.
-    #[arg(long, default_value = armtwin::keys::DEFAULT_PREFIX)]
+    #[arg(long, default_value = armtwin_mesh::keys::DEFAULT_PREFIX)]
     pub prefix: String,
     /// How to join the mesh; without flags, as a client of the default `armtwin serve` (multicast
     /// scouting off, connecting to tcp/127.0.0.1:7447), which routes every robot's streams to it.
@@ -378,7 +378,7 @@ pub struct ServeArgs {
 
 /// How a command joins the Zenoh mesh, in Zenoh's own style (as `zenohd`): the same flags, with
 /// the same meaning, for every command that opens a session. Each flag overrides the command's
-/// `[zenoh]` settings ([`armtwin::config::ZenohSection::overridden`]); what is not given stays as they say.
+/// `[zenoh]` settings ([`armtwin_mesh::zenoh_section::ZenohSection::overridden`]); what is not given stays as they say.
 #[derive(Debug, Clone, Default, Args)]
 pub struct ZenohArgs {
     /// Zenoh mode [default: the configuration's, peer].

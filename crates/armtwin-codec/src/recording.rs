@@ -30,7 +30,7 @@ pub enum Format {
     Rtde,
     /// Columns named on the command line ([`ColumnMap`]).
     Mapped,
-    /// A rosbag2 recording of `JointState` and `PoseStamped` topics (read by `armtwin::rosbag`).
+    /// A rosbag2 recording of `JointState` and `PoseStamped` topics (read by `armtwin_offline::rosbag`).
     Rosbag2,
 }
 

@@ -4,7 +4,7 @@
 //! publishes; and a robot's publisher sequence numbers as its gateway `seq`.
 //!
 //! Pure: bytes in, values out. The key layouts these samples arrive on are the service's
-//! (`armtwin::ros2`).
+//! (`armtwin_mesh::ros2`).
 
 use armtwin_core::pipeline::RejectCause;
 use thiserror::Error;

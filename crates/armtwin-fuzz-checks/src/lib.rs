@@ -27,15 +27,12 @@ pub mod rtde;
 pub mod snapshot;
 pub mod zser;
 
-// The service's snapshot file, compiled from its source beside the core modules it names as
-// `crate::…`: depending on the service's crate would bring zenoh, tokio and SQLite into the
-// instrumented fuzz build for one pure function.
+// The service's snapshot file, compiled from its source (it names only the core): depending on
+// the service's crate would bring zenoh and tokio into the instrumented fuzz build for one pure
+// function.
 #[allow(dead_code, unused_imports, clippy::pedantic)]
-#[path = "../../armtwin/src/snapshot.rs"]
+#[path = "../../armtwin-service/src/snapshot.rs"]
 mod snapshot_file;
-
-// The paths `snapshot.rs` imports through its own crate's root.
-use armtwin_core::{kinematics, metrics, model, pipeline};
 
 /// One decoder's checks on one input; panics on a broken invariant.
 pub type Check = fn(&[u8]);

@@ -52,9 +52,9 @@ use std::sync::{Arc, Mutex, OnceLock};
 use std::thread;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use armtwin::keys::Stream;
-use armtwin::mesh::MeshError;
 use armtwin_cli::flags::ZenohArgs;
+use armtwin_mesh::MeshError;
+use armtwin_mesh::keys::Stream;
 use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;

@@ -4,8 +4,8 @@
 use std::thread;
 use std::time::{Duration, Instant};
 
-use armtwin::codec::zser;
-use armtwin::keys::Stream;
+use armtwin_codec::zser;
+use armtwin_mesh::keys::Stream;
 use zenoh::Wait;
 use zenoh::bytes::Encoding;
 use zenoh::key_expr::KeyExpr;

@@ -464,7 +464,7 @@ pub fn run(args: &RunArgs) -> Result<Report> {
 mod tests {
     use std::path::Path;
 
-    use armtwin::config::{Overrides, ServiceConfig};
+    use armtwin_service::config::{Overrides, ServiceConfig};
 
     use super::trials::with_config_extra;
     use crate::net;

@@ -5,7 +5,7 @@
 
 use std::fmt::Write as _;
 
-use armtwin::validate::svg::{Series, line_chart};
+use armtwin_offline::validate::svg::{Series, line_chart};
 use serde::Serialize;
 
 use super::Settings;

@@ -6,7 +6,7 @@
 use std::io::{self, Write};
 
 use anyhow::{Context, Result};
-use armtwin::acl::{self, Fleet};
+use armtwin_access::acl::{self, Fleet};
 
 use super::read_text;
 use crate::flags::AclArgs;

@@ -7,10 +7,10 @@
 use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
-use armtwin::config::{Overrides, ServiceConfig};
-use armtwin::model::RobotModel;
-use armtwin::pipeline::RobotSettings;
-use armtwin::validate;
+use armtwin_core::model::RobotModel;
+use armtwin_core::pipeline::RobotSettings;
+use armtwin_offline::validate;
+use armtwin_service::config::{Overrides, ServiceConfig};
 
 use crate::flags::CalibrateArgs;
 
@@ -33,20 +33,20 @@ pub(super) fn run(args: &CalibrateArgs) -> Result<()> {
     }
     let settings = RobotSettings {
         model: Arc::clone(&model),
-        alarm: armtwin::pipeline::AlarmConfig::default(),
+        alarm: armtwin_core::pipeline::AlarmConfig::default(),
         sensors: Vec::new(),
         self_calibration: None,
         effort: None,
     };
     let validation = validate::validate(&recording, &times, config.pipeline, settings, |_| {});
-    let (samples, lines) = armtwin::calibrate::paired_samples(&recording, &validation);
-    let split = armtwin::identify::holdout_start(samples.len(), args.holdout);
-    let options = armtwin::identify::IdentifyOptions {
+    let (samples, lines) = armtwin_offline::calibrate::paired_samples(&recording, &validation);
+    let split = armtwin_core::identify::holdout_start(samples.len(), args.holdout);
+    let options = armtwin_core::identify::IdentifyOptions {
         fit_tool: args.fit_tcp,
         orientation_weight_m_per_rad: args.orientation_weight,
-        ..armtwin::identify::IdentifyOptions::default()
+        ..armtwin_core::identify::IdentifyOptions::default()
     };
-    let fit = armtwin::identify::identify(
+    let fit = armtwin_core::identify::identify(
         model.arm(),
         model.frame(),
         model.tool(),
@@ -66,15 +66,15 @@ pub(super) fn run(args: &CalibrateArgs) -> Result<()> {
             .collect()
     };
     let recording_name = args.input.recording.display().to_string();
-    let report = armtwin::calibrate::report(
+    let report = armtwin_offline::calibrate::report(
         &recording_name,
         &model.arm().name,
         &fit,
         split,
         lines.get(split).copied(),
-        armtwin::identify::pose_errors(&model, held_out),
-        armtwin::identify::pose_errors(&identified, held_out),
-        armtwin::identify::pose_errors(&identified, &samples[..split]),
+        armtwin_core::identify::pose_errors(&model, held_out),
+        armtwin_core::identify::pose_errors(&identified, held_out),
+        armtwin_core::identify::pose_errors(&identified, &samples[..split]),
     );
     let comment = format!(
         "Identified by armtwin calibrate from {recording_name} ({} rows fitted, {} held out).\nTool [x, y, z, rx, ry, rz] = {:?}",
@@ -85,10 +85,10 @@ pub(super) fn run(args: &CalibrateArgs) -> Result<()> {
     let files = [
         ("calibration.conf", fit.deltas.to_conf_text(&comment)),
         ("report.json", serde_json::to_string_pretty(&report)? + "\n"),
-        ("report.md", armtwin::calibrate::report_md(&report)),
+        ("report.md", armtwin_offline::calibrate::report_md(&report)),
         (
             "held_out_error.svg",
-            armtwin::calibrate::held_out_plot(
+            armtwin_offline::calibrate::held_out_plot(
                 &lines[split..],
                 &per_row(&model),
                 &per_row(&identified),

@@ -5,7 +5,7 @@
 use std::io::Write;
 
 use anyhow::{Context, Result};
-use armtwin::config::effective_toml;
+use armtwin_service::config::effective_toml;
 
 use crate::flags::ConfigShowArgs;
 

@@ -8,9 +8,9 @@ use std::io::{self, BufReader, BufWriter, Read, Write};
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
-use armtwin::codec::PoseFields;
-use armtwin::codec::joint_csv::{JointCsvReader, PoseCsvWriter};
-use armtwin::model::RobotModel;
+use armtwin_codec::PoseFields;
+use armtwin_codec::joint_csv::{JointCsvReader, PoseCsvWriter};
+use armtwin_core::model::RobotModel;
 use serde::Serialize;
 
 use crate::flags::FkArgs;

@@ -4,8 +4,8 @@
 //! library's `fmu_package` does).
 
 use anyhow::{Context, Result};
-use armtwin::fmi::FmuSettings;
-use armtwin::fmu_package::{self, FmuContents, FmuPackageError};
+use armtwin_core::fmi::FmuSettings;
+use armtwin_offline::fmu_package::{self, FmuContents, FmuPackageError};
 
 use super::read_text;
 use crate::flags::FmuBuildArgs;

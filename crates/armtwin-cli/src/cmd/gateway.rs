@@ -1,12 +1,12 @@
 //! `armtwin gateway rtde`: one controller from the flags, or a fleet file, streamed until Ctrl-C
 //! or SIGTERM.
 //!
-//! Owns the flags' checks and the runtime; must not speak RTDE or publish (the library's
-//! `gateway` does).
+//! Owns the flags' checks and the runtime; must not speak RTDE or publish (`armtwin-gateway`
+//! does).
 
 use anyhow::{Context, Result, bail};
-use armtwin::config::ZenohSection;
-use armtwin::gateway::{self, ControllerSettings, GatewaySettings};
+use armtwin_gateway::{self as gateway, ControllerSettings, GatewaySettings};
+use armtwin_mesh::zenoh_section::ZenohSection;
 
 use super::{read_text, shutdown_signal};
 use crate::flags::RtdeArgs;

@@ -6,7 +6,7 @@
 use std::io::{self, Write};
 
 use anyhow::Result;
-use armtwin::http_access::new_token;
+use armtwin_access::http_access::new_token;
 
 use crate::flags::HttpTokenArgs;
 

@@ -6,14 +6,14 @@
 use std::io::{self, Write};
 
 use anyhow::{Context, Result};
-use armtwin::codec::ik::{IkAnswerJson, IkRequest};
+use armtwin_codec::ik::{IkAnswerJson, IkRequest};
 
 use crate::flags::IkArgs;
 
 pub(super) fn run(args: &IkArgs) -> Result<()> {
     let model = args.robot.load()?;
     let request = IkRequest::new(&args.pose, args.seed.clone()).context("--pose")?;
-    let answer = armtwin::ik::solve(&model, &request.target, request.seed())?;
+    let answer = armtwin_core::ik::solve(&model, &request.target, request.seed())?;
     let output = IkAnswerJson::from(&answer);
     let stdout = io::stdout();
     let mut out = stdout.lock();

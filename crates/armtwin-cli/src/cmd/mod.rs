@@ -28,10 +28,10 @@ pub use validate::{EXIT_GATE_FAILED, GateFailed};
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
-use armtwin::codec::recording::{self, ColumnMap, PoseForm, Recording};
-use armtwin::kinematics::TcpOffset;
-use armtwin::model::{Calibration, ModelRef, RobotModel, catalog, custom};
-use armtwin::rosbag::{self, BagOptions, BagTopics};
+use armtwin_codec::recording::{self, ColumnMap, PoseForm, Recording};
+use armtwin_core::kinematics::TcpOffset;
+use armtwin_core::model::{Calibration, ModelRef, RobotModel, catalog, custom};
+use armtwin_offline::rosbag::{self, BagOptions, BagTopics};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::flags::{

@@ -5,7 +5,7 @@
 use std::io::{self, Write};
 
 use anyhow::Result;
-use armtwin::model::catalog;
+use armtwin_core::model::catalog;
 use serde::Serialize;
 
 use crate::flags::ModelsArgs;

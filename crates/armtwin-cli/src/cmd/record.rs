@@ -7,8 +7,8 @@ use std::fmt::Write as _;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
-use armtwin::config::{ZenohMode, ZenohSection};
-use armtwin::record::{self, Progress, RecordOutput, RecordSettings};
+use armtwin_mesh::zenoh_section::{ZenohMode, ZenohSection};
+use armtwin_offline::record::{self, Progress, RecordOutput, RecordSettings};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::shutdown_signal;

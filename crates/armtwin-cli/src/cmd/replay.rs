@@ -4,8 +4,8 @@
 //! `replay` does).
 
 use anyhow::{Context, Result, bail};
-use armtwin::config::ZenohSection;
-use armtwin::replay::{self, ReplaySettings};
+use armtwin_mesh::zenoh_section::ZenohSection;
+use armtwin_offline::replay::{self, ReplaySettings};
 
 use super::{progress_bar, shutdown_signal};
 use crate::flags::ReplayArgs;

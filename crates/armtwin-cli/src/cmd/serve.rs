@@ -4,8 +4,8 @@
 //! Owns the runtime and the shutdown signal's wiring; must not hold service logic.
 
 use anyhow::{Context, Result};
-use armtwin::config::{Overrides, ServiceConfig};
-use armtwin::service;
+use armtwin_service::config::{Overrides, ServiceConfig};
+use armtwin_service::service;
 
 use super::shutdown_signal;
 use crate::flags::ServeArgs;
@@ -31,7 +31,8 @@ pub(super) fn run(args: &ServeArgs) -> Result<()> {
         .build()
         .context("cannot start the async runtime")?;
     runtime.block_on(async {
-        service::serve(config, shutdown_signal()).await?;
+        let http = armtwin_dashboard::DashboardDoor::new(config.http_access.clone());
+        service::serve(config, Some(Box::new(http)), shutdown_signal()).await?;
         Ok(())
     })
 }

@@ -8,17 +8,17 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
-use armtwin::config::{Overrides, ServiceConfig};
-use armtwin::pipeline::RobotSettings;
-use armtwin::validate;
+use armtwin_core::pipeline::RobotSettings;
+use armtwin_offline::validate;
+use armtwin_service::config::{Overrides, ServiceConfig};
 
 use super::{progress_bar, read_text};
 use crate::flags::ValidateArgs;
-use armtwin::codec::recording;
-use armtwin::dynamics::Payload;
-use armtwin::model::RobotModel;
-use armtwin::validate::dynamics::{self as validate_dynamics, DynamicsValidation};
-use armtwin::validate::report::DynamicsJson;
+use armtwin_codec::recording;
+use armtwin_core::dynamics::Payload;
+use armtwin_core::model::RobotModel;
+use armtwin_offline::validate::dynamics::{self as validate_dynamics, DynamicsValidation};
+use armtwin_offline::validate::report::DynamicsJson;
 
 /// Exit status of `validate` when a gate limit is exceeded.
 pub const EXIT_GATE_FAILED: u8 = 3;

@@ -1,6 +1,6 @@
 //! Zenoh-serialized messages: armtwin's reader and writer against zenoh-ext's own
 //! `z_serialize` / `z_deserialize`, every rejection class, and binary messages into the
-//! pipeline. (The codec a sample's encoding selects is tested beside `armtwin::ingest`.)
+//! pipeline. (The codec a sample's encoding selects is tested beside `armtwin_mesh::ingest`.)
 
 use std::collections::HashMap;
 use std::sync::Arc;

@@ -1,0 +1,117 @@
+//! What gateways read of the robots' controllers ([`ControllerFacts`], on
+//! `<prefix>/controller/<robot>`), taken into the twins: the controller's TCP becomes the twin's
+//! tool unless the configuration sets one (a new metrics epoch, as any model change), a model
+//! that disagrees with the configured one and a dashboard server that could not be read are
+//! events on the robot's events key, and the facts are kept for the state answer and the
+//! dashboard.
+//!
+//! Must not block beyond the robot's own lock and its outputs' puts.
+
+use serde_json::json;
+use tracing::{debug, warn};
+
+use super::fleet::{Fleet, Lookup, Stepping};
+use armtwin_core::kinematics::TcpOffset;
+use armtwin_core::pipeline::Robot;
+use armtwin_mesh::controller::ControllerFacts;
+
+/// Who gives a tool taken from the controller, in the epoch event's sentence.
+const TOOL_SOURCE: &str = "the controller";
+
+/// Takes a facts message of robot `id` (`payload` as it arrived, untrusted).
+pub(super) fn take_facts(fleet: &Fleet, id: &str, payload: &[u8]) {
+    let facts = match ControllerFacts::from_json(payload) {
+        Ok(facts) => facts,
+        Err(error) => {
+            warn!(robot = id, %error, "controller facts refused");
+            return;
+        }
+    };
+    // A robot retired between its look-up and its lock is looked up again (as a sample is).
+    loop {
+        match fleet.lookup(id) {
+            Lookup::Found(cell) => {
+                let robot = cell.robot().clone();
+                let tool_configured = fleet.tool_configured(id);
+                let facts = facts.clone();
+                if fleet.step(&cell, |stepping| {
+                    apply(&robot, tool_configured, facts, stepping);
+                }) {
+                    return;
+                }
+            }
+            Lookup::Foreign | Lookup::Refused(_) => {
+                debug!(
+                    robot = id,
+                    "controller facts of a robot not twinned here: ignored"
+                );
+                return;
+            }
+        }
+    }
+}
+
+/// The facts into `robot`'s twin, with an event for each that changed and matters.
+fn apply(robot: &Robot, tool_configured: bool, facts: ControllerFacts, stepping: Stepping<'_>) {
+    let Stepping {
+        twin,
+        mut sink,
+        controller,
+        ..
+    } = stepping;
+    let id = robot.id();
+    let previous = controller.replace(facts).unwrap_or_default();
+    let Some(facts) = controller.as_ref() else {
+        return;
+    };
+    if let Some(tcp_offset) = facts.tcp_offset
+        && previous.tcp_offset != facts.tcp_offset
+    {
+        let in_use = !tool_configured;
+        let reason = if in_use {
+            format!("the controller's TCP is tcp_offset {tcp_offset:?}: the twin uses it")
+        } else {
+            format!(
+                "the controller's TCP is tcp_offset {tcp_offset:?}; the configured tcp {:?} \
+                 stays in use",
+                twin.model().tool().to_ur_pose()
+            )
+        };
+        let detail = json!({"fact": "tcp_offset", "tcp_offset": tcp_offset, "in_use": in_use});
+        sink.controller_event(id, &reason, &detail);
+        if in_use
+            && let Some(tool) = TcpOffset::from_ur_pose(tcp_offset)
+            && let Err(error) = twin.replace_tool(tool, TOOL_SOURCE, &mut sink)
+        {
+            warn!(robot = id, %error, "the controller's TCP cannot be the twin's tool");
+        }
+    }
+    let configured = &robot.settings().model.arm().name;
+    let model_news = facts.catalog_model() != previous.catalog_model();
+    if model_news
+        && facts.model_agrees(configured) == Some(false)
+        && let Some(model) = facts.catalog_model()
+    {
+        let serial = facts.serial.as_deref().unwrap_or("unknown");
+        let reason = format!(
+            "the controller is a {model} (serial number {serial}), the configuration says \
+             {configured}: the twin computes with {configured}"
+        );
+        let detail = json!({
+            "fact": "model",
+            "configured": configured,
+            "controller": model,
+            "serial": facts.serial,
+        });
+        sink.controller_event(id, &reason, &detail);
+    }
+    if let Some(error) = &facts.dashboard_error
+        && previous.dashboard_error.as_ref() != Some(error)
+    {
+        let reason = format!(
+            "the controller's dashboard server could not be read ({error}): its model and \
+             serial number are unknown, the model is not checked"
+        );
+        sink.controller_event(id, &reason, &json!({"fact": "dashboard", "error": error}));
+    }
+}

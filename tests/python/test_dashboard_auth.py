@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import base64
 import http.client
+import socket
 import ssl
 import subprocess
+import time
 from pathlib import Path
 
 import pytest
@@ -66,7 +68,8 @@ class SecuredDashboard(DashboardService):
                 f"{viewer_entry}\n\n{scraper_entry}\n\n")
         super().__init__(armtwin_bin, workdir, http + CONFIG)
         self.base = f"https://127.0.0.1:{self.http_port}"
-        self.tls = ssl.create_default_context(cafile=str(pki / "ca.pem"))
+        self.cafile = pki / "ca.pem"
+        self.tls = ssl.create_default_context(cafile=str(self.cafile))
 
     def get(self, path: str, authorization: str | None = None) -> tuple[int, dict, bytes]:
         """(status, headers, body) of a GET over TLS verified against the test's CA."""
@@ -209,3 +212,73 @@ def test_the_service_refuses_to_expose_the_fleet_by_accident(armtwin_bin, tmp_pa
                             capture_output=True, text=True, timeout=30)
     assert result.returncode != 0 and reason in result.stderr, result.stderr
 
+
+
+def idle_connections(port: int, count: int, source: str = "127.0.0.1") -> list[socket.socket]:
+    """`count` TCP connections to the dashboard from `source` that send nothing."""
+    held = []
+    for _ in range(count):
+        s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        s.bind((source, 0))
+        s.settimeout(20)
+        s.connect(("127.0.0.1", port))
+        held.append(s)
+    return held
+
+
+def closed_by_server(s: socket.socket, within_s: float) -> bool:
+    """Whether the server closes `s` (EOF or reset) within `within_s`."""
+    s.settimeout(within_s)
+    try:
+        return s.recv(1) == b""
+    except ConnectionResetError:
+        return True
+    except (TimeoutError, socket.timeout):
+        return False
+
+
+def test_connections_before_login_are_bounded(armtwin_bin, tmp_path, pki):
+    """A stranger who opens connections and sends nothing (no TLS hello, no request) holds no
+    one else up: one address keeps 32 connections at most, a silent one is closed after the
+    10-s deadline, and another address is served at once meanwhile."""
+    with SecuredDashboard(armtwin_bin, tmp_path, pki) as service:
+        opened = time.monotonic()
+        # 64 silent connections from one address: past its share, the server closes them as
+        # they come; the first 32 stay open until the deadline.
+        held = idle_connections(service.http_port, 64)
+        over = [s for s in held[32:] if closed_by_server(s, 3.0)]
+        assert len(over) == 32, f"{len(over)} of the 32 over the share were closed"
+
+        # Another address is served at once, over TLS, though 32 silent handshakes are pending.
+        before = time.monotonic()
+        status, body = curl_healthz(service, source="127.0.0.2")
+        served_s = time.monotonic() - before
+        assert (status, body) == (200, "ok\n"), (status, body)
+        assert served_s < 3.0, f"another address waited {served_s:.1f} s for /healthz"
+
+        # The silent ones are closed by the deadline (10 s), not left to hold their slots.
+        closed = [s for s in held[:32] if closed_by_server(s, max(0.1, opened + 15.0 - time.monotonic()))]
+        assert len(closed) == 32, f"{len(closed)} of 32 silent connections closed within 15 s"
+        closed_s = time.monotonic() - opened
+        assert closed_s > 8.0, f"closed after {closed_s:.1f} s: before the deadline"
+        for s in held:
+            s.close()
+
+        # A connection that sent its TLS hello and then nothing more is closed by the request
+        # deadline too, and the address's share is whole again: 32 served at once.
+        tls = service.tls.wrap_socket(socket.create_connection(("127.0.0.1", service.http_port), 10),
+                                      server_hostname="127.0.0.1")
+        assert closed_by_server(tls, 15.0), "a TLS connection without a request stays open"
+        tls.close()
+        statuses = [service.get("/healthz")[0] for _ in range(32)]
+        assert statuses == [200] * 32
+
+
+def curl_healthz(service: SecuredDashboard, source: str) -> tuple[int, str]:
+    """`/healthz` through curl from the source address `source`, over TLS against the test CA."""
+    out = subprocess.run(
+        ["curl", "-sS", "--max-time", "10", "--interface", source, "--cacert", str(service.cafile),
+         "-w", "\n%{http_code}", f"https://127.0.0.1:{service.http_port}/healthz"],
+        capture_output=True, text=True, timeout=20)
+    body, _, code = out.stdout.rpartition("\n")
+    return int(code or 0), body

@@ -9,9 +9,9 @@
 //! three.js are embedded in the binary: nothing is fetched from elsewhere at run time.
 
 mod access;
+mod conn;
 mod exposition;
 mod fleet_page;
-mod tls;
 
 use armtwin_view::{
     FleetRow, FleetSource, HttpDoor, OpenHttpDoor, PeerFleet, RobotDetail, ServiceTotals,
@@ -32,7 +32,7 @@ use axum::routing::get;
 use serde::{Deserialize, Serialize};
 use tokio::sync::watch;
 use tokio::time::MissedTickBehavior;
-use tracing::{info, warn};
+use tracing::info;
 use zenoh::key_expr::OwnedKeyExpr;
 
 use self::fleet_page::{FleetQuery, fleet_page_json};
@@ -116,14 +116,7 @@ impl Dashboard {
             let tokens: Arc<[Token]> = access.tokens.clone().into();
             app = app.layer(axum::middleware::from_fn_with_state(tokens, access::guard));
         }
-        let task = match &access.tls {
-            None => serve(listener, app, stop_rx),
-            Some(config) => serve(
-                tls::TlsListener::new(listener, config.clone()),
-                app,
-                stop_rx,
-            ),
-        };
+        let task = conn::serve(listener, access.tls.clone(), app, stop_rx);
         Self { stopping, task }
     }
 
@@ -133,25 +126,6 @@ impl Dashboard {
         let _ = self.stopping.send(true);
         bounded("stopping the dashboard", TEARDOWN_STEP, self.task).await;
     }
-}
-
-/// Serves `app` on `listener` until `stop` turns true.
-fn serve<L>(listener: L, app: Router, stop: watch::Receiver<bool>) -> tokio::task::JoinHandle<()>
-where
-    L: axum::serve::Listener,
-    L::Addr: std::fmt::Debug,
-{
-    tokio::spawn(async move {
-        let mut stop = stop;
-        let served = axum::serve(listener, app)
-            .with_graceful_shutdown(async move {
-                let _ = stop.wait_for(|stopping| *stopping).await;
-            })
-            .await;
-        if let Err(e) = served {
-            warn!(error = %e, "the dashboard stopped");
-        }
-    })
 }
 
 /// One read of the fleet, shared by the fleet pages and `/metrics` for a moment.

@@ -269,3 +269,38 @@ def test_an_opcua_client_reads_the_streaming_robot_as_a_40010_motion_device(armt
     finally:
         stopped = service.stop()
     assert stopped.code == 0, service.logs()
+
+
+async def fresh_certificates(workdir: Path, url: str, count: int) -> None:
+    """`count` sign-in attempts, each with a certificate never seen before."""
+    for index in range(count):
+        keys = workdir / f"stranger-{index}"
+        keys.mkdir()
+        await setup_self_signed_certificate(keys / "key.pem", keys / "cert.der", APP_URI, "localhost",
+                                            [ExtendedKeyUsageOID.CLIENT_AUTH],
+                                            {"commonName": f"stranger-{index}"})
+        await refused(await secured(url, keys))
+
+
+def test_certificates_refused_before_sign_in_cannot_fill_the_disk(armtwin_bin, tmp_path):
+    """A client that presents a new certificate on every try leaves at most 64 of them (1 MiB)
+    under pki/rejected, the newest kept for the administrator to trust."""
+    port = free_port()
+    url = f"opc.tcp://127.0.0.1:{port}"
+    service = ArmtwinProcess(armtwin_bin, tmp_path, config(port), watchdog_s=120.0)
+    service.start()
+    try:
+        assert wait_until(lambda: port_accepts(port), 15.0), service.logs()
+        asyncio.run(asyncio.wait_for(fresh_certificates(tmp_path, url, 80), 90.0))
+        rejected = tmp_path / "pki" / "rejected"
+        # Pruned once a second, beside the sampler.
+        assert wait_until(lambda: len(list(rejected.iterdir())) <= 64, 5.0), len(list(rejected.iterdir()))
+        kept = list(rejected.iterdir())
+        assert sum(f.stat().st_size for f in kept) <= 1 << 20
+        newest = max(kept, key=lambda f: f.stat().st_mtime)
+        assert time.time() - newest.stat().st_mtime < 30, "the newest refused certificate is kept"
+        assert len(kept) >= 32, f"only {len(kept)} kept: more removed than the bound asks"
+    finally:
+        stopped = service.stop()
+    assert stopped.code == 0, service.logs()
+    assert "refused client certificates removed" in service.logs()

@@ -121,7 +121,9 @@ pub(super) fn serve(
                             Ok(Ok(tls)) => serve_connection(tls, peer, app, stop).await,
                             // A port scan or a client that distrusts the certificate: not the
                             // service's problem, so not a warning.
-                            Ok(Err(e)) => debug!(%peer, error = %e, "dashboard TLS handshake failed"),
+                            Ok(Err(e)) => {
+                                debug!(%peer, error = %e, "dashboard TLS handshake failed")
+                            }
                             Err(_) => debug!(%peer, "dashboard TLS handshake timed out"),
                         }
                     }
@@ -184,6 +186,9 @@ mod tests {
         assert!(counts.take(a).is_some(), "the share comes back");
         drop(other);
         let table = counts.0.lock().unwrap_or_else(PoisonError::into_inner);
-        assert!(table.is_empty(), "no entry outlives its connections: {table:?}");
+        assert!(
+            table.is_empty(),
+            "no entry outlives its connections: {table:?}"
+        );
     }
 }

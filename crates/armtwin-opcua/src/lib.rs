@@ -10,6 +10,7 @@
 //! - `manager`: the DI and Robotics `NodeSet`s imported, armtwin's namespace, no writes;
 //! - `robot`: one robot's nodes and what each variable shows;
 //! - `alarms`: alarm changes and the events they become;
+//! - `rejected`: the client certificates the server refused, kept within bounds;
 //! - `server`: the server and the sampler thread that copies the fleet into the nodes.
 //!
 //! Knows nothing of armtwin's twins: the service hands it [`RobotReading`]s.
@@ -19,6 +20,7 @@ mod alarms;
 mod manager;
 mod password;
 mod reading;
+mod rejected;
 mod robot;
 mod server;
 mod settings;
@@ -29,5 +31,6 @@ pub use reading::{
     ControllerReading, DeviationStats, IdentifiedPayload, PayloadReading, PoseReading,
     RobotReading, TwinSource,
 };
+pub use rejected::{MAX_REJECTED_BYTES, MAX_REJECTED_FILES};
 pub use server::{BoundServer, OpcUaError, OpcUaServer};
 pub use settings::{OpcUaSection, OpcUaSettings, SettingsError, User, UserSection};

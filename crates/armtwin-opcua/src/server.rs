@@ -8,6 +8,7 @@
 //! path.
 
 use std::collections::HashMap;
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::mpsc::{self, RecvTimeoutError};
 use std::thread::JoinHandle;
@@ -27,6 +28,7 @@ use crate::access::{Access, USERS_TOKEN_ID};
 use crate::alarms::{AlarmChange, AlarmStates};
 use crate::manager::{self, Namespaces, NodeSetError, TwinNodeManager};
 use crate::reading::{RobotReading, TwinSource};
+use crate::rejected;
 use crate::robot::{self, RobotNodes};
 use crate::settings::OpcUaSettings;
 
@@ -51,6 +53,8 @@ pub enum OpcUaError {
 
 /// How long stopping may wait for the server's sessions to close.
 const STOP_TIMEOUT: Duration = Duration::from_secs(2);
+/// How often the refused client certificates are pruned.
+const REJECTED_PRUNE_PERIOD: Duration = Duration::from_secs(1);
 
 /// A running OPC UA server.
 pub struct OpcUaServer {
@@ -103,6 +107,8 @@ pub struct BoundServer {
     nodes: Arc<TwinNodeManager>,
     namespaces: Namespaces,
     period: Duration,
+    /// Where the stack stores the client certificates it refused, kept within bounds.
+    rejected_dir: PathBuf,
 }
 
 impl OpcUaServer {
@@ -172,6 +178,7 @@ impl OpcUaServer {
             nodes,
             namespaces,
             period: settings.sampling_interval,
+            rejected_dir: settings.pki_dir.join("rejected"),
         })
     }
 
@@ -203,6 +210,7 @@ impl BoundServer {
             robots: HashMap::new(),
             readings: Vec::new(),
             random: SystemRandom::new(),
+            rejected_dir: self.rejected_dir,
         };
         let period = self.period;
         let sampler = std::thread::Builder::new()
@@ -237,16 +245,22 @@ struct Sampler {
     robots: HashMap<Arc<str>, Published>,
     readings: Vec<RobotReading>,
     random: SystemRandom,
+    rejected_dir: PathBuf,
 }
 
 impl Sampler {
     fn run(mut self, period: Duration, stop: &mpsc::Receiver<()>) {
         let mut turn = 0_u64;
         let mut next = Instant::now();
+        let mut pruned = Instant::now();
         loop {
             turn += 1;
             let started = Instant::now();
             self.sample(turn);
+            if pruned.elapsed() >= REJECTED_PRUNE_PERIOD {
+                pruned = Instant::now();
+                self.prune_rejected();
+            }
             debug!(
                 robots = self.robots.len(),
                 took_us = started.elapsed().as_micros(),
@@ -261,6 +275,27 @@ impl Sampler {
             match stop.recv_timeout(next - now) {
                 Err(RecvTimeoutError::Timeout) => {}
                 Ok(()) | Err(RecvTimeoutError::Disconnected) => break,
+            }
+        }
+    }
+
+    /// Keeps the refused client certificates within [`rejected::MAX_REJECTED_FILES`] and
+    /// [`rejected::MAX_REJECTED_BYTES`].
+    fn prune_rejected(&self) {
+        match rejected::prune(
+            &self.rejected_dir,
+            rejected::MAX_REJECTED_FILES,
+            rejected::MAX_REJECTED_BYTES,
+        ) {
+            Ok(0) => {}
+            Ok(removed) => warn!(
+                removed,
+                dir = %self.rejected_dir.display(),
+                "OPC UA: refused client certificates removed, the oldest first (a client is \
+                 presenting new ones)"
+            ),
+            Err(e) => {
+                warn!(error = %e, dir = %self.rejected_dir.display(), "OPC UA: cannot prune refused client certificates")
             }
         }
     }

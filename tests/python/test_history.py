@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 import math
 
+import zenoh
+
 from support.gateway import Gateway, lasttest_rows
 from support.process import ArmtwinProcess, wait_until
 from support.zenoh_clients import TwinClient, get_json
@@ -125,5 +127,59 @@ def test_history_seconds_agree_with_the_pairs_and_the_window(armtwin_bin, tmp_pa
         replies = list(client.session.get(f"twin/history/{ROBOT}?_time=yesterday", timeout=10.0))
         assert replies and replies[0].err is not None, replies
         assert "_time" in json.loads(replies[0].err.payload.to_bytes())["error"]
+    finally:
+        client.close()
+
+
+def replies_of(client: TwinClient, selector: str) -> tuple[list[str], list[dict]]:
+    """(the keys answered, the error replies' bodies) of one query."""
+    keys, errors = [], []
+    for reply in client.session.get(selector, timeout=20.0, consolidation=zenoh.ConsolidationMode.NONE):
+        if reply.ok is not None:
+            keys.append(str(reply.ok.key_expr))
+        else:
+            errors.append(json.loads(reply.err.payload.to_bytes()))
+    return keys, errors
+
+
+def test_wildcard_reads_are_bounded_and_say_so(armtwin_bin, tmp_path, processes):
+    """`get twin/history/**` over 70 robots answers the first 64 by id and then an error reply
+    that names the bound; `state` answers all 70; a flood of such queries is answered or refused
+    as busy, never left unanswered, while the twins go on taking samples."""
+    service = ArmtwinProcess(armtwin_bin, tmp_path, CONFIG, watchdog_s=120.0).start()
+    processes.append(service)
+    client = TwinClient(service.endpoint)
+    robots = [f"cell-9/r{i:02d}" for i in range(70)]
+    try:
+        gateway = Gateway(client, robots, rate_hz=500.0, recording=True, rows=1200)
+        gateway.start()
+        gateway.join(timeout=90)
+        assert gateway.sent == 1200
+        state = lambda robot: get_json(client.session, f"twin/state/{robot}")[0][1]  # noqa: E731
+        assert wait_until(lambda: all(state(r)["metrics"]["paired"] == 1200 for r in robots[-3:]), 30.0, 0.2)
+
+        keys, errors = replies_of(client, "twin/history/cell-9/**")
+        assert sorted(keys) == [f"twin/history/{r}" for r in robots[:64]], keys
+        assert len(errors) == 1 and errors[0]["truncated"] is True, errors
+        assert (errors[0]["answered"], errors[0]["matching"], errors[0]["max_robots"]) == (64, 70, 64), errors
+        assert "ask for fewer robots" in errors[0]["error"]
+        keys, errors = replies_of(client, "twin/state/cell-9/**")
+        assert (len(keys), errors) == (70, []), (len(keys), errors)
+
+        # A flood of wildcard reads while one robot streams on: every query gets an answer or a
+        # refusal, and no sample of the robot is lost.
+        extra = Gateway(client, robots[0], rate_hz=500.0, rows=1000, start_t=2000.0)
+        extra.start()
+        pending = [client.session.get("twin/history/cell-9/**", timeout=30.0,
+                                       consolidation=zenoh.ConsolidationMode.NONE) for _ in range(200)]
+        outcomes = {"answered": 0, "busy": 0}
+        for replies in pending:
+            errors = [json.loads(r.err.payload.to_bytes()) for r in replies if r.err is not None]
+            assert len(errors) == 1, errors
+            outcomes["busy" if errors[0]["error"].startswith("busy") else "answered"] += 1
+        extra.join(timeout=60)
+        assert outcomes["answered"] >= 1, outcomes
+        assert wait_until(lambda: state(robots[0])["metrics"]["paired"] == 2200, 30.0, 0.2), state(robots[0])["metrics"]
+        print(f"\n[wildcard reads] 200 queries at once: {outcomes}")
     finally:
         client.close()

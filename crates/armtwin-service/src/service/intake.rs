@@ -1,7 +1,8 @@
 //! Intake: the subscribers and queryables that feed the fleet, and each sample's way from its
 //! key to its robot's twin (decoded before the robot's lock, stepped under it).
 //!
-//! Must not block in a callback beyond the robot's own lock and its outputs' `put`.
+//! Must not block in a callback beyond the robot's own lock and its outputs' `put`: queries go to
+//! the query threads ([`QueryPool`]).
 
 use std::sync::Arc;
 
@@ -12,7 +13,7 @@ use zenoh::session::Session;
 use super::controller::take_facts;
 use super::error::ServiceError;
 use super::fleet::{Fleet, Lookup, RobotCell, Stepping};
-use super::queries::Queries;
+use super::queries::{Queries, QueryPool};
 use super::shard::claim_shard;
 use crate::config::{ServiceConfig, SourceConfig, SourceRobot, SourceStream};
 use armtwin_codec::decoded::{self, Arrival, Decoded, Decoder};
@@ -119,13 +120,14 @@ pub(super) async fn declare_intake(
         }
     }
     declare_sources(session, config, &router, &mut subscribers).await?;
-    let queries = Arc::new(Queries::new(Arc::clone(fleet), keys.clone()));
+    let pool = QueryPool::start(Arc::new(Queries::new(Arc::clone(fleet), keys.clone())))
+        .map_err(|e| ServiceError::Worker(format!("the query threads: {e}")))?;
     for (stream, handler) in Queries::HANDLERS {
-        let queries = Arc::clone(&queries);
+        let pool = pool.clone();
         queryables.push(
             session
                 .declare_queryable(keys.key(stream, shard))
-                .callback(move |query| queries.answer(&query, handler))
+                .callback(move |query| pool.submit(query, handler))
                 .await?,
         );
     }

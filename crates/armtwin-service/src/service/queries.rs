@@ -3,9 +3,16 @@
 //! from those who only watch), each answered from the robots it names, one cell at a time,
 //! replying once that cell's lock is released.
 //!
+//! Queries are answered off Zenoh's receive threads, by a few threads of their own behind a
+//! bounded queue: a query that finds the queue full is refused at once ("busy"), so that a
+//! querier cannot hold up the samples of the links it shares. A wildcard read (`state`,
+//! `history`) answers at most a bounded number of robots and bytes, and says so in an error
+//! reply after the last robot it answered.
+//!
 //! Must not hold a robot's cell across a reply.
 
 use std::sync::Arc;
+use std::sync::mpsc::{SyncSender, TrySendError, sync_channel};
 
 use tracing::{info, warn};
 use zenoh::Wait;
@@ -24,6 +31,119 @@ use armtwin_mesh::keys::{KeySpace, Stream};
 
 /// Answers one kind of query; each handler locks the robots it reads one at a time.
 pub(super) type QueryHandler = fn(&Queries, &Query);
+
+/// Queries waiting for a thread at most; more are refused as busy.
+pub(super) const MAX_WAITING_QUERIES: usize = 64;
+/// Threads answering queries.
+const QUERY_THREADS: usize = 2;
+/// Bytes of replies one `state` or `history` query gets at most.
+pub(super) const MAX_READ_REPLY_BYTES: usize = 16 << 20;
+/// Robots one `state` query answers at most.
+pub(super) const MAX_STATE_ROBOTS: usize = 10_000;
+/// Robots one `history` query answers at most (a robot's hour is a few hundred KB).
+pub(super) const MAX_HISTORY_ROBOTS: usize = 64;
+
+/// Where Zenoh's callbacks hand queries to the threads that answer them.
+#[derive(Clone)]
+pub(super) struct QueryPool {
+    waiting: SyncSender<(Query, QueryHandler)>,
+}
+
+impl QueryPool {
+    /// [`QUERY_THREADS`] threads answering with `queries`, until every handle of the pool is
+    /// dropped (the queryables undeclared).
+    pub(super) fn start(queries: Arc<Queries>) -> std::io::Result<Self> {
+        let (waiting, received) = sync_channel::<(Query, QueryHandler)>(MAX_WAITING_QUERIES);
+        let received = Arc::new(std::sync::Mutex::new(received));
+        for index in 0..QUERY_THREADS {
+            let queries = Arc::clone(&queries);
+            let received = Arc::clone(&received);
+            std::thread::Builder::new()
+                .name(format!("armtwin-queries-{index}"))
+                .spawn(move || {
+                    loop {
+                        // The lock is held only while waiting for the next query.
+                        let next = received
+                            .lock()
+                            .unwrap_or_else(std::sync::PoisonError::into_inner)
+                            .recv();
+                        let Ok((query, handler)) = next else {
+                            return;
+                        };
+                        queries.answer(&query, handler);
+                    }
+                })?;
+        }
+        Ok(Self { waiting })
+    }
+
+    /// Hands `query` to a thread, or refuses it as busy when [`MAX_WAITING_QUERIES`] wait.
+    pub(super) fn submit(&self, query: Query, handler: QueryHandler) {
+        match self.waiting.try_send((query, handler)) {
+            Ok(()) => {}
+            Err(TrySendError::Full((query, _))) => {
+                warn!(key = %query.key_expr(), "query refused: {MAX_WAITING_QUERIES} queries wait already");
+                Queries::reply_err(
+                    &query,
+                    &format!("busy: {MAX_WAITING_QUERIES} queries wait already; ask again"),
+                );
+            }
+            // The threads are gone: the service is stopping.
+            Err(TrySendError::Disconnected(_)) => {}
+        }
+    }
+}
+
+/// How much of a wildcard read one query may take, and how much it took.
+struct ReadBound {
+    max_robots: usize,
+    robots: usize,
+    bytes: usize,
+}
+
+impl ReadBound {
+    fn new(max_robots: usize) -> Self {
+        Self {
+            max_robots,
+            robots: 0,
+            bytes: 0,
+        }
+    }
+
+    /// Whether a reply of `bytes` more fits; counted if it does.
+    fn admits(&mut self, bytes: usize) -> bool {
+        if self.robots >= self.max_robots || self.bytes + bytes > MAX_READ_REPLY_BYTES {
+            return false;
+        }
+        self.robots += 1;
+        self.bytes += bytes;
+        true
+    }
+
+    /// The error reply that ends a read cut short: what it answered, of how many, and why.
+    fn cut_short(&self, query: &Query, matching: usize) {
+        let body = serde_json::json!({
+            "error": format!(
+                "truncated: {} of {matching} robots answered ({} bytes); one query answers at most \
+                 {} robots and {MAX_READ_REPLY_BYTES} bytes: ask for fewer robots",
+                self.robots, self.bytes, self.max_robots
+            ),
+            "truncated": true,
+            "answered": self.robots,
+            "matching": matching,
+            "max_robots": self.max_robots,
+            "max_bytes": MAX_READ_REPLY_BYTES,
+        })
+        .to_string();
+        if let Err(e) = query
+            .reply_err(body)
+            .encoding(Encoding::APPLICATION_JSON)
+            .wait()
+        {
+            warn!(error = %e, "error reply failed");
+        }
+    }
+}
 
 /// The queryables' side of the fleet. Each handler takes the robots it answers about one at a
 /// time, each under its own lock, and replies once that lock is released.
@@ -111,13 +231,19 @@ impl Queries {
     }
 
     fn state(&self, query: &Query) {
-        for (cell, key) in self.matching_robots(query, Stream::State) {
+        let robots = self.matching_robots(query, Stream::State);
+        let mut bound = ReadBound::new(MAX_STATE_ROBOTS);
+        for (cell, key) in &robots {
             let payload = cell
                 .lock()
                 .state_message()
                 .map(|message| json::to_json_bytes(&message));
             if let Some(payload) = payload {
-                Self::reply(query, &key, payload);
+                if !bound.admits(payload.len()) {
+                    bound.cut_short(query, robots.len());
+                    return;
+                }
+                Self::reply(query, key, payload);
             }
         }
     }
@@ -134,14 +260,21 @@ impl Queries {
                 return;
             }
         };
-        for (cell, key) in self.matching_robots(query, Stream::History) {
+        let robots = self.matching_robots(query, Stream::History);
+        let mut bound = ReadBound::new(MAX_HISTORY_ROBOTS);
+        for (cell, key) in &robots {
             let message = cell.lock().history_message(cell.robot().id(), |newest_s| {
                 range
                     .as_ref()
                     .map_or(i64::MIN..=i64::MAX, |range| seconds_in(range, newest_s))
             });
             if let Some(message) = message {
-                Self::reply(query, &key, json::to_json_bytes(&message));
+                let payload = json::to_json_bytes(&message);
+                if !bound.admits(payload.len()) {
+                    bound.cut_short(query, robots.len());
+                    return;
+                }
+                Self::reply(query, key, payload);
             }
         }
     }

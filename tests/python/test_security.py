@@ -15,9 +15,10 @@ import zenoh
 
 from support.gateway import Gateway
 from support.pki import tls_of
-from support.process import wait_until
+from support.paths import router_path
+from support.process import Armtwin, Router, wait_until
 from support.secured_fleet import denied, open_as, stream_until_paired, tls_client_config, tls_router_and_twin
-from support.zenoh_clients import get_json, wait_queryable
+from support.zenoh_clients import client_config, get_json, wait_queryable
 
 
 def test_access_control_lets_each_role_do_only_its_part(
@@ -163,3 +164,38 @@ def test_armtwin_behind_the_shipped_acl_hears_a_gateways_controller_facts_at_its
     finally:
         twin.stop()
         router.stop()
+
+
+@pytest.mark.parametrize("admin, answered", [(None, False), ('"mesh"', True), ('"off"', False)])
+def test_admin_queries_are_closed_unless_the_configuration_opens_them(tmp_path, armtwin_bin, admin, answered):
+    """armtwin behind a router without an ACL (here on loopback; on a plant network anyone who
+    reaches the router): by default nobody may reset, since the instance connects beyond this
+    host without access control of its own; `admin = "mesh"` hands the decision to the mesh;
+    `"off"` refuses even then. Reads are answered either way."""
+    router = Router(router_path(armtwin_bin), tmp_path).start()
+    setting = f"admin = {admin}\n" if admin else ""
+    twin = Armtwin(armtwin_bin, tmp_path, "twin",
+                   f'[service]\npose_congestion = "block"\n{setting}\n[robots.default]\nmodel = "ur10e"\n',
+                   router.endpoint).start()
+    client = zenoh.open(client_config(router.endpoint))
+    try:
+        wait_queryable(client, "twin/admin/reset/r1")
+        gateway = Gateway(client, "r1", rate_hz=500.0, rows=50)
+        gateway.start()
+        gateway.join(timeout=30)
+        assert wait_until(lambda: get_json(client, "twin/state/r1") and
+                          get_json(client, "twin/state/r1")[0][1]["metrics"]["paired"] == 50, 20.0)
+        oks, errs = replies(client, "twin/admin/reset/r1")
+        paired = get_json(client, "twin/state/r1")[0][1]["metrics"]["paired"]
+        if answered:
+            assert errs == [] and len(oks) == 1 and paired == 0, (oks, errs, paired)
+        else:
+            assert oks == [] and len(errs) == 1 and paired == 50, (oks, errs, paired)
+            assert "[service] admin" in errs[0]["error"], errs
+            if admin is None:
+                assert f"connects to {router.endpoint}" in errs[0]["error"], errs
+    finally:
+        client.close()
+        twin.stop()
+        router.stop()
+    assert ("admin queries are answered only for this host" in twin.logs()) == (admin is None)

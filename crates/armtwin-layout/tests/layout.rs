@@ -160,6 +160,7 @@ const SERVICE_LAYERS: &[(&str, &[&str])] = &[
     (
         "leaves: each knows the crate (and the error) alone",
         &[
+            "admin",
             "calibration_slot",
             "events",
             "gateways",

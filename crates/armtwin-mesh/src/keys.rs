@@ -145,6 +145,14 @@ impl Stream {
     }
 }
 
+impl Stream {
+    /// Whether queries on this stream change a twin or write files (`admin/…`), rather than read.
+    #[must_use]
+    pub fn is_admin(self) -> bool {
+        self.as_str().starts_with("admin/")
+    }
+}
+
 impl std::fmt::Display for Stream {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(self.as_str())

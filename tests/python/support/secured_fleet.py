@@ -32,7 +32,8 @@ def tls_router_and_twin(tmp_path, certs, armtwin_bin, log: str = "") -> tuple[Ro
                     env={"RUST_LOG": ACL_LOG + more})
     twin = Armtwin(
         armtwin_bin, tmp_path, "twin",
-        f'[zenoh]\nfile = "{CLIENT_CONFIG}"\n[service]\npose_congestion = "block"\n',
+        # The router's ACL decides who may change a twin (operators only): `admin = "mesh"`.
+        f'[zenoh]\nfile = "{CLIENT_CONFIG}"\n[service]\npose_congestion = "block"\nadmin = "mesh"\n',
         router.endpoint,
     )
     (tmp_path / "twin" / "certs").symlink_to(certs)

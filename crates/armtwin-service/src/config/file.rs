@@ -8,7 +8,7 @@ use std::path::PathBuf;
 
 use serde::Deserialize;
 
-use super::{Congestion, EventBudget, OutputEncoding, SourceStream, ZenohSection};
+use super::{AdminAccess, Congestion, EventBudget, OutputEncoding, SourceStream, ZenohSection};
 use armtwin_core::metrics::DEFAULT_HISTORY_S;
 
 use armtwin_codec::cdr::EffortMeaning;
@@ -167,6 +167,7 @@ pub(super) struct ServiceSection {
     pub(super) reject_unknown: bool,
     pub(super) encoding: OutputEncoding,
     pub(super) pose_congestion: Congestion,
+    pub(super) admin: AdminAccess,
     pub(super) events_per_s: f64,
     pub(super) events_burst: u32,
     pub(super) robots: String,
@@ -188,6 +189,7 @@ impl Default for ServiceSection {
             reject_unknown: false,
             encoding: OutputEncoding::Json,
             pose_congestion: Congestion::Drop,
+            admin: AdminAccess::Loopback,
             events_per_s: EventBudget::default().per_s,
             events_burst: EventBudget::default().burst,
             robots: "**".to_owned(),

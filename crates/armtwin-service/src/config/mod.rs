@@ -119,6 +119,20 @@ pub enum Congestion {
     Drop,
 }
 
+/// Who may use the admin queries (`<prefix>/admin/**`), `[service] admin`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum AdminAccess {
+    /// Answered while no other host can reach the instance (loopback listeners only, no
+    /// connect, no multicast scouting), or when its own session's access control judges them.
+    #[default]
+    Loopback,
+    /// Answered for whoever reaches the instance: a router's ACL guards the mesh.
+    Mesh,
+    /// Never answered.
+    Off,
+}
+
 /// The format of the pose and deviation outputs (metrics, events and query replies are JSON).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
 #[serde(rename_all = "kebab-case")]
@@ -177,6 +191,8 @@ pub struct ServiceConfig {
     pub encoding: OutputEncoding,
     /// Congestion policy of the pose and deviation outputs (metrics and events block).
     pub pose_congestion: Congestion,
+    /// Who may use the admin queries (`[service] admin`).
+    pub admin: AdminAccess,
     /// How many events per robot are published.
     pub event_budget: EventBudget,
     /// Reject robots that are not configured (else they get `[robots.default]`).
@@ -344,6 +360,7 @@ impl ServiceConfig {
             metrics_period: Duration::from_millis(service.metrics_period_ms),
             encoding: service.encoding,
             pose_congestion: service.pose_congestion,
+            admin: service.admin,
             event_budget: EventBudget {
                 per_s: service.events_per_s,
                 burst: service.events_burst,

@@ -70,6 +70,7 @@ pub(super) async fn declare_intake(
     session: &Session,
     config: &ServiceConfig,
     fleet: &Arc<Fleet>,
+    admin_refusal: Option<String>,
 ) -> Result<Intake, ServiceError> {
     let keys = &config.keys;
     let mut subscribers = Vec::new();
@@ -120,14 +121,15 @@ pub(super) async fn declare_intake(
         }
     }
     declare_sources(session, config, &router, &mut subscribers).await?;
-    let pool = QueryPool::start(Arc::new(Queries::new(Arc::clone(fleet), keys.clone())))
+    let queries = Queries::new(Arc::clone(fleet), keys.clone(), admin_refusal);
+    let pool = QueryPool::start(Arc::new(queries))
         .map_err(|e| ServiceError::Worker(format!("the query threads: {e}")))?;
     for (stream, handler) in Queries::HANDLERS {
         let pool = pool.clone();
         queryables.push(
             session
                 .declare_queryable(keys.key(stream, shard))
-                .callback(move |query| pool.submit(query, handler))
+                .callback(move |query| pool.submit(query, stream, handler))
                 .await?,
         );
     }

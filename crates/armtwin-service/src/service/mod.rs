@@ -24,13 +24,14 @@
 //! always block: they are few and must arrive; a subscriber that stops reading them is
 //! disconnected after Zenoh's `wait_before_close`. Every output carries its encoding.
 //!
-//! Its files depend one way (`armtwin-layout`'s `tests/layout.rs` holds the order): `error`; the leaves (`events`,
+//! Its files depend one way (`armtwin-layout`'s `tests/layout.rs` holds the order): `error`; the leaves (`admin`, `events`,
 //! `memory`, `recording`, `requests`, `calibration_slot`, `shard`, `gateways`, `peers`,
 //! `time_range`, and `publish`, the Zenoh I/O); `sink`; `fleet`; the duties over the fleet (`controller`,
 //! `queries`, `self_calibration`, `snapshot`, `view`); what runs them (`intake`, Zenoh's
 //! callbacks, and `control`, the control thread); and this file.
 //! `opcua_view` is the OPC UA server's read of the fleet, a duty beside `view`.
 
+mod admin;
 mod calibration_slot;
 mod control;
 mod controller;
@@ -100,6 +101,7 @@ pub async fn serve(
             keys.every_robot(Stream::Metrics),
         ],
     )?;
+    let admin_refusal = admin::refusal(config.admin, &zenoh_config);
     let session = zenoh::open(zenoh_config).await?;
     info!(
         zid = %session.zid(),
@@ -134,7 +136,10 @@ pub async fn serve(
         restore_snapshot(store, &fleet, &config);
     }
 
-    let intake = match declare_intake(&session, &config, &fleet).await {
+    if let Some(why) = &admin_refusal {
+        info!("{why}");
+    }
+    let intake = match declare_intake(&session, &config, &fleet, admin_refusal).await {
         Ok(intake) => intake,
         Err(e) => {
             requests.stop();

@@ -46,14 +46,15 @@ pub(super) const MAX_HISTORY_ROBOTS: usize = 64;
 /// Where Zenoh's callbacks hand queries to the threads that answer them.
 #[derive(Clone)]
 pub(super) struct QueryPool {
-    waiting: SyncSender<(Query, QueryHandler)>,
+    waiting: SyncSender<(Query, Stream, QueryHandler)>,
 }
 
 impl QueryPool {
     /// [`QUERY_THREADS`] threads answering with `queries`, until every handle of the pool is
     /// dropped (the queryables undeclared).
     pub(super) fn start(queries: Arc<Queries>) -> std::io::Result<Self> {
-        let (waiting, received) = sync_channel::<(Query, QueryHandler)>(MAX_WAITING_QUERIES);
+        let (waiting, received) =
+            sync_channel::<(Query, Stream, QueryHandler)>(MAX_WAITING_QUERIES);
         let received = Arc::new(std::sync::Mutex::new(received));
         for index in 0..QUERY_THREADS {
             let queries = Arc::clone(&queries);
@@ -67,21 +68,22 @@ impl QueryPool {
                             .lock()
                             .unwrap_or_else(std::sync::PoisonError::into_inner)
                             .recv();
-                        let Ok((query, handler)) = next else {
+                        let Ok((query, stream, handler)) = next else {
                             return;
                         };
-                        queries.answer(&query, handler);
+                        queries.answer(&query, stream, handler);
                     }
                 })?;
         }
         Ok(Self { waiting })
     }
 
-    /// Hands `query` to a thread, or refuses it as busy when [`MAX_WAITING_QUERIES`] wait.
-    pub(super) fn submit(&self, query: Query, handler: QueryHandler) {
-        match self.waiting.try_send((query, handler)) {
+    /// Hands `query` (on `stream`) to a thread, or refuses it as busy when
+    /// [`MAX_WAITING_QUERIES`] wait.
+    pub(super) fn submit(&self, query: Query, stream: Stream, handler: QueryHandler) {
+        match self.waiting.try_send((query, stream, handler)) {
             Ok(()) => {}
-            Err(TrySendError::Full((query, _))) => {
+            Err(TrySendError::Full((query, _, _))) => {
                 warn!(key = %query.key_expr(), "query refused: {MAX_WAITING_QUERIES} queries wait already");
                 Queries::reply_err(
                     &query,
@@ -150,12 +152,19 @@ impl ReadBound {
 pub(super) struct Queries {
     fleet: Arc<Fleet>,
     keys: KeySpace,
+    /// Why the admin queries are refused (`[service] admin`), if they are.
+    admin_refusal: Option<String>,
 }
 
 impl Queries {
-    /// The queries about `fleet`'s robots, on `keys`.
-    pub(super) fn new(fleet: Arc<Fleet>, keys: KeySpace) -> Self {
-        Self { fleet, keys }
+    /// The queries about `fleet`'s robots, on `keys`; the admin queries refused with
+    /// `admin_refusal`, if given.
+    pub(super) fn new(fleet: Arc<Fleet>, keys: KeySpace, admin_refusal: Option<String>) -> Self {
+        Self {
+            fleet,
+            keys,
+            admin_refusal,
+        }
     }
 
     /// The handlers, by the stream their queryable is declared on.
@@ -171,10 +180,20 @@ impl Queries {
         (Stream::Record, Self::record),
     ];
 
-    /// Answers `query` with `handler`, unless the service stopped.
-    pub(super) fn answer(&self, query: &Query, handler: QueryHandler) {
-        if self.fleet.count_input() {
-            handler(self, query);
+    /// Answers `query` on `stream` with `handler`, unless the service stopped; an admin query
+    /// that asks for its stream by name gets the refusal instead, when there is one.
+    pub(super) fn answer(&self, query: &Query, stream: Stream, handler: QueryHandler) {
+        if !self.fleet.count_input() {
+            return;
+        }
+        match &self.admin_refusal {
+            Some(why) if stream.is_admin() => {
+                if self.asks_for(query, stream) {
+                    warn!(key = %query.key_expr(), "admin query refused");
+                    Self::reply_err(query, why);
+                }
+            }
+            _ => handler(self, query),
         }
     }
 

@@ -230,3 +230,55 @@ def test_an_operator_records_behind_the_secured_router_and_a_dashboard_may_not(t
         assert 1 <= len(messages["/joint_states"]) <= paired
         time.sleep(0.5)
         assert len([e for e in events if e["kind"] == "recorded"]) == 1, "the dashboard's query recorded nothing"
+
+
+def test_a_robot_that_sets_incidents_off_without_pause_takes_only_its_own_share(armtwin_bin, tmp_path):
+    """r1's stamps jump 2 s each at 200 Hz (a gap incident every few samples, in source time);
+    r2 streams calmly and its operator records twice, before and during the flood. r2's files
+    are written and kept; r1 sets off a few incidents back to back, then one per post_s, and
+    keeps at most its own share of files (robot_max_files = 3), taking nothing of r2's although
+    the fleet's cap is small (max_files = 6)."""
+    recordings = tmp_path / "recordings"
+    extra = ""
+    text = config(recordings, extra).replace(
+        "[recorder]\n", "[recorder]\nmax_files = 6\nrobot_max_files = 3\ngap_s = 1.0\n")
+    proc = ArmtwinProcess(armtwin_bin, tmp_path, text, 300.0)
+    proc.start()
+    client = TwinClient(proc.endpoint)
+    try:
+        calm = Gateway(client, "r2", rate_hz=200.0, rows=2000, start_t=T0)
+        calm.start()
+        assert wait_until(lambda: client.collector.count("pose", "r2") >= 100, 20.0)
+        [first] = list(client.session.get("twin/admin/record/r2?pre_s=0.2;post_s=0", timeout=10.0))
+        assert first.ok is not None, first.err.payload.to_string()
+
+        client.ready(["r1"])
+        flood = client.joints("r1")
+        q = Gateway.Q
+        sent = 0
+        started = time.monotonic()
+        while time.monotonic() - started < 4.0:
+            flood.put(json.dumps({"t": T0 + 2.0 * sent, "q": q}))
+            sent += 1
+            time.sleep(0.005)
+        [second] = list(client.session.get("twin/admin/record/r2?pre_s=0.2;post_s=0", timeout=10.0))
+        assert second.ok is not None, second.err.payload.to_string()
+        calm.join(timeout=30)
+        r2_paths = {json.loads(first.ok.payload.to_bytes())["path"], json.loads(second.ok.payload.to_bytes())["path"]}
+        recorded = lambda robot: [e for e in client.collector.messages("events", robot) if e["kind"] == "recorded"]  # noqa: E731
+        assert wait_until(lambda: len(recorded("r2")) == 2, 20.0), (client.collector.messages("events", "r2"), proc.logs())
+        assert {e["detail"]["path"] for e in recorded("r2")} == r2_paths
+        gaps = [e for e in client.collector.messages("events", "r1") if e["kind"] == "gap"]
+        r1_incidents = len(recorded("r1"))
+    finally:
+        client.close()
+        proc.stop()
+    assert len(gaps) > 50, f"the flood set off {len(gaps)} gap events"
+    # Four back to back, then one per post_s (2 s) over the 4-s flood, and its last at shutdown.
+    assert 1 <= r1_incidents <= 8, f"r1 set off {r1_incidents} incidents from {len(gaps)} gaps"
+    r1_files = list(recordings.glob("r1/*.mcap"))
+    r2_files = sorted(str(f) for f in recordings.glob("r2/*.mcap"))
+    assert len(r1_files) <= 3, r1_files
+    assert r2_files == sorted(r2_paths), (r2_files, r2_paths)
+    print(f"\n[fair recorder] {sent} flooding samples, {len(gaps)} gap events, {r1_incidents} incidents of r1 "
+          f"({len(r1_files)} kept), r2's 2 files kept")

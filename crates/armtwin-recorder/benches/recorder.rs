@@ -142,6 +142,8 @@ fn incident_file(c: &mut Criterion) {
         dir: dir.path().to_owned(),
         max_files: 1000,
         max_bytes: 1 << 40,
+        robot_max_files: 1000,
+        robot_max_bytes: 1 << 40,
     };
     group.bench_function("incident_file_15s_500hz/file_synced", |b| {
         b.iter(|| armtwin_recorder::store::write(&settings, black_box(&incident)));

@@ -1,18 +1,25 @@
 //! The recorder's writer thread: incidents in, MCAP files out, named
-//! `<dir>/<robot>/<UTC time>-<trigger>.mcap`, the oldest removed past `max_files` or
-//! `max_bytes`, and each outcome counted and handed back ([`Outcome`]) for the events.
+//! `<dir>/<robot>/<UTC time>-<trigger>.mcap`, and each outcome counted and handed back
+//! ([`Outcome`]) for the events.
+//!
+//! Fair to every robot: one robot has at most one incident waiting (the queue holds
+//! [`QUEUE`] robots' incidents), and retention takes a robot's own oldest files past its share
+//! (`robot_max_files`, `robot_max_bytes`), then, past the fleet's (`max_files`, `max_bytes`), the
+//! oldest of the robot that holds the most. A robot that sets incidents off without pause fills
+//! its own share, never another's.
 //!
 //! The sample path only hands an incident over ([`IncidentSender::send`], never blocking: a full
 //! queue drops it, counted); every file operation is this thread's. A write that fails (a full
 //! disk) removes what it left, is counted, and the thread goes on.
 
+use std::collections::{BTreeMap, HashSet};
 use std::fmt::Write as _;
 use std::fs;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
@@ -20,8 +27,9 @@ use tracing::{info, warn};
 
 use super::incident::{Incident, write_mcap};
 
-/// Incidents waiting for the writer thread; more are dropped (and counted).
-const QUEUE: usize = 16;
+/// Incidents waiting for the writer thread, one robot's at most one; more are dropped (and
+/// counted).
+pub const QUEUE: usize = 16;
 
 /// Where files go and how many are kept.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -32,6 +40,10 @@ pub struct StoreSettings {
     pub max_files: usize,
     /// `[recorder] max_bytes`: bytes kept in `dir`.
     pub max_bytes: u64,
+    /// `[recorder] robot_max_files`: files kept of one robot.
+    pub robot_max_files: usize,
+    /// `[recorder] robot_max_bytes`: bytes kept of one robot.
+    pub robot_max_bytes: u64,
 }
 
 /// The recorder's counts, for `/metrics` and the service's totals.
@@ -92,28 +104,40 @@ enum Job {
     Stop,
 }
 
+/// The robots with an incident in the queue (at most [`QUEUE`] of them).
+type Waiting = Arc<Mutex<HashSet<String>>>;
+
 /// Hands incidents to the writer thread.
 #[derive(Debug, Clone)]
 pub struct IncidentSender {
     queue: SyncSender<Job>,
+    waiting: Waiting,
     counters: Arc<StoreCounters>,
 }
 
 impl IncidentSender {
-    /// Queues `incident` for writing; `false` (counted as dropped) if the queue is full.
+    /// Queues `incident` for writing; `false` (counted as dropped) if its robot has one waiting
+    /// already or the queue is full.
     pub fn send(&self, incident: Incident) -> bool {
         let (robot, trigger) = (incident.robot.clone(), incident.trigger.kind);
-        match self.queue.try_send(Job::Write(Box::new(incident))) {
-            Ok(()) => true,
-            Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) => {
-                self.counters.dropped.fetch_add(1, Ordering::Relaxed);
-                warn!(
-                    robot,
-                    trigger, "the recorder's queue is full: incident not written"
-                );
-                false
+        let mut waiting = self.waiting.lock().unwrap_or_else(PoisonError::into_inner);
+        let why = if waiting.contains(&robot) {
+            "the robot has an incident waiting to be written already"
+        } else {
+            match self.queue.try_send(Job::Write(Box::new(incident))) {
+                Ok(()) => {
+                    waiting.insert(robot);
+                    return true;
+                }
+                Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) => {
+                    "the recorder's queue is full"
+                }
             }
-        }
+        };
+        drop(waiting);
+        self.counters.dropped.fetch_add(1, Ordering::Relaxed);
+        warn!(robot, trigger, "{why}: incident not written");
+        false
     }
 
     /// Asks the writer thread to stop once it has written what it was handed (waits for room
@@ -138,27 +162,49 @@ pub fn spawn(
 ) -> std::io::Result<(IncidentSender, JoinHandle<()>)> {
     let (queue, received) = sync_channel(QUEUE);
     let counters = Arc::new(StoreCounters::default());
+    let waiting = Waiting::default();
     let thread_counters = Arc::clone(&counters);
+    let thread_waiting = Arc::clone(&waiting);
     let handle = std::thread::Builder::new()
         .name("armtwin-recorder".to_owned())
-        .spawn(move || run(&settings, &received, &thread_counters, &announce))?;
-    Ok((IncidentSender { queue, counters }, handle))
+        .spawn(move || {
+            run(
+                &settings,
+                &received,
+                &thread_waiting,
+                &thread_counters,
+                &announce,
+            );
+        })?;
+    Ok((
+        IncidentSender {
+            queue,
+            waiting,
+            counters,
+        },
+        handle,
+    ))
 }
 
 fn run(
     settings: &StoreSettings,
     received: &Receiver<Job>,
+    waiting: &Waiting,
     counters: &StoreCounters,
     announce: &dyn Fn(&Outcome),
 ) {
     while let Ok(Job::Write(incident)) = received.recv() {
+        waiting
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .remove(&incident.robot);
         let outcome = write(settings, &incident);
         match &outcome {
             Outcome::Recorded { path, bytes, .. } => {
                 counters.files.fetch_add(1, Ordering::Relaxed);
                 counters.bytes.fetch_add(*bytes, Ordering::Relaxed);
                 info!(robot = incident.robot, trigger = incident.trigger.kind, path = %path.display(), bytes, "incident recorded");
-                let removed = prune(&settings.dir, settings.max_files, settings.max_bytes);
+                let removed = prune(settings);
                 counters.removed.fetch_add(removed, Ordering::Relaxed);
             }
             Outcome::Failed { path, error, .. } => {
@@ -355,22 +401,57 @@ pub fn robot_file(dir: &Path, robot: &str, name: &str) -> Option<(PathBuf, u64)>
     Some((dir.join(robot_directory(robot)).join(name), bytes))
 }
 
-/// Removes the oldest files under `dir` until at most `max_files` of at most `max_bytes` are
-/// left; how many went.
-fn prune(dir: &Path, max_files: usize, max_bytes: u64) -> u64 {
-    let found = files(dir);
-    let mut count = found.len();
-    let mut bytes: u64 = found.iter().map(|(_, size)| size).sum();
+/// A robot's files, oldest first, and their total.
+#[derive(Default)]
+struct Held {
+    files: std::collections::VecDeque<(PathBuf, u64)>,
+    bytes: u64,
+}
+
+impl Held {
+    /// Removes the oldest file; its size if it went (a file that cannot go leaves the list
+    /// all the same, so that no turn loops on it).
+    fn remove_oldest(&mut self) -> Option<u64> {
+        let (path, size) = self.files.pop_front()?;
+        self.bytes -= size;
+        fs::remove_file(&path).ok().map(|()| size)
+    }
+}
+
+/// Retention: every robot's oldest files past its share, then, while the fleet is past its
+/// own, the oldest file of the robot that holds the most (files when the count is over, bytes
+/// when the bytes are); how many went.
+fn prune(settings: &StoreSettings) -> u64 {
+    let mut robots: BTreeMap<PathBuf, Held> = BTreeMap::new();
+    for (path, size) in files(&settings.dir) {
+        let robot = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        let held = robots.entry(robot).or_default();
+        held.files.push_back((path, size));
+        held.bytes += size;
+    }
     let mut removed = 0;
-    for (path, size) in found {
-        if count <= max_files && bytes <= max_bytes {
-            break;
+    for held in robots.values_mut() {
+        while held.files.len() > settings.robot_max_files || held.bytes > settings.robot_max_bytes {
+            if held.remove_oldest().is_some() {
+                removed += 1;
+            }
         }
-        // Kept for the next turn if it cannot go now.
-        if fs::remove_file(&path).is_ok() {
+    }
+    loop {
+        let count: usize = robots.values().map(|held| held.files.len()).sum();
+        let bytes: u64 = robots.values().map(|held| held.bytes).sum();
+        let most = if count > settings.max_files {
+            robots.values_mut().max_by_key(|held| held.files.len())
+        } else if bytes > settings.max_bytes {
+            robots.values_mut().max_by_key(|held| held.bytes)
+        } else {
+            break;
+        };
+        let Some(most) = most.filter(|held| !held.files.is_empty()) else {
+            break;
+        };
+        if most.remove_oldest().is_some() {
             removed += 1;
-            count -= 1;
-            bytes -= size;
         }
     }
     removed
@@ -380,7 +461,109 @@ fn prune(dir: &Path, max_files: usize, max_bytes: u64) -> u64 {
 mod tests {
     use std::time::{Duration, UNIX_EPOCH};
 
-    use super::{civil_from_days, robot_directory, utc_stamp};
+    use super::{StoreSettings, civil_from_days, files, prune, robot_directory, utc_stamp};
+
+    /// `files` files of `bytes` each for every robot, named in time order across robots.
+    fn fill(dir: &std::path::Path, robots: &[(&str, usize, usize)]) {
+        let mut second = 0;
+        for (robot, count, bytes) in robots {
+            let robot_dir = dir.join(robot);
+            std::fs::create_dir_all(&robot_dir).expect("a robot folder");
+            for _ in 0..*count {
+                second += 1;
+                let name = format!("2026-12-05T10-00-{second:02}.000Z-gap.mcap");
+                std::fs::write(robot_dir.join(name), vec![0_u8; *bytes]).expect("a file");
+            }
+        }
+    }
+
+    /// Each robot's file count, by robot folder.
+    fn counts(dir: &std::path::Path) -> Vec<(String, usize)> {
+        let mut by_robot = std::collections::BTreeMap::new();
+        for (path, _) in files(dir) {
+            let robot = path.parent().and_then(|p| p.file_name()).expect("a folder");
+            *by_robot
+                .entry(robot.to_string_lossy().into_owned())
+                .or_insert(0) += 1;
+        }
+        by_robot.into_iter().collect()
+    }
+
+    fn settings(dir: &std::path::Path, fleet: (usize, u64), robot: (usize, u64)) -> StoreSettings {
+        StoreSettings {
+            dir: dir.to_path_buf(),
+            max_files: fleet.0,
+            max_bytes: fleet.1,
+            robot_max_files: robot.0,
+            robot_max_bytes: robot.1,
+        }
+    }
+
+    #[test]
+    fn a_robot_keeps_its_own_share_and_no_more() {
+        let dir = tempfile::tempdir().expect("a folder");
+        // The noisy robot's files are the newest: a fleet-wide "oldest first" would take
+        // the quiet robots' instead.
+        fill(
+            dir.path(),
+            &[("quiet-1", 3, 10), ("quiet-2", 2, 10), ("noisy", 40, 10)],
+        );
+        assert_eq!(
+            prune(&settings(dir.path(), (100, 1 << 20), (10, 1 << 20))),
+            30
+        );
+        assert_eq!(
+            counts(dir.path()),
+            [
+                ("noisy".to_owned(), 10),
+                ("quiet-1".to_owned(), 3),
+                ("quiet-2".to_owned(), 2)
+            ]
+        );
+        // By bytes alike: 35 bytes hold three files of 10.
+        assert_eq!(prune(&settings(dir.path(), (100, 1 << 20), (10, 35))), 7);
+        assert_eq!(counts(dir.path())[0], ("noisy".to_owned(), 3));
+        // The newest are the ones kept.
+        let kept: Vec<String> = files(dir.path())
+            .into_iter()
+            .filter(|(path, _)| path.to_string_lossy().contains("noisy"))
+            .map(|(path, _)| {
+                path.file_name()
+                    .expect("a name")
+                    .to_string_lossy()
+                    .into_owned()
+            })
+            .collect();
+        assert_eq!(kept.len(), 3);
+        assert!(
+            kept.iter()
+                .all(|name| name.as_str() >= "2026-12-05T10-00-43"),
+            "{kept:?}"
+        );
+    }
+
+    #[test]
+    fn past_the_fleet_cap_the_robot_holding_the_most_gives_way() {
+        let dir = tempfile::tempdir().expect("a folder");
+        fill(dir.path(), &[("a", 5, 10), ("b", 8, 10), ("c", 2, 10)]);
+        // 15 files, 10 allowed: each turn the robot with the most gives its oldest (b four, a one).
+        assert_eq!(
+            prune(&settings(dir.path(), (10, 1 << 20), (100, 1 << 20))),
+            5
+        );
+        assert_eq!(
+            counts(dir.path()),
+            [
+                ("a".to_owned(), 4),
+                ("b".to_owned(), 4),
+                ("c".to_owned(), 2)
+            ]
+        );
+        // Over the fleet's bytes: the biggest holder by bytes gives way.
+        fill(dir.path(), &[("d", 1, 500)]);
+        assert_eq!(prune(&settings(dir.path(), (100, 400), (100, 1 << 20))), 1);
+        assert!(counts(dir.path()).iter().all(|(robot, _)| robot != "d"));
+    }
 
     #[test]
     fn robot_ids_become_one_safe_directory_each() {

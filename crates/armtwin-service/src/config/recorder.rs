@@ -75,6 +75,8 @@ impl RecorderConfig {
                 dir: base_dir.join(&section.dir),
                 max_files: section.max_files,
                 max_bytes: section.max_bytes,
+                robot_max_files: section.robot_max_files,
+                robot_max_bytes: section.robot_max_bytes,
             },
         }
     }
@@ -116,11 +118,16 @@ pub(super) fn load_recorder(
             ),
         ));
     }
-    if section.max_files == 0 {
-        return Err(invalid(
-            "max_files",
-            "0 would remove every file it writes".to_owned(),
-        ));
+    for (field, files) in [
+        ("max_files", section.max_files),
+        ("robot_max_files", section.robot_max_files),
+    ] {
+        if files == 0 {
+            return Err(invalid(
+                field,
+                "0 would remove every file it writes".to_owned(),
+            ));
+        }
     }
     let records = robots
         .iter()

@@ -37,6 +37,13 @@ const STALLED_GRACE: Duration = Duration::from_secs(2);
 /// Triggers folded into one incident; more are counted in its last line.
 const MAX_LOG_LINES: usize = 32;
 
+/// Incidents a robot may set off back to back; after them, one per `post_s` of wall time (one
+/// per second at least), so that a robot whose stamps jump (a gap incident each sample) takes
+/// the writer thread and the disk at that pace, and the other robots' incidents still go out.
+/// Triggers held back are counted in the robot's next incident. Operators' requests are not
+/// held back.
+const INCIDENT_BURST: f64 = 4.0;
+
 /// What every robot's recorder shares: the settings, the fleet's ring budget and the writer
 /// thread.
 pub(super) struct Recorder {
@@ -107,6 +114,9 @@ impl Recorder {
                 .map_or_else(|| "nominal".to_owned(), |c| c.source_name.clone()),
             frame_id: model.frame().as_str().to_owned(),
             pending: None,
+            incident_tokens: INCIDENT_BURST,
+            refilled: Instant::now(),
+            held_back: 0,
         })
     }
 
@@ -187,6 +197,11 @@ pub(super) struct RobotRecording {
     calibration_source: String,
     frame_id: String,
     pending: Option<Pending>,
+    /// Incidents the robot may set off now ([`INCIDENT_BURST`] at most), as of `refilled`.
+    incident_tokens: f64,
+    refilled: Instant,
+    /// Triggers held back since the robot's last incident.
+    held_back: usize,
 }
 
 /// What an operator's record request started.
@@ -234,14 +249,19 @@ impl RobotRecording {
     }
 
     /// Sets an incident off at `stamp_s` (or folds this trigger into the pending one, whose
-    /// file it then also explains).
+    /// file it then also explains); `None` when the robot has set off its share of incidents
+    /// lately ([`INCIDENT_BURST`]) and the trigger is held back.
     pub(super) fn trigger(
         &mut self,
         kind: &'static str,
         stamp_s: f64,
         text: String,
         (pre_s, post_s): (f64, f64),
-    ) -> &Trigger {
+    ) -> Option<&Trigger> {
+        if self.pending.is_none() && kind != "operator" && !self.take_incident_token(post_s) {
+            self.held_back += 1;
+            return None;
+        }
         let level = if kind == "operator" {
             LOG_INFO
         } else {
@@ -265,12 +285,39 @@ impl RobotRecording {
             log: Vec::new(),
             folded: 0,
         });
+        if self.held_back > 0 {
+            pending.log.push(LogLine {
+                stamp_s,
+                level: LOG_WARN,
+                text: format!(
+                    "{} triggers since this robot's last incident were held back: after {} \
+                     incidents back to back, a robot sets off one per post_s",
+                    self.held_back, INCIDENT_BURST
+                ),
+            });
+            self.held_back = 0;
+        }
         if pending.log.len() < MAX_LOG_LINES {
             pending.log.push(line);
         } else {
             pending.folded += 1;
         }
-        &pending.trigger
+        Some(&pending.trigger)
+    }
+
+    /// Takes one of the robot's incident tokens, refilled at one per `post_s` (one per second
+    /// at least) of wall time; `false` when none is left.
+    fn take_incident_token(&mut self, post_s: f64) -> bool {
+        let now = Instant::now();
+        let period_s = post_s.max(1.0);
+        let refill = now.duration_since(self.refilled).as_secs_f64() / period_s;
+        self.incident_tokens = (self.incident_tokens + refill).min(INCIDENT_BURST);
+        self.refilled = now;
+        if self.incident_tokens < 1.0 {
+            return false;
+        }
+        self.incident_tokens -= 1.0;
+        true
     }
 
     /// An operator's request for the `pre_s` before the robot's newest sample and the `post_s`
@@ -285,7 +332,7 @@ impl RobotRecording {
             "detail": {"pre_s": span.0, "post_s": span.1},
         })
         .to_string();
-        let trigger = self.trigger("operator", stamp_s, text, span).clone();
+        let trigger = self.trigger("operator", stamp_s, text, span)?.clone();
         let pending = self.pending.as_ref()?;
         Some(Requested {
             from_s: pending.from_s,

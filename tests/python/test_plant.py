@@ -143,3 +143,29 @@ def test_silent_robots_are_retired(armtwin_bin, tmp_path):
         assert service.state(robots[7])["joints"]["t"] == 5.0
         assert wait_until(lambda: c.count("pose", robots[7]) == 4, 5)
         assert [p["seq"] for p in c.messages("pose", robots[7])] == [0, 1, 2, 0], "a new twin's poses"
+
+
+def test_a_gateways_prefix_grant_fills_its_own_share_and_a_robot_granted_by_name_still_fits(armtwin_bin, tmp_path):
+    """The fleet description grants `cell-a` the prefix site-a/** with max_robots = 20 and `g2`
+    the robot r2; the service reads it (`[service] fleet`), max_robots = 30. 500 made-up ids under
+    site-a: 20 tracked, the rest refused with fleet_full events that name the grant; r2, which
+    arrives after the flood, is twinned (before: it was refused once the flood had filled the
+    fleet's max_robots)."""
+    (tmp_path / "fleet.toml").write_text(
+        '[gateways]\ncell-a = { robots = ["site-a/**"], max_robots = 20 }\ng2 = ["r2"]\n')
+    config = plant_config('max_robots = 30\nfleet = "fleet.toml"')
+    with DashboardService(armtwin_bin, tmp_path, config) as service:
+        session = service.client.session
+        service.client.ready(["r2"])
+        for i in range(500):
+            put_joints(session, f"site-a/flood-{i}", 1.0)
+        c = service.client.collector
+        assert wait_until(lambda: (exposed(service, "armtwin_robots_refused_total") or 0) >= 480, 60), (
+            exposed(service, "armtwin_robots_refused_total"), service.proc.logs())
+        assert exposed(service, "armtwin_robots_tracked") == 20.0
+        refusals = [e for i in range(500) for e in c.messages("events", f"site-a/flood-{i}")]
+        assert refusals and all(e["detail"] == {"cause": "fleet_full"} for e in refusals), refusals[:3]
+        assert all("'site-a/**'" in e["reason"] and "its gateway's grant" in e["reason"] for e in refusals), refusals[0]
+        put_joints(session, "r2", 1.0)
+        assert wait_until(lambda: (service.state("r2").get("joints") or {}).get("t") == 1.0, 10), service.proc.logs()
+        assert exposed(service, "armtwin_robots_tracked") == 21.0

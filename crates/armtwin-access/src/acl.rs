@@ -82,7 +82,29 @@ struct FleetFile {
     operators: Vec<String>,
     /// Gateway CN → the robots it speaks for.
     #[serde(default)]
-    gateways: BTreeMap<String, Vec<String>>,
+    gateways: BTreeMap<String, Grant>,
+}
+
+/// A gateway's robots: a list, or a table with the most robots of its prefixes it may bring.
+#[derive(Debug, Deserialize)]
+#[serde(untagged, deny_unknown_fields)]
+enum Grant {
+    Robots(Vec<String>),
+    Limited {
+        robots: Vec<String>,
+        max_robots: usize,
+    },
+}
+
+/// The most robots one gateway's prefix grant (`site-a/**`) brings to armtwin unless its
+/// `max_robots` says otherwise.
+pub const DEFAULT_GRANT_MAX_ROBOTS: usize = 1000;
+
+/// `site-a/` of a grant `site-a/**` whose head has no wildcard (a key expression of another
+/// shape names no prefix).
+fn granted_prefix(entry: &str) -> Option<&str> {
+    let head = entry.strip_suffix("**")?;
+    (head.ends_with('/') && !head.contains('*') && !head.contains('$')).then_some(head)
 }
 
 fn default_prefix() -> String {
@@ -150,6 +172,8 @@ pub struct Fleet {
     operators: Vec<String>,
     /// Each gateway's name and robots (id or key expression over ids), by name.
     gateways: Vec<(String, Vec<String>)>,
+    /// Each prefix granted to a gateway (`site-a/` of `site-a/**`) and the most robots of it.
+    groups: Vec<(String, usize)>,
 }
 
 impl Fleet {
@@ -187,7 +211,22 @@ impl Fleet {
         if roles.is_empty() {
             return Err(AclError::Empty);
         }
-        for (gateway, robots) in &file.gateways {
+        let mut gateways = Vec::with_capacity(file.gateways.len());
+        let mut groups = Vec::new();
+        for (gateway, grant) in file.gateways {
+            let (robots, max_robots) = match grant {
+                Grant::Robots(robots) => (robots, DEFAULT_GRANT_MAX_ROBOTS),
+                Grant::Limited { robots, max_robots } => (robots, max_robots),
+            };
+            groups.extend(
+                robots
+                    .iter()
+                    .filter_map(|entry| granted_prefix(entry))
+                    .map(|prefix| (prefix.to_owned(), max_robots)),
+            );
+            gateways.push((gateway, robots));
+        }
+        for (gateway, robots) in &gateways {
             if robots.is_empty() {
                 return Err(AclError::NoRobots {
                     gateway: gateway.clone(),
@@ -206,8 +245,17 @@ impl Fleet {
             armtwin: file.armtwin,
             dashboards: file.dashboards,
             operators: file.operators,
-            gateways: file.gateways.into_iter().collect(),
+            gateways,
+            groups,
         })
+    }
+
+    /// Each robot-id prefix granted to a gateway (`site-a/` of `site-a/**`), with the most robots
+    /// of it the gateway may bring (`max_robots` of its grant, else
+    /// [`DEFAULT_GRANT_MAX_ROBOTS`]).
+    #[must_use]
+    pub fn robot_groups(&self) -> &[(String, usize)] {
+        &self.groups
     }
 
     /// The router's `access_control` section: default deny, one rule per thing a role may do,
@@ -967,6 +1015,31 @@ mod tests {
             refused("[gateways]\ng = [\"a?b\"]"),
             AclError::Robots { .. }
         ));
+    }
+
+    #[test]
+    fn prefix_grants_carry_their_robot_limits() {
+        let fleet = Fleet::parse(
+            "[gateways]\ng1 = [\"r1\", \"site-b/**\"]\n\
+             cell-a = { robots = [\"site-a/**\", \"*/r9\"], max_robots = 20 }\n",
+        )
+        .expect("a fleet");
+        assert_eq!(
+            fleet.robot_groups(),
+            [
+                ("site-a/".to_owned(), 20),
+                ("site-b/".to_owned(), DEFAULT_GRANT_MAX_ROBOTS)
+            ]
+        );
+        // The table form writes the same rules as the list.
+        let listed = Fleet::parse("[gateways]\ncell-a = [\"site-a/**\"]\n").expect("a fleet");
+        let limited =
+            Fleet::parse("[gateways]\ncell-a = { robots = [\"site-a/**\"], max_robots = 5 }\n")
+                .expect("a fleet");
+        assert_eq!(listed.access_control(), limited.access_control());
+        assert!(
+            Fleet::parse("[gateways]\ncell-a = { robots = [\"site-a/**\"], most = 5 }\n").is_err()
+        );
     }
 
     #[test]

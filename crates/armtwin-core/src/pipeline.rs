@@ -42,7 +42,7 @@ use std::sync::Arc;
 use nalgebra::IsometryMatrix3;
 
 pub use self::alarm::{AlarmChange, AlarmConfig, AlarmStates, Alarms};
-pub use self::directory::{Robot, RobotDirectory, RobotIndex, Untracked};
+pub use self::directory::{Robot, RobotDirectory, RobotGroup, RobotIndex, Untracked};
 pub use self::event::{Event, EventDetail, EventKind, Reason, RejectCause};
 pub use self::record::{AppliedModel, RestoreError, TwinRecord};
 pub use self::sink::Sink;
@@ -205,6 +205,16 @@ pub fn reject_untracked(
         Untracked::Full { max_robots } => {
             (RejectCause::FleetFull, Reason::FleetFull { max_robots })
         }
+        Untracked::GroupFull {
+            max_robots,
+            prefix_len,
+        } => (
+            RejectCause::FleetFull,
+            Reason::GroupFull {
+                max_robots,
+                prefix_len,
+            },
+        ),
     };
     sink.event(&Event {
         robot,

@@ -122,7 +122,7 @@ pub(super) fn serve(
                             // A port scan or a client that distrusts the certificate: not the
                             // service's problem, so not a warning.
                             Ok(Err(e)) => {
-                                debug!(%peer, error = %e, "dashboard TLS handshake failed")
+                                debug!(%peer, error = %e, "dashboard TLS handshake failed");
                             }
                             Err(_) => debug!(%peer, "dashboard TLS handshake timed out"),
                         }

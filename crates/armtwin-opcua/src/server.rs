@@ -294,9 +294,11 @@ impl Sampler {
                 "OPC UA: refused client certificates removed, the oldest first (a client is \
                  presenting new ones)"
             ),
-            Err(e) => {
-                warn!(error = %e, dir = %self.rejected_dir.display(), "OPC UA: cannot prune refused client certificates")
-            }
+            Err(e) => warn!(
+                error = %e,
+                dir = %self.rejected_dir.display(),
+                "OPC UA: cannot prune refused client certificates"
+            ),
         }
     }
 

@@ -72,6 +72,23 @@ pub enum Untracked {
         /// The limit.
         max_robots: usize,
     },
+    /// The robot's group holds as many robots as it may ([`RobotDirectory::with_groups`]).
+    GroupFull {
+        /// The group's limit.
+        max_robots: usize,
+        /// The group's prefix is the robot id's first `prefix_len` bytes.
+        prefix_len: usize,
+    },
+}
+
+/// Robots whose ids start with one prefix (`site-a/`), admitted up to a limit of their own: one
+/// gateway granted a prefix cannot fill the fleet's `max_robots` with made-up ids.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RobotGroup {
+    /// Every id that starts with it belongs to the group (the longest such prefix's group).
+    pub prefix: String,
+    /// Robots of the group admitted under the default settings at most.
+    pub max_robots: usize,
 }
 
 /// Robots with settings, by id: the configured ones for good, robots under the default settings
@@ -88,6 +105,8 @@ pub struct RobotDirectory {
     configured: usize,
     /// Most robots held; configured robots always fit.
     max_robots: usize,
+    /// Groups by prefix, each with the robots of it held now (configured ones not counted).
+    groups: Vec<(RobotGroup, usize)>,
 }
 
 impl RobotDirectory {
@@ -107,6 +126,7 @@ impl RobotDirectory {
             free: Vec::new(),
             configured: configured.len(),
             max_robots: usize::MAX,
+            groups: Vec::new(),
         };
         for (id, settings) in configured {
             directory.insert(&id, Arc::new(settings));
@@ -120,6 +140,24 @@ impl RobotDirectory {
     pub fn limit_to(mut self, max_robots: usize) -> Self {
         self.max_robots = max_robots;
         self
+    }
+
+    /// Admits robots under the default settings of each group only while fewer than its
+    /// `max_robots` of them are held.
+    #[must_use]
+    pub fn with_groups(mut self, groups: Vec<RobotGroup>) -> Self {
+        self.groups = groups.into_iter().map(|group| (group, 0)).collect();
+        self
+    }
+
+    /// The group robot `id` belongs to (the longest prefix of it), by position.
+    fn group_of(&self, id: &str) -> Option<usize> {
+        self.groups
+            .iter()
+            .enumerate()
+            .filter(|(_, (group, _))| id.starts_with(group.prefix.as_str()))
+            .max_by_key(|(_, (group, _))| group.prefix.len())
+            .map(|(position, _)| position)
     }
 
     fn insert(&mut self, id: &str, settings: Arc<RobotSettings>) -> RobotIndex {
@@ -153,8 +191,12 @@ impl RobotDirectory {
         let index = if let Some(&index) = self.index_of.get(id) {
             index
         } else {
-            self.admission()?;
+            self.admission_of(id)?;
             let settings = self.default_settings.clone().ok_or(Untracked::Unknown)?;
+            let group = self.group_of(id);
+            if let Some(group) = group {
+                self.groups[group].1 += 1;
+            }
             self.insert(id, settings)
         };
         self.robots
@@ -174,6 +216,22 @@ impl RobotDirectory {
             })
         } else {
             Ok(())
+        }
+    }
+
+    /// Whether robot `id`, not in the directory, would be admitted now, or why not: as
+    /// [`admission`](Self::admission), and within its group's limit.
+    pub fn admission_of(&self, id: &str) -> Result<(), Untracked> {
+        self.admission()?;
+        match self.group_of(id) {
+            Some(group) if self.groups[group].1 >= self.groups[group].0.max_robots => {
+                let (group, _) = &self.groups[group];
+                Err(Untracked::GroupFull {
+                    max_robots: group.max_robots,
+                    prefix_len: group.prefix.len(),
+                })
+            }
+            _ => Ok(()),
         }
     }
 
@@ -219,6 +277,9 @@ impl RobotDirectory {
         self.index_of.remove(robot.id());
         self.robots[robot.index.0] = None;
         self.free.push(robot.index);
+        if let Some(group) = self.group_of(robot.id()) {
+            self.groups[group].1 = self.groups[group].1.saturating_sub(1);
+        }
         // After a flood of ids has come and gone, give the table's memory back.
         if self.index_of.capacity() > 64 && self.index_of.len() * 4 < self.index_of.capacity() {
             self.index_of.shrink_to_fit();
@@ -288,6 +349,43 @@ mod tests {
             unknown.admit("x").map(Robot::index),
             Err(Untracked::Unknown)
         );
+    }
+
+    #[test]
+    fn a_group_fills_its_own_share_and_leaves_the_fleet_its_room() {
+        let groups = vec![
+            RobotGroup {
+                prefix: "site-a/".to_owned(),
+                max_robots: 2,
+            },
+            RobotGroup {
+                prefix: "site-a/cell-9/".to_owned(),
+                max_robots: 1,
+            },
+        ];
+        let mut robots = directory(10).with_groups(groups);
+        let first = robots.admit("site-a/1").expect("room").clone();
+        assert!(robots.admit("site-a/2").is_ok());
+        assert_eq!(
+            robots.admit("site-a/3").map(Robot::index),
+            Err(Untracked::GroupFull {
+                max_robots: 2,
+                prefix_len: "site-a/".len()
+            })
+        );
+        // The longest prefix's group, with its own share.
+        assert!(robots.admit("site-a/cell-9/x").is_ok());
+        assert!(matches!(
+            robots.admit("site-a/cell-9/y"),
+            Err(Untracked::GroupFull { max_robots: 1, .. })
+        ));
+        // Outside the groups, the fleet's room is left; a configured id always fits.
+        assert!(robots.admit("r2").is_ok());
+        assert!(robots.admit("cell/a").is_ok());
+        // A forgotten robot gives its group's place back.
+        assert!(robots.forget(&first));
+        assert!(robots.admit("site-a/3").is_ok());
+        assert!(robots.admission_of("site-a/4").is_err());
     }
 
     #[test]

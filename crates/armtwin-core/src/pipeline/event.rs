@@ -243,6 +243,13 @@ pub enum Reason<'a> {
         /// The most robots the fleet holds.
         max_robots: usize,
     },
+    /// The robot is new and its group (the robots of one prefix) is full.
+    GroupFull {
+        /// The most robots the group holds.
+        max_robots: usize,
+        /// The group's prefix is the robot id's first `prefix_len` bytes.
+        prefix_len: usize,
+    },
     /// An alarm or its recovery.
     Alarm {
         /// The metric's unit (`m`, `rad`).
@@ -346,6 +353,34 @@ impl Event<'_> {
     }
 }
 
+impl Event<'_> {
+    /// The sentence of a robot that may not be tracked.
+    fn write_untracked(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.reason {
+            Reason::FleetFull { max_robots } => write!(
+                f,
+                "robot '{}' is new and the fleet already holds {max_robots} robots (max_robots)",
+                self.robot
+            ),
+            Reason::GroupFull {
+                max_robots,
+                prefix_len,
+            } => write!(
+                f,
+                "robot '{}' is new and the robots of '{}**' already number {max_robots} (the \
+                 max_robots of its gateway's grant)",
+                self.robot,
+                self.robot.get(..prefix_len).unwrap_or_default()
+            ),
+            _ => write!(
+                f,
+                "robot '{}' is not configured and unknown robots are rejected",
+                self.robot
+            ),
+        }
+    }
+}
+
 impl fmt::Display for Event<'_> {
     /// The sentence for people (the event message's `reason`).
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -376,16 +411,9 @@ impl fmt::Display for Event<'_> {
                 f,
                 "measured pose {position_m:?} m is {distance_m} m from the twin: not a pose of this robot"
             ),
-            (Reason::UnknownRobot, _) => write!(
-                f,
-                "robot '{}' is not configured and unknown robots are rejected",
-                self.robot
-            ),
-            (Reason::FleetFull { max_robots }, _) => write!(
-                f,
-                "robot '{}' is new and the fleet already holds {max_robots} robots (max_robots)",
-                self.robot
-            ),
+            (Reason::UnknownRobot | Reason::FleetFull { .. } | Reason::GroupFull { .. }, _) => {
+                self.write_untracked(f)
+            }
             (
                 Reason::Alarm { unit, hold_s },
                 EventDetail::Alarm {

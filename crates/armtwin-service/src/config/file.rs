@@ -168,6 +168,8 @@ pub(super) struct ServiceSection {
     pub(super) encoding: OutputEncoding,
     pub(super) pose_congestion: Congestion,
     pub(super) admin: AdminAccess,
+    /// The fleet description whose prefix grants bound their robots (`max_robots` per grant).
+    pub(super) fleet: Option<PathBuf>,
     pub(super) events_per_s: f64,
     pub(super) events_burst: u32,
     pub(super) robots: String,
@@ -190,6 +192,7 @@ impl Default for ServiceSection {
             encoding: OutputEncoding::Json,
             pose_congestion: Congestion::Drop,
             admin: AdminAccess::Loopback,
+            fleet: None,
             events_per_s: EventBudget::default().per_s,
             events_burst: EventBudget::default().burst,
             robots: "**".to_owned(),

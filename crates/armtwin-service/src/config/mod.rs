@@ -193,6 +193,9 @@ pub struct ServiceConfig {
     pub pose_congestion: Congestion,
     /// Who may use the admin queries (`[service] admin`).
     pub admin: AdminAccess,
+    /// The robots of each prefix a gateway is granted in the fleet description
+    /// (`[service] fleet`), admitted up to the grant's own limit.
+    pub robot_groups: Vec<armtwin_core::pipeline::RobotGroup>,
     /// How many events per robot are published.
     pub event_budget: EventBudget,
     /// Reject robots that are not configured (else they get `[robots.default]`).
@@ -361,6 +364,7 @@ impl ServiceConfig {
             encoding: service.encoding,
             pose_congestion: service.pose_congestion,
             admin: service.admin,
+            robot_groups: robot_groups(&service, (source_name, base_dir))?,
             event_budget: EventBudget {
                 per_s: service.events_per_s,
                 burst: service.events_burst,
@@ -607,6 +611,48 @@ fn check_service_and_align(
             restart_s: positive("align.restart_s", align.restart_s)?,
         })
     }
+}
+
+/// The prefix grants of the fleet description `[service] fleet` names, each a group of robots
+/// with the grant's `max_robots`; none without one. Their limits together must leave room under
+/// `max_robots` for the robots outside them (the ids granted by name, the configured ones).
+fn robot_groups(
+    service: &ServiceSection,
+    (source_name, base_dir): (&str, &Path),
+) -> Result<Vec<armtwin_core::pipeline::RobotGroup>, ConfigError> {
+    let Some(path) = &service.fleet else {
+        return Ok(Vec::new());
+    };
+    let path = base_dir.join(path);
+    let text = std::fs::read_to_string(&path).map_err(|source| ConfigError::Read {
+        path: path.display().to_string(),
+        source,
+    })?;
+    let invalid = |problem: String| ConfigError::Invalid {
+        source_name: source_name.to_owned(),
+        field: "service.fleet".to_owned(),
+        problem,
+    };
+    let fleet = armtwin_access::acl::Fleet::parse(&text)
+        .map_err(|e| invalid(format!("{}: {e}", path.display())))?;
+    let groups: Vec<armtwin_core::pipeline::RobotGroup> = fleet
+        .robot_groups()
+        .iter()
+        .map(|(prefix, max_robots)| armtwin_core::pipeline::RobotGroup {
+            prefix: prefix.clone(),
+            max_robots: *max_robots,
+        })
+        .collect();
+    let granted: usize = groups.iter().map(|group| group.max_robots).sum();
+    if granted >= service.max_robots {
+        return Err(invalid(format!(
+            "the grants' max_robots add up to {granted}, which leaves no room under \
+             service.max_robots ({}) for the robots granted by name: raise max_robots or lower \
+             the grants' limits",
+            service.max_robots
+        )));
+    }
+    Ok(groups)
 }
 
 #[cfg(test)]

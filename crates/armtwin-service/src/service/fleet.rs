@@ -361,7 +361,8 @@ impl Fleet {
             pipeline: config.pipeline,
             directory: RwLock::new(Directory {
                 robots: RobotDirectory::new(config.default_robot.clone(), config.robots.clone())
-                    .limit_to(config.max_robots),
+                    .limit_to(config.max_robots)
+                    .with_groups(config.robot_groups.clone()),
                 cells: Vec::new(),
             }),
             sinks,
@@ -520,7 +521,7 @@ impl Fleet {
             } else {
                 // Made-up ids of a service that rejects unknown robots, or of a full fleet, never
                 // take the write lock.
-                if let Err(why) = directory.robots.admission() {
+                if let Err(why) = directory.robots.admission_of(id) {
                     if !crate::config::owns(&self.shard, id) {
                         return Lookup::Foreign;
                     }

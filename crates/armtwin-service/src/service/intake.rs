@@ -121,8 +121,11 @@ pub(super) async fn declare_intake(
         }
     }
     declare_sources(session, config, &router, &mut subscribers).await?;
+    if let Some(why) = &admin_refusal {
+        info!("{why}");
+    }
     let queries = Queries::new(Arc::clone(fleet), keys.clone(), admin_refusal);
-    let pool = QueryPool::start(Arc::new(queries))
+    let pool = QueryPool::start(queries)
         .map_err(|e| ServiceError::Worker(format!("the query threads: {e}")))?;
     for (stream, handler) in Queries::HANDLERS {
         let pool = pool.clone();
@@ -292,16 +295,25 @@ impl Router {
                 }
                 Lookup::Refused(why) => {
                     if self.fleet.count_input() {
-                        if let Untracked::Full { max_robots } = why
+                        let limit = match why {
+                            Untracked::Full { max_robots } => {
+                                Some((max_robots, "the fleet is full (service.max_robots)"))
+                            }
+                            Untracked::GroupFull { max_robots, .. } => Some((
+                                max_robots,
+                                "a gateway's prefix grant is full (its max_robots)",
+                            )),
+                            Untracked::Unknown => None,
+                        };
+                        if let Some((max_robots, full)) = limit
                             && self.fleet.refuse_full()
                         {
                             warn!(
                                 robot = id,
                                 max_robots,
                                 refused = self.fleet.robots_refused(),
-                                "the fleet is full (service.max_robots): samples of new robots are \
-                                 refused (logged at most once a minute; counted in \
-                                 armtwin_robots_refused_total)"
+                                "{full}: samples of new robots are refused (logged at most once a \
+                                 minute; counted in armtwin_robots_refused_total)"
                             );
                         }
                         let mut sink = self.fleet.untracked_sink();

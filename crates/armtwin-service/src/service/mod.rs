@@ -136,9 +136,6 @@ pub async fn serve(
         restore_snapshot(store, &fleet, &config);
     }
 
-    if let Some(why) = &admin_refusal {
-        info!("{why}");
-    }
     let intake = match declare_intake(&session, &config, &fleet, admin_refusal).await {
         Ok(intake) => intake,
         Err(e) => {

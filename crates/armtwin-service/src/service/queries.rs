@@ -52,7 +52,8 @@ pub(super) struct QueryPool {
 impl QueryPool {
     /// [`QUERY_THREADS`] threads answering with `queries`, until every handle of the pool is
     /// dropped (the queryables undeclared).
-    pub(super) fn start(queries: Arc<Queries>) -> std::io::Result<Self> {
+    pub(super) fn start(queries: Queries) -> std::io::Result<Self> {
+        let queries = Arc::new(queries);
         let (waiting, received) =
             sync_channel::<(Query, Stream, QueryHandler)>(MAX_WAITING_QUERIES);
         let received = Arc::new(std::sync::Mutex::new(received));
@@ -82,7 +83,8 @@ impl QueryPool {
     /// [`MAX_WAITING_QUERIES`] wait.
     pub(super) fn submit(&self, query: Query, stream: Stream, handler: QueryHandler) {
         match self.waiting.try_send((query, stream, handler)) {
-            Ok(()) => {}
+            // Queued; or the threads are gone, as the service is stopping.
+            Ok(()) | Err(TrySendError::Disconnected(_)) => {}
             Err(TrySendError::Full((query, _, _))) => {
                 warn!(key = %query.key_expr(), "query refused: {MAX_WAITING_QUERIES} queries wait already");
                 Queries::reply_err(
@@ -90,8 +92,6 @@ impl QueryPool {
                     &format!("busy: {MAX_WAITING_QUERIES} queries wait already; ask again"),
                 );
             }
-            // The threads are gone: the service is stopping.
-            Err(TrySendError::Disconnected(_)) => {}
         }
     }
 }

@@ -65,6 +65,13 @@ pub(super) fn restore_snapshot(store: &SnapshotStore, fleet: &Fleet, config: &Se
                     max_robots, "twin not restored: the fleet is full (service.max_robots)"
                 );
             }
+            Err(Untracked::GroupFull { max_robots, .. }) => {
+                warn!(
+                    robot = id,
+                    max_robots,
+                    "twin not restored: its group is full (its gateway's grant's max_robots)"
+                );
+            }
         }
     }
     // Every twin is built before any is installed: one foreign record (or a robot recorded

@@ -49,6 +49,7 @@ use tokio::sync::{Semaphore, mpsc};
 use zenoh::Session;
 use zenoh::bytes::{Encoding, ZBytes};
 use zenoh::key_expr::KeyExpr;
+use zenoh::qos::CongestionControl;
 use zenoh::query::{ConsolidationMode, Parameters, QueryConsolidation, Selector, ZenohParameters};
 use zenoh::sample::Sample;
 
@@ -214,10 +215,19 @@ async fn route(State(door): State<Door>, request: Request) -> Response {
     if reads {
         return query(&door.session, key_expr, &parameters, encoding, body).await;
     }
+    // A 200 says the write went out: it waits for room on a busy link (Zenoh closes a link
+    // that stays stuck) rather than being dropped, as a put is by default.
     let result = if method == Method::DELETE {
-        door.session.delete(key_expr).await
+        door.session
+            .delete(key_expr)
+            .congestion_control(CongestionControl::Block)
+            .await
     } else {
-        door.session.put(key_expr, body).encoding(encoding).await
+        door.session
+            .put(key_expr, body)
+            .encoding(encoding)
+            .congestion_control(CongestionControl::Block)
+            .await
     };
     match result {
         Ok(()) => StatusCode::OK.into_response(),

@@ -15,6 +15,7 @@ Run: ``ARMTWIN_BIN=$PWD/target/debug/armtwin .venv/bin/python -m pytest tests/py
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hashlib
 import json
 import math
@@ -258,17 +259,24 @@ async def scenario(workdir: Path, service: ArmtwinProcess, url: str) -> None:
             twin.close()
 
 
-def test_an_opcua_client_reads_the_streaming_robot_as_a_40010_motion_device(armtwin_bin, tmp_path):
+@contextlib.contextmanager
+def opcua_service(armtwin_bin: Path, workdir: Path):
+    """The service with `[opcua]` on a free port, accepting, as (process, url); checked to stop
+    cleanly after."""
     port = free_port()
-    url = f"opc.tcp://127.0.0.1:{port}"
-    service = ArmtwinProcess(armtwin_bin, tmp_path, config(port), watchdog_s=120.0)
+    service = ArmtwinProcess(armtwin_bin, workdir, config(port), watchdog_s=120.0)
     service.start()
     try:
         assert wait_until(lambda: port_accepts(port), 15.0), service.logs()
-        asyncio.run(asyncio.wait_for(scenario(tmp_path, service, url), 90.0))
+        yield service, f"opc.tcp://127.0.0.1:{port}"
     finally:
         stopped = service.stop()
     assert stopped.code == 0, service.logs()
+
+
+def test_an_opcua_client_reads_the_streaming_robot_as_a_40010_motion_device(armtwin_bin, tmp_path):
+    with opcua_service(armtwin_bin, tmp_path) as (service, url):
+        asyncio.run(asyncio.wait_for(scenario(tmp_path, service, url), 90.0))
 
 
 async def fresh_certificates(workdir: Path, url: str, count: int) -> None:
@@ -285,12 +293,7 @@ async def fresh_certificates(workdir: Path, url: str, count: int) -> None:
 def test_certificates_refused_before_sign_in_cannot_fill_the_disk(armtwin_bin, tmp_path):
     """A client that presents a new certificate on every try leaves at most 64 of them (1 MiB)
     under pki/rejected, the newest kept for the administrator to trust."""
-    port = free_port()
-    url = f"opc.tcp://127.0.0.1:{port}"
-    service = ArmtwinProcess(armtwin_bin, tmp_path, config(port), watchdog_s=120.0)
-    service.start()
-    try:
-        assert wait_until(lambda: port_accepts(port), 15.0), service.logs()
+    with opcua_service(armtwin_bin, tmp_path) as (service, url):
         asyncio.run(asyncio.wait_for(fresh_certificates(tmp_path, url, 80), 90.0))
         rejected = tmp_path / "pki" / "rejected"
         # Pruned once a second, beside the sampler.
@@ -300,7 +303,4 @@ def test_certificates_refused_before_sign_in_cannot_fill_the_disk(armtwin_bin, t
         newest = max(kept, key=lambda f: f.stat().st_mtime)
         assert time.time() - newest.stat().st_mtime < 30, "the newest refused certificate is kept"
         assert len(kept) >= 32, f"only {len(kept)} kept: more removed than the bound asks"
-    finally:
-        stopped = service.stop()
-    assert stopped.code == 0, service.logs()
     assert "refused client certificates removed" in service.logs()

@@ -14,6 +14,7 @@
 //!   twin pose output's key.
 //! - [`ingest`]: the codec a Zenoh sample's encoding selects.
 //! - [`acl`]: a fleet description (who speaks for which robots) as a router's access control.
+//! - [`certs`]: a fleet's certificates by role: its CA, the router's, a client's per name.
 //! - [`keys`]: armtwin's key space on Zenoh: every key built and read, the robot-id grammar,
 //!   armtwin's own streams.
 //! - [`config`]: the service's TOML configuration and command-line overrides.
@@ -47,6 +48,7 @@ pub use armtwin_mesh::{controller, ingest, keys, ros2};
 
 pub mod acl;
 pub mod calibrate;
+pub mod certs;
 pub mod config;
 pub mod dashboard;
 #[cfg(test)]

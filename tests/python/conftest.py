@@ -7,6 +7,7 @@ These tests never build it: run ``cargo build`` first.
 
 from __future__ import annotations
 
+import shutil
 import sys
 from pathlib import Path
 
@@ -17,8 +18,8 @@ HERE = str(Path(__file__).resolve().parent)
 if HERE not in sys.path:
     sys.path.insert(0, HERE)
 
-from support.paths import require_armtwin, router_path  # noqa: E402
-from support.pki import make_ca, make_cert  # noqa: E402
+from support.paths import REPO_ROOT, require_armtwin, router_path  # noqa: E402
+from support.pki import make_fleet_certs  # noqa: E402
 
 
 @pytest.fixture(scope="session")
@@ -58,17 +59,17 @@ def sessions():
 
 
 @pytest.fixture(scope="module")
-def certs(tmp_path_factory) -> Path:
-    """A fleet's certificate authority and a certificate for each name config/fleet.toml gives a
-    role, and one of another authority."""
+def certs(tmp_path_factory, armtwin_bin) -> Path:
+    """``armtwin certs config/fleet.toml``: the fleet's CA, the router's certificate (localhost,
+    127.0.0.1) and a client certificate for each name the description gives a role (gateways g1,
+    g2 and cell-a, armtwin, dashboard, REST's rest, operator); and ``stranger``, a gateway's
+    certificate from a CA the router does not trust (``stranger-ca.pem``)."""
     folder = tmp_path_factory.mktemp("pki") / "certs"
-    folder.mkdir()
-    make_ca(folder, "ca")
-    # The names config/fleet.toml gives roles: gateways g1 (robot r1), g2 (r2) and cell-a
-    # (site-a/**), REST's `rest`.
-    for name in ("router", "armtwin", "g1", "g2", "cell-a", "rest", "dashboard", "operator"):
-        make_cert(folder, name)
-    # A certificate named like a gateway, signed by a CA the router does not trust.
-    make_ca(folder, "stranger-ca")
-    make_cert(folder, "stranger", ca="stranger-ca")
+    make_fleet_certs(armtwin_bin, REPO_ROOT / "config" / "fleet.toml", folder)
+    other = tmp_path_factory.mktemp("stranger-pki")
+    (other / "fleet.toml").write_text('[gateways]\nstranger = ["r1"]\n')
+    make_fleet_certs(armtwin_bin, other / "fleet.toml", other / "certs")
+    shutil.copy(other / "certs" / "ca.pem", folder / "stranger-ca.pem")
+    for suffix in (".pem", ".key"):
+        shutil.copy(other / "certs" / f"stranger{suffix}", folder / f"stranger{suffix}")
     return folder

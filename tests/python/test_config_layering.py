@@ -1,18 +1,20 @@
 """A configuration file is layered over the built-in one: a file holding only a robot's section
 serves where the built-in configuration says (tcp/127.0.0.1:7447) and a client there gets the
-robot's poses; `armtwin config show` prints the effective configuration, every default filled in;
-`serve` warns when nothing can reach it."""
+robot's poses; a `[zenoh] file` keeps its own mode and endpoints, and a client listens nowhere it
+is not told to; `armtwin config show` prints the effective configuration, every default filled in,
+and where the mode and endpoints came from; `serve` warns when nothing can reach it."""
 
 from __future__ import annotations
 
 import json
+import os
 import tomllib
 from pathlib import Path
 
 import pytest
 
 from support.paths import REPO_ROOT
-from support.process import Process, port_accepts, run_armtwin
+from support.process import Process, Router, free_port, port_accepts, run_armtwin
 from support.zenoh_clients import TwinClient
 
 DEFAULT_PORT = 7447
@@ -87,3 +89,89 @@ def test_serve_warns_when_nothing_can_reach_it(tmp_path, armtwin_bin, processes)
                     {"RUST_LOG": "armtwin=info"})
     processes.append(serve.start())
     assert serve.wait_log("listening nowhere and connecting nowhere"), serve.logs()
+
+
+def listening_ports(pid: int) -> list[int]:
+    """The TCP ports process ``pid`` listens on, any address, IPv4 or IPv6: the sockets among its
+    open files that the kernel lists in LISTEN state."""
+    inodes = set()
+    for fd in os.listdir(f"/proc/{pid}/fd"):
+        try:
+            target = os.readlink(f"/proc/{pid}/fd/{fd}")
+        except OSError:
+            continue
+        if target.startswith("socket:["):
+            inodes.add(target[len("socket:["):-1])
+    ports = []
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        for line in Path(table).read_text().splitlines()[1:]:
+            fields = line.split()
+            local, state, inode = fields[1], fields[3], fields[9]
+            if state == "0A" and inode in inodes:
+                ports.append(int(local.rsplit(":", 1)[1], 16))
+    return ports
+
+
+def exchanges_data_through(router: Router) -> None:
+    """A peer of ``router`` puts r1's joints and receives its poses back from the service."""
+    client = TwinClient(router.endpoint)
+    try:
+        client.ready(["r1"])
+        joints = client.joints("r1")
+        for seq in range(20):
+            client.put_json(joints, {"t": 1.0 + seq * 0.01, "q": Q, "seq": seq})
+        assert client.collector.wait_count("pose", "r1", 20, timeout=10)
+    finally:
+        client.close()
+
+
+def test_a_zenoh_files_client_mode_stands_and_it_listens_nowhere(tmp_path, armtwin_bin, router_bin,
+                                                                  processes):
+    router = Router(router_bin, tmp_path).start()
+    processes.append(router)
+    (tmp_path / "zenoh-client.json5").write_text(
+        '{ mode: "client", connect: { endpoints: ["%s"] } }\n' % router.endpoint)
+    config = tmp_path / "armtwin.toml"
+    config.write_text(ROBOTS_ONLY + '[zenoh]\nfile = "zenoh-client.json5"\n')
+
+    shown = run_armtwin("config", "show", "-c", config)
+    assert shown.returncode == 0, shown.stderr
+    origins = [line for line in shown.stdout.splitlines() if line.startswith("# [zenoh] ")]
+    assert origins == [
+        '# [zenoh] mode = "client": the [zenoh] file',
+        "# [zenoh] listen = []: a client's: it listens only where its configuration, "
+        "its [zenoh] file or -l says",
+        f'# [zenoh] connect = ["{router.endpoint}"]: the [zenoh] file',
+    ], shown.stdout
+    effective = tomllib.loads(shown.stdout)["zenoh"]
+    assert effective["mode"] == "client" and effective["listen"] == [], effective
+    assert "connect" not in effective, "the file's own list is left in the file"
+
+    serve = Process("armtwin", [armtwin_bin, "serve", "-c", config], tmp_path,
+                    {"RUST_LOG": "armtwin=info"})
+    processes.append(serve.start())
+    assert serve.wait_log("armtwin serving"), serve.logs()
+    assert "mode=client" in serve.logs(), serve.logs()
+    exchanges_data_through(router)
+    assert listening_ports(serve.proc.pid) == [], serve.logs()
+    assert "listening nowhere" not in serve.logs()
+
+
+def test_a_client_by_flag_alone_listens_nowhere(tmp_path, armtwin_bin, router_bin, processes):
+    router = Router(router_bin, tmp_path).start()
+    processes.append(router)
+    serve = Process("armtwin", [armtwin_bin, "serve", "-m", "client", "-e", router.endpoint],
+                    tmp_path, {"RUST_LOG": "armtwin=info"})
+    processes.append(serve.start())
+    assert serve.wait_log("armtwin serving"), serve.logs()
+    assert listening_ports(serve.proc.pid) == [], serve.logs()
+    exchanges_data_through(router)
+    # Told to listen, it does (alone: two instances may not both own every robot).
+    serve.stop()
+    port = free_port()
+    told = Process("armtwin-told", [armtwin_bin, "serve", "-m", "client", "-e", router.endpoint,
+                                    "-l", f"tcp/127.0.0.1:{port}"], tmp_path,
+                   {"RUST_LOG": "armtwin=info"})
+    processes.append(told.start())
+    told.wait_port(port, f"listen on 127.0.0.1:{port}, as -l says")
+    assert listening_ports(told.proc.pid) == [port]

@@ -25,7 +25,7 @@ from playwright.sync_api import sync_playwright
 
 from support.dashboard import DashboardService, Prometheus, chromium_path, http_get, http_json
 from support.gateway import Gateway
-from support.pki import make_ca, make_cert
+from support.pki import make_ca, make_https_cert
 from support.process import wait_until
 
 ROBOT = "cell-1/ur10e-a"
@@ -52,7 +52,7 @@ def new_token(armtwin_bin: Path, name: str, role: str) -> tuple[str, str]:
 def pki(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("http-pki")
     make_ca(folder, "ca")
-    make_cert(folder, "dashboard-http")
+    make_https_cert(folder, "dashboard-http")
     return folder
 
 

@@ -16,6 +16,9 @@ names, a ``tf_prefix``, a gripper joint, velocities and efforts (currents), and 
 * the bridge's ``namespace`` setting in front of every key, both ways;
 * a robot joining and leaving: the bridge undeclares the node's routes when it stops, and armtwin
   retires the robot after ``forget_after_s``.
+* the bridge and access control: the router's rules do not judge what the bridge puts (a ROS 2
+  publisher's joints pass rules that drop a Zenoh client's), so armtwin-router refuses the bridge
+  beside access control unless ``--ros2-trusted``.
 
 DDS discovers by multicast: these tests run only inside a private network namespace, where
 tests/run_all.sh starts them (``unshare -n``, loopback up with multicast); outside one they skip.
@@ -338,3 +341,96 @@ def test_robots_come_and_go_under_the_bridges_namespace(deployments, tmp_path):
                     f"{robot}: retired after forget_after_s ({deployment.alive()})")
     checks.equal(c.messages("events", "plant/ur5"), [], "plant/ur5: no events")
     checks.done(deployment.logs())
+
+
+# A DDS participant of the bridge's domain, not the robot's driver: JointState on TOPIC for
+# SECONDS at 20 Hz.
+FORGER = """
+import sys, time
+import rclpy
+from sensor_msgs.msg import JointState
+rclpy.init()
+node = rclpy.create_node("forger")
+publisher = node.create_publisher(JointState, sys.argv[1], 10)
+deadline = time.monotonic() + float(sys.argv[2])
+while time.monotonic() < deadline:
+    msg = JointState()
+    msg.name = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint",
+                "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]
+    msg.position = [0.0] * 6
+    publisher.publish(msg)
+    time.sleep(0.05)
+node.destroy_node()
+rclpy.shutdown()
+"""
+
+
+def bridge_router(router_bin: Path, workdir: Path, access_control: dict) -> tuple[Router, dict]:
+    """armtwin-router with the bridge (a random DDS domain, namespace `/`) and ``access_control``,
+    not started; and the environment of a ROS 2 process on its domain."""
+    domain = random.randrange(1, 100)
+    ros_env = {"ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+               "ROS_DISTRO": "jazzy"}
+    config = workdir / "bridge-acl.json5"
+    config.write_text(json.dumps({
+        "access_control": access_control,
+        "plugins": {"ros2dds": {"domain": domain, "namespace": "/",
+                                "ros_automatic_discovery_range": "LOCALHOST"}},
+    }))
+    router = Router(router_bin, workdir, config=config,
+                    env={**ros_env, "RUST_LOG": "z=info,armtwin_router=info,zenoh::net::routing::interceptor::access_control=trace"})
+    return router, ros_env
+
+
+# Zenoh clients over TCP may subscribe to twin/** and hear what is put there; nobody may put.
+LISTEN_ONLY = {
+    "enabled": True,
+    "default_permission": "deny",
+    "rules": [
+        {"id": "subscribe", "permission": "allow", "flows": ["ingress"],
+         "messages": ["declare_subscriber"], "key_exprs": [f"{PREFIX}/**"]},
+        {"id": "hear", "permission": "allow", "flows": ["egress"], "messages": ["put"],
+         "key_exprs": [f"{PREFIX}/**"]},
+    ],
+    "subjects": [{"id": "tcp-clients", "link_protocols": ["tcp"]}],
+    "policies": [{"rules": ["subscribe", "hear"], "subjects": ["tcp-clients"]}],
+}
+
+
+def test_the_routers_access_control_does_not_judge_its_bridge(router_bin, tmp_path, processes):
+    """Why the bridge needs --ros2-trusted beside access control: under rules that let no session
+    put, a Zenoh client's put of robot r3's joints is dropped while a ROS 2 publisher's r2 joints,
+    through the bridge in the router's own session, reach a subscriber."""
+    router, ros_env = bridge_router(router_bin, tmp_path, LISTEN_ONLY)
+    router.argv += ["--ros2-trusted"]
+    processes.append(router.start())
+    assert router.wait_log("past its access control (--ros2-trusted)"), router.logs()
+    listener = open_client(router.endpoint)
+    putter = open_client(router.endpoint)
+    heard: list[str] = []  # the keys heard, appended from Zenoh's callback (atomic in CPython)
+    try:
+        listener.declare_subscriber(f"{PREFIX}/joints/**", lambda sample: heard.append(str(sample.key_expr)))
+        forger = Process("forger", [ros2_python(), "-c", FORGER, f"/{PREFIX}/joints/r2", "60"],
+                         tmp_path, ros_env)
+        processes.append(forger.start())
+        forged = putter.declare_publisher(f"{PREFIX}/joints/r3")
+
+        def bridge_heard() -> bool:
+            forged.put(json.dumps({"t": 1.0, "q": [0.0] * 6}))
+            return heard.count(f"{PREFIX}/joints/r2") >= 20
+
+        assert wait_until(bridge_heard, 60.0, interval=0.05), (heard[:3], router.logs())
+        assert f"{PREFIX}/joints/r3" not in heard, "the Zenoh client's put passed the rules"
+        assert "is unauthorized to Put (ingress)" in router.logs(10**9), router.logs()
+    finally:
+        listener.close()
+        putter.close()
+
+
+def test_the_router_refuses_the_bridge_beside_access_control_unless_trusted(router_bin, tmp_path):
+    router, _ = bridge_router(router_bin, tmp_path, LISTEN_ONLY)
+    result = subprocess.run([str(a) for a in router.argv], cwd=tmp_path, capture_output=True,
+                            text=True, timeout=60, env={**os.environ, **router.env})
+    assert result.returncode != 0, result.stderr
+    assert "the router has access control, which the ROS 2 bridge bypasses" in result.stderr, result.stderr
+    assert "--ros2-trusted" in result.stderr and "panicked" not in result.stderr

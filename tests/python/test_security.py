@@ -1,6 +1,6 @@
 """TLS, mutual TLS and access control on a fleet's router, with the shipped example configurations
 (config/router-tls-acl.json5, its access control generated from config/fleet.toml,
-config/zenoh-client-tls.json5) and certificates this test makes with the openssl CLI: only
+config/zenoh-client-tls.json5) and certificates made by `armtwin certs config/fleet.toml`: only
 gateways put joints (gateway g1 for robot r1), only armtwin publishes outputs, dashboards only
 subscribe and read, operators may also change a twin (reset, apply or discard a calibration), and
 a client without a certificate of the fleet's CA cannot connect."""

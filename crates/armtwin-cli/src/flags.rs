@@ -6,6 +6,7 @@
 
 use std::path::PathBuf;
 
+use armtwin_access::certs::names::RouterName;
 use armtwin_core::kinematics::{OutputFrame, TcpOffset};
 use armtwin_service::config::{Overrides, ZenohInsert, ZenohMode};
 use clap::{Args, Parser, Subcommand, ValueEnum};
@@ -50,6 +51,10 @@ pub enum Command {
     /// for which robots; which are armtwin, dashboards, operators), printed as JSON5 or written
     /// into a router configuration between its `armtwin acl` marks.
     Acl(AclArgs),
+    /// The fleet's certificates from its description, by role: the CA, the router's (the only
+    /// one that may serve, for the names clients reach it by), and one client certificate per
+    /// name (its common name, what the router's access control matches). PEM files, keys 0600.
+    Certs(CertsArgs),
     /// A new token for the dashboard: the secret (shown once) and the `[[http.tokens]]` entry
     /// that holds its salted digest.
     HttpToken(HttpTokenArgs),
@@ -102,6 +107,26 @@ pub struct AclArgs {
     /// and `// END access_control` lines, instead of printing it.
     #[arg(long, value_name = "ROUTER_CONFIG")]
     pub update: Option<PathBuf>,
+}
+
+/// `armtwin certs` arguments.
+#[derive(Debug, Args)]
+pub struct CertsArgs {
+    /// The fleet description (config/fleet.toml is a commented example).
+    pub fleet: PathBuf,
+    /// The folder to write `ca.pem`, `ca.key`, `router.pem`, `router.key` and `<name>.pem`,
+    /// `<name>.key` for every name of the fleet into (made if missing).
+    pub dir: PathBuf,
+    /// A name clients reach the router by, written into its certificate: a DNS name or an IP
+    /// address (repeatable) [default: localhost and 127.0.0.1].
+    #[arg(long = "router-name", value_name = "NAME")]
+    pub router_names: Vec<RouterName>,
+    /// How long the router's and the names' certificates are valid, in days (the CA: ten years).
+    #[arg(long, default_value_t = 365, value_name = "DAYS")]
+    pub days: u32,
+    /// Replace files that already exist (otherwise the command refuses and writes nothing).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// `armtwin gateway` arguments.

@@ -7,7 +7,8 @@
 //! - [`invariants`]: the checks the decoders share (finite numbers, unit quaternions, known error
 //!   kinds) and the small writers that re-encode a decoded message.
 //! - one module per decoder, named as its fuzz target: [`json`], [`zser`], [`cdr`],
-//!   [`ros2_attachment`], [`calibration`], [`snapshot`], [`csv`], [`rtde`].
+//!   [`ros2_attachment`], [`calibration`], [`snapshot`], [`csv`], [`rtde`]; and
+//!   [`certificate_names`], the names `armtwin certs` writes.
 //!
 //! Must not depend on the network, the runtime or the service: the fuzz build instruments all of
 //! this crate's dependencies.
@@ -19,6 +20,7 @@
 
 pub mod calibration;
 pub mod cdr;
+pub mod certificate_names;
 pub mod csv;
 pub mod invariants;
 pub mod json;
@@ -34,6 +36,10 @@ pub mod zser;
 #[path = "../../armtwin-service/src/snapshot.rs"]
 mod snapshot_file;
 
+// The names `armtwin certs` writes, compiled from their source for the same reason: the access
+// crate would bring zenoh, rcgen and ring along.
+#[path = "../../armtwin-access/src/certs/names.rs"]
+mod certificate_names_file;
 /// One decoder's checks on one input; panics on a broken invariant.
 pub type Check = fn(&[u8]);
 
@@ -42,6 +48,7 @@ pub type Check = fn(&[u8]);
 pub const CHECKS: &[(&str, Check)] = &[
     ("calibration", calibration::check),
     ("cdr", cdr::check),
+    ("certificate_names", certificate_names::check),
     ("csv", csv::check),
     ("json", json::check),
     ("ros2_attachment", ros2_attachment::check),

@@ -92,6 +92,11 @@ fn calibration() {
 }
 
 #[test]
+fn certificate_names() {
+    run("certificate_names");
+}
+
+#[test]
 fn cdr() {
     run("cdr");
 }

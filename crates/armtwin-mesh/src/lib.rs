@@ -6,7 +6,9 @@
 //! - [`ros2`]: ROS 2 on Zenoh: `rmw_zenoh` and bridge key layouts, the twin pose output's key.
 //! - [`ingest`]: the codec a Zenoh sample's encoding selects.
 //! - [`controller`]: what a gateway learns of a controller beyond its samples.
-//! - [`zenoh_section`]: `[zenoh]` and the command line's Zenoh flags.
+//! - [`zenoh_section`]: `[zenoh]` and the command line's Zenoh flags, and where each setting
+//!   came from.
+//! - [`zenoh_file`]: what a `[zenoh] file` sets itself of mode and endpoints.
 //! - [`session`] (re-exported here): a session's Zenoh configuration, publisher aggregation and
 //!   bounded teardown.
 //!
@@ -18,6 +20,7 @@ pub mod ingest;
 pub mod keys;
 pub mod ros2;
 pub mod session;
+pub mod zenoh_file;
 pub mod zenoh_section;
 
 pub use session::{

@@ -9,7 +9,7 @@ use std::time::Duration;
 use thiserror::Error;
 use tracing::warn;
 
-use crate::zenoh_section::{ZenohSection, without_source_location};
+use crate::zenoh_section::{Origin, ZenohSection, without_source_location};
 
 /// How long each teardown step may take.
 pub const TEARDOWN_STEP: Duration = Duration::from_secs(5);
@@ -27,7 +27,9 @@ pub enum MeshError {
 
 /// Builds the Zenoh configuration of a `[zenoh]` section (the command line's flags already
 /// applied, [`ZenohSection::overridden`]): the one place every armtwin session gets its
-/// configuration from. The section's `cfg` entries go in last, so they win.
+/// configuration from. The section's `[zenoh] file` first; then its mode, multicast scouting and
+/// the endpoint lists the file does not set itself ([`ZenohSection::layered`]); its `cfg` entries
+/// last, so they win.
 pub fn zenoh_config_of(section: &ZenohSection) -> Result<zenoh::Config, MeshError> {
     let mut zenoh = match &section.file {
         Some(path) => zenoh::Config::from_file(path)
@@ -35,15 +37,20 @@ pub fn zenoh_config_of(section: &ZenohSection) -> Result<zenoh::Config, MeshErro
         None => zenoh::Config::default(),
     };
     let json = |value: &[String]| serde_json::to_string(value).unwrap_or_else(|_| "[]".to_owned());
-    let inserts = [
+    let mut inserts = vec![
         ("mode", format!("\"{}\"", section.mode)),
-        ("listen/endpoints", json(&section.listen)),
-        ("connect/endpoints", json(&section.connect)),
         (
             "scouting/multicast/enabled",
             section.multicast_scouting.to_string(),
         ),
     ];
+    // A list the `[zenoh] file` sets itself stays as the file has it.
+    if !matches!(section.origins.listen, Origin::ZenohFile { .. }) {
+        inserts.push(("listen/endpoints", json(&section.listen)));
+    }
+    if !matches!(section.origins.connect, Origin::ZenohFile { .. }) {
+        inserts.push(("connect/endpoints", json(&section.connect)));
+    }
     for (key, value) in inserts {
         zenoh
             .insert_json5(key, &value)

@@ -5,7 +5,8 @@
 //! `zenohd`'s REST plugin's requests, bounded ([`rest_http`]).
 //! Built with the feature `ros2dds`, it is also `zenoh-bridge-ros2dds`: the configuration's
 //! `plugins/ros2dds` section (read exactly as that bridge reads it) or `--ros2dds` starts the
-//! ROS 2 ⇄ Zenoh bridge in the same process.
+//! ROS 2 ⇄ Zenoh bridge in the same process; beside access control only with `--ros2-trusted`
+//! ([`ros2`]).
 //!
 //! It takes a Zenoh JSON5 configuration (`-c`), `zenohd`'s flags for endpoints and the REST port,
 //! and `--cfg KEY:VALUE` for any other setting; it owns no armtwin logic. Unlike `zenohd`, a bare
@@ -14,6 +15,7 @@
 
 mod rest;
 mod rest_http;
+mod ros2;
 
 use anyhow::{Context, Result};
 use clap::Parser;
@@ -27,6 +29,10 @@ use crate::rest::{RestDoor, RestFlags};
 /// `ros2dds`, the ROS 2 DDS bridge) built in.
 #[derive(Debug, Parser)]
 #[command(name = "armtwin-router", version)]
+#[allow(
+    clippy::struct_excessive_bools,
+    reason = "each is a command-line switch of its own"
+)]
 struct Args {
     /// A Zenoh JSON5 configuration file (TLS, access control, plugins …); the flags below are
     /// applied over it.
@@ -67,6 +73,11 @@ struct Args {
     /// `/`) when the file has no `plugins/ros2dds` section; needs the feature `ros2dds`.
     #[arg(long)]
     ros2dds: bool,
+    /// Run the ROS 2 bridge beside access control: the bridge speaks as the router itself, past
+    /// the rules, so every participant of its DDS domain may put any key. Only for a trusted
+    /// domain.
+    #[arg(long)]
+    ros2_trusted: bool,
     /// A JSON5 value at a path of the Zenoh configuration, applied last
     /// (`--cfg transport/link/tx/lease:3000`).
     #[arg(long, value_name = "KEY:VALUE")]
@@ -226,6 +237,11 @@ async fn main() -> Result<()> {
     };
     let mut plugins = PluginsManager::static_plugins_only();
     let bridge = config.plugin("ros2dds").is_some();
+    let bridge_trusted = ros2::bridge_allowed(
+        bridge,
+        rest::access_control_enabled(&config),
+        args.ros2_trusted,
+    )?;
     if bridge {
         declare_ros2dds(&mut plugins)?;
     }
@@ -241,6 +257,9 @@ async fn main() -> Result<()> {
         .map_err(|e| anyhow::anyhow!("{e}"))
         .context("cannot start the Zenoh router (is a listen port taken?)")?;
     tracing::info!(zid = %runtime.zid(), "armtwin-router started");
+    if bridge_trusted {
+        tracing::warn!("ROS 2 bridge inside the router, past its access control (--ros2-trusted)");
+    }
     let session = rest_session(&runtime, &config, &door).await?;
     let (stop_rest, rest_stopped) = tokio::sync::oneshot::channel::<()>();
     let rest_task = match (rest_listener, session.clone()) {

@@ -8,7 +8,7 @@
 * ``gateway``: the one gateway, streaming joint messages at a fixed rate.
 * ``dashboard``: the service with its HTTP side on, and the tools the dashboard tests drive
   (headless Chromium, a Prometheus scraping it).
-* ``pki``: a certificate authority and certificates (openssl), a client's TLS settings;
+* ``pki``: a fleet's certificates (`armtwin certs`), an HTTPS server's (openssl), a client's TLS settings;
   ``secured_fleet``: the shipped router with TLS and access control, armtwin behind it, sessions
   per certificate, and the router's denials read from its log.
 * ``mcap_files``: armtwin's MCAP files read back with the ``mcap`` package and

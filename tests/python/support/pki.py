@@ -1,10 +1,19 @@
-"""A certificate authority and certificates for tests, made with the openssl CLI, and the TLS
-settings of a Zenoh client that presents one."""
+"""Certificates for tests: a fleet's, made by ``armtwin certs`` from a fleet description (the CA,
+the router's server certificate, a client certificate per name); an HTTPS server's (the
+dashboard's, outside the fleet's roles), made with the openssl CLI; and the TLS settings of a
+Zenoh client that presents one."""
 
 from __future__ import annotations
 
 import subprocess
 from pathlib import Path
+
+
+def make_fleet_certs(armtwin_bin: Path, fleet: Path, folder: Path, *flags: str) -> None:
+    """``armtwin certs FLEET FOLDER FLAGS…``, which must succeed."""
+    result = subprocess.run([str(armtwin_bin), "certs", str(fleet), str(folder), *flags],
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
 
 
 def openssl(*args: str, cwd: Path) -> None:
@@ -20,11 +29,12 @@ def make_ca(folder: Path, name: str) -> None:
     )
 
 
-def make_cert(folder: Path, name: str, ca: str = "ca") -> None:
+def make_https_cert(folder: Path, name: str, ca: str = "ca") -> None:
+    """An HTTPS server's certificate for ``localhost`` and ``127.0.0.1``, signed by ``ca``."""
     extensions = folder / f"{name}.ext"
     extensions.write_text(
         "subjectAltName=DNS:localhost,IP:127.0.0.1\nbasicConstraints=CA:FALSE\n"
-        "keyUsage=digitalSignature\nextendedKeyUsage=serverAuth,clientAuth\n"
+        "keyUsage=digitalSignature\nextendedKeyUsage=serverAuth\n"
     )
     openssl(
         "req", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes",

@@ -11,6 +11,7 @@
 
 mod acl;
 mod calibrate;
+mod certs;
 mod config;
 mod fk;
 mod fmu;
@@ -57,6 +58,7 @@ pub fn run(cli: Cli) -> Result<()> {
             command: GatewayCommand::Rtde(args),
         }) => gateway::rtde(&args),
         Command::Acl(args) => acl::run(&args),
+        Command::Certs(args) => certs::run(&args),
         Command::HttpToken(args) => http_token::run(&args),
         Command::Config(ConfigArgs {
             command: ConfigCommand::Show(args),

@@ -1,13 +1,15 @@
 //! A user's configuration file layered over the embedded default (`config/armtwin.toml`), so that
 //! a key the file leaves out keeps the value the default documents.
 //!
-//! Owns the merge of TOML tables, the one exception to it (a client's listeners), and the
-//! effective configuration `armtwin config show` prints. Must not check values: `super`
-//! deserializes the merged table into its sections and checks them there.
+//! Owns the merge of TOML tables, which `[zenoh]` keys the user's file writes itself (a
+//! `[zenoh] file` and a client's listeners are settled from that, by the mesh crate's
+//! `ZenohSection::layered`), and the effective configuration `armtwin config show` prints. Must
+//! not check values: `super` deserializes the merged table into its sections and checks them
+//! there.
 
 use toml::{Table, Value};
 
-use super::ZenohMode;
+use super::WrittenKeys;
 
 /// `overlay` over `base`: tables merge key by key at every depth; any other value (a number, a
 /// string, an array, `[[sources]]` included) replaces the base's whole.
@@ -26,36 +28,18 @@ pub(super) fn layered(mut base: Table, overlay: Table) -> Table {
     base
 }
 
-/// The user's table over the default's, with the mode the command line gives (`-m`), if any.
-///
-/// The default's `[zenoh] listen` is a peer's: a client reaches the mesh through what it connects
-/// to, and listens only where the user's own file says (or `-l`), as Zenoh's clients do. Without
-/// this, every client-mode shard of a fleet would try to bind the default's port on one host.
-pub(super) fn effective(default: Table, user: Table, mode_flag: Option<ZenohMode>) -> Table {
-    let user_listens = user
-        .get("zenoh")
-        .and_then(Value::as_table)
-        .is_some_and(|zenoh| zenoh.contains_key("listen"));
-    let mut merged = layered(default, user);
-    let zenoh = merged
-        .entry("zenoh")
-        .or_insert_with(|| Value::Table(Table::new()));
-    if let Value::Table(zenoh) = zenoh {
-        let mode = mode_flag.map_or_else(
-            || {
-                zenoh
-                    .get("mode")
-                    .and_then(Value::as_str)
-                    .unwrap_or(ZenohMode::default().as_str())
-                    .to_owned()
-            },
-            |mode| mode.as_str().to_owned(),
-        );
-        if mode == ZenohMode::Client.as_str() && !user_listens {
-            zenoh.insert("listen".to_owned(), Value::Array(Vec::new()));
-        }
-    }
-    merged
+/// The user's table over the default's, and which of `[zenoh]`'s `mode`, `listen` and `connect`
+/// the user's table writes itself: what it leaves out, a `[zenoh] file` may set before the
+/// default's value stands (`ZenohSection::layered`).
+pub(super) fn effective(default: Table, user: Table) -> (Table, WrittenKeys) {
+    let user_zenoh = user.get("zenoh").and_then(Value::as_table);
+    let writes = |key: &str| user_zenoh.is_some_and(|zenoh| zenoh.contains_key(key));
+    let written = WrittenKeys {
+        mode: writes("mode"),
+        listen: writes("listen"),
+        connect: writes("connect"),
+    };
+    (layered(default, user), written)
 }
 
 /// The effective table with every robot's section completed from `[robots.default]`, as the
@@ -104,27 +88,23 @@ mod tests {
     }
 
     #[test]
-    fn a_client_listens_only_where_its_own_file_or_flags_say() {
+    fn the_zenoh_keys_the_users_file_writes_are_told_apart_from_the_defaults() {
         let default = table("[zenoh]\nmode = \"peer\"\nlisten = [\"tcp/127.0.0.1:7447\"]\n");
-        let listen = |merged: &Table| merged["zenoh"]["listen"].clone();
-        let peer = effective(default.clone(), Table::new(), None);
-        assert_eq!(
-            listen(&peer),
-            Value::Array(vec!["tcp/127.0.0.1:7447".into()])
-        );
-        let by_flag = effective(default.clone(), Table::new(), Some(ZenohMode::Client));
-        assert_eq!(listen(&by_flag), Value::Array(Vec::new()));
-        let by_file = effective(default.clone(), table("[zenoh]\nmode = \"client\"\n"), None);
-        assert_eq!(listen(&by_file), Value::Array(Vec::new()));
-        let told = effective(
-            default,
-            table("[zenoh]\nmode = \"client\"\nlisten = [\"tcp/127.0.0.1:7000\"]\n"),
-            None,
+        let (merged, written) = effective(
+            default.clone(),
+            table("[zenoh]\nfile = \"z.json5\"\nconnect = []\n"),
         );
         assert_eq!(
-            listen(&told),
-            Value::Array(vec!["tcp/127.0.0.1:7000".into()])
+            written,
+            WrittenKeys {
+                mode: false,
+                listen: false,
+                connect: true,
+            }
         );
+        assert_eq!(merged["zenoh"]["mode"], Value::from("peer"));
+        let (_, nothing) = effective(default, table("[robots.r1]\nmodel = \"ur5e\"\n"));
+        assert_eq!(nothing, WrittenKeys::default());
     }
 
     #[test]

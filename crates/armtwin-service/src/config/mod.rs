@@ -22,6 +22,7 @@ mod sources;
 mod zenoh_tests;
 
 use std::collections::HashMap;
+use std::fmt::Write as _;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -42,8 +43,10 @@ use armtwin_core::pipeline::{PipelineConfig, RobotSettings};
 use armtwin_core::self_calibration::ReservoirConfig;
 use armtwin_mesh::keys::KeySpace;
 use armtwin_mesh::ros2::PoseOutputs;
+use armtwin_mesh::zenoh_file::zenoh_file_keys;
 pub use armtwin_mesh::zenoh_section::{
-    Overrides, ZenohInsert, ZenohInsertError, ZenohMode, ZenohSection, without_source_location,
+    Origin, Overrides, WrittenKeys, ZenohInsert, ZenohInsertError, ZenohMode, ZenohSection,
+    without_source_location,
 };
 
 /// The embedded default configuration (`config/armtwin.toml`).
@@ -234,8 +237,8 @@ pub struct ServiceConfig {
     pub opcua: Option<armtwin_opcua::OpcUaSettings>,
 }
 
-/// The text of the configuration at `path` (the embedded default when `None`), its name for
-/// messages, and the folder its relative paths start from.
+/// The text of the configuration at `path` (none when `None`: the embedded default alone), its
+/// name for messages, and the folder its relative paths start from.
 fn read_source(path: Option<&Path>) -> Result<(String, String, PathBuf), ConfigError> {
     Ok(match path {
         Some(path) => (
@@ -246,21 +249,22 @@ fn read_source(path: Option<&Path>) -> Result<(String, String, PathBuf), ConfigE
             path.display().to_string(),
             path.parent().map(Path::to_path_buf).unwrap_or_default(),
         ),
+        // Nothing over the default: the default's own values are not the user's, so that
+        // `serve -m client` alone does not listen where the default's peer would.
         None => (
-            DEFAULT_CONFIG_TOML.to_owned(),
+            String::new(),
             "embedded default config".to_owned(),
             PathBuf::new(),
         ),
     })
 }
 
-/// `text` layered over the embedded default, with the command line's mode: the table the
-/// sections are read from.
+/// `text` layered over the embedded default: the table the sections are read from, and which of
+/// `[zenoh]`'s mode and endpoints `text` writes itself.
 fn effective_table(
     text: &str,
     source_name: &str,
-    mode_flag: Option<ZenohMode>,
-) -> Result<toml::Table, ConfigError> {
+) -> Result<(toml::Table, WrittenKeys), ConfigError> {
     let syntax = |name: &str, e: &toml::de::Error| ConfigError::Syntax {
         source_name: name.to_owned(),
         message: e.to_string(),
@@ -270,20 +274,45 @@ fn effective_table(
     let user: toml::Table = toml::from_str(text).map_err(|e| syntax(source_name, &e))?;
     let default: toml::Table =
         toml::from_str(DEFAULT_CONFIG_TOML).map_err(|e| syntax("embedded default config", &e))?;
-    Ok(layers::effective(default, user, mode_flag))
+    Ok(layers::effective(default, user))
 }
 
 /// The effective configuration of the file at `path` (the embedded default when `None`) as
 /// TOML: the file layered over the default, each robot completed from `[robots.default]`,
-/// checked as `armtwin serve` checks it. Paths in it are relative to the file, as written.
+/// checked as `armtwin serve` checks it. Paths in it are relative to the file, as written. It
+/// opens with a comment line per `[zenoh]` mode, listen and connect: the value and where it came
+/// from; a list the `[zenoh] file` sets itself is left out of `[zenoh]`, as it is left in the
+/// file.
 pub fn effective_toml(path: Option<&Path>) -> Result<String, ConfigError> {
     let (text, source_name, base_dir) = read_source(path)?;
-    ServiceConfig::parse(&text, &source_name, &base_dir, &Overrides::default())?;
-    let table = layers::with_robots_completed(effective_table(&text, &source_name, None)?);
-    toml::to_string(&table).map_err(|e| ConfigError::Syntax {
+    let config = ServiceConfig::parse(&text, &source_name, &base_dir, &Overrides::default())?;
+    let (table, _) = effective_table(&text, &source_name)?;
+    let mut table = layers::with_robots_completed(table);
+    let zenoh_said = &config.zenoh;
+    let mut origins = String::new();
+    for (key, value, origin) in zenoh_said.with_origins() {
+        // Writing to a String cannot fail.
+        let _ = writeln!(origins, "# [zenoh] {key} = {value}: {origin}");
+    }
+    if let Some(toml::Value::Table(zenoh)) = table.get_mut("zenoh") {
+        zenoh.insert("mode".to_owned(), zenoh_said.mode.as_str().into());
+        let lists = [
+            ("listen", &zenoh_said.listen, &zenoh_said.origins.listen),
+            ("connect", &zenoh_said.connect, &zenoh_said.origins.connect),
+        ];
+        for (key, list, origin) in lists {
+            if let Origin::ZenohFile { .. } = origin {
+                zenoh.remove(key);
+            } else {
+                zenoh.insert(key.to_owned(), list.clone().into());
+            }
+        }
+    }
+    let text = toml::to_string(&table).map_err(|e| ConfigError::Syntax {
         source_name,
         message: e.to_string(),
-    })
+    })?;
+    Ok(origins + &text)
 }
 
 impl ServiceConfig {
@@ -301,14 +330,13 @@ impl ServiceConfig {
         base_dir: &Path,
         overrides: &Overrides,
     ) -> Result<Self, ConfigError> {
-        let table = effective_table(text, source_name, overrides.mode)?;
+        let (table, written) = effective_table(text, source_name)?;
         let file =
             File::deserialize(toml::Value::Table(table)).map_err(|e| ConfigError::Syntax {
                 source_name: source_name.to_owned(),
                 message: e.to_string(),
             })?;
-        let mut zenoh = file.zenoh.overridden(overrides);
-        zenoh.file = zenoh.file.map(|f| base_dir.join(f));
+        let zenoh = load_zenoh(file.zenoh, written, (source_name, base_dir), overrides)?;
         let service = file.service;
         let keys = KeySpace::new(&service.key_prefix).map_err(|_| ConfigError::Invalid {
             source_name: source_name.to_owned(),
@@ -403,6 +431,32 @@ impl ServiceConfig {
     pub fn owns(&self, id: &str) -> bool {
         owns(&self.shard, id)
     }
+}
+
+/// `[zenoh]` as the session gets it: the section (of which the user's file wrote `written`), its
+/// `[zenoh] file`'s own mode and endpoints, then the command line's flags
+/// ([`ZenohSection::layered`]). A `[zenoh] file` that cannot be read as Zenoh's is refused here.
+fn load_zenoh(
+    section: ZenohSection,
+    written: WrittenKeys,
+    (source_name, base_dir): (&str, &Path),
+    overrides: &Overrides,
+) -> Result<ZenohSection, ConfigError> {
+    let zenoh_file = section.file.as_ref().map(|f| base_dir.join(f));
+    let file_keys = zenoh_file
+        .as_deref()
+        .map(zenoh_file_keys)
+        .transpose()
+        .map_err(|e| ConfigError::Invalid {
+            source_name: source_name.to_owned(),
+            field: "zenoh.file".to_owned(),
+            problem: e.to_string(),
+        })?;
+    Ok(ZenohSection {
+        file: zenoh_file,
+        ..section
+    }
+    .layered(written, file_keys.as_ref(), overrides))
 }
 
 /// Whether robot `id` is one of `shard`'s: a robot id is a plain key, so it belongs to a shard

@@ -103,11 +103,13 @@ pub async fn serve(
     )?;
     let admin_refusal = admin::refusal(config.admin, &zenoh_config);
     let session = zenoh::open(zenoh_config).await?;
+    // A list the `[zenoh] file` sets itself is the file's, which `listen`/`connect` do not hold.
+    let [_, (_, listen, _), (_, connect, _)] = config.zenoh.with_origins();
     info!(
         zid = %session.zid(),
         mode = %config.zenoh.mode,
-        listen = ?config.zenoh.listen,
-        connect = ?config.zenoh.connect,
+        listen = %listen,
+        connect = %connect,
         prefix = keys.prefix(),
         "armtwin serving"
     );

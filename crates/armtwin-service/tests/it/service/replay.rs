@@ -30,9 +30,8 @@ async fn replaying_the_sample_recordings_twins_every_row() {
                 mode: ZenohMode::Peer,
                 listen: Vec::new(),
                 connect: vec![endpoint.clone()],
-                file: None,
                 multicast_scouting: false,
-                cfg: Vec::new(),
+                ..ZenohSection::default()
             },
             key_prefix: "twin".to_owned(),
             robot: robot.to_owned(),
@@ -132,9 +131,8 @@ async fn self_calibration_converges_on_a_replayed_recording() {
                 mode: ZenohMode::Peer,
                 listen: Vec::new(),
                 connect: vec![h.service.endpoint.clone()],
-                file: None,
                 multicast_scouting: false,
-                cfg: Vec::new(),
+                ..ZenohSection::default()
             },
             key_prefix: "twin".to_owned(),
             robot: "lasttest".to_owned(),

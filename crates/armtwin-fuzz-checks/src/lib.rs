@@ -8,10 +8,10 @@
 //!   kinds) and the small writers that re-encode a decoded message.
 //! - one module per decoder, named as its fuzz target: [`json`], [`zser`], [`cdr`],
 //!   [`ros2_attachment`], [`calibration`], [`snapshot`], [`csv`], [`rtde`]; and
-//!   [`certificate_names`], the names `armtwin certs` writes.
+//!   [`certificate_names`], the names `armtwin certs` writes; [`fleet`], the fleet description.
 //!
-//! Must not depend on the network, the runtime or the service: the fuzz build instruments all of
-//! this crate's dependencies.
+//! Must not depend on the runtime or the service: the fuzz build instruments all of this crate's
+//! dependencies.
 
 // Every check panics on purpose: a panic is how libFuzzer and the corpus test record a finding.
 #![allow(clippy::missing_panics_doc, clippy::expect_used)]
@@ -22,6 +22,7 @@ pub mod calibration;
 pub mod cdr;
 pub mod certificate_names;
 pub mod csv;
+pub mod fleet;
 pub mod invariants;
 pub mod json;
 pub mod ros2_attachment;
@@ -50,6 +51,7 @@ pub const CHECKS: &[(&str, Check)] = &[
     ("cdr", cdr::check),
     ("certificate_names", certificate_names::check),
     ("csv", csv::check),
+    ("fleet", fleet::check),
     ("json", json::check),
     ("ros2_attachment", ros2_attachment::check),
     ("rtde", rtde::check),

@@ -107,6 +107,11 @@ fn csv() {
 }
 
 #[test]
+fn fleet() {
+    run("fleet");
+}
+
+#[test]
 fn json() {
     run("json");
 }

@@ -76,7 +76,7 @@ pub enum Untracked {
     GroupFull {
         /// The group's limit.
         max_robots: usize,
-        /// The group's prefix is the robot id's first `prefix_len` bytes.
+        /// The group's prefix is the robot id's first `prefix_len` bytes (less its last `/`).
         prefix_len: usize,
     },
 }
@@ -85,10 +85,19 @@ pub enum Untracked {
 /// gateway granted a prefix cannot fill the fleet's `max_robots` with made-up ids.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct RobotGroup {
-    /// Every id that starts with it belongs to the group (the longest such prefix's group).
+    /// Every id that starts with it belongs to the group (the longest such prefix's group), and
+    /// the prefix without its last `/` too (`site-a/**` covers `site-a`).
     pub prefix: String,
     /// Robots of the group admitted under the default settings at most.
     pub max_robots: usize,
+}
+
+impl RobotGroup {
+    /// Whether robot `id` belongs to the group.
+    #[must_use]
+    pub fn contains(&self, id: &str) -> bool {
+        id.starts_with(self.prefix.as_str()) || self.prefix.strip_suffix('/') == Some(id)
+    }
 }
 
 /// Robots with settings, by id: the configured ones for good, robots under the default settings
@@ -155,7 +164,7 @@ impl RobotDirectory {
         self.groups
             .iter()
             .enumerate()
-            .filter(|(_, (group, _))| id.starts_with(group.prefix.as_str()))
+            .filter(|(_, (group, _))| group.contains(id))
             .max_by_key(|(_, (group, _))| group.prefix.len())
             .map(|(position, _)| position)
     }
@@ -228,7 +237,8 @@ impl RobotDirectory {
                 let (group, _) = &self.groups[group];
                 Err(Untracked::GroupFull {
                     max_robots: group.max_robots,
-                    prefix_len: group.prefix.len(),
+                    // The id is the prefix itself, less its `/`, when it is shorter.
+                    prefix_len: group.prefix.len().min(id.len()),
                 })
             }
             _ => Ok(()),
@@ -382,6 +392,11 @@ mod tests {
         // Outside the groups, the fleet's room is left; a configured id always fits.
         assert!(robots.admit("r2").is_ok());
         assert!(robots.admit("cell/a").is_ok());
+        // The prefix itself is the group's, as `site-a/**` covers `site-a`.
+        assert!(matches!(
+            robots.admission_of("site-a"),
+            Err(Untracked::GroupFull { max_robots: 2, .. })
+        ));
         // A forgotten robot gives its group's place back.
         assert!(robots.forget(&first));
         assert!(robots.admit("site-a/3").is_ok());

@@ -367,10 +367,13 @@ impl Event<'_> {
                 prefix_len,
             } => write!(
                 f,
-                "robot '{}' is new and the robots of '{}**' already number {max_robots} (the \
+                "robot '{}' is new and the robots of '{}/**' already number {max_robots} (the \
                  max_robots of its gateway's grant)",
                 self.robot,
-                self.robot.get(..prefix_len).unwrap_or_default()
+                self.robot
+                    .get(..prefix_len)
+                    .unwrap_or_default()
+                    .trim_end_matches('/')
             ),
             _ => write!(
                 f,

@@ -6,7 +6,7 @@
 use std::path::Path;
 use std::time::SystemTime;
 
-/// Rejected certificates kept at most (a certificate is 1–2 KB).
+/// Rejected certificates kept at most.
 pub const MAX_REJECTED_FILES: usize = 64;
 /// Bytes of rejected certificates kept at most.
 pub const MAX_REJECTED_BYTES: u64 = 1 << 20;

@@ -40,7 +40,7 @@ const QUERY_THREADS: usize = 2;
 pub(super) const MAX_READ_REPLY_BYTES: usize = 16 << 20;
 /// Robots one `state` query answers at most.
 pub(super) const MAX_STATE_ROBOTS: usize = 10_000;
-/// Robots one `history` query answers at most (a robot's hour is a few hundred KB).
+/// Robots one `history` query answers at most (a robot's history is far larger than its state).
 pub(super) const MAX_HISTORY_ROBOTS: usize = 64;
 
 /// Where Zenoh's callbacks hand queries to the threads that answer them.
@@ -124,26 +124,21 @@ impl ReadBound {
 
     /// The error reply that ends a read cut short: what it answered, of how many, and why.
     fn cut_short(&self, query: &Query, matching: usize) {
-        let body = serde_json::json!({
-            "error": format!(
-                "truncated: {} of {matching} robots answered ({} bytes); one query answers at most \
-                 {} robots and {MAX_READ_REPLY_BYTES} bytes: ask for fewer robots",
-                self.robots, self.bytes, self.max_robots
-            ),
-            "truncated": true,
-            "answered": self.robots,
-            "matching": matching,
-            "max_robots": self.max_robots,
-            "max_bytes": MAX_READ_REPLY_BYTES,
-        })
-        .to_string();
-        if let Err(e) = query
-            .reply_err(body)
-            .encoding(Encoding::APPLICATION_JSON)
-            .wait()
-        {
-            warn!(error = %e, "error reply failed");
-        }
+        Queries::reply_err_json(
+            query,
+            &serde_json::json!({
+                "error": format!(
+                    "truncated: {} of {matching} robots answered ({} bytes); one query answers at \
+                     most {} robots and {MAX_READ_REPLY_BYTES} bytes: ask for fewer robots",
+                    self.robots, self.bytes, self.max_robots
+                ),
+                "truncated": true,
+                "answered": self.robots,
+                "matching": matching,
+                "max_robots": self.max_robots,
+                "max_bytes": MAX_READ_REPLY_BYTES,
+            }),
+        );
     }
 }
 
@@ -239,9 +234,13 @@ impl Queries {
     }
 
     fn reply_err(query: &Query, message: &str) {
-        let body = serde_json::json!({ "error": message }).to_string();
+        Self::reply_err_json(query, &serde_json::json!({ "error": message }));
+    }
+
+    /// An error reply of `body`, a JSON object with at least `error`.
+    fn reply_err_json(query: &Query, body: &serde_json::Value) {
         if let Err(e) = query
-            .reply_err(body)
+            .reply_err(body.to_string())
             .encoding(Encoding::APPLICATION_JSON)
             .wait()
         {

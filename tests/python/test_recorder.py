@@ -11,6 +11,7 @@ Run: ``ARMTWIN_BIN=$PWD/target/debug/armtwin .venv/bin/python -m pytest tests/py
 from __future__ import annotations
 
 import json
+import lzma
 import re
 import struct
 import sys
@@ -27,6 +28,7 @@ from support.secured_fleet import secured_fleet, stream_until_paired
 from support.twin_reference import joint_message, load_lasttest_naive
 from support.zenoh_clients import TwinClient, get_json, wait_queryable
 
+DATA = Path(__file__).resolve().parents[1] / "data"
 PRE_S = 4.0
 POST_S = 2.0
 # Source time of the first row: the recording's own first stamp, so the files carry real Unix
@@ -105,6 +107,11 @@ def test_an_alarm_leaves_one_mcap_file_with_what_was_streamed(armtwin_bin, tmp_p
     detail = recorded["detail"]
     assert Path(detail["path"]) == path and detail["bytes"] == path.stat().st_size, detail
     assert (detail["from_s"], detail["until_s"]) == (t_alarm - PRE_S, t_alarm + POST_S), detail
+
+    # Byte for byte the file the recorder wrote when it kept every record in memory as raw
+    # doubles (tests/data/README.md): the blocks it keeps now come back exactly.
+    reference = lzma.decompress((DATA / "recorder" / "ur10e_alarm_incident.mcap.xz").read_bytes())
+    assert path.read_bytes() == reference, (path.stat().st_size, len(reference))
 
     channels, messages, metadata = read_mcap(path)
     assert channels == {topic: (name, "ros2msg", "cdr") for topic, name in TOPICS.items()}, channels

@@ -435,7 +435,7 @@ fn register_totals(registry: &mut Registry, totals: &ServiceTotals) {
     ring.set(totals.recorder.ring_bytes as f64);
     registry.register_with_unit(
         "recorder_ring",
-        "Memory every robot's recent streams hold in the flight recorder",
+        "Bytes the flight recorder's log of every robot's recent streams holds (on disk; in memory when the disk refused it)",
         Unit::Bytes,
         ring,
     );

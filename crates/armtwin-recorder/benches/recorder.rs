@@ -1,8 +1,9 @@
 //! The flight recorder's cost, in ns per call: a joint sample's record built and pushed into a
-//! robot's full ring (the span full at 500 Hz: each push drops the oldest), the same with its
-//! paired measured pose; and the time to write one incident file of 15 s at 500 Hz (7 500
-//! joint samples and their measured poses) to memory and to a file. The rings' memory at
-//! 500 Hz is printed once.
+//! robot's ring (the span full at 500 Hz; a block compressed into the log every few records),
+//! the same with its paired measured pose; the cut of an incident of 15 s at 500 Hz (7 500
+//! joint samples and their measured poses, read back from the log); and the time to write that
+//! incident's file to memory and to a file. The rings' memory and the log's bytes per record at
+//! 500 Hz are printed once (generated samples: a robot moving smoothly, not a recording).
 //!
 //! `cargo bench -p armtwin-recorder --bench recorder`
 #![allow(
@@ -17,7 +18,7 @@ use armtwin_core::kinematics::PoseReadout;
 use armtwin_core::metrics::Deviation;
 use armtwin_core::sample::{JointAngles, JointSample};
 use armtwin_recorder::incident::{MEASURED_STRIDE, fill_measured, write_mcap};
-use armtwin_recorder::{Incident, JointRecord, RecordRing, RingBudget, StoreSettings, Trigger};
+use armtwin_recorder::{Incident, JointRecord, RecordRing, Spool, StoreSettings, Trigger};
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::UnitQuaternion;
 
@@ -28,54 +29,73 @@ const RATE_HZ: f64 = 500.0;
 const SPAN_S: f64 = 16.0;
 const ROBOT_BYTES: usize = 8 << 20;
 
-fn sample() -> (JointSample, PoseReadout, Deviation) {
+/// A joint sample at `t_s` of a robot moving smoothly, its twin pose and its deviation.
+fn sample(t_s: f64) -> (JointSample, PoseReadout, Deviation) {
+    let q: Vec<f64> = Q
+        .iter()
+        .enumerate()
+        .map(|(i, q)| q + 0.3 * (t_s * (0.5 + 0.1 * i as f64)).sin())
+        .collect();
     let sample = JointSample {
         stamp_s: None,
         seq: None,
-        q_rad: JointAngles::from_slice(&Q),
+        q_rad: JointAngles::from_slice(&q),
         measured: None,
         state: None,
     };
-    let orientation = UnitQuaternion::from_euler_angles(0.1, 0.2, 0.3);
-    let twin = PoseReadout::from_position_quaternion([-0.807, 0.436, 0.42], &orientation);
-    let measured = PoseReadout::from_position_quaternion([-0.8075, 0.436, 0.42], &orientation);
+    let orientation = UnitQuaternion::from_euler_angles(0.1 + 0.2 * t_s.sin(), 0.2, 0.3);
+    let twin = PoseReadout::from_position_quaternion(
+        [-0.807 + 0.1 * t_s.sin(), 0.436, 0.42 + 0.1 * t_s.cos()],
+        &orientation,
+    );
+    let measured = PoseReadout::from_position_quaternion(
+        [-0.8075 + 0.1 * t_s.sin(), 0.436, 0.42 + 0.1 * t_s.cos()],
+        &orientation,
+    );
     let deviation = Deviation::between(&twin, &measured);
     (sample, twin, deviation)
 }
 
-/// A robot's joint and measured rings, full at 500 Hz, and the next stamp.
-fn full_rings() -> (RecordRing, RecordRing, f64) {
-    let budget = RingBudget::new(1 << 30);
+/// A robot's joint and measured rings, full at 500 Hz, their log, and the next stamp.
+fn full_rings() -> (RecordRing, RecordRing, std::sync::Arc<Spool>, f64) {
+    let spool = Spool::in_memory(1 << 30);
     let layout = JointRecord { joint_count: 6 };
-    let mut joints = RecordRing::new(layout.stride(), SPAN_S, ROBOT_BYTES / 2, budget.clone());
-    let mut measured = RecordRing::new(MEASURED_STRIDE, SPAN_S, ROBOT_BYTES / 4, budget.clone());
-    let (sample, twin, deviation) = sample();
+    let mut joints = RecordRing::new(layout.stride(), SPAN_S, ROBOT_BYTES / 2, spool.clone());
+    let mut measured = RecordRing::new(MEASURED_STRIDE, SPAN_S, ROBOT_BYTES / 4, spool.clone());
     let mut record = vec![0.0; layout.stride()];
     let count = 8010_u32;
     for i in 0..count {
-        let stamp_s = 1.7e9 + f64::from(i) / RATE_HZ;
-        layout.fill(&mut record, stamp_s, &sample, &twin);
+        let t_s = f64::from(i) / RATE_HZ;
+        let (sample, twin, deviation) = sample(t_s);
+        layout.fill(&mut record, 1.7e9 + t_s, &sample, &twin);
         joints.push(&record);
-        fill_measured(&mut record[..MEASURED_STRIDE], stamp_s, &twin, &deviation);
+        fill_measured(
+            &mut record[..MEASURED_STRIDE],
+            1.7e9 + t_s,
+            &twin,
+            &deviation,
+        );
         measured.push(&record[..MEASURED_STRIDE]);
     }
     #[allow(clippy::print_stderr, reason = "the memory figure of README.md")]
     {
         eprintln!(
-            "rings at 500 Hz over {SPAN_S} s: joints {} B ({} records), measured {} B, together {} B",
+            "rings at 500 Hz over {SPAN_S} s: in memory joints {} B, measured {} B; the log {} B \
+             for {count} joint and measured records ({:.1} B a pair, raw {} B)",
             joints.held_bytes(),
-            joints.len(),
             measured.held_bytes(),
-            budget.used_bytes()
+            spool.used_bytes(),
+            spool.used_bytes() as f64 / f64::from(count),
+            (layout.stride() + MEASURED_STRIDE) * 8,
         );
     }
-    (joints, measured, 1.7e9 + f64::from(count) / RATE_HZ)
+    (joints, measured, spool, 1.7e9 + f64::from(count) / RATE_HZ)
 }
 
 fn per_sample(c: &mut Criterion) {
-    let (sample, twin, deviation) = sample();
+    let (sample, twin, deviation) = sample(1.0);
     let layout = JointRecord { joint_count: 6 };
-    let (mut joints, mut measured, start_s) = full_rings();
+    let (mut joints, mut measured, _spool, start_s) = full_rings();
     let mut record = vec![0.0; layout.stride()];
     let mut i = 0_u32;
     c.bench_function("recorder/joint_sample", |b| {
@@ -99,8 +119,7 @@ fn per_sample(c: &mut Criterion) {
 }
 
 /// An incident of 15 s at 500 Hz, as the rings give it.
-fn incident() -> Incident {
-    let (joints, measured, end_s) = full_rings();
+fn cut(joints: &RecordRing, measured: &RecordRing, end_s: f64) -> Incident {
     let (from_s, until_s) = (end_s - 15.0, end_s);
     let mut incident = Incident {
         robot: "site/cell-1/ur10e".to_owned(),
@@ -127,9 +146,13 @@ fn incident() -> Incident {
 }
 
 fn incident_file(c: &mut Criterion) {
-    let incident = incident();
+    let (joints, measured, _spool, end_s) = full_rings();
+    let incident = cut(&joints, &measured, end_s);
     let mut group = c.benchmark_group("recorder");
     group.sample_size(20);
+    group.bench_function("incident_cut_15s_500hz", |b| {
+        b.iter(|| cut(black_box(&joints), &measured, end_s).joints.len());
+    });
     group.bench_function("incident_file_15s_500hz/memory", |b| {
         b.iter(|| {
             let mut out = Cursor::new(Vec::with_capacity(4 << 20));

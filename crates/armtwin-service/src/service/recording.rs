@@ -25,7 +25,7 @@ use armtwin_mesh::keys::{KeySpace, Stream};
 use armtwin_recorder::incident::{EFFORT_STRIDE, MEASURED_STRIDE, fill_effort, fill_measured};
 use armtwin_recorder::ros2_messages::{LOG_INFO, LOG_WARN};
 use armtwin_recorder::{
-    Incident, IncidentSender, JointRecord, LogLine, Outcome, RecordRing, RingBudget, StoreCounters,
+    Incident, IncidentSender, JointRecord, LogLine, Outcome, RecordRing, Spool, StoreCounters,
     Trigger, store,
 };
 use armtwin_view::RecorderTotals;
@@ -44,11 +44,11 @@ const MAX_LOG_LINES: usize = 32;
 /// held back.
 const INCIDENT_BURST: f64 = 4.0;
 
-/// What every robot's recorder shares: the settings, the fleet's ring budget and the writer
-/// thread.
+/// What every robot's recorder shares: the settings, the fleet's log of closed blocks and the
+/// writer thread.
 pub(super) struct Recorder {
     config: RecorderConfig,
-    budget: Arc<RingBudget>,
+    spool: Arc<Spool>,
     sender: Option<IncidentSender>,
     writer: Mutex<Option<JoinHandle<()>>>,
 }
@@ -62,7 +62,8 @@ impl Recorder {
     ) -> Self {
         let (sender, handle) = writer.unzip();
         Self {
-            budget: RingBudget::new(config.fleet_bytes),
+            // Beside the files it writes: on the disk the operator chose for recordings.
+            spool: Spool::in_dir(&config.store.dir, config.fleet_bytes as u64),
             config,
             sender,
             writer: Mutex::new(handle),
@@ -93,7 +94,7 @@ impl Recorder {
                 stride,
                 span_s,
                 robot_bytes / 4 * quarters,
-                Arc::clone(&self.budget),
+                Arc::clone(&self.spool),
             )
         };
         Some(RobotRecording {
@@ -151,7 +152,7 @@ impl Recorder {
             files: count(|c| &c.files),
             bytes: count(|c| &c.bytes),
             failures: count(|c| &c.failures) + count(|c| &c.dropped),
-            ring_bytes: self.budget.used_bytes() as u64,
+            ring_bytes: self.spool.used_bytes(),
         }
     }
 

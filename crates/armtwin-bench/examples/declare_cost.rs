@@ -5,11 +5,14 @@
 //! Every Zenoh declaration matches its key against the keys beside it, so the time per robot
 //! grows with the robots already declared; the kinds differ in how much. With `puts`, it then
 //! times puts round robin over the robots, through the publishers when they are declared and
-//! on the plain keys otherwise: what a declared publisher saves per message.
+//! on the plain keys otherwise: what a declared publisher saves per message. Then, with
+//! `undeclare`, it times undeclaring every entity one by one (tokens first), or, with `close`,
+//! closing the declaring session with everything still declared; either way until the watcher
+//! has seen every token go.
 //!
 //! `cargo run --release -p armtwin-bench --example declare_cost -- ROBOTS KINDS [PORT]`, KINDS a
-//! comma-separated list of `publishers`, `keys`, `tokens`, `puts`. Prints the time at every
-//! 1 000 robots, then the totals.
+//! comma-separated list of `publishers`, `keys`, `tokens`, `puts`, `undeclare`, `close`. Prints
+//! the time at every 1 000 robots, then the totals.
 #![allow(
     clippy::expect_used,
     reason = "a measuring binary: a Zenoh failure ends the measurement"
@@ -24,6 +27,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
+use zenoh::sample::SampleKind;
 use zenoh::{Config, Session, Wait};
 
 /// The twin's output streams with a publisher each.
@@ -65,12 +69,18 @@ fn main() {
     let declarer = session(port, true);
     let watcher = session(port, false);
     let tokens_seen = Arc::new(AtomicUsize::new(0));
+    let tokens_gone = Arc::new(AtomicUsize::new(0));
     let poses_seen = Arc::new(AtomicUsize::new(0));
-    let counter = Arc::clone(&tokens_seen);
+    let (seen, gone) = (Arc::clone(&tokens_seen), Arc::clone(&tokens_gone));
     let _tokens = watcher
         .liveliness()
         .declare_subscriber("twin/alive/**")
-        .callback(move |_| {
+        .callback(move |sample| {
+            let counter = if sample.kind() == SampleKind::Delete {
+                &gone
+            } else {
+                &seen
+            };
             counter.fetch_add(1, Ordering::Relaxed);
         })
         .wait()
@@ -158,6 +168,48 @@ fn main() {
             },
             PUTS as f64 / sent_s,
             poses_seen.load(Ordering::Relaxed)
+        );
+    }
+
+    if has("undeclare") || has("close") {
+        let started = Instant::now();
+        if has("close") {
+            declarer.close().wait().expect("close");
+            println!(
+                "session closed in {:.2} s with {} tokens, {} publishers and {} keys declared",
+                started.elapsed().as_secs_f64(),
+                tokens.len(),
+                publishers.len(),
+                keys.len()
+            );
+        } else {
+            let count = tokens.len();
+            for token in tokens.drain(..) {
+                token.undeclare().wait().expect("undeclare token");
+            }
+            let tokens_s = started.elapsed().as_secs_f64();
+            let publishers_count = publishers.len();
+            for publisher in publishers.drain(..) {
+                publisher.undeclare().wait().expect("undeclare publisher");
+            }
+            let publishers_s = started.elapsed().as_secs_f64() - tokens_s;
+            let keys_count = keys.len();
+            for key in keys.drain(..) {
+                declarer.undeclare(key).wait().expect("undeclare key");
+            }
+            println!(
+                "undeclared one by one: {count} tokens in {tokens_s:.2} s, {publishers_count} publishers in {publishers_s:.2} s, {keys_count} keys in {:.2} s",
+                started.elapsed().as_secs_f64() - tokens_s - publishers_s
+            );
+        }
+        let expected = tokens_seen.load(Ordering::Relaxed);
+        while tokens_gone.load(Ordering::Relaxed) < expected && started.elapsed() < TOKENS_LIMIT {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        println!(
+            "the watcher saw {} of {expected} tokens go within {:.2} s",
+            tokens_gone.load(Ordering::Relaxed),
+            started.elapsed().as_secs_f64()
         );
     }
 }

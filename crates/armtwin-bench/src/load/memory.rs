@@ -38,7 +38,7 @@ impl Load {
         let rss_start_kib = procfs::rss_kib(pid)?;
         self.warm_up(0..base_robots)?;
         self.wait_for_tracking(base_robots)?;
-        self.more_samples(0..base_robots, samples)?;
+        let _base_fill = self.more_samples(0..base_robots, samples)?;
         self.settle_for_rss(pid)?;
         let rss_base_kib = procfs::rss_kib(pid)?;
         eprintln!("load: memory baseline {rss_base_kib} KiB with {base_robots} robots");
@@ -54,7 +54,7 @@ impl Load {
                 robots - base_robots,
             );
         }
-        self.more_samples(base_robots..robots, samples)?;
+        let fill_samples_per_s = self.more_samples(base_robots..robots, samples)?;
         self.settle_for_rss(pid)?;
         let rss_full_kib = procfs::rss_kib(pid)?;
         let added = robots.saturating_sub(base_robots).max(1);
@@ -68,12 +68,18 @@ impl Load {
             rss_full_kib,
             bytes_per_robot: (rss_full_kib as f64 - rss_base_kib as f64) * 1024.0 / added as f64,
             declare_s,
+            fill_samples_per_s,
         })
     }
 
     /// The samples after each robot's first (the warm-up's) up to `samples` per robot: streamed
-    /// with `--memory-stream-hz`, else in rounds like the warm-up.
-    fn more_samples(&mut self, robots: Range<usize>, samples: u64) -> Result<(), LoadError> {
+    /// with `--memory-stream-hz` (returning the samples per second they were answered at), else
+    /// in rounds like the warm-up.
+    fn more_samples(
+        &mut self,
+        robots: Range<usize>,
+        samples: u64,
+    ) -> Result<Option<f64>, LoadError> {
         if let Some(hz) = self.args.memory_stream_hz {
             return self.stream(robots, samples - 1, hz);
         }
@@ -81,16 +87,22 @@ impl Load {
             self.warm_up(robots.clone())?;
             eprintln!("load: memory round {}/{samples} done", round + 1);
         }
-        Ok(())
+        Ok(None)
     }
 
     /// Sends `samples` more samples of each robot of `robots`, round robin, the k-th of each
     /// robot stamped `k / hz` seconds after now: a fleet streaming at `hz` in source time. They
     /// go out as fast as the system under test answers them, at most [`IN_FLIGHT`] unanswered,
-    /// so nothing is lost and a window of seconds of source time fills in less wall time.
-    fn stream(&mut self, robots: Range<usize>, samples: u64, hz: f64) -> Result<(), LoadError> {
+    /// so nothing is lost and a window of seconds of source time fills in less wall time. Returns
+    /// the samples per second, from the first sent until the last answered.
+    fn stream(
+        &mut self,
+        robots: Range<usize>,
+        samples: u64,
+        hz: f64,
+    ) -> Result<Option<f64>, LoadError> {
         if robots.is_empty() || samples == 0 {
-            return Ok(());
+            return Ok(None);
         }
         let base = self.replies.counts();
         let origin_s = self.replies.now_s();
@@ -113,7 +125,7 @@ impl Load {
             robots.len(),
             total as f64 / elapsed_s,
         );
-        Ok(())
+        Ok(Some(total as f64 / elapsed_s))
     }
 
     /// Waits before reading the RSS: a second, and streamed samples until `pid` is idle (under

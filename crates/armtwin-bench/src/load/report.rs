@@ -108,6 +108,10 @@ pub struct Memory {
     /// armtwin: seconds from the first sample to the robots new after the baseline until every
     /// robot's liveliness token was visible (their first samples answered, then their tokens).
     pub declare_s: Option<f64>,
+    /// Streamed samples (`stream_hz`) of the robots new after the baseline per second, from the
+    /// first sent until the last answered: how fast the system under test fills a fleet's
+    /// windows (null: samples in rounds).
+    pub fill_samples_per_s: Option<f64>,
 }
 
 /// Everything a load run measured: its standard output.

@@ -158,8 +158,13 @@ impl Orchestrator {
     }
 
     /// A fresh armtwin's RSS with `base_robots`, then `robots`, streaming at `hz` until every
-    /// window is full.
-    fn streaming_armtwin(&self, robots: usize, base_robots: usize, hz: f64) -> Result<Memory> {
+    /// window is full, and the seconds it then took to stop (SIGTERM to exit; `None`: killed).
+    fn streaming_armtwin(
+        &self,
+        robots: usize,
+        base_robots: usize,
+        hz: f64,
+    ) -> Result<(Memory, Option<f64>)> {
         let encoding = self.settings.last_encoding();
         let samples = self.settings.stream_samples(hz);
         eprintln!(
@@ -172,8 +177,13 @@ impl Orchestrator {
             encoding,
             &self.memory_flags(robots, base_robots, feed_flags(samples, Some(hz))),
         )?;
-        sut.stop();
-        report.memory.context("the load measured no memory")
+        let stop_s = sut.stop();
+        match stop_s {
+            Some(stop_s) => eprintln!("== armtwin with {robots} robots stopped in {stop_s:.2} s"),
+            None => eprintln!("== armtwin with {robots} robots did not stop by itself: killed"),
+        }
+        let memory = report.memory.context("the load measured no memory")?;
+        Ok((memory, stop_s))
     }
 
     /// Memory per robot streaming at `hz` until its window is full: armtwin's, then the echo's
@@ -182,7 +192,7 @@ impl Orchestrator {
         let s = &self.settings;
         let robots = s.memory_stream_robots;
         let base_robots = base_robots_of(s.memory_base_robots, robots);
-        let armtwin = self.streaming_armtwin(robots, base_robots, hz)?;
+        let (armtwin, _stop_s) = self.streaming_armtwin(robots, base_robots, hz)?;
         let echo = self
             .echo_memory_of(
                 base_robots,
@@ -222,8 +232,9 @@ impl Orchestrator {
             .collect()
     }
 
-    /// armtwin's RSS with the whole fleet streaming at the first rate, every window full.
-    pub(super) fn streaming_fleet(&self) -> Option<Memory> {
+    /// armtwin's RSS with the whole fleet streaming at the first rate, every window full, and the
+    /// seconds it then took to stop (`None`: killed).
+    pub(super) fn streaming_fleet(&self) -> Option<(Memory, Option<f64>)> {
         let s = &self.settings;
         let robots = s.memory_stream_fleet_robots;
         let hz = *s.memory_stream_hz.first()?;

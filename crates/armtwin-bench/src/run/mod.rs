@@ -409,7 +409,9 @@ pub fn run(args: &RunArgs) -> Result<Report> {
     };
     let (memory, restart_s, echo_memory) = orchestrator.fleet_size();
     let streaming_memory = orchestrator.streaming_memory();
-    let streaming_fleet = orchestrator.streaming_fleet();
+    let (streaming_fleet, streaming_fleet_stop_s) = orchestrator
+        .streaming_fleet()
+        .map_or((None, None), |(memory, stop_s)| (Some(memory), stop_s));
     let _ = std::fs::remove_dir_all(&work_dir);
     let fleet_comparison = by_robots
         .iter()
@@ -446,6 +448,7 @@ pub fn run(args: &RunArgs) -> Result<Report> {
         echo_memory,
         streaming_memory,
         streaming_fleet,
+        streaming_fleet_stop_s,
         first_contact: first_contact.into_iter().collect(),
         by_robots,
         targets: Vec::new(),

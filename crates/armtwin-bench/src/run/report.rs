@@ -225,6 +225,9 @@ pub struct Report {
     /// armtwin's memory with the whole fleet streaming at the first rate (null when not
     /// measured).
     pub streaming_fleet: Option<Memory>,
+    /// Seconds from SIGTERM until that armtwin exited (null when not measured, or when it had to
+    /// be killed).
+    pub streaming_fleet_stop_s: Option<f64>,
 }
 
 /// Resident memory per robot streaming at one rate until its window (and the aligner's
@@ -481,8 +484,38 @@ fn streaming_notes(report: &Report) -> String {
             fleet.bytes_per_robot,
             fleet.base_robots,
         );
+        let fill = fill_rates(report).map_or_else(
+            || "not measured".to_owned(),
+            |(small, fleet_rate, ratio)| {
+                format!(
+                    "{fleet_rate:.0} samples/s against {small:.0} at the smaller fleet: {ratio:.2}"
+                )
+            },
+        );
+        let stop = report.streaming_fleet_stop_s.map_or_else(
+            || "killed (or not measured)".to_owned(),
+            |s| format!("{s:.2} s"),
+        );
+        let _ = writeln!(
+            text,
+            "filling {} robots' windows: {fill}; then SIGTERM to exit: {stop}",
+            fleet.robots
+        );
     }
     text
+}
+
+/// The streamed fill rate of the smaller streaming fleet (the first rate's memory row, at the
+/// streaming fleet's rate), the whole streaming fleet's, and their ratio.
+fn fill_rates(report: &Report) -> Option<(f64, f64, f64)> {
+    let fleet = report.streaming_fleet.as_ref()?;
+    let small = report
+        .streaming_memory
+        .iter()
+        .find(|row| Some(row.hz_per_robot) == fleet.stream_hz)?;
+    let small_rate = small.armtwin.fill_samples_per_s?;
+    let fleet_rate = fleet.fill_samples_per_s?;
+    Some((small_rate, fleet_rate, fleet_rate / small_rate))
 }
 
 /// KiB as megabytes (10^6 bytes).
@@ -631,6 +664,26 @@ fn streaming_targets(report: &Report) -> Vec<TargetRow> {
             measured: Some(mb),
             target: "≤ 400".to_owned(),
             met: mb <= 400.0,
+        });
+        let fill = fill_rates(report);
+        rows.push(TargetRow {
+            figure: format!(
+                "fill rate with {} robots streaming / with {}",
+                fleet.robots,
+                report
+                    .streaming_memory
+                    .first()
+                    .map_or(0, |row| row.armtwin.robots)
+            ),
+            measured: fill.map(|(_, _, ratio)| ratio),
+            target: "≥ 0.8".to_owned(),
+            met: fill.is_some_and(|(_, _, ratio)| ratio >= 0.8),
+        });
+        rows.push(TargetRow {
+            figure: format!("SIGTERM to exit with {} robots streaming (s)", fleet.robots),
+            measured: report.streaming_fleet_stop_s,
+            target: "≤ 10".to_owned(),
+            met: report.streaming_fleet_stop_s.is_some_and(|s| s <= 10.0),
         });
     }
     rows

@@ -45,34 +45,40 @@ impl SystemUnderTest {
         self.child.id()
     }
 
-    pub(crate) fn stop(mut self) {
-        self.terminate();
+    /// Stops the subprocess ([`terminate`](Self::terminate)); the seconds from SIGTERM until it
+    /// exited, `None` when it had to be killed (or had exited already).
+    pub(crate) fn stop(mut self) -> Option<f64> {
+        self.terminate()
     }
 
-    pub(crate) fn terminate(&mut self) {
+    /// SIGTERM, then SIGKILL after [`STOP_TIMEOUT`]; the seconds from SIGTERM until the
+    /// subprocess exited by itself, if it did.
+    pub(crate) fn terminate(&mut self) -> Option<f64> {
         if matches!(self.child.try_wait(), Ok(Some(_))) {
-            return;
+            return None;
         }
         // std offers only SIGKILL; SIGTERM lets armtwin shut down as in production.
+        let signalled = Instant::now();
         let _ = Command::new("kill")
             .args(["-TERM", &self.child.id().to_string()])
             .status();
         drop(self.child.stdin.take());
-        let deadline = Instant::now() + STOP_TIMEOUT;
+        let deadline = signalled + STOP_TIMEOUT;
         while Instant::now() < deadline {
             if matches!(self.child.try_wait(), Ok(Some(_))) {
-                return;
+                return Some(signalled.elapsed().as_secs_f64());
             }
             std::thread::sleep(Duration::from_millis(20));
         }
         let _ = self.child.kill();
         let _ = self.child.wait();
+        None
     }
 }
 
 impl Drop for SystemUnderTest {
     fn drop(&mut self) {
-        self.terminate();
+        let _stopped_s = self.terminate();
     }
 }
 

@@ -1,6 +1,7 @@
 //! The control thread: declares newly tracked robots' liveliness tokens and, once a robot
 //! streams, the publishers that cache its routes; publishes the periodic metrics, schedules
-//! self-calibration fits and writes snapshots; at the end finishes every twin and undeclares.
+//! self-calibration fits and writes snapshots; at the end finishes every twin and hands back
+//! what is still declared, for the session's close to undeclare at once.
 //!
 //! Must not run on Zenoh's threads, and never holds a robot's cell across a declaration.
 
@@ -96,9 +97,13 @@ fn retire_idle(fleet: &Fleet, forget_after: Duration) {
     );
 }
 
-/// The publishers and tokens of robots whose twins were finished, to undeclare together.
+/// The publishers and tokens of robots whose twins were finished, to undeclare together; or, at
+/// the end, to drop once the session is closed. Closing the session undeclares them at once on
+/// every peer (each remote liveliness subscriber sees every token go), where undeclaring them
+/// one by one costs, in Zenoh, in proportion to the entities still declared, each
+/// (crates/armtwin-bench/README.md, "Stopping").
 #[derive(Default)]
-struct Declarations {
+pub(super) struct Declarations {
     publishers: Vec<(Arc<str>, RobotPublishers)>,
     tokens: Vec<(Arc<str>, LivelinessToken)>,
 }
@@ -305,13 +310,14 @@ fn declare_metrics_publisher(fleet: &Fleet, robot: &Robot) {
 }
 
 /// Starts the control thread: it declares robots' Zenoh entities as `requests` ask (never on
-/// Zenoh's own threads), runs the periodic duties, and finishes the pipeline at the end.
+/// Zenoh's own threads), runs the periodic duties, and finishes the pipeline at the end; it
+/// returns the report and what is still declared, to drop after the session is closed.
 pub(super) fn spawn(
     fleet: Arc<Fleet>,
     requests: Receiver<Request>,
     periods: Periods,
     snapshots: Option<(SnapshotStore, Duration)>,
-) -> Result<std::thread::JoinHandle<ServeReport>, ServiceError> {
+) -> Result<std::thread::JoinHandle<(ServeReport, Declarations)>, ServiceError> {
     let (jobs_tx, jobs_rx) = channel::<FitJob>();
     let fitting = fitting_thread(Arc::clone(&fleet), jobs_rx, periods.self_calibration)?;
     std::thread::Builder::new()
@@ -344,13 +350,13 @@ pub(super) fn spawn(
 }
 
 /// The control thread's loop: requests as they come, duties as they fall due, until asked to
-/// stop; then every twin finished and everything undeclared.
+/// stop; then every twin finished, and the robots' publishers and tokens handed back.
 fn run(
     fleet: &Fleet,
     requests: &Receiver<Request>,
     mut schedule: Schedule,
     duties: &Duties<'_>,
-) -> ServeReport {
+) -> (ServeReport, Declarations) {
     let outlet = fleet.outlet();
     // Streaming robots whose route caches are asked for and not yet declared.
     let mut undeclared = VecDeque::new();
@@ -435,8 +441,7 @@ fn run(
     if let Some(store) = duties.store {
         save_final_snapshot(fleet, store);
     }
-    declarations.undeclare(outlet);
-    report
+    (report, declarations)
 }
 
 #[cfg(test)]

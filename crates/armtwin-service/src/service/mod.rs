@@ -76,7 +76,8 @@ use armtwin_mesh::{TEARDOWN_STEP, aggregate_publishers, bounded, close_session, 
 use armtwin_view::{HttpDoor, OpenHttpDoor};
 
 /// Runs the service until `shutdown` completes, then tears down in order: stop intake, finish
-/// every twin (final metrics for every robot), undeclare, close the session. `http` serves
+/// every twin (final metrics for every robot), close the session (which undeclares the robots'
+/// publishers and tokens at once). `http` serves
 /// `[http] listen` (the command line hands in the dashboard); a configuration that asks for it
 /// without one is refused.
 pub async fn serve(
@@ -170,7 +171,12 @@ pub async fn serve(
     intake.undeclare().await;
     // Samples that arrive after this are ignored: the control thread finishes the pipeline.
     requests.stop();
-    let report = finish(control).await;
+    // The robots' publishers and tokens outlive the session's close, which undeclares them all
+    // at once ([`control::Declarations`]).
+    let (report, declarations) = match finish(control).await {
+        Ok((report, declarations)) => (Ok(report), Some(declarations)),
+        Err(e) => (Err(e), None),
+    };
     // The incidents the finished twins left are written, and their events sent, before the
     // session closes.
     let recording_fleet = Arc::clone(&fleet);
@@ -184,6 +190,7 @@ pub async fn serve(
     if let Err(e) = close_session(&session).await {
         warn!(error = %e, "closing the session failed");
     }
+    drop(declarations);
     let report = report?;
     info!(
         inputs = report.inputs,
@@ -255,19 +262,19 @@ async fn start_dashboard(
     (dashboard, watch)
 }
 
-/// Waits, bounded, for the control thread to finish the pipeline and undeclare the robots'
-/// outputs; its report.
+/// Waits, bounded, for the control thread to finish the pipeline; its report, and the robots'
+/// publishers and tokens it hands back.
 async fn finish(
-    control: std::thread::JoinHandle<ServeReport>,
-) -> Result<ServeReport, ServiceError> {
+    control: std::thread::JoinHandle<(ServeReport, control::Declarations)>,
+) -> Result<(ServeReport, control::Declarations), ServiceError> {
     match bounded(
-        "finishing the pipeline and undeclaring the robots' outputs",
+        "finishing the pipeline",
         TEARDOWN_STEP * 4,
         tokio::task::spawn_blocking(move || control.join()),
     )
     .await
     {
-        Some(Ok(Ok(report))) => Ok(report),
+        Some(Ok(Ok(finished))) => Ok(finished),
         Some(Ok(Err(_))) => Err(ServiceError::Worker(
             "the control thread panicked".to_owned(),
         )),

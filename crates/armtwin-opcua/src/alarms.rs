@@ -3,6 +3,8 @@
 //!
 //! Pure: the server turns the changes into events and notifies them.
 
+use crate::reading::AlarmReading;
+#[cfg(test)]
 use crate::reading::RobotReading;
 
 /// Severity of a raised deviation alarm (OPC 10000-5: 601–800, medium high).
@@ -40,12 +42,27 @@ pub(crate) struct AlarmChange {
 
 impl AlarmStates {
     /// The alarms on in `reading`.
+    #[cfg(test)]
     pub(crate) fn of(reading: &RobotReading) -> Self {
         Self {
             position: reading.position_alarm,
             angle: reading.angle_alarm,
             collision: reading.collision.iter().any(|&on| on),
         }
+    }
+
+    /// The alarms on in `reading`.
+    pub(crate) fn from_alarms(reading: AlarmReading) -> Self {
+        Self {
+            position: reading.position,
+            angle: reading.angle,
+            collision: reading.collision,
+        }
+    }
+
+    /// Whether any alarm is on.
+    pub(crate) fn any(self) -> bool {
+        self.position || self.angle || self.collision
     }
 
     /// What changed from `self` to `next`.

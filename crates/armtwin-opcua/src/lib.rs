@@ -7,11 +7,13 @@
 //! - `password`: the users' PBKDF2 digests;
 //! - `access`: who may sign in, and read-only for all;
 //! - `reading`: what the server reads of the fleet ([`TwinSource`], implemented by the service);
-//! - `manager`: the DI and Robotics `NodeSet`s imported, armtwin's namespace, no writes;
+//! - `manager`: the DI and Robotics `NodeSet`s imported in memory, no writes;
 //! - `robot`: one robot's nodes and what each variable shows;
+//! - `robots`: armtwin's namespace, the robots' nodes made from the fleet when a request names
+//!   them, and the monitored variables sampled;
 //! - `alarms`: alarm changes and the events they become;
 //! - `rejected`: the client certificates the server refused, kept within bounds;
-//! - `server`: the server and the sampler thread that copies the fleet into the nodes.
+//! - `server`: the server and the sampler thread (monitored variables, alarm events).
 //!
 //! Knows nothing of armtwin's twins: the service hands it [`RobotReading`]s.
 
@@ -22,14 +24,15 @@ mod password;
 mod reading;
 mod rejected;
 mod robot;
+mod robots;
 mod server;
 mod settings;
 
 pub use manager::NodeSetError;
 pub use password::{PasswordHash, PasswordHashError};
 pub use reading::{
-    ControllerReading, DeviationStats, IdentifiedPayload, PayloadReading, PoseReading,
-    RobotReading, TwinSource,
+    AlarmReading, ControllerReading, DeviationStats, IdentifiedPayload, PayloadReading,
+    PoseReading, RobotReading, TwinSource,
 };
 pub use rejected::{MAX_REJECTED_BYTES, MAX_REJECTED_FILES};
 pub use server::{BoundServer, OpcUaError, OpcUaServer};

@@ -1,16 +1,14 @@
-//! The node manager of the twins' nodes: the DI and Robotics information models, imported from
-//! the OPC Foundation's `NodeSet2` files, and armtwin's namespace, where every robot's instance
-//! nodes live. Read-only: every write is refused.
+//! The node manager of the information models: DI and Robotics, imported from the OPC
+//! Foundation's `NodeSet2` files into memory once, and armtwin's namespace reserved after them.
+//! Read-only: every write is refused.
 //!
-//! Must not know a robot: [`crate::robot`] builds and updates their nodes.
+//! Must not know a robot: [`crate::robots`] serves their nodes, in armtwin's namespace.
 
 use async_trait::async_trait;
 use opcua::nodes::NodeSet2Import;
 use opcua::server::address_space::AddressSpace;
 use opcua::server::diagnostics::NamespaceMetadata;
-use opcua::server::node_manager::memory::{
-    InMemoryNodeManager, InMemoryNodeManagerBuilder, InMemoryNodeManagerImpl,
-};
+use opcua::server::node_manager::memory::{InMemoryNodeManagerBuilder, InMemoryNodeManagerImpl};
 use opcua::server::node_manager::{RequestContext, ServerContext, WriteNode};
 use opcua::sync::RwLock;
 use opcua::types::StatusCode;
@@ -28,9 +26,6 @@ pub(crate) const ROBOTICS_URI: &str = "http://opcfoundation.org/UA/Robotics/";
 /// armtwin's namespace: the robots' instance nodes and armtwin's own variables.
 pub(crate) const ARMTWIN_URI: &str = "urn:armtwin:opcua";
 
-/// The node manager that holds the twins' nodes.
-pub(crate) type TwinNodeManager = InMemoryNodeManager<TwinNodes>;
-
 /// The namespaces' indices on this server.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Namespaces {
@@ -39,25 +34,9 @@ pub(crate) struct Namespaces {
     pub(crate) armtwin: u16,
 }
 
-impl Namespaces {
-    /// The indices `manager`'s namespaces were given.
-    pub(crate) fn of(manager: &TwinNodeManager) -> Option<Self> {
-        let index_of = |uri: &str| {
-            manager
-                .namespaces()
-                .iter()
-                .find_map(|(index, known)| (known == uri).then_some(*index))
-        };
-        Some(Self {
-            di: index_of(DI_URI)?,
-            robotics: index_of(ROBOTICS_URI)?,
-            armtwin: index_of(ARMTWIN_URI)?,
-        })
-    }
-}
-
-/// What the twins' node manager does beyond the in-memory default: its namespaces, and no writes.
-pub(crate) struct TwinNodes {
+/// What the models' node manager does beyond the in-memory default: its namespaces, and no
+/// writes.
+pub(crate) struct ModelNodes {
     namespaces: Vec<NamespaceMetadata>,
 }
 
@@ -83,11 +62,11 @@ pub(crate) fn parse_nodesets() -> Result<[NodeSet2Import; 2], NodeSetError> {
     ])
 }
 
-/// The twins' node manager's builder: imports `nodesets` (DI first, which Robotics needs) and
-/// adds armtwin's namespace.
+/// The models' node manager's builder: imports `nodesets` (DI first, which Robotics needs) and
+/// gives armtwin's namespace its index after theirs, for [`crate::robots`] to serve.
 pub(crate) fn builder(
     nodesets: [NodeSet2Import; 2],
-) -> InMemoryNodeManagerBuilder<impl FnOnce(ServerContext, &mut AddressSpace) -> TwinNodes> {
+) -> InMemoryNodeManagerBuilder<impl FnOnce(ServerContext, &mut AddressSpace) -> ModelNodes> {
     InMemoryNodeManagerBuilder::new(
         move |context: ServerContext, address_space: &mut AddressSpace| {
             let mut type_tree = context.type_tree.write();
@@ -95,7 +74,7 @@ pub(crate) fn builder(
             for import in &nodesets {
                 address_space.import_node_set(import, type_tree.namespaces_mut());
             }
-            for uri in [DI_URI, ROBOTICS_URI, ARMTWIN_URI] {
+            for uri in [DI_URI, ROBOTICS_URI] {
                 let namespace_index = type_tree.namespaces_mut().add_namespace(uri);
                 address_space.add_namespace(uri, namespace_index);
                 namespaces.push(NamespaceMetadata {
@@ -104,21 +83,22 @@ pub(crate) fn builder(
                     ..NamespaceMetadata::default()
                 });
             }
+            type_tree.namespaces_mut().add_namespace(ARMTWIN_URI);
             info!(
                 namespaces = ?namespaces.iter().map(|n| (n.namespace_index, &n.namespace_uri)).collect::<Vec<_>>(),
                 "OPC UA: DI and Robotics information models imported"
             );
-            TwinNodes { namespaces }
+            ModelNodes { namespaces }
         },
     )
 }
 
 #[async_trait]
-impl InMemoryNodeManagerImpl for TwinNodes {
+impl InMemoryNodeManagerImpl for ModelNodes {
     async fn init(&self, _address_space: &mut AddressSpace, _context: ServerContext) {}
 
     fn name(&self) -> &'static str {
-        "armtwin"
+        "armtwin-models"
     }
 
     fn namespaces(&self) -> Vec<NamespaceMetadata> {

@@ -1,5 +1,6 @@
-//! What the server reads of the fleet at each sampling interval ([`TwinSource`]): one
-//! [`RobotReading`] per twinned robot, plain values in SI units (angles in radians).
+//! What the server reads of the fleet ([`TwinSource`]): the twinned robots' ids when a client
+//! browses them, one robot's [`RobotReading`] (plain values in SI units, angles in radians) when
+//! a client reads or monitors its nodes, and every robot's alarms at each sampling interval.
 //!
 //! Defined here, implemented by the service: this crate knows no twin, and the service's
 //! sample path knows no OPC UA.
@@ -8,9 +9,27 @@ use std::sync::Arc;
 
 /// The fleet, as the OPC UA server reads it.
 pub trait TwinSource: Send + Sync + 'static {
-    /// Every twinned robot's reading, copied out now (each robot locked only while it is
-    /// copied), in any order. `readings` is cleared first and reused between calls.
-    fn read_fleet(&self, readings: &mut Vec<RobotReading>);
+    /// Every twinned robot's id, in any order. `ids` is cleared first.
+    fn robot_ids(&self, ids: &mut Vec<Arc<str>>);
+
+    /// Robot `id`'s reading, copied out now (the robot locked only while it is copied), if it
+    /// is twinned.
+    fn read_robot(&self, id: &str) -> Option<RobotReading>;
+
+    /// Every twinned robot's alarms, each robot locked only while its flags are read, handed to
+    /// `visit` in any order.
+    fn read_alarms(&self, visit: &mut dyn FnMut(&Arc<str>, AlarmReading));
+}
+
+/// Which of a robot's alarms are on.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct AlarmReading {
+    /// The position deviation alarm.
+    pub position: bool,
+    /// The orientation deviation alarm.
+    pub angle: bool,
+    /// A collision alarm on any joint.
+    pub collision: bool,
 }
 
 /// One robot's state at the moment it was read.

@@ -4,8 +4,10 @@
 //! [`RobotReading`].
 //!
 //! Node ids are strings in armtwin's namespace: the robot's id for its system, `<id>#<path>`
-//! below it (`#` never occurs in a robot id, a Zenoh key). Must not touch the address space's
-//! locks or subscriptions: the caller holds the one and notifies the other.
+//! below it (`#` never occurs in a robot id, a Zenoh key): a node's id names its robot, so its
+//! nodes can be made again from the robot's reading whenever a request names one. Builds into
+//! the address space it is given (a request's own, dropped after it); must not touch
+//! subscriptions.
 
 use opcua::nodes::{ObjectBuilder, ReferenceDirection, VariableBuilder};
 use opcua::server::address_space::{AccessLevel, AddressSpace, EventNotifier};
@@ -18,10 +20,10 @@ use crate::manager::Namespaces;
 use crate::reading::{DeviationStats, RobotReading};
 
 /// DI's `DeviceSet` object.
-const DEVICE_SET: u32 = 5001;
+pub(crate) const DEVICE_SET: u32 = 5001;
 /// Robotics' `MotionDeviceSystemType`, `MotionDeviceType`, `AxisType`, `PowerTrainType`,
 /// `MotorType`, `ControllerType`, `SafetyStateType`, `LoadType` and `UserType`.
-const MOTION_DEVICE_SYSTEM_TYPE: u32 = 1002;
+pub(crate) const MOTION_DEVICE_SYSTEM_TYPE: u32 = 1002;
 const MOTION_DEVICE_TYPE: u32 = 1004;
 const AXIS_TYPE: u32 = 16601;
 const POWER_TRAIN_TYPE: u32 = 16794;
@@ -231,23 +233,16 @@ impl Quantity {
     }
 }
 
-/// A variable kept up to date, with what it last showed.
+/// A variable that changes, and what it shows.
 pub(crate) struct Slot {
     pub(crate) node: NodeId,
     pub(crate) quantity: Quantity,
-    pub(crate) last: Option<Reading>,
 }
 
-/// A robot's nodes on the server.
+/// A robot's nodes as built.
 pub(crate) struct RobotNodes {
-    /// Its `MotionDeviceSystem`.
-    pub(crate) root: NodeId,
-    /// Every node made for it, parents before children.
-    pub(crate) nodes: Vec<NodeId>,
     /// Its variables that change.
     pub(crate) slots: Vec<Slot>,
-    /// Its joint count when built: another count rebuilds its nodes.
-    pub(crate) joint_count: usize,
 }
 
 /// Adds a robot's nodes to `space` under `DeviceSet`.
@@ -255,7 +250,6 @@ struct Tree<'a> {
     space: &'a mut AddressSpace,
     ns: Namespaces,
     robot: &'a str,
-    nodes: Vec<NodeId>,
     slots: Vec<Slot>,
 }
 
@@ -276,7 +270,6 @@ impl Tree<'_> {
             .has_type_definition(type_definition)
             .reference(parent.clone(), reference, ReferenceDirection::Inverse)
             .insert(self.space);
-        self.nodes.push(id.clone());
         id
     }
 
@@ -342,7 +335,6 @@ impl Tree<'_> {
             .has_type_definition(type_definition)
             .reference(parent.clone(), reference, ReferenceDirection::Inverse)
             .insert(self.space);
-        self.nodes.push(id.clone());
         id
     }
 
@@ -391,7 +383,6 @@ impl Tree<'_> {
         self.slots.push(Slot {
             node: node.clone(),
             quantity,
-            last: None,
         });
     }
 
@@ -424,7 +415,6 @@ impl Tree<'_> {
         self.slots.push(Slot {
             node: id.clone(),
             quantity,
-            last: None,
         });
         id
     }
@@ -489,7 +479,6 @@ pub(crate) fn build(
         space,
         ns,
         robot,
-        nodes: Vec::new(),
         slots: Vec::new(),
     };
     let root = NodeId::new(ns.armtwin, robot.to_owned());
@@ -502,7 +491,6 @@ pub(crate) fn build(
             ReferenceDirection::Inverse,
         )
         .insert(tree.space);
-    tree.nodes.push(root.clone());
     let identity = (manufacturer_of(&reading.model), reading.model.as_str());
     tree.motion_device(&root, identity);
     for j in 0..reading.joint_count {
@@ -511,12 +499,7 @@ pub(crate) fn build(
     tree.controller(&root, identity.0);
     tree.safety_state(&root);
     tree.twin(&root);
-    RobotNodes {
-        root,
-        nodes: tree.nodes,
-        slots: tree.slots,
-        joint_count: reading.joint_count,
-    }
+    RobotNodes { slots: tree.slots }
 }
 
 /// Where a robot's motion device's nodes are, below its system.
@@ -734,7 +717,6 @@ impl Tree<'_> {
         self.slots.push(Slot {
             node: mode,
             quantity: Quantity::OperationalMode,
-            last: None,
         });
     }
 
@@ -838,13 +820,6 @@ impl Tree<'_> {
                 of(stat),
             );
         }
-    }
-}
-
-/// Removes `nodes` from `space`, with every reference to them.
-pub(crate) fn remove(space: &mut AddressSpace, nodes: &RobotNodes) {
-    for node in nodes.nodes.iter().rev() {
-        space.delete(node, true);
     }
 }
 

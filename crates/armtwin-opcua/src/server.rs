@@ -1,11 +1,9 @@
-//! The OPC UA server: its endpoints, certificate and users, and the sampler thread that copies
-//! the fleet into the robots' nodes at the sampling interval.
+//! The OPC UA server: its endpoints, certificate and users, and the sampler thread.
 //!
-//! The sampler is the only writer of the robots' nodes. It reads the fleet through
-//! [`TwinSource`] once per interval, adds the nodes of robots newly twinned, removes those of
-//! robots retired, sets the variables whose value changed (which notifies the subscriptions
-//! watching them) and turns alarm changes into events. Nothing here runs on the twins' sample
-//! path.
+//! The robots' nodes are made from the fleet when a request names them ([`crate::robots`]).
+//! Once per sampling interval the sampler reads the robots whose variables clients monitor and
+//! notifies those items, reads every robot's alarm flags and turns their changes into events,
+//! and prunes the refused client certificates. Nothing here runs on the twins' sample path.
 
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -20,16 +18,16 @@ use opcua::server::{
     ANONYMOUS_USER_TOKEN_ID, Server, ServerBuilder, ServerEndpoint, ServerHandle, ServerUserToken,
     SubscriptionCache,
 };
-use opcua::types::{ByteString, DataValue, DateTime, MessageSecurityMode, NodeId, ObjectTypeId};
+use opcua::types::{ByteString, MessageSecurityMode, NodeId, ObjectTypeId};
 use ring::rand::{SecureRandom, SystemRandom};
 use tracing::{debug, info, warn};
 
 use crate::access::{Access, USERS_TOKEN_ID};
 use crate::alarms::{AlarmChange, AlarmStates};
-use crate::manager::{self, Namespaces, NodeSetError, TwinNodeManager};
-use crate::reading::{RobotReading, TwinSource};
+use crate::manager::{self, NodeSetError};
+use crate::reading::TwinSource;
 use crate::rejected;
-use crate::robot::{self, RobotNodes};
+use crate::robots::RobotNodeManager;
 use crate::settings::OpcUaSettings;
 
 /// Why the OPC UA server could not start.
@@ -104,8 +102,7 @@ pub struct BoundServer {
     server: Server,
     handle: ServerHandle,
     listener: tokio::net::TcpListener,
-    nodes: Arc<TwinNodeManager>,
-    namespaces: Namespaces,
+    robots: Arc<RobotNodeManager>,
     period: Duration,
     /// Where the stack stores the client certificates it refused, kept within bounds.
     rejected_dir: PathBuf,
@@ -133,7 +130,10 @@ impl OpcUaServer {
             .pki_dir(settings.pki_dir.clone())
             .trust_client_certs(false)
             .with_authenticator(Arc::new(Access::new(&settings.users, settings.anonymous)))
-            .with_node_manager(manager::builder(nodesets));
+            .with_node_manager(manager::builder(nodesets))
+            .with_node_manager(|context: opcua::server::node_manager::ServerContext| {
+                RobotNodeManager::new(&context)
+            });
         builder = match &settings.certificate {
             Some((certificate, key)) => builder
                 .certificate_path(certificate.clone())
@@ -157,12 +157,10 @@ impl OpcUaServer {
             builder = builder.add_endpoint(id, endpoint);
         }
         let (server, handle) = builder.build().map_err(OpcUaError::Server)?;
-        let nodes = handle
+        let robots = handle
             .node_managers()
-            .get_of_type::<TwinNodeManager>()
-            .ok_or_else(|| OpcUaError::Server("the twins' node manager is missing".to_owned()))?;
-        let namespaces = Namespaces::of(&nodes)
-            .ok_or_else(|| OpcUaError::Server("a namespace is missing".to_owned()))?;
+            .get_of_type::<RobotNodeManager>()
+            .ok_or_else(|| OpcUaError::Server("the robots' node manager is missing".to_owned()))?;
         info!(
             endpoint = %settings.url,
             sampling_interval_ms = settings.sampling_interval.as_millis(),
@@ -175,8 +173,7 @@ impl OpcUaServer {
             server,
             handle,
             listener,
-            nodes,
-            namespaces,
+            robots,
             period: settings.sampling_interval,
             rejected_dir: settings.pki_dir.join("rejected"),
         })
@@ -202,13 +199,12 @@ impl BoundServer {
     /// Starts serving, and the sampler, which reads `source` every sampling interval.
     pub fn start(self, source: Arc<dyn TwinSource>) -> Result<OpcUaServer, OpcUaError> {
         let (stop_sampler, stopped) = mpsc::channel();
+        self.robots.serve(Arc::clone(&source));
         let sampler = Sampler {
             source,
-            nodes: self.nodes,
+            robots: self.robots,
             subscriptions: Arc::clone(self.handle.subscriptions()),
-            namespaces: self.namespaces,
-            robots: HashMap::new(),
-            readings: Vec::new(),
+            alarmed: HashMap::new(),
             random: SystemRandom::new(),
             rejected_dir: self.rejected_dir,
         };
@@ -228,22 +224,14 @@ impl BoundServer {
     }
 }
 
-/// One robot on the server: its nodes and its alarms as last published.
-struct Published {
-    nodes: RobotNodes,
-    alarms: AlarmStates,
-    /// The sampler's turn that last saw the robot.
-    seen: u64,
-}
-
 /// The sampler thread's state.
 struct Sampler {
     source: Arc<dyn TwinSource>,
-    nodes: Arc<TwinNodeManager>,
+    robots: Arc<RobotNodeManager>,
     subscriptions: Arc<SubscriptionCache>,
-    namespaces: Namespaces,
-    robots: HashMap<Arc<str>, Published>,
-    readings: Vec<RobotReading>,
+    /// The robots with an alarm on, as last published, and the turn that last saw each: a robot
+    /// without one is kept nowhere.
+    alarmed: HashMap<Arc<str>, (AlarmStates, u64)>,
     random: SystemRandom,
     rejected_dir: PathBuf,
 }
@@ -261,10 +249,13 @@ impl Sampler {
                 pruned = Instant::now();
                 self.prune_rejected();
             }
+            let (variables, robots) = self.robots.watched();
             debug!(
-                robots = self.robots.len(),
+                variables,
+                robots,
+                alarmed = self.alarmed.len(),
                 took_us = started.elapsed().as_micros(),
-                "OPC UA nodes updated"
+                "OPC UA monitored variables sampled"
             );
             next += period;
             let now = Instant::now();
@@ -302,90 +293,38 @@ impl Sampler {
         }
     }
 
-    /// One turn: the fleet read and copied into the nodes.
+    /// One turn: the monitored variables sampled, and the alarms' changes notified.
     fn sample(&mut self, turn: u64) {
-        let mut readings = std::mem::take(&mut self.readings);
-        readings.clear();
-        self.source.read_fleet(&mut readings);
-        let mut updates: Vec<(NodeId, DataValue)> = Vec::new();
-        let mut changes: Vec<(NodeId, Arc<str>, AlarmChange)> = Vec::new();
-        {
-            let mut space = self.nodes.address_space().write();
-            for reading in &readings {
-                let rebuild = self
-                    .robots
-                    .get(&reading.id)
-                    .is_some_and(|known| known.nodes.joint_count != reading.joint_count);
-                if rebuild && let Some(stale) = self.robots.remove(&reading.id) {
-                    robot::remove(&mut space, &stale.nodes);
-                }
-                let published = self
-                    .robots
-                    .entry(Arc::clone(&reading.id))
-                    .or_insert_with(|| {
-                        info!(robot = %reading.id, "OPC UA: robot added");
-                        Published {
-                            nodes: robot::build(&mut space, self.namespaces, reading),
-                            alarms: AlarmStates::default(),
-                            seen: turn,
-                        }
-                    });
-                published.seen = turn;
-                let now = DateTime::now();
-                for slot in &mut published.nodes.slots {
-                    let value = slot.quantity.read(reading);
-                    if slot.last.as_ref() != Some(&value) {
-                        let (variant, status) = value.clone();
-                        updates.push((
-                            slot.node.clone(),
-                            DataValue {
-                                value: Some(variant),
-                                status: Some(status),
-                                source_timestamp: Some(now),
-                                server_timestamp: Some(now),
-                                ..DataValue::default()
-                            },
-                        ));
-                        slot.last = Some(value);
-                    }
-                }
-                let alarms = AlarmStates::of(reading);
-                for change in published.alarms.changes(alarms) {
-                    changes.push((
-                        published.nodes.root.clone(),
-                        Arc::clone(&reading.id),
-                        change,
-                    ));
-                }
-                published.alarms = alarms;
+        self.robots.sample(&self.subscriptions);
+        let mut changes: Vec<(Arc<str>, AlarmChange)> = Vec::new();
+        let alarmed = &mut self.alarmed;
+        self.source.read_alarms(&mut |robot, reading| {
+            let now = AlarmStates::from_alarms(reading);
+            let before = alarmed
+                .get(robot)
+                .map_or_else(AlarmStates::default, |(states, _)| *states);
+            changes.extend(
+                before
+                    .changes(now)
+                    .map(|change| (Arc::clone(robot), change)),
+            );
+            if now.any() {
+                alarmed.insert(Arc::clone(robot), (now, turn));
+            } else if before.any() {
+                alarmed.remove(robot);
             }
-            self.robots.retain(|id, published| {
-                let present = published.seen == turn;
-                if !present {
-                    robot::remove(&mut space, &published.nodes);
-                    info!(robot = %id, "OPC UA: robot removed");
-                }
-                present
-            });
-        }
-        if !updates.is_empty()
-            && let Err(status) = self.nodes.set_values(
-                &self.subscriptions,
-                updates
-                    .iter()
-                    .map(|(node, value)| (node, None, value.clone())),
-            )
-        {
-            warn!(%status, "OPC UA: updating the robots' nodes failed");
-        }
+        });
+        // A robot retired with an alarm on is forgotten without an event, as its node is gone.
+        alarmed.retain(|_, (_, seen)| *seen == turn);
         self.notify(&changes);
-        self.readings = readings;
     }
 
     /// Each alarm change as an event from the robot's system node: a client watching the node,
     /// or the Server object (which every event reaches), receives it.
-    fn notify(&self, changes: &[(NodeId, Arc<str>, AlarmChange)]) {
-        for (root, robot, change) in changes {
+    fn notify(&self, changes: &[(Arc<str>, AlarmChange)]) {
+        let armtwin = self.robots.namespace();
+        for (robot, change) in changes {
+            let root = NodeId::new(armtwin, robot.to_string());
             let mut id = [0_u8; 16];
             // Without randomness the id is zero: events stay distinct by time and source.
             let _ = self.random.fill(&mut id);
@@ -399,7 +338,7 @@ impl Sampler {
             .set_severity(change.severity());
             info!(robot = %robot, severity = change.severity(), message = %change.message(robot), "OPC UA event");
             self.subscriptions
-                .notify_events([(&event as &dyn Event, root)].into_iter());
+                .notify_events([(&event as &dyn Event, &root)].into_iter());
         }
     }
 }

@@ -1,13 +1,14 @@
-//! The OPC UA server's read of the fleet ([`TwinSource`]): each twinned robot's state copied out
-//! under its own lock in turn, at the server's sampling interval, never on the sample path.
+//! The OPC UA server's read of the fleet ([`TwinSource`]): the twinned robots' ids, one robot's
+//! state copied out under its lock when a client reads or monitors it, and every robot's alarm
+//! flags at the server's sampling interval; never on the sample path.
 //!
 //! Must not keep anything between reads.
 
 use std::sync::Arc;
 
 use armtwin_opcua::{
-    ControllerReading, DeviationStats, IdentifiedPayload, PayloadReading, PoseReading,
-    RobotReading, TwinSource,
+    AlarmReading, ControllerReading, DeviationStats, IdentifiedPayload, PayloadReading,
+    PoseReading, RobotReading, TwinSource,
 };
 
 use super::fleet::Fleet;
@@ -29,16 +30,52 @@ impl OpcUaView {
 }
 
 impl TwinSource for OpcUaView {
-    fn read_fleet(&self, readings: &mut Vec<RobotReading>) {
-        readings.clear();
-        self.fleet.walk(|cell, guard| {
-            if let Some(twin) = guard.twin() {
-                readings.push(reading_of(
-                    Arc::clone(cell.robot().shared_id()),
-                    &twin.state(),
-                    guard.controller(),
-                ));
+    fn robot_ids(&self, ids: &mut Vec<Arc<str>>) {
+        ids.clear();
+        self.fleet.for_each_cell(|cell| {
+            let guard = cell.lock();
+            if !guard.is_retired() && guard.twin().is_some() {
+                ids.push(Arc::clone(cell.robot().shared_id()));
             }
+        });
+    }
+
+    fn read_robot(&self, id: &str) -> Option<RobotReading> {
+        let cell = self.fleet.existing_cell_of(id)?;
+        let guard = cell.lock();
+        if guard.is_retired() {
+            return None;
+        }
+        let twin = guard.twin()?;
+        Some(reading_of(
+            Arc::clone(cell.robot().shared_id()),
+            &twin.state(),
+            guard.controller(),
+        ))
+    }
+
+    fn read_alarms(&self, visit: &mut dyn FnMut(&Arc<str>, AlarmReading)) {
+        self.fleet.for_each_cell(|cell| {
+            let alarms = {
+                let guard = cell.lock();
+                if guard.is_retired() {
+                    return;
+                }
+                let Some(twin) = guard.twin() else {
+                    return;
+                };
+                let state = twin.state();
+                AlarmReading {
+                    position: state.alarms_active.position,
+                    angle: state.alarms_active.angle,
+                    collision: state
+                        .metrics
+                        .effort
+                        .as_deref()
+                        .is_some_and(|effort| effort.collision.iter().any(|&on| on)),
+                }
+            };
+            visit(cell.robot().shared_id(), alarms);
         });
     }
 }

@@ -75,6 +75,23 @@ use armtwin_mesh::keys::Stream;
 use armtwin_mesh::{TEARDOWN_STEP, aggregate_publishers, bounded, close_session, zenoh_config_of};
 use armtwin_view::{HttpDoor, OpenHttpDoor};
 
+/// A start that failed after the control thread started: the thread stopped and the session
+/// closed, each bounded in time.
+async fn abandon(
+    requests: &requests::Requests,
+    control: std::thread::JoinHandle<(ServeReport, control::Declarations)>,
+    session: &zenoh::Session,
+) {
+    requests.stop();
+    bounded(
+        "stopping the control thread",
+        TEARDOWN_STEP * 4,
+        tokio::task::spawn_blocking(move || control.join()),
+    )
+    .await;
+    let _ = close_session(session).await;
+}
+
 /// Runs the service until `shutdown` completes, then tears down in order: stop intake, finish
 /// every twin (final metrics for every robot), close the session (which undeclares the robots'
 /// publishers and tokens at once). `http` serves
@@ -142,14 +159,7 @@ pub async fn serve(
     let intake = match declare_intake(&session, &config, &fleet, admin_refusal).await {
         Ok(intake) => intake,
         Err(e) => {
-            requests.stop();
-            bounded(
-                "stopping the control thread",
-                TEARDOWN_STEP * 4,
-                tokio::task::spawn_blocking(move || control.join()),
-            )
-            .await;
-            let _ = close_session(&session).await;
+            abandon(&requests, control, &session).await;
             return Err(e);
         }
     };

@@ -34,8 +34,8 @@ pub enum BlockError {
 }
 
 thread_local! {
-    /// A compressor and its scratch per thread: a zstd context is ~100 KB to set up, a block a
-    /// few KB to compress.
+    /// A compressor and its scratch per thread: setting a zstd context up costs more than
+    /// compressing one small block with it.
     static CODEC: RefCell<Codec> = RefCell::new(Codec::default());
 }
 
@@ -71,10 +71,16 @@ pub fn encode_with<R>(
             None => compressor.insert(zstd::bulk::Compressor::new(LEVEL)?),
         };
         compressed.clear();
-        compressed.resize(zstd::zstd_safe::compress_bound(planes.len()), 0);
+        compressed.resize(max_encoded_bytes(planes.len()), 0);
         let written = compressor.compress_to_buffer(planes, compressed.as_mut_slice())?;
         Ok(keep(&compressed[..written]))
     })
+}
+
+/// The most bytes [`encode_with`] hands over for `raw_bytes` of records.
+#[must_use]
+pub fn max_encoded_bytes(raw_bytes: usize) -> usize {
+    zstd::zstd_safe::compress_bound(raw_bytes)
 }
 
 /// Appends the `count` records of `stride` values that `bytes` (from [`encode`]) hold to `out`.

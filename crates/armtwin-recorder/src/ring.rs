@@ -188,7 +188,13 @@ impl RecordRing {
                 break;
             }
             let header = Header::from_bytes(&bytes);
-            if header.last_s < oldest_s.max(from_s) {
+            // A header is this ring's own, but it is read from a file: nothing is sized by it
+            // past what a block of this ring can be.
+            let raw_bytes = self.block_records * self.stride * size_of::<f64>();
+            if header.last_s < oldest_s.max(from_s)
+                || header.records as usize > self.block_records
+                || header.compressed_len as usize > block::max_encoded_bytes(raw_bytes)
+            {
                 break;
             }
             let mut compressed = vec![0; header.compressed_len as usize];

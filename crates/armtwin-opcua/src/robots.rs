@@ -130,25 +130,16 @@ impl RobotNodeManager {
         };
         let mut ids = Vec::new();
         source.robot_ids(&mut ids);
-        let mut rest = VecDeque::new();
-        for id in ids {
-            let reference = ReferenceDescription {
-                reference_type_id: ReferenceTypeId::HasComponent.into(),
-                is_forward: true,
-                node_id: NodeId::new(self.ns.armtwin, id.to_string()).into(),
-                browse_name: opcua::types::QualifiedName::new(self.ns.armtwin, id.as_ref()),
-                display_name: opcua::types::LocalizedText::new("", id.as_ref()),
-                node_class: NodeClass::Object,
-                type_definition: NodeId::new(self.ns.robotics, robot::MOTION_DEVICE_SYSTEM_TYPE)
-                    .into(),
-            };
-            if let AddReferenceResult::Full(reference) = node.add(type_tree, reference) {
-                rest.push_back(reference);
-            }
-        }
-        if !rest.is_empty() {
-            node.set_next_continuation_point(Box::new(ContinuationPoint { references: rest }));
-        }
+        let references = ids.iter().map(|id| ReferenceDescription {
+            reference_type_id: ReferenceTypeId::HasComponent.into(),
+            is_forward: true,
+            node_id: NodeId::new(self.ns.armtwin, id.to_string()).into(),
+            browse_name: opcua::types::QualifiedName::new(self.ns.armtwin, id.as_ref()),
+            display_name: opcua::types::LocalizedText::new("", id.as_ref()),
+            node_class: NodeClass::Object,
+            type_definition: NodeId::new(self.ns.robotics, robot::MOTION_DEVICE_SYSTEM_TYPE).into(),
+        });
+        add_references(node, type_tree, references);
     }
 
     /// A node of a robot: its references in the robot's scratch nodes; those leaving them
@@ -164,7 +155,7 @@ impl RobotNodeManager {
         };
         let source = node.node_id().clone();
         let space = &scratch.space;
-        let mut rest = VecDeque::new();
+        let mut found = Vec::new();
         for reference in space.find_references(&source, filter, type_tree, node.browse_direction())
         {
             let Some(target) = space.find_node(reference.target_node) else {
@@ -197,13 +188,9 @@ impl RobotNodeManager {
                 node_class: target.node_class(),
                 type_definition,
             };
-            if let AddReferenceResult::Full(description) = node.add(type_tree, description) {
-                rest.push_back(description);
-            }
+            found.push(description);
         }
-        if !rest.is_empty() {
-            node.set_next_continuation_point(Box::new(ContinuationPoint { references: rest }));
-        }
+        add_references(node, type_tree, found);
     }
 
     /// One sampling turn: each monitored variable's value now, to the monitored items watching
@@ -273,6 +260,23 @@ impl RobotNodeManager {
         if variables.is_empty() {
             watched.robots.remove(&robot);
         }
+    }
+}
+
+/// Adds `references` to `node`'s result; those past what it may return wait for `BrowseNext`.
+fn add_references(
+    node: &mut BrowseNode,
+    type_tree: &DefaultTypeTree,
+    references: impl IntoIterator<Item = ReferenceDescription>,
+) {
+    let mut rest = VecDeque::new();
+    for reference in references {
+        if let AddReferenceResult::Full(reference) = node.add(type_tree, reference) {
+            rest.push_back(reference);
+        }
+    }
+    if !rest.is_empty() {
+        node.set_next_continuation_point(Box::new(ContinuationPoint { references: rest }));
     }
 }
 

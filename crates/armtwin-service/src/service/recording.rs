@@ -2,8 +2,9 @@
 //! robot's lock), the incidents its events and the operator's queries set off, and the moment
 //! an incident's `post_s` has passed and it goes to the writer thread.
 //!
-//! Must not touch a file or wait: an incident is copied out of the rings and handed over
-//! ([`IncidentSender::send`] never blocks); the writer thread does the rest.
+//! Must not write a file or wait: the rings' closed blocks go to their log's own thread, and an
+//! incident is copied out of the rings (its blocks read back from the log, once per incident)
+//! and handed over ([`IncidentSender::send`] never blocks); the writer thread does the rest.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};

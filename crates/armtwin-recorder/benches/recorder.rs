@@ -58,7 +58,8 @@ fn sample(t_s: f64) -> (JointSample, PoseReadout, Deviation) {
 
 /// A robot's joint and measured rings, full at 500 Hz, their log, and the next stamp.
 fn full_rings() -> (RecordRing, RecordRing, std::sync::Arc<Spool>, f64) {
-    let spool = Spool::in_memory(1 << 30);
+    // On a file, as the service keeps it (unnamed: nothing is left behind).
+    let spool = Spool::in_dir(&std::env::temp_dir(), 1 << 30);
     let layout = JointRecord { joint_count: 6 };
     let mut joints = RecordRing::new(layout.stride(), SPAN_S, ROBOT_BYTES / 2, spool.clone());
     let mut measured = RecordRing::new(MEASURED_STRIDE, SPAN_S, ROBOT_BYTES / 4, spool.clone());

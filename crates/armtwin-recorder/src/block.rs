@@ -1,11 +1,13 @@
 //! A closed block of a ring's records, compressed without loss: each column's values combined by XOR
 //! with the value above them, their bytes regrouped by significance (every record's top byte of
-//! a column, then the next byte, …) and the result through zstd at its fastest level.
+//! a column, then the next byte, …) and the result through LZ4.
 //!
 //! Why this shape: a column of joint angles, poses or deviations changes little from one record
-//! to the next, so the XOR's high bytes are mostly zero and, grouped, become long runs zstd
-//! takes for almost nothing; the low bytes stay as they are (the values are not quantised, and
-//! NaN payloads and signed zeros come back bit for bit).
+//! to the next, so the XOR's high bytes are mostly zero and, grouped, become long runs that LZ4
+//! takes for a few bytes; the low bytes stay as they are (the values are not quantised, and NaN
+//! payloads and signed zeros come back bit for bit). LZ4 rather than zstd: on blocks this small,
+//! zstd spends most of its time building entropy tables per block, on the thread that took the
+//! sample (crates/armtwin-recorder/benches/README.md has the figures of both).
 //!
 //! Pure: bytes in, bytes out. Must not know where a block is kept ([`super::spool`]).
 
@@ -13,16 +15,15 @@ use std::cell::RefCell;
 
 use thiserror::Error;
 
-/// zstd's fastest level: a block is a few kilobytes, compressed on the thread that took the
-/// sample.
-const LEVEL: i32 = 1;
-
 /// A block that does not decompress to the records it claims.
 #[derive(Debug, Error)]
 pub enum BlockError {
-    /// zstd refused the bytes.
+    /// LZ4 refused the bytes.
     #[error("a recorder block does not decompress: {0}")]
-    Zstd(#[from] std::io::Error),
+    Decompress(#[from] lz4_flex::block::DecompressError),
+    /// LZ4 found no room for the bytes (it is given the most they can take).
+    #[error("a recorder block does not compress: {0}")]
+    Compress(#[from] lz4_flex::block::CompressError),
     /// It decompressed to another size.
     #[error("a recorder block holds {got} bytes, not the {expected} of its records")]
     Size {
@@ -34,15 +35,12 @@ pub enum BlockError {
 }
 
 thread_local! {
-    /// A compressor and its scratch per thread: setting a zstd context up costs more than
-    /// compressing one small block with it.
-    static CODEC: RefCell<Codec> = RefCell::new(Codec::default());
+    /// The scratch of a block's bytes per thread, not per ring.
+    static SCRATCH: RefCell<Scratch> = RefCell::new(Scratch::default());
 }
 
 #[derive(Default)]
-struct Codec {
-    compressor: Option<zstd::bulk::Compressor<'static>>,
-    decompressor: Option<zstd::bulk::Decompressor<'static>>,
+struct Scratch {
     planes: Vec<u8>,
     compressed: Vec<u8>,
 }
@@ -52,27 +50,17 @@ struct Codec {
 ///
 /// # Errors
 ///
-/// If zstd fails (it does not on memory it was given room in).
+/// If LZ4 finds no room (it does not: it is given the most it can need).
 pub fn encode_with<R>(
     records: &[f64],
     stride: usize,
     keep: impl FnOnce(&[u8]) -> R,
 ) -> Result<R, BlockError> {
-    CODEC.with_borrow_mut(|codec| {
-        let Codec {
-            compressor,
-            planes,
-            compressed,
-            ..
-        } = codec;
+    SCRATCH.with_borrow_mut(|Scratch { planes, compressed }| {
         to_planes(records, stride, planes);
-        let compressor = match compressor {
-            Some(compressor) => compressor,
-            None => compressor.insert(zstd::bulk::Compressor::new(LEVEL)?),
-        };
         compressed.clear();
         compressed.resize(max_encoded_bytes(planes.len()), 0);
-        let written = compressor.compress_to_buffer(planes, compressed.as_mut_slice())?;
+        let written = lz4_flex::block::compress_into(planes, compressed)?;
         Ok(keep(&compressed[..written]))
     })
 }
@@ -80,10 +68,11 @@ pub fn encode_with<R>(
 /// The most bytes [`encode_with`] hands over for `raw_bytes` of records.
 #[must_use]
 pub fn max_encoded_bytes(raw_bytes: usize) -> usize {
-    zstd::zstd_safe::compress_bound(raw_bytes)
+    lz4_flex::block::get_maximum_output_size(raw_bytes)
 }
 
-/// Appends the `count` records of `stride` values that `bytes` (from [`encode`]) hold to `out`.
+/// Appends the `count` records of `stride` values that `bytes` (from [`encode_with`]) hold to
+/// `out`.
 ///
 /// # Errors
 ///
@@ -94,20 +83,11 @@ pub fn decode(
     stride: usize,
     out: &mut Vec<f64>,
 ) -> Result<(), BlockError> {
-    CODEC.with_borrow_mut(|codec| {
-        let Codec {
-            decompressor,
-            planes,
-            ..
-        } = codec;
+    SCRATCH.with_borrow_mut(|Scratch { planes, .. }| {
         let expected = count * stride * size_of::<f64>();
-        let decompressor = match decompressor {
-            Some(decompressor) => decompressor,
-            None => decompressor.insert(zstd::bulk::Decompressor::new()?),
-        };
         planes.clear();
         planes.resize(expected, 0);
-        let got = decompressor.decompress_to_buffer(bytes, planes.as_mut_slice())?;
+        let got = lz4_flex::block::decompress_into(bytes, planes)?;
         if got != expected {
             return Err(BlockError::Size { expected, got });
         }
@@ -116,19 +96,31 @@ pub fn decode(
     })
 }
 
-/// `records`' columns combined by XOR down and their bytes grouped by significance, into `planes`.
+/// `records`' columns combined by XOR down and their bytes grouped by significance, into
+/// `planes`. Each plane is written in order (a column's values read once): the transposition is
+/// half of a block's cost otherwise.
 fn to_planes(records: &[f64], stride: usize, planes: &mut Vec<u8>) {
     let count = records.len() / stride;
     planes.clear();
     planes.resize(count * stride * size_of::<f64>(), 0);
-    for column in 0..stride {
+    if count == 0 {
+        return;
+    }
+    let mut xored = vec![0_u64; count];
+    for (column, column_planes) in planes
+        .chunks_exact_mut(count * size_of::<f64>())
+        .enumerate()
+    {
         let mut above = 0_u64;
-        for row in 0..count {
+        for (row, x) in xored.iter_mut().enumerate() {
             let bits = records[row * stride + column].to_bits();
-            let xored = (bits ^ above).to_be_bytes();
+            *x = bits ^ above;
             above = bits;
-            for (byte, value) in xored.into_iter().enumerate() {
-                planes[(column * size_of::<f64>() + byte) * count + row] = value;
+        }
+        for (byte, plane) in column_planes.chunks_exact_mut(count).enumerate() {
+            let shift = 8 * (size_of::<f64>() - 1 - byte);
+            for (value, x) in plane.iter_mut().zip(&xored) {
+                *value = (x >> shift) as u8;
             }
         }
     }
@@ -139,16 +131,21 @@ fn from_planes(planes: &[u8], count: usize, stride: usize, out: &mut Vec<f64>) {
     let start = out.len();
     out.resize(start + count * stride, 0.0);
     let records = &mut out[start..];
-    for column in 0..stride {
-        let mut above = 0_u64;
-        for row in 0..count {
-            let mut xored = [0_u8; size_of::<f64>()];
-            for (byte, value) in xored.iter_mut().enumerate() {
-                *value = planes[(column * size_of::<f64>() + byte) * count + row];
+    if count == 0 {
+        return;
+    }
+    let mut xored = vec![0_u64; count];
+    for (column, column_planes) in planes.chunks_exact(count * size_of::<f64>()).enumerate() {
+        xored.fill(0);
+        for plane in column_planes.chunks_exact(count) {
+            for (x, &value) in xored.iter_mut().zip(plane) {
+                *x = (*x << 8) | u64::from(value);
             }
-            let bits = u64::from_be_bytes(xored) ^ above;
-            above = bits;
-            records[row * stride + column] = f64::from_bits(bits);
+        }
+        let mut above = 0_u64;
+        for (row, x) in xored.iter().enumerate() {
+            above ^= x;
+            records[row * stride + column] = f64::from_bits(above);
         }
     }
 }
@@ -196,6 +193,9 @@ mod tests {
         let mut out = Vec::new();
         assert!(decode(&bytes, 3, 2, &mut out).is_err());
         assert!(decode(&[1, 2, 3], 2, 2, &mut out).is_err());
+        let mut empty = Vec::new();
+        encode(&[], 3, &mut empty);
+        assert!(decode(&empty, 0, 3, &mut out).is_ok());
         assert!(out.is_empty());
     }
 }

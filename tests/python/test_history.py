@@ -18,7 +18,7 @@ from support.process import ArmtwinProcess, wait_until
 from support.zenoh_clients import TwinClient, get_json
 
 ROBOT = "cell-1/ur10e-h"
-# Stamps 1000 s + 2 ms a row: the last of 6000 rows is 1011.998, in the last 0.1-s slice of
+# Stamps 1000 s + 2 ms a row: the last of 6000 rows is 1011.998, in the last 0.5-s slice of
 # second 1011, so the 10-s window then holds seconds 1002 … 1011 whole.
 ROWS = 6000
 CONFIG = """\
@@ -33,8 +33,8 @@ history_s = 60
 [robots.default]
 model = "ur10e"
 """
-# The window's slices: 10 s in 100 (the defaults), so 10 slices a second.
-SLICES_PER_S = 100 / 10.0
+# The window's slices: 10 s in 20 (the defaults), so 2 slices a second.
+SLICES_PER_S = 20 / 10.0
 
 
 def second_of(stamp_s: float) -> int:
@@ -188,5 +188,73 @@ def test_wildcard_reads_are_bounded_and_say_so(armtwin_bin, tmp_path, processes)
         assert outcomes["answered"] >= 1, outcomes
         assert wait_until(lambda: paired(robots[0]) == 2200, 30.0, 0.2), paired(robots[0])
         print(f"\n[wildcard reads] 200 queries at once: {outcomes}")
+    finally:
+        client.close()
+
+
+def test_minutes_merge_their_seconds_and_survive_a_restart(armtwin_bin, tmp_path, processes):
+    """Twenty minutes of source time (the recording's rows 0.2 s apart) with the default hour:
+    the newest ten minutes answered second by second, every completed minute answered as the
+    exact merge of its pairs and of its seconds; after a restart on the snapshot, the same
+    minutes come back bit for bit and the seconds start afresh."""
+    state_dir = tmp_path / "state"
+    config = CONFIG.replace("history_s = 60\n", "").replace(
+        "[service]\n", f"[service]\nstate_dir = '{state_dir}'\nsnapshot_period_s = 3600.0\n")
+    service = ArmtwinProcess(armtwin_bin, tmp_path, config, watchdog_s=120.0).start()
+    processes.append(service)
+    client = TwinClient(service.endpoint)
+    rows = lasttest_rows()[:6000]
+    stamp = lambda i: 1000.0 + i * 0.2  # noqa: E731
+    try:
+        publisher = client.joints(ROBOT)
+        client.ready([ROBOT])
+        for i, (q, measured) in enumerate(rows):
+            body = {"t": stamp(i), "q": q, "measured": dict(zip(("x", "y", "z", "qx", "qy", "qz", "qw"), measured))}
+            publisher.put(json.dumps(body))
+        state = lambda: get_json(client.session, f"twin/state/{ROBOT}")[0][1]  # noqa: E731
+        assert wait_until(lambda: state()["metrics"]["paired"] == len(rows), 30.0, 0.1), state()["metrics"]
+        assert wait_until(lambda: client.collector.count("deviation", ROBOT) == len(rows), 20.0, 0.05)
+        deviations = client.collector.messages("deviation", ROBOT)
+
+        history = get_json(client.session, f"twin/history/{ROBOT}")[0][1]
+        assert (history["history_s"], history["seconds_s"]) == (3600, 600)
+        # The newest second, 2199, is open: the seconds kept are 1600 … 2198.
+        assert [row["t"] for row in history["seconds"]] == list(range(1600, 2199))
+        assert all(row["n"] == 5 for row in history["seconds"])
+        # Minutes 960 (holding 1000 … 1019) to 2100; 2160's is open.
+        minutes = history["minutes"]
+        assert [row["t"] for row in minutes] == list(range(960, 2160, 60))
+        for row in minutes:
+            of_minute = [d for d in deviations if row["t"] <= second_of(d["t"]) < row["t"] + 60]
+            assert_agree(row, aggregate(of_minute), f"minute {row['t']}")
+            seconds = [s for s in history["seconds"] if row["t"] <= s["t"] < row["t"] + 60]
+            if len(seconds) == 60:
+                assert_agree(combine(seconds), row, f"the seconds of minute {row['t']}", rel=1e-12)
+        # `_time` picks minutes by their first second.
+        ranged = get_json(client.session, f"twin/history/{ROBOT}?_time=[now(-10m)..]")[0][1]
+        assert [row["t"] for row in ranged["minutes"]] == list(range(1620, 2160, 60))
+        assert [row["t"] for row in ranged["seconds"]] == list(range(1600, 2199))
+    finally:
+        client.close()
+    assert service.stop().code == 0
+
+    again = ArmtwinProcess(armtwin_bin, tmp_path, config, watchdog_s=120.0).start()
+    processes.append(again)
+    client = TwinClient(again.endpoint)
+    try:
+        # The snapshot kept the open minute too: once a sample of a later minute completes it,
+        # it is answered with its pairs of before the restart.
+        q, measured = rows[-1]
+        body = {"t": 2222.0, "q": q, "measured": dict(zip(("x", "y", "z", "qx", "qy", "qz", "qw"), measured))}
+        publisher = client.joints(ROBOT)
+        client.ready([ROBOT])
+        publisher.put(json.dumps(body))
+        restored = lambda: get_json(client.session, f"twin/history/{ROBOT}")[0][1]  # noqa: E731
+        assert wait_until(lambda: restored()["t"] == 2222.0, 20.0, 0.05), restored()
+        after = restored()
+        assert after["minutes"][: len(minutes)] == minutes, "the minutes come back bit for bit"
+        opened = [d for d in deviations if second_of(d["t"]) >= 2160]
+        assert_agree(after["minutes"][len(minutes)], aggregate(opened), "the minute open at the stop")
+        assert after["seconds"] == [], "the seconds start afresh"
     finally:
         client.close()

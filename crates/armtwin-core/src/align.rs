@@ -42,7 +42,7 @@ impl Default for AlignConfig {
             max_gap_s: 0.25,
             max_wait_s: 0.5,
             history_s: 2.0,
-            max_history: 4096,
+            max_history: 64,
             max_pending: 1024,
             restart_s: 5.0,
         }
@@ -170,15 +170,16 @@ impl AngleRing {
         &self.values_rad[start..start + self.joint_count]
     }
 
-    /// Appends a sample's angles, growing by doubling when every slot is taken. Angles beyond the
-    /// first sample's count are dropped and missing ones read as 0 (callers check the count).
-    fn push_back(&mut self, q_rad: &[f64]) {
+    /// Appends a sample's angles, growing by doubling, up to `most_slots`, when every slot is
+    /// taken. Angles beyond the first sample's count are dropped and missing ones read as 0
+    /// (callers check the count).
+    fn push_back(&mut self, q_rad: &[f64], most_slots: usize) {
         if self.len == 0 {
             self.joint_count = q_rad.len();
             self.head = 0;
         }
         if self.len == self.slots || self.values_rad.len() != self.slots * self.joint_count {
-            self.grow();
+            self.grow(most_slots);
         }
         let start = (self.head + self.len) % self.slots * self.joint_count;
         let slot = &mut self.values_rad[start..start + self.joint_count];
@@ -189,10 +190,11 @@ impl AngleRing {
         self.len += 1;
     }
 
-    /// Room for at least one more sample (and slots of the current joint count), oldest first.
+    /// Room for at least one more sample (and slots of the current joint count), oldest first:
+    /// twice the slots, but no more than `most_slots` unless the samples held need them.
     #[cold]
-    fn grow(&mut self) {
-        let slots = (2 * self.slots).max(4);
+    fn grow(&mut self, most_slots: usize) {
+        let slots = (2 * self.slots).max(4).min(most_slots).max(self.len + 1);
         let mut values_rad = Vec::with_capacity(slots * self.joint_count);
         for index in 0..self.len {
             values_rad.extend_from_slice(self.get(index));
@@ -248,8 +250,14 @@ impl<T> Aligner<T> {
     /// Records a joint sample's stamp and angles (stamps must increase; the caller enforces it),
     /// dropping history older than `history_s` or beyond `max_history`.
     pub fn push_joints(&mut self, stamp_s: f64, q_rad: &[f64]) {
+        // Room first, so the buffers never hold more than `max_history` samples (at least two).
+        let most = self.config.max_history.max(2);
+        while self.stamps_s.len() >= most {
+            self.stamps_s.pop_front();
+            self.angles_rad.pop_front();
+        }
         self.stamps_s.push_back(stamp_s);
-        self.angles_rad.push_back(q_rad);
+        self.angles_rad.push_back(q_rad, most);
         // Keep at least the two newest samples, so a measured pose between them can pair.
         while let Some(&oldest) = self.stamps_s.front() {
             let too_old = oldest < stamp_s - self.config.history_s;
@@ -370,7 +378,7 @@ mod tests {
         // Uneven pushes and pops: the head wraps round while the ring grows to 16 slots.
         for round in 0..40u32 {
             for _ in 0..=(round % 4) {
-                ring.push_back(&angles(next));
+                ring.push_back(&angles(next), usize::MAX);
                 next += 1;
             }
             for _ in 0..(round % 3) {
@@ -383,6 +391,30 @@ mod tests {
             }
         }
         assert!(ring.slots >= ring.len && ring.slots.is_power_of_two());
+    }
+
+    #[test]
+    fn the_joint_history_holds_max_history_samples_and_no_more_slots() {
+        for most in [64, 100] {
+            let mut aligner: Aligner<()> = Aligner::new(AlignConfig {
+                max_history: most,
+                history_s: 1e9,
+                ..AlignConfig::default()
+            });
+            for sample in 0..5_000_u32 {
+                aligner.push_joints(f64::from(sample) * 0.002, &angles(sample));
+            }
+            assert_eq!(aligner.stamps_s.len(), most);
+            assert_eq!(
+                (aligner.angles_rad.len, aligner.angles_rad.slots),
+                (most, most)
+            );
+            assert_eq!(aligner.angles_rad.get(0), angles(5_000 - most as u32));
+            assert!(matches!(
+                aligner.bracket(4_999.0 * 0.002),
+                Bracket::Exact(_)
+            ));
+        }
     }
 
     #[test]

@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use armtwin_core::kinematics::TcpOffset;
-use armtwin_core::metrics::{CumulativeParts, METRIC_COUNT};
+use armtwin_core::metrics::{CumulativeParts, HistoryRow, METRIC_COUNT, SecondTotals};
 use armtwin_core::model::MountingDeltas;
 use armtwin_core::pipeline::{Alarms, AppliedModel, TwinRecord};
 
@@ -83,6 +83,40 @@ struct RecordJson {
     alarms_active: [bool; 2],
     #[serde(default, skip_serializing_if = "Option::is_none")]
     applied: Option<AppliedJson>,
+    /// The history's minutes, oldest first.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    history_minutes: Vec<MinuteJson>,
+}
+
+/// A minute of the history, an array: `[t, n, [position, angle] sums, [position, angle] sums
+/// of squares, [position, angle] maxima]`.
+#[derive(Debug, Serialize, Deserialize)]
+struct MinuteJson(i64, u64, [f64; 2], [f64; 2], [f64; 2]);
+
+impl MinuteJson {
+    fn new(row: &HistoryRow) -> Self {
+        let totals = &row.totals;
+        Self(
+            row.second,
+            totals.n,
+            totals.sums,
+            totals.sums_of_squares,
+            totals.maxima,
+        )
+    }
+
+    fn into_row(self) -> HistoryRow {
+        let Self(second, n, sums, sums_of_squares, maxima) = self;
+        HistoryRow {
+            second,
+            totals: SecondTotals {
+                n,
+                sums,
+                sums_of_squares,
+                maxima,
+            },
+        }
+    }
 }
 
 /// [`AppliedModel`]: the `calibration.conf` deltas and the tool as the pendant writes it.
@@ -159,6 +193,7 @@ impl RecordJson {
             },
             alarms_active: [record.alarms_active.position, record.alarms_active.angle],
             applied: record.applied.as_ref().map(AppliedJson::new),
+            history_minutes: record.history_minutes.iter().map(MinuteJson::new).collect(),
         }
     }
 
@@ -192,6 +227,11 @@ impl RecordJson {
             },
             alarms_active: Alarms { position, angle },
             applied: self.applied.map(AppliedJson::into_applied),
+            history_minutes: self
+                .history_minutes
+                .into_iter()
+                .map(MinuteJson::into_row)
+                .collect(),
         })
     }
 }
@@ -359,6 +399,7 @@ mod tests {
                 angle: false,
             },
             applied: None,
+            history_minutes: Vec::new(),
         }
     }
 
@@ -380,6 +421,26 @@ mod tests {
                 rotation_vector_rad: [0.0, 3.0, 0.1],
             },
         });
+        calibrated.history_minutes = vec![
+            HistoryRow {
+                second: -120,
+                totals: SecondTotals {
+                    n: 3,
+                    sums: [0.1 + 0.2, 5e-324],
+                    sums_of_squares: [1e-300, 0.0],
+                    maxima: [0.2, 1e-9],
+                },
+            },
+            HistoryRow {
+                second: 1_764_000_000,
+                totals: SecondTotals {
+                    n: 30_000,
+                    sums: [12.345_678_901_234_567, 0.25],
+                    sums_of_squares: [0.007, 1e-12],
+                    maxima: [0.004_999, 3e-3],
+                },
+            },
+        ];
         let records = vec![record("a/r1", 7), record("b/r2", 0), calibrated];
         store.save(&records).expect("written");
         assert_eq!(store.load().expect("readable"), Some(records.clone()));

@@ -13,7 +13,7 @@ use serde::Serialize;
 
 use super::StatsJson;
 
-/// One second: `{t, n, position, angle}`.
+/// One second (or minute): `{t, n, position, angle}`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct SecondJson {
     /// The second (source time, s): its row holds the window slices starting in `[t, t + 1)`.
@@ -38,8 +38,8 @@ impl From<&HistoryRow> for SecondJson {
     }
 }
 
-/// A robot's history: `{robot, t, history_s, seconds: [{t, n, position, angle}, …]}`, oldest
-/// first, the seconds without pairs left out.
+/// A robot's history: `{robot, t, history_s, seconds_s, seconds: [{t, n, position, angle}, …],
+/// minutes: […]}`, each list oldest first, the rows without pairs left out.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct HistoryMessage {
     /// Robot id.
@@ -47,21 +47,46 @@ pub struct HistoryMessage {
     /// The robot's newest source time (s), which `now()` in a time range stands for; `null`
     /// before its first accepted sample.
     pub t: Option<f64>,
-    /// The seconds the robot keeps (`[recorder] history_s`).
+    /// The seconds the robot's history covers (`[recorder] history_s`).
     pub history_s: usize,
+    /// The newest of them it keeps one by one; the rest of `history_s` by the minute.
+    pub seconds_s: usize,
     /// The completed seconds asked for.
     pub seconds: Vec<SecondJson>,
+    /// The completed minutes asked for, each `t` its first second: the merge of its seconds,
+    /// kept or not.
+    pub minutes: Vec<SecondJson>,
 }
 
 impl HistoryMessage {
-    /// The answer of `robot` from its `rows`.
+    /// The answer of `robot` from its rows of seconds and of minutes.
     #[must_use]
-    pub fn new(robot: &str, newest_s: Option<f64>, history_s: usize, rows: &[HistoryRow]) -> Self {
+    pub fn new(robot: &str, newest_s: Option<f64>, spans: HistorySpans, rows: HistoryRows) -> Self {
         Self {
             robot: robot.to_owned(),
             t: newest_s,
-            history_s,
-            seconds: rows.iter().map(SecondJson::from).collect(),
+            history_s: spans.history_s,
+            seconds_s: spans.seconds_s,
+            seconds: rows.seconds.iter().map(SecondJson::from).collect(),
+            minutes: rows.minutes.iter().map(SecondJson::from).collect(),
         }
     }
+}
+
+/// What a robot's history covers: `history_s` seconds, the newest `seconds_s` one by one.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct HistorySpans {
+    /// The seconds covered.
+    pub history_s: usize,
+    /// The newest of them kept one by one.
+    pub seconds_s: usize,
+}
+
+/// The rows of a history answer.
+#[derive(Debug, Clone, Copy)]
+pub struct HistoryRows<'a> {
+    /// Seconds, oldest first.
+    pub seconds: &'a [HistoryRow],
+    /// Minutes, oldest first.
+    pub minutes: &'a [HistoryRow],
 }

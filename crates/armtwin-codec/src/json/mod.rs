@@ -52,7 +52,7 @@ pub use effort::{
     payload_readout_json,
 };
 pub use encode::to_json_bytes;
-pub use history::{HistoryMessage, SecondJson};
+pub use history::{HistoryMessage, HistoryRows, HistorySpans, SecondJson};
 pub use joints::DecodedJoints;
 pub use messages::{
     AlarmsJson, DeviationMessage, ErrorsJson, EstimateMessage, EventMessage, MetricsMessage,

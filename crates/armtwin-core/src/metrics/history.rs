@@ -1,7 +1,8 @@
 //! The history of a window: per second of source time, the count, sums, sums of squares and
-//! maxima of the position and angle deviations, kept in a ring of a fixed number of seconds.
+//! maxima of the position and angle deviations, kept in rings of a fixed number of rows: the
+//! newest seconds one by one, the rest of the span by the minute.
 //!
-//! Owns [`History`] (the ring) and [`WindowWithHistory`] (the deviation window that folds each
+//! Owns [`History`] (the two tiers) and [`WindowWithHistory`] (the deviation window that folds each
 //! slice into the history as the slice closes). Must not keep samples, nor recompute anything
 //! per sample: a second is the sum of its slices, and a slice's totals are the window's own.
 
@@ -77,43 +78,22 @@ fn merge(row: &mut SecondTotals, part: &SecondTotals) {
     }
 }
 
-/// Per-second totals of the last `seconds` seconds of source time, on the grid of whole seconds:
-/// second `s` lives at `s mod seconds`, so the ring never grows and a second without pairs costs
-/// nothing more than its empty row. Memory fixed at construction, in proportion to `seconds`
-/// (`benches/README.md` gives the bytes).
+/// Totals on a grid of whole units of source time (seconds, or minutes of 60 s): unit `u` lives
+/// at `u mod len`, so the ring never grows and a unit without pairs costs nothing more than its
+/// empty row.
 #[derive(Debug, Clone)]
-pub struct History {
+struct Ring {
     rows: Box<[SecondTotals]>,
-    /// The newest second holding anything; every row older than `seconds` before it is empty.
+    /// The newest unit holding anything; every row older than `len` before it is empty.
     newest: Option<i64>,
 }
 
-impl History {
-    /// An empty history of `seconds` seconds.
-    ///
-    /// # Panics
-    ///
-    /// If `seconds` is 0 (no history is `None`, not an empty ring: the configuration layer
-    /// decides).
-    #[must_use]
-    pub fn new(seconds: usize) -> Self {
-        assert!(seconds > 0, "a history needs at least one second");
+impl Ring {
+    fn new(len: usize) -> Self {
         Self {
-            rows: vec![EMPTY; seconds].into_boxed_slice(),
+            rows: vec![EMPTY; len].into_boxed_slice(),
             newest: None,
         }
-    }
-
-    /// The seconds it keeps.
-    #[must_use]
-    pub fn seconds(&self) -> usize {
-        self.rows.len()
-    }
-
-    /// The newest second holding anything; `None` before any.
-    #[must_use]
-    pub fn newest_second(&self) -> Option<i64> {
-        self.newest
     }
 
     fn span(&self) -> i64 {
@@ -121,33 +101,122 @@ impl History {
         i64::try_from(self.rows.len()).unwrap_or(i64::MAX)
     }
 
-    fn slot_of(&self, second: i64) -> usize {
-        // In `0..seconds`.
-        second.rem_euclid(self.span()).unsigned_abs() as usize
+    fn slot_of(&self, unit: i64) -> usize {
+        // In `0..len`.
+        unit.rem_euclid(self.span()).unsigned_abs() as usize
     }
 
-    /// The row of `second`, moving the ring on to it if it is newer than the newest; `None` if
-    /// it is older than the ring keeps.
-    fn row_mut(&mut self, second: i64) -> Option<&mut SecondTotals> {
+    /// The row of `unit`, moving the ring on to it if it is newer than the newest; `None` if it
+    /// is older than the ring keeps.
+    fn row_mut(&mut self, unit: i64) -> Option<&mut SecondTotals> {
         match self.newest {
-            Some(newest) if second <= newest.saturating_sub(self.span()) => return None,
-            Some(newest) if second > newest => {
-                let steps = second.saturating_sub(newest);
+            Some(newest) if unit <= newest.saturating_sub(self.span()) => return None,
+            Some(newest) if unit > newest => {
+                let steps = unit.saturating_sub(newest);
                 if steps >= self.span() {
                     self.rows.fill(EMPTY);
                 } else {
-                    for passed in newest + 1..=second {
+                    for passed in newest + 1..=unit {
                         let slot = self.slot_of(passed);
                         self.rows[slot] = EMPTY;
                     }
                 }
-                self.newest = Some(second);
+                self.newest = Some(unit);
             }
             Some(_) => {}
-            None => self.newest = Some(second),
+            None => self.newest = Some(unit),
         }
-        let slot = self.slot_of(second);
+        let slot = self.slot_of(unit);
         Some(&mut self.rows[slot])
+    }
+
+    /// The units in `units` that hold pairs, oldest first, with their totals.
+    fn rows(&self, units: RangeInclusive<i64>) -> impl Iterator<Item = (i64, SecondTotals)> + '_ {
+        let (first, last) = match self.newest {
+            Some(newest) => (
+                (*units.start()).max(newest.saturating_sub(self.span()) + 1),
+                (*units.end()).min(newest),
+            ),
+            None => (1, 0),
+        };
+        (first..=last).filter_map(move |unit| {
+            let totals = self.rows[self.slot_of(unit)];
+            (totals.n > 0).then_some((unit, totals))
+        })
+    }
+
+    fn clear(&mut self) {
+        self.rows.fill(EMPTY);
+        self.newest = None;
+    }
+}
+
+/// Seconds of source time in a row of the coarse tier.
+pub const MINUTE_S: i64 = 60;
+
+/// Exact seconds a history keeps at most, its newest: older ones are kept by the minute only.
+pub const SECONDS_TIER_S: usize = 600;
+
+/// The totals of the last `history_s` seconds of source time in two tiers: each second of the
+/// newest [`SECONDS_TIER_S`] (all of them when `history_s` is no longer), and each minute (on the
+/// grid of whole minutes, `⌊second / 60⌋`) of the whole span. Both tiers take every slice and
+/// late pair as it comes, so a minute's row is exactly the merge of its seconds (counts and sums
+/// added, the maximum of the maxima) whether or not they are still kept. The minutes are what a
+/// snapshot keeps ([`History::restore_minutes`]).
+/// Memory fixed at construction, 56 bytes a row (`benches/README.md` gives the bytes).
+#[derive(Debug, Clone)]
+pub struct History {
+    seconds: Ring,
+    minutes: Ring,
+    /// The seconds it covers.
+    span_s: usize,
+}
+
+impl History {
+    /// An empty history of `history_s` seconds.
+    ///
+    /// # Panics
+    ///
+    /// If `history_s` is 0 (no history is `None`, not an empty ring: the configuration layer
+    /// decides).
+    #[must_use]
+    pub fn new(history_s: usize) -> Self {
+        assert!(history_s > 0, "a history needs at least one second");
+        let seconds = history_s.min(SECONDS_TIER_S);
+        let minute_s = MINUTE_S.unsigned_abs() as usize;
+        Self {
+            seconds: Ring::new(seconds),
+            minutes: Ring::new(history_s.div_ceil(minute_s)),
+            span_s: history_s,
+        }
+    }
+
+    /// The seconds it covers, by the second or by the minute.
+    #[must_use]
+    pub fn seconds(&self) -> usize {
+        self.span_s
+    }
+
+    /// The newest seconds it keeps one by one.
+    #[must_use]
+    pub fn exact_seconds(&self) -> usize {
+        self.seconds.rows.len()
+    }
+
+    /// The newest second holding anything; `None` before any.
+    #[must_use]
+    pub fn newest_second(&self) -> Option<i64> {
+        self.seconds.newest
+    }
+
+    /// Adds `part` to `second`'s row and to its minute's.
+    fn merge_into(&mut self, second: i64, part: &SecondTotals) {
+        if let Some(row) = self.seconds.row_mut(second) {
+            merge(row, part);
+        }
+        if let Some(row) = self.minutes.row_mut(second.div_euclid(MINUTE_S)) {
+            merge(row, part);
+        }
     }
 
     /// Adds the totals of a closed slice (of the nine metrics) to `second`; nothing if it holds
@@ -156,10 +225,7 @@ impl History {
         if totals.n == 0 {
             return;
         }
-        let part = history_part(totals);
-        if let Some(row) = self.row_mut(second) {
-            merge(row, &part);
-        }
+        self.merge_into(second, &history_part(totals));
     }
 
     /// Adds one pair's nine magnitudes to `second`: a pair that came late, into a slice already
@@ -171,30 +237,81 @@ impl History {
             sums_of_squares: magnitudes.map(|x| x * x),
             maxima: *magnitudes,
         });
-        if let Some(row) = self.row_mut(second) {
-            merge(row, &part);
-        }
+        self.merge_into(second, &part);
     }
 
-    /// The rows of the seconds in `seconds` that hold pairs, oldest first.
+    /// The rows of the seconds in `seconds` that hold pairs and are kept one by one, oldest
+    /// first.
     pub fn rows(&self, seconds: RangeInclusive<i64>) -> impl Iterator<Item = HistoryRow> + '_ {
-        let (first, last) = match self.newest {
-            Some(newest) => (
-                (*seconds.start()).max(newest.saturating_sub(self.span()) + 1),
-                (*seconds.end()).min(newest),
-            ),
-            None => (1, 0),
-        };
-        (first..=last).filter_map(move |second| {
-            let totals = self.rows[self.slot_of(second)];
-            (totals.n > 0).then_some(HistoryRow { second, totals })
-        })
+        self.seconds
+            .rows(seconds)
+            .map(|(second, totals)| HistoryRow { second, totals })
+    }
+
+    /// The rows of the minutes that hold pairs and start in `seconds`, oldest first, each
+    /// [`HistoryRow::second`] the minute's first second.
+    pub fn minute_rows(
+        &self,
+        seconds: RangeInclusive<i64>,
+    ) -> impl Iterator<Item = HistoryRow> + '_ {
+        let minutes = seconds.start().div_euclid(MINUTE_S)
+            + i64::from(seconds.start().rem_euclid(MINUTE_S) != 0)
+            ..=seconds.end().div_euclid(MINUTE_S);
+        self.minutes
+            .rows(minutes)
+            .map(|(minute, totals)| HistoryRow {
+                second: minute.saturating_mul(MINUTE_S),
+                totals,
+            })
+    }
+
+    /// Takes `rows` (minutes, oldest first, each [`HistoryRow::second`] a minute's first second,
+    /// as [`History::minute_rows`] gave them) as its minutes, before any pair; the rows older than
+    /// the span before the newest are left out. The seconds start empty.
+    ///
+    /// # Errors
+    ///
+    /// A row that is not on a minute, out of order, empty, or with a total that is negative or
+    /// not finite: nothing is taken.
+    pub fn restore_minutes(&mut self, rows: &[HistoryRow]) -> Result<(), String> {
+        let mut previous: Option<i64> = None;
+        for row in rows {
+            let totals = &row.totals;
+            let sound = |values: &[f64; 2]| values.iter().all(|x| x.is_finite() && *x >= 0.0);
+            if row.second.rem_euclid(MINUTE_S) != 0 {
+                return Err(format!("minute t = {} is not a multiple of 60", row.second));
+            }
+            if previous.is_some_and(|previous| row.second <= previous) {
+                return Err(format!(
+                    "minute t = {} is not after the one before",
+                    row.second
+                ));
+            }
+            if totals.n == 0
+                || !sound(&totals.sums)
+                || !sound(&totals.sums_of_squares)
+                || !sound(&totals.maxima)
+            {
+                return Err(format!(
+                    "minute t = {} holds no pair or a bad total",
+                    row.second
+                ));
+            }
+            previous = Some(row.second);
+        }
+        self.clear();
+        for row in rows {
+            if let Some(slot) = self.minutes.row_mut(row.second.div_euclid(MINUTE_S)) {
+                *slot = row.totals;
+            }
+        }
+        Ok(())
     }
 
     /// Forgets every second.
     pub fn clear(&mut self) {
-        self.rows.fill(EMPTY);
-        self.newest = None;
+        self.seconds.clear();
+        self.minutes.clear();
     }
 }
 
@@ -299,6 +416,48 @@ impl WindowWithHistory {
     pub fn reset_window(&mut self) {
         self.fold_newest();
         self.window.reset();
+    }
+
+    /// Its history's minutes as a snapshot keeps them: every minute holding pairs, oldest first,
+    /// the window's newest slice (not folded yet) included in its minute; empty when no history
+    /// is kept.
+    #[must_use]
+    pub fn history_minutes_record(&self) -> Vec<HistoryRow> {
+        let Some(history) = &self.history else {
+            return Vec::new();
+        };
+        let mut rows: Vec<HistoryRow> = history.minute_rows(i64::MIN..=i64::MAX).collect();
+        let Some(newest) = self.window.newest_slice() else {
+            return rows;
+        };
+        let totals = self.window.newest_totals();
+        if totals.n == 0 {
+            return rows;
+        }
+        let part = history_part(&totals);
+        let minute = self.second_of_slice(newest).div_euclid(MINUTE_S) * MINUTE_S;
+        match rows.last_mut() {
+            Some(row) if row.second == minute => merge(&mut row.totals, &part),
+            Some(row) if row.second > minute => {}
+            _ => rows.push(HistoryRow {
+                second: minute,
+                totals: part,
+            }),
+        }
+        rows
+    }
+
+    /// Takes `rows` as its history's minutes ([`History::restore_minutes`]); nothing when no
+    /// history is kept.
+    ///
+    /// # Errors
+    ///
+    /// Those of [`History::restore_minutes`].
+    pub fn restore_history_minutes(&mut self, rows: &[HistoryRow]) -> Result<(), String> {
+        match &mut self.history {
+            Some(history) => history.restore_minutes(rows),
+            None => Ok(()),
+        }
     }
 
     /// Both start afresh: source time went back (a restart of the gateway's clock), and seconds
@@ -440,6 +599,92 @@ mod tests {
         assert_eq!(history.rows(0..=100).count(), 1);
         assert_eq!(history.seconds(), 3);
         assert!(WindowWithHistory::new(1.0, 10, 0).history().is_none());
+    }
+
+    #[test]
+    fn minutes_are_the_exact_merge_of_their_seconds_and_cover_the_span() {
+        let mut history = History::new(3600);
+        assert_eq!(
+            (history.seconds(), history.exact_seconds()),
+            (3600, SECONDS_TIER_S)
+        );
+        // Two hours of pairs, a few a second, some of them late into their second.
+        let mut pairs: Vec<(i64, [f64; METRIC_COUNT])> = Vec::new();
+        for second in 0..7200_i64 {
+            for k in 0..3_i64 {
+                let x = f64::from(u32::try_from((second * 7 + k * 13) % 101).expect("small"));
+                let values = magnitudes(x * 1e-4, x * 1e-3);
+                history.add(second, &values);
+                pairs.push((second, values));
+            }
+        }
+        // Late into a second still kept, and into one only its minute keeps.
+        history.add(7000, &magnitudes(0.5, 0.25));
+        pairs.push((7000, magnitudes(0.5, 0.25)));
+        history.add(6000, &magnitudes(0.75, 0.125));
+        pairs.push((6000, magnitudes(0.75, 0.125)));
+        let seconds: Vec<HistoryRow> = history.rows(i64::MIN..=i64::MAX).collect();
+        assert_eq!(seconds.len(), SECONDS_TIER_S);
+        assert_eq!(seconds[0].second, 7200 - 600);
+        let minutes: Vec<HistoryRow> = history.minute_rows(i64::MIN..=i64::MAX).collect();
+        assert_eq!(minutes.len(), 60);
+        assert_eq!((minutes[0].second, minutes[59].second), (3600, 7140));
+        for row in &minutes {
+            let of_minute: Vec<_> = pairs
+                .iter()
+                .filter(|(second, _)| second.div_euclid(MINUTE_S) * MINUTE_S == row.second)
+                .map(|&(second, values)| (second as f64, values))
+                .collect();
+            let expected = naive(&of_minute);
+            assert_eq!(row.totals.n, expected.n);
+            assert_stats_agree(&row.stats(), &stats_of(&expected), "minute");
+            // The kept seconds of a minute merge to it exactly.
+            let mut merged = EMPTY;
+            let kept: Vec<_> = seconds
+                .iter()
+                .filter(|second| second.second.div_euclid(MINUTE_S) * MINUTE_S == row.second)
+                .collect();
+            if kept.len() == 60 {
+                for second in kept {
+                    merge(&mut merged, &second.totals);
+                }
+                assert_eq!(merged.n, row.totals.n);
+                assert_stats_agree(&stats_of(&merged), &row.stats(), "merged seconds");
+            }
+        }
+        // Minutes answered are those starting in the range.
+        let starts: Vec<i64> = history
+            .minute_rows(3601..=3720)
+            .map(|row| row.second)
+            .collect();
+        assert_eq!(starts, [3660, 3720]);
+        history.clear();
+        assert_eq!(history.minute_rows(i64::MIN..=i64::MAX).count(), 0);
+        // A restored history answers the same minutes, and goes on merging into the newest.
+        let mut restored = History::new(3600);
+        restored.restore_minutes(&minutes).expect("sound rows");
+        let again: Vec<HistoryRow> = restored.minute_rows(i64::MIN..=i64::MAX).collect();
+        assert_eq!(again, minutes);
+        assert_eq!(restored.rows(i64::MIN..=i64::MAX).count(), 0);
+        restored.add(7199, &magnitudes(0.5, 0.5));
+        assert_eq!(
+            restored
+                .minute_rows(7140..=7140)
+                .next()
+                .map(|row| row.totals.n),
+            Some(minutes[59].totals.n + 1)
+        );
+        let mut bad = minutes[3];
+        bad.second += 1;
+        assert!(restored.restore_minutes(&[bad]).is_err());
+        let mut bad = minutes[3];
+        bad.totals.sums[0] = f64::NAN;
+        assert!(restored.restore_minutes(&[bad]).is_err());
+        assert!(restored.restore_minutes(&[minutes[4], minutes[3]]).is_err());
+        // A history of no more than the seconds tier keeps its minutes too.
+        let mut short = History::new(120);
+        short.add(61, &magnitudes(0.5, 0.5));
+        assert_eq!(short.minute_rows(i64::MIN..=i64::MAX).count(), 1);
     }
 
     proptest! {

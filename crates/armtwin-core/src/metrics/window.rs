@@ -8,8 +8,10 @@
 
 use super::{METRIC_COUNT, StatsSet, acceptable};
 
-/// Slices a window is split into unless configured otherwise: each slice is 1 % of the window.
-pub const DEFAULT_WINDOW_SLICES: usize = 100;
+/// Slices a window is split into unless configured otherwise: each slice is 5 % of the window
+/// (0.5 s of the default 10 s, so that a second holds whole slices); the window's memory is in
+/// proportion to it.
+pub const DEFAULT_WINDOW_SLICES: usize = 20;
 
 /// The relative error that updating the window's totals may leave in them before they are rebuilt
 /// from the slices: a tenth of the error the window promises (1e-12), the rest being the slices'

@@ -11,7 +11,7 @@ use super::alarm::AlarmStates;
 use super::twin::{DeviationStats, Twin};
 use super::{Alarms, PipelineConfig, Robot};
 use crate::kinematics::TcpOffset;
-use crate::metrics::{CumulativeParts, CumulativeStats, WindowWithHistory};
+use crate::metrics::{CumulativeParts, CumulativeStats, HistoryRow, WindowWithHistory};
 use crate::model::{CalibrationForm, MountingDeltas};
 
 /// What of a robot's twin outlives the process: the cumulative metrics and counters of its
@@ -43,6 +43,9 @@ pub struct TwinRecord {
     /// The model in use, when an applied calibration replaced the configured one: the epoch's
     /// deviations are of that model, so the restored twin goes on with it.
     pub applied: Option<AppliedModel>,
+    /// The minutes of its history holding pairs, oldest first ([`crate::metrics::History::minute_rows`]); the
+    /// seconds are not kept.
+    pub history_minutes: Vec<HistoryRow>,
 }
 
 /// What an applied calibration changed in a robot's configured model.
@@ -83,6 +86,14 @@ pub enum RestoreError {
     Statistics {
         /// The robot.
         robot: String,
+    },
+    /// The history's minutes cannot be those of any pairs.
+    #[error("robot '{robot}': the history is not valid: {problem}")]
+    History {
+        /// The robot.
+        robot: String,
+        /// Why.
+        problem: String,
     },
     /// The applied calibration does not make a model of the robot's arm.
     #[error("robot '{robot}': the applied calibration does not fit its arm: {problem}")]
@@ -141,10 +152,15 @@ impl Twin {
         twin.next_pose_seq = record.next_pose_seq;
         twin.last_gateway_seq = record.last_gateway_seq;
         if record.cumulative.n > 0 {
-            twin.stats = Some(Box::new(DeviationStats {
-                cumulative,
-                window: WindowWithHistory::new(twin.window_s, twin.window_slices, twin.history_s),
-            }));
+            let mut window =
+                WindowWithHistory::new(twin.window_s, twin.window_slices, twin.history_s);
+            window
+                .restore_history_minutes(&record.history_minutes)
+                .map_err(|problem| RestoreError::History {
+                    robot: twin.robot.id().to_owned(),
+                    problem,
+                })?;
+            twin.stats = Some(Box::new(DeviationStats { cumulative, window }));
         }
         twin.alarms = AlarmStates::restored(record.alarms_active);
         twin.dirty = true;
@@ -168,6 +184,11 @@ impl Twin {
             ),
             alarms_active: self.alarms.active(),
             applied: self.applied_model(),
+            history_minutes: self
+                .stats
+                .as_ref()
+                .map(|stats| stats.window.history_minutes_record())
+                .unwrap_or_default(),
         }
     }
     /// What an applied calibration changed in its configured model, if one was applied.

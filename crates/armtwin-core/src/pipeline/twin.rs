@@ -25,7 +25,9 @@ use super::{
 use crate::align::{self, Aligner, Bracket, Pending, UnpairedReason};
 use crate::dynamics::monitor::EffortMonitor;
 use crate::kinematics::{KinematicsError, OutputFrame, PoseReadout, TcpOffset};
-use crate::metrics::{CumulativeStats, Deviation, HistoryRow, WindowWithHistory};
+use crate::metrics::{
+    CumulativeStats, Deviation, HistoryRow, MINUTE_S, SECONDS_TIER_S, WindowWithHistory,
+};
 use crate::model::{ModelError, RobotModel};
 use crate::orientation;
 use crate::sample::{JointSample, JointState};
@@ -350,6 +352,27 @@ impl Twin {
         };
         let last = (*seconds.end()).min(open.saturating_sub(1));
         history.rows(*seconds.start()..=last).collect()
+    }
+
+    /// The completed minutes of its window's history starting within `seconds` (source time),
+    /// oldest first: those that end by the second its window's newest slice lies in. Empty when
+    /// no history is kept or before the first pair.
+    #[must_use]
+    pub fn history_minutes(&self, seconds: RangeInclusive<i64>) -> Vec<HistoryRow> {
+        let Some(window) = self.stats.as_ref().map(|stats| &stats.window) else {
+            return Vec::new();
+        };
+        let (Some(history), Some(open)) = (window.history(), window.open_second()) else {
+            return Vec::new();
+        };
+        let last = (*seconds.end()).min(open.saturating_sub(MINUTE_S));
+        history.minute_rows(*seconds.start()..=last).collect()
+    }
+
+    /// The seconds its history keeps one by one (the newest; the rest by the minute).
+    #[must_use]
+    pub fn history_exact_s(&self) -> usize {
+        self.history_s.min(SECONDS_TIER_S)
     }
 
     /// End of input: waiting measured poses become unpaired, and its final metrics go out.
@@ -1090,6 +1113,12 @@ mod tests {
             (records[0].next_pose_seq, records[0].last_gateway_seq),
             (20, Some(19))
         );
+        let minutes: Vec<(i64, u64)> = records[0]
+            .history_minutes
+            .iter()
+            .map(|row| (row.second, row.totals.n))
+            .collect();
+        assert_eq!(minutes, [(0, 20)], "the open minute is kept too");
 
         let mut second = Pipeline::new(PipelineConfig::default());
         second
@@ -1119,11 +1148,33 @@ mod tests {
             third.restore(&r1, &damaged, &mut Discard),
             Err(RestoreError::Statistics { .. })
         ));
+        let mut damaged = records[0].clone();
+        damaged.history_minutes[0].second = 7;
+        assert!(matches!(
+            third.restore(&r1, &damaged, &mut Discard),
+            Err(RestoreError::History { .. })
+        ));
         assert_eq!(
             third.tracked().count(),
             0,
             "a refused record tracks nothing"
         );
+        // The restored minute is answered once a later minute's sample completes it.
+        let joints = JointSample {
+            stamp_s: None,
+            seq: Some(20),
+            q_rad: JointAngles::from_slice(&q_rad),
+            measured: None,
+            state: None,
+        };
+        second.joints(&r1, "j", 61.0, &joints, &mut Discard);
+        let twin = second.twin(r1.index()).expect("restored");
+        let answered: Vec<(i64, u64)> = twin
+            .history_minutes(i64::MIN..=i64::MAX)
+            .iter()
+            .map(|row| (row.second, row.totals.n))
+            .collect();
+        assert_eq!(answered, [(0, 20)]);
     }
 
     #[test]

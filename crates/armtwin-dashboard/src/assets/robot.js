@@ -155,7 +155,8 @@ function drawChart() {
   chart.dataset.points = String(series.length);
 }
 
-// ---- history (per-second window statistics the service keeps, read every 5 s)
+// ---- history (window statistics the service keeps by the second and, further back, by the
+// minute; read every 5 s)
 const SVG = "http://www.w3.org/2000/svg";
 const historySvg = document.getElementById("history");
 function svgElement(name, attributes, text) {
@@ -164,13 +165,13 @@ function svgElement(name, attributes, text) {
   if (text !== undefined) element.textContent = text;
   return element;
 }
-// Seconds without pairs are absent from the answer: a line breaks across them rather than
-// joining two seconds over a gap.
-function historyPaths(seconds, x, y, value) {
-  let d = "", previous = null;
-  for (const second of seconds) {
-    d += `${previous !== null && second.t === previous + 1 ? "L" : "M"}${x(second.t).toFixed(1)},${y(value(second)).toFixed(1)}`;
-    previous = second.t;
+// Rows without pairs are absent from the answer: a line breaks across them rather than joining
+// two rows over a gap. A row is `step` seconds long (1, or 60 for a minute).
+function historyPaths(rows, x, y, value) {
+  let d = "", next = null;
+  for (const row of rows) {
+    d += `${row.t === next ? "L" : "M"}${x(row.t).toFixed(1)},${y(value(row)).toFixed(1)}`;
+    next = row.t + row.step;
   }
   return d;
 }
@@ -183,6 +184,9 @@ let lastHistory = null;
 function drawHistory(history) {
   lastHistory = history;
   const seconds = history.seconds;
+  // Minutes before the first second kept, then the seconds.
+  const minutes = (history.minutes || []).filter((m) => !seconds.length || m.t + 60 <= seconds[0].t);
+  const rows = minutes.map((m) => ({ ...m, step: 60 })).concat(seconds.map((s) => ({ ...s, step: 1 })));
   const width = historySvg.clientWidth || 600, height = historySvg.clientHeight || 160;
   historySvg.setAttribute("viewBox", `0 0 ${width} ${height}`);
   const left = 44, bottom = height - 18, top = 6, right = width - 8;
@@ -190,10 +194,10 @@ function drawHistory(history) {
   const last = history.t === null ? 0 : Math.floor(history.t);
   // The span grows with the history kept, from a minute up to all of it (an hour by default),
   // so that a young robot's seconds are not squeezed into the right edge.
-  const oldest = seconds.length ? seconds[0].t : last;
+  const oldest = rows.length ? rows[0].t : last;
   const first = Math.max(last - history.history_s, Math.min(oldest, last - 60));
   let max = 0;
-  for (const s of seconds) max = Math.max(max, s.position.max * 1000, s.angle.mae * 1000);
+  for (const s of rows) max = Math.max(max, s.position.max * 1000, s.angle.mae * 1000);
   max = max > 0 ? max * 1.15 : 1;
   const x = (t) => left + (t - first) / Math.max(1, last - first) * (right - left);
   const y = (v) => bottom - v / max * (bottom - top);
@@ -209,7 +213,7 @@ function drawHistory(history) {
     ["position-max", "#93c5fd", (s) => s.position.max * 1000],
     ["position-mae", "#2563eb", (s) => s.position.mae * 1000],
     ["angle-mae", "#dc2626", (s) => s.angle.mae * 1000]]) {
-    children.push(svgElement("path", { "data-series": name, d: historyPaths(seconds, x, y, value), fill: "none", stroke: color, "stroke-width": 1.5 }));
+    children.push(svgElement("path", { "data-series": name, d: historyPaths(rows, x, y, value), fill: "none", stroke: color, "stroke-width": 1.5 }));
   }
   let marks = 0;
   for (const event of recentEvents) {
@@ -225,9 +229,12 @@ function drawHistory(history) {
   historySvg.replaceChildren(...children);
   historySvg.dataset.marks = String(marks);
   historySvg.dataset.seconds = String(seconds.length);
+  historySvg.dataset.minutes = String(minutes.length);
   historySvg.dataset.last = seconds.length ? String(seconds[seconds.length - 1].t) : "";
   document.getElementById("history-span").textContent = seconds.length
-    ? `${seconds.length} s with pairs, t ${seconds[0].t} … ${seconds[seconds.length - 1].t}` : "no completed second yet";
+    ? `${seconds.length} s with pairs, t ${seconds[0].t} … ${seconds[seconds.length - 1].t}`
+      + (minutes.length ? `; ${minutes.length} min before, from t ${minutes[0].t}` : "")
+    : "no completed second yet";
 }
 async function readHistory() {
   try {

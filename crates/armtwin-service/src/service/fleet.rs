@@ -291,8 +291,8 @@ impl CellState {
         Some(message)
     }
 
-    /// The robot's history answer for the completed seconds in `seconds` (`None` before its
-    /// first input); `resolve` turns the robot's newest stamp into those seconds.
+    /// The robot's history answer for the completed seconds and minutes in `seconds` (`None`
+    /// before its first input); `resolve` turns the robot's newest stamp into those seconds.
     pub(super) fn history_message(
         &self,
         robot: &str,
@@ -300,12 +300,20 @@ impl CellState {
     ) -> Option<json::HistoryMessage> {
         let twin = self.twin.as_ref()?;
         let newest_s = twin.newest_s();
-        let rows = twin.history(resolve(newest_s));
+        let seconds = resolve(newest_s);
+        let rows = twin.history(seconds.clone());
+        let minutes = twin.history_minutes(seconds);
         Some(json::HistoryMessage::new(
             robot,
             newest_s,
-            twin.history_s(),
-            &rows,
+            json::HistorySpans {
+                history_s: twin.history_s(),
+                seconds_s: twin.history_exact_s(),
+            },
+            json::HistoryRows {
+                seconds: &rows,
+                minutes: &minutes,
+            },
         ))
     }
 

@@ -406,6 +406,8 @@ metrics_period_ms = 50
 # Every pose is counted: a client that falls behind slows the twin instead of missing poses.
 pose_congestion = "block"
 window_s = 0.99
+# 9.9-ms slices, finer than the 20-ms samples: the window's edge falls between two samples.
+window_slices = 100
 [robots.default]
 model = "ur10e"
 alarm_position_m = 0.0015

@@ -164,6 +164,7 @@ const SERVICE_LAYERS: &[(&str, &[&str])] = &[
             "calibration_slot",
             "events",
             "gateways",
+            "history_log",
             "memory",
             "peers",
             "publish",

@@ -154,6 +154,172 @@ impl Ring {
 /// Seconds of source time in a row of the coarse tier.
 pub const MINUTE_S: i64 = 60;
 
+/// The seconds of one minute, second `s` at `s − 60·⌊s / 60⌋`.
+pub type MinuteOfSeconds = [SecondTotals; 60];
+
+/// Where a history keeps the seconds of its closed minutes, all but the newest minute's: in
+/// memory ([`MemorySeconds`]), or where the caller chooses (the service's log on disk), so that
+/// the seconds tier costs a robot one minute of rows in memory.
+pub trait SecondsArchive: std::fmt::Debug + Send {
+    /// Keeps `seconds`, those of `minute`, in place of what it held for that minute; it may
+    /// forget minutes older than the newest [`History::archive_minutes`].
+    fn keep(&mut self, minute: i64, seconds: &MinuteOfSeconds);
+    /// Copies the seconds of `minute` into `seconds`; `false` when it does not hold them (never
+    /// kept, forgotten, or lost), leaving `seconds` as it was.
+    fn read(&self, minute: i64, seconds: &mut MinuteOfSeconds) -> bool;
+    /// Forgets every minute.
+    fn clear(&mut self);
+}
+
+/// Closed minutes of seconds in memory, the newest `minutes` of them: a history's archive unless
+/// one is given.
+#[derive(Debug)]
+pub struct MemorySeconds {
+    /// Minute `m` at `m mod len`, with its number.
+    slots: Vec<Option<(i64, Box<MinuteOfSeconds>)>>,
+}
+
+impl MemorySeconds {
+    /// An archive of `minutes` minutes (at least one).
+    #[must_use]
+    pub fn new(minutes: usize) -> Self {
+        Self {
+            slots: (0..minutes.max(1)).map(|_| None).collect(),
+        }
+    }
+
+    fn slot_of(&self, minute: i64) -> usize {
+        let len = i64::try_from(self.slots.len()).unwrap_or(i64::MAX);
+        minute.rem_euclid(len).unsigned_abs() as usize
+    }
+}
+
+impl SecondsArchive for MemorySeconds {
+    fn keep(&mut self, minute: i64, seconds: &MinuteOfSeconds) {
+        let slot = self.slot_of(minute);
+        match &mut self.slots[slot] {
+            Some((kept, rows)) => {
+                *kept = minute;
+                **rows = *seconds;
+            }
+            empty => *empty = Some((minute, Box::new(*seconds))),
+        }
+    }
+
+    fn read(&self, minute: i64, seconds: &mut MinuteOfSeconds) -> bool {
+        match &self.slots[self.slot_of(minute)] {
+            Some((kept, rows)) if *kept == minute => {
+                *seconds = **rows;
+                true
+            }
+            _ => false,
+        }
+    }
+
+    fn clear(&mut self) {
+        self.slots.iter_mut().for_each(|slot| *slot = None);
+    }
+}
+
+/// The seconds of the newest `span` seconds: the newest minute's in memory, the closed minutes'
+/// in the archive.
+#[derive(Debug)]
+struct SecondsTier {
+    span: i64,
+    /// The newest second holding anything; every second `span` or more before it is forgotten.
+    newest: Option<i64>,
+    /// The newest minute holding anything, and its seconds.
+    open_minute: Option<i64>,
+    open: Box<MinuteOfSeconds>,
+    archive: Box<dyn SecondsArchive>,
+}
+
+impl SecondsTier {
+    fn new(span: usize, archive: Box<dyn SecondsArchive>) -> Self {
+        Self {
+            span: i64::try_from(span).unwrap_or(i64::MAX),
+            newest: None,
+            open_minute: None,
+            open: Box::new([EMPTY; 60]),
+            archive,
+        }
+    }
+
+    /// Second `second`'s place in its minute.
+    fn index_of(second: i64) -> usize {
+        second.rem_euclid(MINUTE_S).unsigned_abs() as usize
+    }
+
+    fn add(&mut self, second: i64, part: &SecondTotals) {
+        if self
+            .newest
+            .is_some_and(|newest| second <= newest.saturating_sub(self.span))
+        {
+            return;
+        }
+        self.newest = Some(self.newest.map_or(second, |newest| newest.max(second)));
+        let minute = second.div_euclid(MINUTE_S);
+        match self.open_minute {
+            Some(open) if minute < open => {
+                // Late into a closed minute: into the archive's copy (a new one if it has none).
+                let mut seconds = [EMPTY; 60];
+                self.archive.read(minute, &mut seconds);
+                merge(&mut seconds[Self::index_of(second)], part);
+                self.archive.keep(minute, &seconds);
+                return;
+            }
+            Some(open) if minute > open => {
+                self.archive.keep(open, &self.open);
+                *self.open = [EMPTY; 60];
+                self.open_minute = Some(minute);
+            }
+            Some(_) => {}
+            None => self.open_minute = Some(minute),
+        }
+        merge(&mut self.open[Self::index_of(second)], part);
+    }
+
+    /// The seconds in `seconds` holding pairs, oldest first.
+    fn rows(&self, seconds: RangeInclusive<i64>) -> Vec<HistoryRow> {
+        let Some(newest) = self.newest else {
+            return Vec::new();
+        };
+        let first = (*seconds.start()).max(newest.saturating_sub(self.span) + 1);
+        let last = (*seconds.end()).min(newest);
+        let mut rows = Vec::new();
+        if first > last {
+            return rows;
+        }
+        let mut archived = [EMPTY; 60];
+        for minute in first.div_euclid(MINUTE_S)..=last.div_euclid(MINUTE_S) {
+            let of_minute: &MinuteOfSeconds = if Some(minute) == self.open_minute {
+                &self.open
+            } else if self.archive.read(minute, &mut archived) {
+                &archived
+            } else {
+                continue;
+            };
+            let start = minute.saturating_mul(MINUTE_S);
+            for (second, totals) in (start..).zip(of_minute) {
+                if (first..=last).contains(&second) && totals.n > 0 {
+                    rows.push(HistoryRow {
+                        second,
+                        totals: *totals,
+                    });
+                }
+            }
+        }
+        rows
+    }
+
+    fn clear(&mut self) {
+        self.newest = None;
+        self.open_minute = None;
+        *self.open = [EMPTY; 60];
+        self.archive.clear();
+    }
+}
+
 /// Exact seconds a history keeps at most, its newest: older ones are kept by the minute only.
 pub const SECONDS_TIER_S: usize = 600;
 
@@ -164,9 +330,9 @@ pub const SECONDS_TIER_S: usize = 600;
 /// added, the maximum of the maxima) whether or not they are still kept. The minutes are what a
 /// snapshot keeps ([`History::restore_minutes`]).
 /// Memory fixed at construction, 56 bytes a row (`benches/README.md` gives the bytes).
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct History {
-    seconds: Ring,
+    seconds: SecondsTier,
     minutes: Ring,
     /// The seconds it covers.
     span_s: usize,
@@ -181,14 +347,39 @@ impl History {
     /// decides).
     #[must_use]
     pub fn new(history_s: usize) -> Self {
+        let archive = MemorySeconds::new(Self::archive_minutes(history_s));
+        Self::with_archive(history_s, Box::new(archive))
+    }
+
+    /// An empty history of `history_s` seconds whose closed minutes of seconds go to `archive`,
+    /// which must keep the newest [`History::archive_minutes`] of them.
+    ///
+    /// # Panics
+    ///
+    /// If `history_s` is 0.
+    #[must_use]
+    pub fn with_archive(history_s: usize, archive: Box<dyn SecondsArchive>) -> Self {
         assert!(history_s > 0, "a history needs at least one second");
-        let seconds = history_s.min(SECONDS_TIER_S);
         let minute_s = MINUTE_S.unsigned_abs() as usize;
         Self {
-            seconds: Ring::new(seconds),
+            seconds: SecondsTier::new(history_s.min(SECONDS_TIER_S), archive),
             minutes: Ring::new(history_s.div_ceil(minute_s)),
             span_s: history_s,
         }
+    }
+
+    /// The closed minutes of seconds a history of `history_s` seconds reads from its archive:
+    /// with the open minute, they cover its seconds wherever the newest falls in its minute.
+    #[must_use]
+    pub fn archive_minutes(history_s: usize) -> usize {
+        history_s
+            .min(SECONDS_TIER_S)
+            .div_ceil(MINUTE_S.unsigned_abs() as usize)
+    }
+
+    /// Its archive of closed minutes becomes `archive` (what the old one held is not moved).
+    pub fn set_archive(&mut self, archive: Box<dyn SecondsArchive>) {
+        self.seconds.archive = archive;
     }
 
     /// The seconds it covers, by the second or by the minute.
@@ -200,7 +391,7 @@ impl History {
     /// The newest seconds it keeps one by one.
     #[must_use]
     pub fn exact_seconds(&self) -> usize {
-        self.seconds.rows.len()
+        self.span_s.min(SECONDS_TIER_S)
     }
 
     /// The newest second holding anything; `None` before any.
@@ -211,9 +402,7 @@ impl History {
 
     /// Adds `part` to `second`'s row and to its minute's.
     fn merge_into(&mut self, second: i64, part: &SecondTotals) {
-        if let Some(row) = self.seconds.row_mut(second) {
-            merge(row, part);
-        }
+        self.seconds.add(second, part);
         if let Some(row) = self.minutes.row_mut(second.div_euclid(MINUTE_S)) {
             merge(row, part);
         }
@@ -242,10 +431,8 @@ impl History {
 
     /// The rows of the seconds in `seconds` that hold pairs and are kept one by one, oldest
     /// first.
-    pub fn rows(&self, seconds: RangeInclusive<i64>) -> impl Iterator<Item = HistoryRow> + '_ {
-        self.seconds
-            .rows(seconds)
-            .map(|(second, totals)| HistoryRow { second, totals })
+    pub fn rows(&self, seconds: RangeInclusive<i64>) -> impl Iterator<Item = HistoryRow> {
+        self.seconds.rows(seconds).into_iter()
     }
 
     /// The rows of the minutes that hold pairs and start in `seconds`, oldest first, each
@@ -328,7 +515,7 @@ impl History {
 /// (the slice is computed once, for both). Per slice that closes: a division and a floor for its
 /// second, and per kept metric an add, an add and a max. Per late pair into a folded slice: the
 /// same into its row.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct WindowWithHistory {
     window: WindowStats,
     history: Option<History>,
@@ -339,9 +526,32 @@ impl WindowWithHistory {
     /// `history_s` seconds, none when 0.
     #[must_use]
     pub fn new(window_s: f64, slices: usize, history_s: usize) -> Self {
+        Self::with_archive(window_s, slices, history_s, None)
+    }
+
+    /// [`WindowWithHistory::new`], the history's closed minutes of seconds in `archive` when
+    /// given ([`History::with_archive`]), else in memory.
+    #[must_use]
+    pub fn with_archive(
+        window_s: f64,
+        slices: usize,
+        history_s: usize,
+        archive: Option<Box<dyn SecondsArchive>>,
+    ) -> Self {
+        let history = (history_s > 0).then(|| match archive {
+            Some(archive) => History::with_archive(history_s, archive),
+            None => History::new(history_s),
+        });
         Self {
             window: WindowStats::new(window_s, slices),
-            history: (history_s > 0).then(|| History::new(history_s)),
+            history,
+        }
+    }
+
+    /// Its history's archive of closed minutes becomes `archive` ([`History::set_archive`]).
+    pub fn set_archive(&mut self, archive: Box<dyn SecondsArchive>) {
+        if let Some(history) = &mut self.history {
+            history.set_archive(archive);
         }
     }
 
@@ -685,6 +895,39 @@ mod tests {
         let mut short = History::new(120);
         short.add(61, &magnitudes(0.5, 0.5));
         assert_eq!(short.minute_rows(i64::MIN..=i64::MAX).count(), 1);
+    }
+
+    /// An archive that keeps nothing, as a log that lost its minutes.
+    #[derive(Debug)]
+    struct Forgetful;
+
+    impl SecondsArchive for Forgetful {
+        fn keep(&mut self, _: i64, _: &MinuteOfSeconds) {}
+        fn read(&self, _: i64, _: &mut MinuteOfSeconds) -> bool {
+            false
+        }
+        fn clear(&mut self) {}
+    }
+
+    #[test]
+    fn seconds_lost_by_the_archive_leave_the_open_minute_and_every_minute() {
+        let mut kept = History::new(600);
+        let mut lossy = History::with_archive(600, Box::new(Forgetful));
+        for second in 0..300_i64 {
+            let x = f64::from(u32::try_from(second % 17).expect("small")) * 1e-4;
+            kept.add(second, &magnitudes(x, x));
+            lossy.add(second, &magnitudes(x, x));
+        }
+        let all = i64::MIN..=i64::MAX;
+        assert_eq!(kept.rows(all.clone()).count(), 300);
+        let open: Vec<i64> = lossy.rows(all.clone()).map(|row| row.second).collect();
+        assert_eq!(open, (240..300).collect::<Vec<_>>());
+        assert_eq!(
+            kept.minute_rows(all.clone()).collect::<Vec<_>>(),
+            lossy.minute_rows(all).collect::<Vec<_>>()
+        );
+        assert_eq!(History::archive_minutes(3600), 10);
+        assert_eq!(History::archive_minutes(61), 2);
     }
 
     proptest! {

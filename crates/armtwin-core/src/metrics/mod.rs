@@ -21,8 +21,8 @@ mod window;
 pub use cumulative::{CumulativeParts, CumulativeStats};
 pub use deviation::Deviation;
 pub use history::{
-    DEFAULT_HISTORY_S, HISTORY_METRICS, History, HistoryRow, MINUTE_S, SECONDS_TIER_S,
-    SecondTotals, WindowWithHistory, stats_of,
+    DEFAULT_HISTORY_S, HISTORY_METRICS, History, HistoryRow, MINUTE_S, MemorySeconds,
+    MinuteOfSeconds, SECONDS_TIER_S, SecondTotals, SecondsArchive, WindowWithHistory, stats_of,
 };
 pub use stats::{Stats, StatsSet};
 pub use window::{DEFAULT_WINDOW_SLICES, SlicedWindow, WindowStats, WindowTotals};

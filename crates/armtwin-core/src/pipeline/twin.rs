@@ -26,7 +26,8 @@ use crate::align::{self, Aligner, Bracket, Pending, UnpairedReason};
 use crate::dynamics::monitor::EffortMonitor;
 use crate::kinematics::{KinematicsError, OutputFrame, PoseReadout, TcpOffset};
 use crate::metrics::{
-    CumulativeStats, Deviation, HistoryRow, MINUTE_S, SECONDS_TIER_S, WindowWithHistory,
+    CumulativeStats, Deviation, HistoryRow, MINUTE_S, SECONDS_TIER_S, SecondsArchive,
+    WindowWithHistory,
 };
 use crate::model::{ModelError, RobotModel};
 use crate::orientation;
@@ -84,6 +85,9 @@ pub struct Twin {
     pub(super) window_s: f64,
     pub(super) window_slices: usize,
     pub(super) history_s: usize,
+    /// Where its history will keep the seconds of closed minutes, until its statistics are made
+    /// (in memory when none is given).
+    seconds_archive: Option<Box<dyn SecondsArchive>>,
     pub(super) paired: u64,
     pub(super) unpaired: u64,
     pub(super) rejected: u64,
@@ -128,6 +132,7 @@ impl Twin {
             window_s: config.window_s,
             window_slices: config.window_slices,
             history_s: config.history_s,
+            seconds_archive: None,
             paired: 0,
             unpaired: 0,
             rejected: 0,
@@ -331,6 +336,18 @@ impl Twin {
     #[must_use]
     pub fn newest_s(&self) -> Option<f64> {
         self.newest_s.is_finite().then_some(self.newest_s)
+    }
+
+    /// The same twin, its history keeping the seconds of closed minutes in `archive` (which
+    /// must keep [`crate::metrics::History::archive_minutes`] of them) instead of in memory.
+    #[must_use]
+    pub fn with_seconds_archive(mut self, archive: Box<dyn SecondsArchive>) -> Self {
+        match &mut self.stats {
+            // Restored: its history holds no second yet.
+            Some(stats) => stats.window.set_archive(archive),
+            None => self.seconds_archive = Some(archive),
+        }
+        self
     }
 
     /// The seconds of history it keeps ([`PipelineConfig::history_s`]).
@@ -724,8 +741,12 @@ impl Twin {
         }
         sink.deviation(&self.robot, stamp_s, &measured, &deviation);
         let stats = self.stats.get_or_insert_with(|| {
-            let mut window =
-                WindowWithHistory::new(self.window_s, self.window_slices, self.history_s);
+            let mut window = WindowWithHistory::with_archive(
+                self.window_s,
+                self.window_slices,
+                self.history_s,
+                self.seconds_archive.take(),
+            );
             // As if it had followed source time all along.
             window.advance_to(self.newest_s);
             Box::new(DeviationStats {

@@ -313,6 +313,7 @@ pub(super) struct RecorderSection {
     pub(super) robot_bytes: usize,
     pub(super) fleet_bytes: usize,
     pub(super) history_s: usize,
+    pub(super) history_bytes: u64,
 }
 
 impl Default for RecorderSection {
@@ -330,6 +331,7 @@ impl Default for RecorderSection {
             robot_bytes: 8 << 20,
             fleet_bytes: 1 << 30,
             history_s: DEFAULT_HISTORY_S,
+            history_bytes: 512 << 20,
         }
     }
 }

@@ -8,8 +8,11 @@ use super::ConfigError;
 use super::file::{RecorderSection, RobotSection};
 use armtwin_recorder::StoreSettings;
 
-/// Most seconds `[recorder] history_s` may ask for: a day (the ring is allocated whole).
+/// Most seconds `[recorder] history_s` may ask for: a day (the rings are allocated whole).
 const MAX_HISTORY_S: usize = 86_400;
+
+/// Smallest `[recorder] history_bytes`: a robot's ten closed minutes of seconds, and more.
+const MIN_HISTORY_BYTES: u64 = 1 << 20;
 
 /// The flight recorder's settings, checked.
 #[derive(Debug, Clone, PartialEq)]
@@ -29,6 +32,8 @@ pub struct RecorderConfig {
     pub robot_bytes: usize,
     /// The most every robot's rings hold together (bytes).
     pub fleet_bytes: usize,
+    /// The size of the log that holds the robots' closed minutes of history seconds (bytes).
+    pub history_bytes: u64,
     /// Where files go and how many are kept (`dir` resolved against the file's directory).
     pub store: StoreSettings,
 }
@@ -71,6 +76,7 @@ impl RecorderConfig {
             gap_s: section.gap_s,
             robot_bytes: section.robot_bytes,
             fleet_bytes: section.fleet_bytes,
+            history_bytes: section.history_bytes,
             store: StoreSettings {
                 dir: base_dir.join(&section.dir),
                 max_files: section.max_files,
@@ -112,9 +118,18 @@ pub(super) fn load_recorder(
         return Err(invalid(
             "history_s",
             format!(
-                "{} is over a day ({MAX_HISTORY_S} s): each second costs every robot {} bytes",
+                "{} is over a day ({MAX_HISTORY_S} s): each minute costs every robot {} bytes",
                 section.history_s,
                 size_of::<armtwin_core::metrics::SecondTotals>()
+            ),
+        ));
+    }
+    if section.history_bytes < MIN_HISTORY_BYTES {
+        return Err(invalid(
+            "history_bytes",
+            format!(
+                "{} is under {MIN_HISTORY_BYTES}: the log must hold a robot's closed minutes",
+                section.history_bytes
             ),
         ));
     }

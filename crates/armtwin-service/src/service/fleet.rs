@@ -338,7 +338,11 @@ impl CellState {
         let mut sink = sinks.of(&mut self.outputs);
         let twin = self.twin.get_or_insert_with(|| {
             sink.tracking(robot);
-            Twin::new(robot.clone(), config)
+            let twin = Twin::new(robot.clone(), config);
+            match sinks.history_log().archive() {
+                Some(archive) => twin.with_seconds_archive(archive),
+                None => twin,
+            }
         });
         Stepping {
             twin,
@@ -416,7 +420,10 @@ impl Fleet {
             return false;
         }
         self.sinks.of(&mut state.outputs).tracking(robot);
-        state.twin = Some(twin);
+        state.twin = Some(match self.sinks.history_log().archive() {
+            Some(archive) => twin.with_seconds_archive(archive),
+            None => twin,
+        });
         true
     }
 

@@ -39,6 +39,7 @@ mod error;
 mod events;
 mod fleet;
 mod gateways;
+mod history_log;
 mod intake;
 mod memory;
 mod opcua_view;
@@ -134,7 +135,8 @@ pub async fn serve(
     let (requests, received) = requests::queue();
     let outlet = Outlet::new(session.clone(), &config);
     let recorder = recording::start(&config.recorder, session.clone(), keys.clone());
-    let sinks = Sinks::new(outlet, requests.clone(), config.event_budget, recorder);
+    let sinks = Sinks::new(outlet, requests.clone(), config.event_budget, recorder)
+        .with_history_log(history_log::HistoryLog::new(&config));
     let fleet = Arc::new(Fleet::new(&config, sinks));
     let snapshots = config.snapshots.as_ref().map(|settings| {
         (

@@ -13,6 +13,7 @@ use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Publisher;
 
 use super::events::EventBucket;
+use super::history_log::HistoryLog;
 use super::publish::{Outlet, RobotPublishers};
 use super::recording::{Recorder, RobotRecording};
 use super::requests::Requests;
@@ -51,6 +52,8 @@ pub(super) struct Sinks {
     requests: Requests,
     event_budget: EventBudget,
     recorder: Recorder,
+    /// Where the robots' histories keep the seconds of closed minutes.
+    history_log: HistoryLog,
     /// Shared by the robots that may not be tracked, so a flood of made-up ids cannot grow the
     /// buckets. A leaf lock: held for a bucket's arithmetic only, never across a `put`.
     untracked_bucket: Mutex<EventBucket>,
@@ -70,8 +73,20 @@ impl Sinks {
             requests,
             event_budget,
             recorder,
+            history_log: HistoryLog::none(),
             untracked_bucket: Mutex::new(EventBucket::full(event_budget, Instant::now())),
         }
+    }
+
+    /// The same sinks, the histories keeping the seconds of closed minutes in `history_log`.
+    pub(super) fn with_history_log(mut self, history_log: HistoryLog) -> Self {
+        self.history_log = history_log;
+        self
+    }
+
+    /// Where the robots' histories keep the seconds of closed minutes.
+    pub(super) fn history_log(&self) -> &HistoryLog {
+        &self.history_log
     }
 
     /// The outlet every sink publishes through.

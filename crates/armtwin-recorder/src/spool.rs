@@ -23,9 +23,10 @@ use tracing::warn;
 /// Bytes gathered before they go to the file in one write (a quarter of a smaller log's).
 const WRITE_BUFFER_BYTES: usize = 256 << 10;
 
-/// Full buffers waiting for the writer at most: past them (a disk slower than the fleet), new
-/// blocks are dropped and counted, not queued.
-const MAX_SEALED: usize = 4;
+/// Full buffers waiting for the writer at most (4 MiB): past them (a disk slower than the
+/// fleet, or a writer thread starved of CPU by a saturated machine), new blocks are dropped and
+/// counted, not queued.
+const MAX_SEALED: usize = 16;
 
 /// The log.
 #[derive(Debug)]

@@ -497,12 +497,13 @@ mod tests {
             writer: None,
         };
         let bytes = entry(1, 1000);
-        let kept: Vec<u64> = (0..2000).filter_map(|_| spool.append(&[&bytes])).collect();
+        let kept: Vec<u64> = (0..6000).filter_map(|_| spool.append(&[&bytes])).collect();
         assert!(spool.dropped_blocks() > 0);
-        // Four sealed buffers of 256 KiB and a full one filling, every entry in them readable.
-        assert_eq!(kept.len() as u64 + spool.dropped_blocks(), 2000);
+        // MAX_SEALED sealed buffers of 256 KiB and a full one filling, every entry in them
+        // readable.
+        assert_eq!(kept.len() as u64 + spool.dropped_blocks(), 6000);
         assert!(
-            spool.memory_bytes() <= 6 * (256 << 10),
+            spool.memory_bytes() <= (super::MAX_SEALED as u64 + 2) * (256 << 10),
             "{}",
             spool.memory_bytes()
         );

@@ -26,7 +26,7 @@ use crate::align::{self, Aligner, Bracket, Pending, UnpairedReason};
 use crate::dynamics::monitor::EffortMonitor;
 use crate::kinematics::{KinematicsError, OutputFrame, PoseReadout, TcpOffset};
 use crate::metrics::{
-    CumulativeStats, Deviation, HistoryRow, MINUTE_S, SECONDS_TIER_S, SecondsArchive,
+    CumulativeStats, Deviation, History, HistoryRow, MINUTE_S, SECONDS_TIER_S, SecondsArchive,
     WindowWithHistory,
 };
 use crate::model::{ModelError, RobotModel};
@@ -356,15 +356,19 @@ impl Twin {
         self.history_s
     }
 
+    /// Its history and the second still open (that of its window's newest slice), once it has
+    /// both.
+    fn history_and_open_second(&self) -> Option<(&History, i64)> {
+        let window = &self.stats.as_ref()?.window;
+        Some((window.history()?, window.open_second()?))
+    }
+
     /// The completed seconds of its window's history within `seconds` (source time), oldest
     /// first: those before the second its window's newest slice lies in. Empty when no history
     /// is kept or before the first pair.
     #[must_use]
     pub fn history(&self, seconds: RangeInclusive<i64>) -> Vec<HistoryRow> {
-        let Some(window) = self.stats.as_ref().map(|stats| &stats.window) else {
-            return Vec::new();
-        };
-        let (Some(history), Some(open)) = (window.history(), window.open_second()) else {
+        let Some((history, open)) = self.history_and_open_second() else {
             return Vec::new();
         };
         let last = (*seconds.end()).min(open.saturating_sub(1));
@@ -376,10 +380,7 @@ impl Twin {
     /// no history is kept or before the first pair.
     #[must_use]
     pub fn history_minutes(&self, seconds: RangeInclusive<i64>) -> Vec<HistoryRow> {
-        let Some(window) = self.stats.as_ref().map(|stats| &stats.window) else {
-            return Vec::new();
-        };
-        let (Some(history), Some(open)) = (window.history(), window.open_second()) else {
+        let Some((history, open)) = self.history_and_open_second() else {
             return Vec::new();
         };
         let last = (*seconds.end()).min(open.saturating_sub(MINUTE_S));

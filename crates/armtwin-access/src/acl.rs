@@ -28,9 +28,10 @@ use armtwin_mesh::keys::{self, KeySpace, Stream};
 
 /// Outputs, tokens and queryables armtwin declares per robot: every stream but the inputs and
 /// the gateways' own tokens.
-const ARMTWIN_DECLARES: [Stream; 17] = [
+const ARMTWIN_DECLARES: [Stream; 18] = [
     Stream::Pose,
     Stream::Deviation,
+    Stream::Paired,
     Stream::Metrics,
     Stream::Events,
     Stream::Calibration,
@@ -969,7 +970,7 @@ mod tests {
         let all: HashSet<Stream> = Stream::ALL.into_iter().collect();
         assert_eq!(covered, all, "a new stream needs a line in this module");
         let reads: HashSet<_> = READS.iter().chain(&CHANGES).collect();
-        let queryables: HashSet<_> = ARMTWIN_DECLARES[8..].iter().collect();
+        let queryables: HashSet<_> = ARMTWIN_DECLARES[9..].iter().collect();
         assert_eq!(reads, queryables);
         assert!(CHANGES.iter().all(|s| s.as_str().starts_with("admin/")));
         assert!(READS.iter().all(|s| !s.as_str().starts_with("admin/")));

@@ -5,6 +5,10 @@
 //! (a JSON and a Zenoh-serialized load cost it the same, so it needs no encoding flag), straight
 //! from Zenoh's receive callback (no queue, no thread hop, no decoding), through a publisher
 //! declared up front per robot: `joints/<robot>` → `pose/<robot>`, `measured/<robot>` → `deviation/<robot>`.
+//! `--paired` answers armtwin's paired output (`[service] outputs = "paired"`: one message per
+//! paired sample): `joints/<robot>` → `paired/<robot>`, and measured poses are received but not
+//! republished, so both systems take the same messages in and send one per sample out (the echo's
+//! reply does not wait for the measured message, armtwin's does: the latencies favour the echo).
 //! Each robot's input keys are declared (`declare_keyexpr`) so Zenoh caches their routes, as
 //! armtwin does for a robot that streams; `--naive` leaves them undeclared to measure what that costs. `--lazy` meets
 //! the robots on first contact: nothing is declared per robot up front, and a robot's publisher
@@ -49,6 +53,10 @@ pub struct EchoArgs {
     /// in the receive callback.
     #[arg(long)]
     pub lazy: bool,
+    /// One message out per sample, as armtwin's paired output: joint samples republished on
+    /// `paired/<robot>`, measured poses received and dropped.
+    #[arg(long)]
+    pub paired: bool,
 }
 
 /// Why the echo stopped with an error.
@@ -152,7 +160,25 @@ pub fn run(args: &EchoArgs) -> Result<(), EchoError> {
         }
     }
     let mut subscribers = Vec::new();
-    for (input, output) in [(net::JOINTS, net::POSE), (net::MEASURED, net::DEVIATION)] {
+    let outputs = if args.paired {
+        [(net::JOINTS, Some(net::PAIRED)), (net::MEASURED, None)]
+    } else {
+        [
+            (net::JOINTS, Some(net::POSE)),
+            (net::MEASURED, Some(net::DEVIATION)),
+        ]
+    };
+    for (input, output) in outputs {
+        let Some(output) = output else {
+            // Received as armtwin receives it, answered by nothing.
+            subscribers.push(
+                session
+                    .declare_subscriber(net::every_robot(input))
+                    .callback(|_| {})
+                    .wait()?,
+            );
+            continue;
+        };
         if args.lazy {
             let routes = Arc::new(LazyRoutes {
                 session: session.clone(),

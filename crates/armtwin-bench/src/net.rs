@@ -19,6 +19,9 @@ pub const MEASURED: Stream = Stream::Measured;
 pub const POSE: Stream = Stream::Pose;
 /// Deviations (the echo republishes measured poses here).
 pub const DEVIATION: Stream = Stream::Deviation;
+/// Twin poses with their deviations in one message (armtwin with `[service] outputs =
+/// "paired"`; the echo with `--paired` republishes joint samples here).
+pub const PAIRED: Stream = Stream::Paired;
 /// Running metrics (armtwin only).
 pub const METRICS: Stream = Stream::Metrics;
 /// Events (armtwin only; none expected in a benchmark).
@@ -55,7 +58,7 @@ pub fn robot_of(key: &str, stream: Stream) -> Option<&str> {
 /// load publishes inputs, the echo outputs), unless `--cfg` says otherwise.
 pub fn config_of(zenoh: &ZenohArgs) -> Result<zenoh::Config, MeshError> {
     let mut config = zenoh_config_of(&ZenohSection::default().overridden(&zenoh.overrides()))?;
-    let streams = [JOINTS, MEASURED, POSE, DEVIATION].map(every_robot);
+    let streams = [JOINTS, MEASURED, POSE, DEVIATION, PAIRED].map(every_robot);
     aggregate_publishers(&mut config, &streams)?;
     Ok(config)
 }

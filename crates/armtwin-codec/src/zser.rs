@@ -1,7 +1,7 @@
 //! armtwin's binary messages in Zenoh's own serialization (zenoh-ext `z_serialize`, Python
 //! `zenoh.ext.z_serialize`): decoding the `armtwin/joints/v1` and `armtwin/pose/v1` inputs into
-//! the samples the JSON decoder produces, and encoding the `armtwin/twin-pose/v1` and
-//! `armtwin/deviation/v1` outputs.
+//! the samples the JSON decoder produces, and encoding the `armtwin/twin-pose/v1`,
+//! `armtwin/deviation/v1` and `armtwin/paired/v1` outputs.
 //!
 //! The format: little-endian fixed-size numbers (IEEE-754 `f64`, `u64`), no padding; a sequence
 //! is its LEB128 length then its items; a tuple is its fields one after the other. A message is
@@ -11,7 +11,9 @@
 //! - `armtwin/pose/v1`: `(t: f64, pose: seq<f64>)`, `pose` the same 7 values;
 //! - `armtwin/twin-pose/v1`: `(t: f64, seq: u64, pose: seq<f64>)`, `pose` in
 //!   [`PoseFields::NAMES`] order (`x, y, z, roll, pitch, yaw, qx, qy, qz, qw`);
-//! - `armtwin/deviation/v1`: `(t: f64, d: seq<f64>)`, `d` in [`DEVIATION_NAMES`] order.
+//! - `armtwin/deviation/v1`: `(t: f64, d: seq<f64>)`, `d` in [`DEVIATION_NAMES`] order;
+//! - `armtwin/paired/v1`: `(t: f64, seq: u64, pose: seq<f64>, d: seq<f64>)`: a twin pose's
+//!   fields, then `d` empty or the deviation paired at its stamp.
 //!
 //! A hand-written reader rather than zenoh-ext's `z_deserialize`, for safety more than speed:
 //! that one sizes its `Vec` by the untrusted length before reading an item (a 10-byte message
@@ -43,6 +45,8 @@ pub const POSE_SCHEMA: &str = "armtwin/pose/v1";
 pub const TWIN_POSE_SCHEMA: &str = "armtwin/twin-pose/v1";
 /// The schema of a deviation (`twin/deviation/<robot>`).
 pub const DEVIATION_SCHEMA: &str = "armtwin/deviation/v1";
+/// The schema of a twin pose with the deviation paired at its stamp (`twin/paired/<robot>`).
+pub const PAIRED_SCHEMA: &str = "armtwin/paired/v1";
 
 /// The values of a measured pose: position (m), then the quaternion in wire order.
 pub const MEASURED_NAMES: [&str; 7] = ["x", "y", "z", "qx", "qy", "qz", "qw"];
@@ -643,6 +647,46 @@ pub fn deviation_bytes(stamp_s: f64, deviation: &Deviation) -> [u8; DEVIATION_BY
     let mut bytes = [0; DEVIATION_BYTES];
     bytes[..8].copy_from_slice(&stamp_s.to_le_bytes());
     write_f64s(&mut bytes[8..], &values);
+    bytes
+}
+
+/// Length of an `armtwin/paired/v1` message with its deviation.
+pub const PAIRED_BYTES: usize = TWIN_POSE_BYTES + 1 + 8 * DEVIATION_NAMES.len();
+
+/// Length of an `armtwin/paired/v1` message without a deviation.
+pub const PAIRED_POSE_BYTES: usize = TWIN_POSE_BYTES + 1;
+
+/// Bytes of an `armtwin/paired/v1` message: the [`twin_pose_bytes`] of `stamp_s`, `seq` and
+/// `pose`, then the 9 values of the deviation paired at `stamp_s` in [`DEVIATION_NAMES`] order
+/// (170 bytes).
+#[must_use]
+pub fn paired_bytes(
+    stamp_s: f64,
+    seq: u64,
+    pose: &PoseFields,
+    deviation: &Deviation,
+) -> [u8; PAIRED_BYTES] {
+    let mut bytes = [0; PAIRED_BYTES];
+    bytes[..TWIN_POSE_BYTES].copy_from_slice(&twin_pose_bytes(stamp_s, seq, pose));
+    write_f64s(&mut bytes[TWIN_POSE_BYTES..], &deviation.fields());
+    bytes
+}
+
+/// Bytes of an `armtwin/paired/v1` message of a twin pose that has no deviation: the
+/// [`twin_pose_bytes`] of `stamp_s`, `seq` and `pose`, then an empty `d` (98 bytes).
+///
+/// ```
+/// use armtwin_codec::{PoseFields, zser};
+/// let pose = PoseFields { x: 1.0, y: 2.0, z: 3.0, roll: 0.0, pitch: 0.0, yaw: 0.0,
+///                         qx: 0.0, qy: 0.0, qz: 0.0, qw: 1.0 };
+/// let bytes = zser::paired_pose_bytes(0.5, 3, &pose);
+/// assert_eq!(&bytes[..97], &zser::twin_pose_bytes(0.5, 3, &pose));
+/// assert_eq!(bytes[97], 0);
+/// ```
+#[must_use]
+pub fn paired_pose_bytes(stamp_s: f64, seq: u64, pose: &PoseFields) -> [u8; PAIRED_POSE_BYTES] {
+    let mut bytes = [0; PAIRED_POSE_BYTES];
+    bytes[..TWIN_POSE_BYTES].copy_from_slice(&twin_pose_bytes(stamp_s, seq, pose));
     bytes
 }
 

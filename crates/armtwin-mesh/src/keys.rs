@@ -37,6 +37,9 @@ pub enum Stream {
     Pose,
     /// Deviations, one per paired measured pose (out).
     Deviation,
+    /// Twin poses each with the deviation paired at its stamp, in one message, instead of
+    /// [`Stream::Pose`] and [`Stream::Deviation`] (out; `[service] outputs = "paired"`).
+    Paired,
     /// Running metrics (out).
     Metrics,
     /// Rejections, alarms, recoveries, gaps, unpaired measurements (out).
@@ -90,9 +93,10 @@ pub enum Stream {
 impl Stream {
     /// Every subtree, outputs first: a key expression reaching into several is named by the
     /// first it meets here, and feeding armtwin its own outputs is the worse mistake.
-    pub const ALL: [Self; 22] = [
+    pub const ALL: [Self; 23] = [
         Self::Pose,
         Self::Deviation,
+        Self::Paired,
         Self::Metrics,
         Self::Events,
         Self::Calibration,
@@ -121,6 +125,7 @@ impl Stream {
         match self {
             Self::Pose => "pose",
             Self::Deviation => "deviation",
+            Self::Paired => "paired",
             Self::Metrics => "metrics",
             Self::Events => "events",
             Self::Calibration => "calibration",
@@ -372,6 +377,7 @@ mod tests {
             [
                 "pose",
                 "deviation",
+                "paired",
                 "metrics",
                 "events",
                 "calibration",

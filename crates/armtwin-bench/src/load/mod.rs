@@ -10,6 +10,10 @@
 //! It declares every key it publishes (through its publishers) and every reply key it receives
 //! (`declare_keyexpr`), so it does not pay Zenoh's per-key route computation itself.
 //!
+//! With `--paired` the replies come on `paired/<robot>`, one per sample: the echo's (`echo
+//! --paired`) stand for a pose and its deviation each, armtwin's (`[service] outputs = "paired"`)
+//! for a pose, and for its deviation when they carry one.
+//!
 //! With `--encoding zenoh-serialized` the samples go out in Zenoh's serialization
 //! (`armtwin/joints/v1`, `armtwin/pose/v1`) and replies are read as binary (a twin pose's and an
 //! echoed joint message's first 8 bytes are both `t`). With `--slow-subscriber-ms` a second
@@ -115,6 +119,10 @@ impl WireEncoding {
 /// `armtwin-bench load` arguments.
 #[derive(Debug, Clone, Args)]
 #[command(mut_arg("connect", |arg| arg.required(true)))]
+#[allow(
+    clippy::struct_excessive_bools,
+    reason = "independent command-line switches, not a state"
+)]
 pub struct LoadArgs {
     /// How to join the mesh, as armtwin's commands do (`-e ENDPOINT` of the system under test
     /// required).
@@ -130,6 +138,10 @@ pub struct LoadArgs {
     /// instead of a joint and a measured message; the echo then returns one message per sample.
     #[arg(long)]
     pub embedded: bool,
+    /// Replies come paired, one message per sample on `paired/<robot>` (armtwin with `[service]
+    /// outputs = "paired"`, the echo with `--paired`), instead of on `pose` and `deviation`.
+    #[arg(long)]
+    pub paired: bool,
     /// Robots (`fleet/r00000` …); the rate is spread over them round robin.
     #[arg(long, default_value_t = 1)]
     pub robots: usize,
@@ -386,16 +398,21 @@ impl Load {
             recording: AtomicBool::new(false),
             latencies_ns: Mutex::new(Vec::new()),
             binary: args.encoding == WireEncoding::ZenohSerialized,
+            paired_always_deviation: args.target == Target::Echo,
             untimed_key: args
                 .slow_subscriber_ms
                 .map(|_| net::key(net::POSE, &net::robot_id(0))),
             slow_poses: AtomicU64::new(0),
             soak: OnceLock::new(),
         });
-        let mut streams: Vec<(Stream, OnReply)> = vec![
-            (net::POSE, Replies::pose),
-            (net::DEVIATION, |replies, _| replies.deviation()),
-        ];
+        let mut streams: Vec<(Stream, OnReply)> = if args.paired {
+            vec![(net::PAIRED, Replies::paired)]
+        } else {
+            vec![
+                (net::POSE, Replies::pose),
+                (net::DEVIATION, |replies, _| replies.deviation()),
+            ]
+        };
         if args.target == Target::Armtwin {
             streams.push((net::METRICS, |replies, _| {
                 replies.metrics.fetch_add(1, Ordering::Relaxed);

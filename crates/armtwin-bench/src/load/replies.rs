@@ -11,6 +11,7 @@ use zenoh::sample::Sample;
 
 use super::Counts;
 use super::churn;
+use armtwin_codec::zser;
 
 /// What the receive callbacks share with the sender.
 #[derive(Debug)]
@@ -29,6 +30,9 @@ pub(super) struct Replies {
     pub(super) latencies_ns: Mutex<Vec<u64>>,
     /// Replies are binary: the stamp is the first 8 bytes.
     pub(super) binary: bool,
+    /// Every reply on the paired stream stands for a pose and its deviation (the echo's), rather
+    /// than only those that carry a deviation (armtwin's).
+    pub(super) paired_always_deviation: bool,
     /// The pose key whose latencies are not recorded (the slow subscriber's robot).
     pub(super) untimed_key: Option<String>,
     /// Poses the slow subscriber received.
@@ -103,8 +107,29 @@ impl Replies {
         self.poses.fetch_add(1, Ordering::Release);
     }
 
+    /// A reply on the paired stream: a pose, and its deviation if it carries one.
+    pub(super) fn paired(&self, sample: &Sample) {
+        let deviation = self.paired_always_deviation || {
+            let payload = sample.payload().to_bytes();
+            if self.binary {
+                payload.len() == zser::PAIRED_BYTES
+            } else {
+                carries_dx(&payload)
+            }
+        };
+        self.pose(sample);
+        if deviation {
+            self.deviation();
+        }
+    }
+
     pub(super) fn deviation(&self) {
         self.last_ns.fetch_max(self.elapsed_ns(), Ordering::AcqRel);
         self.deviations.fetch_add(1, Ordering::Release);
     }
+}
+
+/// Whether a JSON paired message carries a deviation (its `dx` field).
+fn carries_dx(payload: &[u8]) -> bool {
+    payload.windows(5).any(|window| window == b"\"dx\":")
 }

@@ -93,9 +93,12 @@ impl Load {
 
     /// The publishers and reply keys of robot `index`, on gateway session `index % gateways`.
     pub(super) fn declare_robot(&self, index: usize) -> Result<RobotKeys, LoadError> {
+        let paired = self.args.paired;
         let reply_streams: &[Stream] = match (self.args.target, self.args.memory_base_robots) {
             (_, Some(_)) => &[],
+            (Target::Echo, None) if paired => &[net::PAIRED],
             (Target::Echo, None) => &[net::POSE, net::DEVIATION],
+            (Target::Armtwin, None) if paired => &[net::PAIRED, net::METRICS, net::EVENTS],
             (Target::Armtwin, None) => &[net::POSE, net::DEVIATION, net::METRICS, net::EVENTS],
         };
         let robot = net::robot_id(index);
@@ -182,8 +185,9 @@ impl Load {
     }
 
     /// Deviations expected per sample: one, except from the echo when the measured pose is
-    /// embedded in the joint message (it returns that one message on `pose`).
+    /// embedded in the joint message (it returns that one message on `pose`); a paired reply
+    /// stands for both.
     pub(super) fn deviations_per_sample(&self) -> u64 {
-        u64::from(!(self.embedded && self.args.target == Target::Echo))
+        u64::from(self.args.paired || !(self.embedded && self.args.target == Target::Echo))
     }
 }

@@ -157,6 +157,10 @@ pub struct RunArgs {
     /// as a joint and a measured message.
     #[arg(long)]
     pub embedded: bool,
+    /// armtwin with `[service] outputs = "paired"` (one message per paired sample, pose and
+    /// deviation in it), against the echo with `--paired` (one message per sample).
+    #[arg(long)]
+    pub paired: bool,
     /// The `armtwin` binary (default: next to this one).
     #[arg(long)]
     pub armtwin: Option<PathBuf>,
@@ -234,6 +238,8 @@ pub struct Settings {
     pub first_contact_duration_s: f64,
     /// Measured poses embedded in the joint messages.
     pub embedded: bool,
+    /// armtwin's poses and deviations paired in one message, the echo's one message per sample.
+    pub paired: bool,
     /// The file whose TOML is appended to armtwin's configurations.
     pub armtwin_config_extra: Option<PathBuf>,
 }
@@ -308,6 +314,7 @@ impl Settings {
             first_contact_rate: args.first_contact_rate,
             first_contact_duration_s: pick(args.first_contact_duration, 3.0, 0.5),
             embedded: args.embedded,
+            paired: args.paired,
             armtwin_config_extra: args.armtwin_config_extra.clone(),
         }
     }

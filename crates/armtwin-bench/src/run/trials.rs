@@ -99,6 +99,7 @@ impl Orchestrator {
         let mut child = Command::new(&self.bench)
             .args(["echo", "-l", &endpoint, "--robots", &robots.to_string()])
             .args(lazy.then_some("--lazy"))
+            .args(self.settings.paired.then_some("--paired"))
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .spawn()
@@ -114,12 +115,18 @@ impl Orchestrator {
         Ok(SystemUnderTest { child, endpoint })
     }
 
-    /// `armtwin serve` with `config` (a file name in the work directory, written with `text`).
+    /// `armtwin serve` with `config` (a file name in the work directory, written with `text`;
+    /// with `--paired`, its poses and deviations paired).
     pub(super) fn start_armtwin_with(&self, config: &str, text: &str) -> Result<SystemUnderTest> {
+        let text = if self.settings.paired {
+            text.replacen("[service]\n", "[service]\noutputs = \"paired\"\n", 1)
+        } else {
+            text.to_owned()
+        };
         SystemUnderTest::armtwin(
             &self.armtwin,
             &self.work_dir.join(config),
-            &with_config_extra(text, &self.config_extra),
+            &with_config_extra(&text, &self.config_extra),
         )
     }
 
@@ -156,6 +163,7 @@ impl Orchestrator {
             &seq_file,
         )
         .args(extra)
+        .args(self.settings.paired.then_some("--paired"))
         .stdin(Stdio::null())
         .stderr(Stdio::inherit())
         .output()

@@ -18,6 +18,9 @@ use crate::PoseFields;
 /// (17 digits and an exponent) and a long robot id.
 const POSE_JSON_CAPACITY: usize = 512;
 
+/// Room for a twin pose with its deviation, as [`POSE_JSON_CAPACITY`].
+const PAIRED_JSON_CAPACITY: usize = 768;
+
 /// Room for a metrics message (about 1.6 kB with full-precision statistics) without growing.
 const METRICS_JSON_CAPACITY: usize = 2048;
 
@@ -75,6 +78,33 @@ pub fn pose_json_bytes(robot: &str, t: f64, seq: u64, frame: &str, pose: &PoseFi
     object.string("frame", frame);
     for (name, value) in PoseFields::NAMES.into_iter().zip(pose.values()) {
         object.number(name, value);
+    }
+    object.finish()
+}
+
+/// The JSON of a twin pose (the fields of [`pose_json_bytes`]) followed, when a measured pose
+/// was paired at its stamp, by that deviation's fields (those of [`deviation_json_bytes`] but
+/// `robot` and `t`): `twin/paired/<robot>`'s message. One flat object, as the binary form is one
+/// tuple: the names of the two parts never collide.
+#[must_use]
+pub fn paired_json_bytes(
+    robot: &str,
+    t: f64,
+    seq: u64,
+    frame: &str,
+    pose: &PoseFields,
+    deviation: Option<&Deviation>,
+) -> Vec<u8> {
+    let mut object = FlatObject::with_capacity(PAIRED_JSON_CAPACITY);
+    object.string("robot", robot);
+    object.number("t", t);
+    object.unsigned("seq", seq);
+    object.string("frame", frame);
+    for (name, value) in PoseFields::NAMES.into_iter().zip(pose.values()) {
+        object.number(name, value);
+    }
+    if let Some(deviation) = deviation {
+        deviation_fields(&mut object, deviation);
     }
     object.finish()
 }
@@ -152,6 +182,12 @@ pub fn deviation_json_bytes(robot: &str, t: f64, deviation: &Deviation) -> Vec<u
     let mut object = FlatObject::with_capacity(POSE_JSON_CAPACITY);
     object.string("robot", robot);
     object.number("t", t);
+    deviation_fields(&mut object, deviation);
+    object.finish()
+}
+
+/// The deviation's own fields, `dx` … `dyaw`.
+fn deviation_fields(object: &mut FlatObject, deviation: &Deviation) {
     object.number("dx", deviation.dx_m);
     object.number("dy", deviation.dy_m);
     object.number("dz", deviation.dz_m);
@@ -161,7 +197,6 @@ pub fn deviation_json_bytes(robot: &str, t: f64, deviation: &Deviation) -> Vec<u
     object.number("droll", deviation.droll_rad);
     object.number("dpitch", deviation.dpitch_rad);
     object.number("dyaw", deviation.dyaw_rad);
-    object.finish()
 }
 
 /// Something a dashboard should hear about: `{robot, t, kind, reason, key?, detail?}`, `kind`

@@ -58,7 +58,7 @@ pub use messages::{
     AlarmsJson, DeviationMessage, ErrorsJson, EstimateMessage, EventMessage, MetricsMessage,
     ParameterJson, PoseMessage, StampedJointsJson, StampedPoseJson, StateMessage, StatsJson,
     StatsSetJson, WindowJson, deviation_json_bytes, joint_state_json, not_identifiable,
-    parameters_json, pose_json_bytes,
+    paired_json_bytes, parameters_json, pose_json_bytes,
 };
 pub(crate) use pose::pose_from_quaternion;
 

@@ -137,6 +137,67 @@ fn outputs_deserialize_with_zenoh_ext() {
         [1e-3, -2e-3, 3e-3, 3.7e-3, 1e-7, 9e-4, 1e-4, -2e-4, 3e-4]
     );
     assert_eq!(zser::DEVIATION_NAMES.len(), values.len());
+
+    // The paired message: the twin pose's fields, then the deviation's values, or none.
+    let bytes = zser::paired_bytes(4.5, 7, &pose, &deviation);
+    assert_eq!(bytes.len(), 170);
+    let (t, seq, pose_values, deviation_values): (f64, u64, Vec<f64>, Vec<f64>) =
+        z_deserialize(&ZBytes::from(bytes)).unwrap();
+    assert_eq!((t, seq), (4.5, 7));
+    assert_eq!(pose_values, pose.values());
+    assert_eq!(deviation_values, values);
+    let bytes = zser::paired_pose_bytes(4.5, 7, &pose);
+    assert_eq!(bytes.len(), 98);
+    let (t, seq, pose_values, deviation_values): (f64, u64, Vec<f64>, Vec<f64>) =
+        z_deserialize(&ZBytes::from(bytes)).unwrap();
+    assert_eq!((t, seq), (4.5, 7));
+    assert_eq!(pose_values, pose.values());
+    assert!(deviation_values.is_empty());
+}
+
+#[test]
+fn a_paired_json_message_holds_the_pose_and_deviation_messages_fields() {
+    let pose = PoseFields {
+        x: 0.1,
+        y: -0.2,
+        z: 0.3,
+        roll: 1.0,
+        pitch: -0.5,
+        yaw: 3.0,
+        qx: 0.5,
+        qy: 0.5,
+        qz: -0.5,
+        qw: 0.5,
+    };
+    let deviation = Deviation {
+        dx_m: 1e-3,
+        dy_m: -2e-3,
+        dz_m: 3e-3,
+        position_m: 3.7e-3,
+        quat_distance: 1e-7,
+        angle_rad: 9e-4,
+        droll_rad: 1e-4,
+        dpitch_rad: -2e-4,
+        dyaw_rad: 3e-4,
+    };
+    let parse = |bytes: &[u8]| -> serde_json::Map<String, serde_json::Value> {
+        serde_json::from_slice(bytes).unwrap()
+    };
+    let mut expected = parse(&json::pose_json_bytes("r/1", 4.5, 7, "base", &pose));
+    let alone = parse(&json::paired_json_bytes("r/1", 4.5, 7, "base", &pose, None));
+    assert_eq!(alone, expected);
+    for (name, value) in parse(&json::deviation_json_bytes("r/1", 4.5, &deviation)) {
+        expected.insert(name, value);
+    }
+    let paired = parse(&json::paired_json_bytes(
+        "r/1",
+        4.5,
+        7,
+        "base",
+        &pose,
+        Some(&deviation),
+    ));
+    assert_eq!(paired, expected);
 }
 
 #[test]

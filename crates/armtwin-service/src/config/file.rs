@@ -8,7 +8,9 @@ use std::path::PathBuf;
 
 use serde::Deserialize;
 
-use super::{AdminAccess, Congestion, EventBudget, OutputEncoding, SourceStream, ZenohSection};
+use super::{
+    AdminAccess, Congestion, EventBudget, OutputEncoding, OutputShape, SourceStream, ZenohSection,
+};
 use armtwin_core::metrics::DEFAULT_HISTORY_S;
 
 use armtwin_codec::cdr::EffortMeaning;
@@ -166,6 +168,7 @@ pub(super) struct ServiceSection {
     pub(super) window_max_samples: Option<toml::Value>,
     pub(super) reject_unknown: bool,
     pub(super) encoding: OutputEncoding,
+    pub(super) outputs: OutputShape,
     pub(super) pose_congestion: Congestion,
     pub(super) admin: AdminAccess,
     /// The fleet description whose prefix grants bound their robots (`max_robots` per grant).
@@ -190,6 +193,7 @@ impl Default for ServiceSection {
             window_max_samples: None,
             reject_unknown: false,
             encoding: OutputEncoding::Json,
+            outputs: OutputShape::Separate,
             pose_congestion: Congestion::Drop,
             admin: AdminAccess::Loopback,
             fleet: None,

@@ -148,6 +148,19 @@ pub enum OutputEncoding {
     ZenohSerialized,
 }
 
+/// How a robot's twin poses and deviations go out (`[service] outputs`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum OutputShape {
+    /// Each on its own stream: `<prefix>/pose/<robot>` and `<prefix>/deviation/<robot>`.
+    #[default]
+    Separate,
+    /// One message per joint sample on `<prefix>/paired/<robot>`: its twin pose, with the
+    /// deviation of the measured pose paired at its stamp. One routed message per paired sample
+    /// instead of two: Zenoh's routing, not the twin, is most of the service's CPU per sample.
+    Paired,
+}
+
 /// Where and how often the service writes its snapshot (`[service] state_dir`,
 /// `snapshot_period_s`).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -192,6 +205,8 @@ pub struct ServiceConfig {
     pub metrics_period: Duration,
     /// The format of the pose and deviation outputs.
     pub encoding: OutputEncoding,
+    /// Whether poses and deviations go out on their own streams or paired in one.
+    pub outputs: OutputShape,
     /// Congestion policy of the pose and deviation outputs (metrics and events block).
     pub pose_congestion: Congestion,
     /// Who may use the admin queries (`[service] admin`).
@@ -390,6 +405,7 @@ impl ServiceConfig {
             keys,
             metrics_period: Duration::from_millis(service.metrics_period_ms),
             encoding: service.encoding,
+            outputs: service.outputs,
             pose_congestion: service.pose_congestion,
             admin: service.admin,
             robot_groups: robot_groups(&service, (source_name, base_dir))?,

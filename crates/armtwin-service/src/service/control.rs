@@ -56,6 +56,11 @@ fn publish_due_metrics(fleet: &Fleet) {
                 fleet.recorder().send(incident);
             }
             let Some(readout) = state.twin_mut().and_then(Twin::take_due_metrics) else {
+                // No input since the last turn: a twin pose still waiting for its measured pose
+                // on the paired stream waits no longer.
+                if let Some((_, mut sink)) = fleet.twin_and_sink(&mut state) {
+                    sink.release_paired_pose(true);
+                }
                 return;
             };
             let outputs = state.outputs_mut();

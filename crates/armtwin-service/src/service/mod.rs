@@ -18,7 +18,8 @@
 //!
 //! Flow control: inputs are received reliably; while a callback works, Zenoh does not read its
 //! link, which backpressures the transport and, through it, the gateways: nothing valid is
-//! dropped. Poses and deviations use `[service] pose_congestion` (`drop` by default: a message a
+//! dropped. Poses and deviations (or both in one message, with `[service] outputs = "paired"`)
+//! use `[service] pose_congestion` (`drop` by default: a message a
 //! subscriber's link cannot take is dropped for that subscriber alone, after at most Zenoh's
 //! `wait_before_drop`, and the twin goes on; `block` waits). Metrics, events and query replies
 //! always block: they are few and must arrive; a subscriber that stops reading them is
@@ -70,7 +71,7 @@ use self::peers::Peers;
 use self::publish::Outlet;
 use self::sink::Sinks;
 use self::snapshot::restore_snapshot;
-use crate::config::ServiceConfig;
+use crate::config::{OutputShape, ServiceConfig};
 use crate::snapshot::SnapshotStore;
 use armtwin_mesh::keys::Stream;
 use armtwin_mesh::{TEARDOWN_STEP, aggregate_publishers, bounded, close_session, zenoh_config_of};
@@ -112,14 +113,16 @@ pub async fn serve(
     let mut zenoh_config = zenoh_config_of(&config.zenoh)?;
     let keys = &config.keys;
     // The outputs with a publisher per streaming robot: at the sample rate, and the metrics.
-    aggregate_publishers(
-        &mut zenoh_config,
-        &[
-            keys.every_robot(Stream::Pose),
-            keys.every_robot(Stream::Deviation),
-            keys.every_robot(Stream::Metrics),
-        ],
-    )?;
+    let sample_rate_streams: &[Stream] = match config.outputs {
+        OutputShape::Separate => &[Stream::Pose, Stream::Deviation],
+        OutputShape::Paired => &[Stream::Paired],
+    };
+    let aggregated: Vec<String> = sample_rate_streams
+        .iter()
+        .chain(&[Stream::Metrics])
+        .map(|&stream| keys.every_robot(stream))
+        .collect();
+    aggregate_publishers(&mut zenoh_config, &aggregated)?;
     let admin_refusal = admin::refusal(config.admin, &zenoh_config);
     let session = zenoh::open(zenoh_config).await?;
     // A list the `[zenoh] file` sets itself is the file's, which `listen`/`connect` do not hold.

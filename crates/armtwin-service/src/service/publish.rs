@@ -19,7 +19,7 @@ use zenoh::qos::CongestionControl;
 use zenoh::sample::Locality;
 use zenoh::session::Session;
 
-use crate::config::{Congestion, OutputEncoding, ServiceConfig};
+use crate::config::{Congestion, OutputEncoding, OutputShape, ServiceConfig};
 use armtwin_codec::zser;
 use armtwin_mesh::keys::{KeySpace, Stream};
 use armtwin_mesh::ros2::{self, PoseOutput, PoseOutputs};
@@ -33,8 +33,11 @@ use armtwin_mesh::ros2::{self, PoseOutput, PoseOutputs};
 /// Events and calibration go out without a publisher: every declaration costs in proportion to
 /// the keys beside it, on this side and on every subscriber's.
 pub(super) struct RobotPublishers {
-    pose: Publisher<'static>,
-    deviation: Publisher<'static>,
+    /// The twin pose and the deviation on their own streams (`[service] outputs = "separate"`),
+    /// or both on the paired stream: declared for the streams the robot publishes on alone.
+    pose: Option<Publisher<'static>>,
+    deviation: Option<Publisher<'static>>,
+    paired: Option<Publisher<'static>>,
     /// The twin pose as a ROS 2 `PoseStamped`, if the robot has `ros2_pose`.
     ros2_pose: Option<Publisher<'static>>,
     /// Declared after the others (see above); shared so that the metrics period can publish
@@ -47,8 +50,9 @@ impl RobotPublishers {
     /// The publisher of `stream`, for the streams at the sample rate.
     fn of(&self, stream: Stream) -> Option<&Publisher<'static>> {
         match stream {
-            Stream::Pose => Some(&self.pose),
-            Stream::Deviation => Some(&self.deviation),
+            Stream::Pose => self.pose.as_ref(),
+            Stream::Deviation => self.deviation.as_ref(),
+            Stream::Paired => self.paired.as_ref(),
             Stream::Metrics => self.metrics.as_deref(),
             _ => None,
         }
@@ -73,10 +77,13 @@ pub(super) struct Outlet {
     keys: KeySpace,
     /// The format of poses and deviations.
     encoding: OutputEncoding,
+    /// Whether poses and deviations go out on their own streams or paired.
+    shape: OutputShape,
     /// Of poses and deviations.
     pose_congestion: CongestionControl,
     pose_encoding: Encoding,
     deviation_encoding: Encoding,
+    paired_encoding: Encoding,
     /// Which robots publish their twin pose for ROS tools, and where.
     ros2_pose: PoseOutputs,
     /// Outputs Zenoh refused to send.
@@ -86,23 +93,30 @@ pub(super) struct Outlet {
 impl Outlet {
     /// The outputs of `config`'s robots on `session`.
     pub(super) fn new(session: Session, config: &ServiceConfig) -> Self {
-        let (pose_encoding, deviation_encoding) = match config.encoding {
-            OutputEncoding::Json => (Encoding::APPLICATION_JSON, Encoding::APPLICATION_JSON),
+        let (pose_encoding, deviation_encoding, paired_encoding) = match config.encoding {
+            OutputEncoding::Json => (
+                Encoding::APPLICATION_JSON,
+                Encoding::APPLICATION_JSON,
+                Encoding::APPLICATION_JSON,
+            ),
             OutputEncoding::ZenohSerialized => (
                 Encoding::ZENOH_SERIALIZED.with_schema(zser::TWIN_POSE_SCHEMA),
                 Encoding::ZENOH_SERIALIZED.with_schema(zser::DEVIATION_SCHEMA),
+                Encoding::ZENOH_SERIALIZED.with_schema(zser::PAIRED_SCHEMA),
             ),
         };
         Self {
             session,
             keys: config.keys.clone(),
             encoding: config.encoding,
+            shape: config.outputs,
             pose_congestion: match config.pose_congestion {
                 Congestion::Block => CongestionControl::Block,
                 Congestion::Drop => CongestionControl::Drop,
             },
             pose_encoding,
             deviation_encoding,
+            paired_encoding,
             ros2_pose: config.ros2_pose.clone(),
             publish_errors: AtomicU64::new(0),
         }
@@ -111,6 +125,11 @@ impl Outlet {
     /// The format poses and deviations are published in.
     pub(super) fn encoding(&self) -> OutputEncoding {
         self.encoding
+    }
+
+    /// Whether poses and deviations go out on their own streams or paired.
+    pub(super) fn shape(&self) -> OutputShape {
+        self.shape
     }
 
     /// Outputs Zenoh refused to send, so far.
@@ -129,12 +148,13 @@ impl Outlet {
         ros2::publisher_gid(&self.session.zid().to_le_bytes(), robot)
     }
 
-    /// The congestion control and encoding of `stream`: poses and deviations as configured,
+    /// The congestion control and encoding of `stream`: poses, deviations and both paired as configured,
     /// effort as poses but always JSON, metrics and events blocking JSON.
     fn qos(&self, stream: Stream) -> (CongestionControl, Encoding) {
         match stream {
             Stream::Pose => (self.pose_congestion, self.pose_encoding.clone()),
             Stream::Deviation => (self.pose_congestion, self.deviation_encoding.clone()),
+            Stream::Paired => (self.pose_congestion, self.paired_encoding.clone()),
             Stream::Effort => (self.pose_congestion, Encoding::APPLICATION_JSON),
             _ => (CongestionControl::Block, Encoding::APPLICATION_JSON),
         }
@@ -200,8 +220,16 @@ impl Outlet {
                     .wait()?,
             );
         }
-        let pose = self.publisher(Stream::Pose, robot)?;
-        let deviation = self.publisher(Stream::Deviation, robot)?;
+        // A paired robot's deviations that pair outside their pose's message (interpolated) are
+        // few: they go out on the plain key.
+        let (pose, deviation, paired) = match self.shape {
+            OutputShape::Separate => (
+                Some(self.publisher(Stream::Pose, robot)?),
+                Some(self.publisher(Stream::Deviation, robot)?),
+                None,
+            ),
+            OutputShape::Paired => (None, None, Some(self.publisher(Stream::Paired, robot)?)),
+        };
         let ros2_pose = match self.ros2_pose.of(robot) {
             Some(output) => Some(
                 self.session
@@ -216,6 +244,7 @@ impl Outlet {
         Ok(RobotPublishers {
             pose,
             deviation,
+            paired,
             ros2_pose,
             metrics: None,
             inputs,
@@ -243,6 +272,7 @@ impl Outlet {
             let RobotPublishers {
                 pose,
                 deviation,
+                paired,
                 ros2_pose,
                 metrics,
                 inputs,
@@ -250,8 +280,9 @@ impl Outlet {
             // A metrics publisher still shared by a metrics period in progress is undeclared
             // when that period drops it.
             let metrics = metrics.and_then(|metrics| Arc::try_unwrap(metrics).ok());
-            for publisher in [pose, deviation]
+            for publisher in [pose, deviation, paired]
                 .into_iter()
+                .flatten()
                 .chain(ros2_pose)
                 .chain(metrics)
             {

@@ -318,6 +318,7 @@ impl Queries {
                 continue;
             };
             let final_metrics = twin.reset(&mut sink);
+            drop(sink);
             drop(state);
             info!(robot = cell.robot().id(), "metrics reset");
             replies.push((
@@ -690,6 +691,7 @@ impl Queries {
             return Some(Err(ReplaceModelError::NotTracked));
         };
         let replaced = twin.replace_model(model, &mut sink);
+        drop(sink);
         Some(replaced.map(|_| {
             info!(
                 robot = cell.robot().id(),

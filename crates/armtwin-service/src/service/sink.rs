@@ -1,6 +1,8 @@
 //! The service's [`Sink`]: one robot's results encoded and published through the [`Outlet`], its
-//! event budget applied, the totals the dashboard reads counted, and the rule that decides when a
-//! robot streams enough for route caches (asked of the control thread).
+//! event budget applied, the totals the dashboard reads counted, the rule that decides when a
+//! robot streams enough for route caches (asked of the control thread), and, with `[service]
+//! outputs = "paired"`, the rule that decides when a twin pose goes out with its deviation or
+//! alone.
 //!
 //! Must not take any lock but the untracked robots' event bucket: it runs under the robot's cell.
 
@@ -17,7 +19,7 @@ use super::history_log::HistoryLog;
 use super::publish::{Outlet, RobotPublishers};
 use super::recording::{Recorder, RobotRecording};
 use super::requests::Requests;
-use crate::config::{EventBudget, OutputEncoding};
+use crate::config::{EventBudget, OutputEncoding, OutputShape};
 use armtwin_codec::{PoseFields, cdr, json, zser};
 use armtwin_core::dynamics::monitor::EffortReadout;
 use armtwin_core::kinematics::{OutputFrame, PoseReadout};
@@ -134,6 +136,8 @@ pub(super) struct RobotOutputState {
     route_demand: RouteDemand,
     /// From tracking on, if the robot records: its recent streams.
     recording: Option<RobotRecording>,
+    /// With `[service] outputs = "paired"`, from its first twin pose: the newest one.
+    paired: Option<Box<PairedPose>>,
 }
 
 impl RobotOutputState {
@@ -209,6 +213,58 @@ impl RouteDemand {
     }
 }
 
+/// Where a robot's newest twin pose is on the paired stream.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum PairedState {
+    /// Not published yet: it waits for the deviation paired at its stamp.
+    Held,
+    /// Published without a deviation.
+    Alone,
+    /// Published with a deviation.
+    Paired,
+}
+
+/// A robot's newest twin pose, kept for the paired stream (`[service] outputs = "paired"`): a
+/// pose waits within the call into the twin that made it, where a joint sample's own measured
+/// pose (or one that came first and waited for its stamp) pairs; a robot whose measured poses
+/// come after their joint samples has its poses wait for them, up to its next joint sample or the
+/// control thread's next turn without input. A deviation at its stamp that comes after it went
+/// out alone sends it again, with the deviation, and the robot's poses wait from then on.
+struct PairedPose {
+    /// Its robot, for a pose that goes out when the sink that held it is gone.
+    robot: Arc<str>,
+    stamp_s: f64,
+    seq: u64,
+    frame: OutputFrame,
+    fields: PoseFields,
+    state: PairedState,
+    /// The robot's measured poses pair after the call that made their twin pose.
+    pairs_later: bool,
+}
+
+impl PairedPose {
+    /// Its message, with `deviation` (paired at its stamp) if any.
+    fn payload(&self, encoding: OutputEncoding, deviation: Option<&Deviation>) -> ZBytes {
+        match (encoding, deviation) {
+            (OutputEncoding::Json, _) => json::paired_json_bytes(
+                &self.robot,
+                self.stamp_s,
+                self.seq,
+                self.frame.as_str(),
+                &self.fields,
+                deviation,
+            )
+            .into(),
+            (OutputEncoding::ZenohSerialized, Some(deviation)) => {
+                zser::paired_bytes(self.stamp_s, self.seq, &self.fields, deviation).into()
+            }
+            (OutputEncoding::ZenohSerialized, None) => {
+                zser::paired_pose_bytes(self.stamp_s, self.seq, &self.fields).into()
+            }
+        }
+    }
+}
+
 /// A robot's twin pose output for ROS tools, as the sink publishes it.
 struct Ros2PoseState {
     /// Its key, for the poses sent before the publisher is declared.
@@ -230,6 +286,90 @@ pub(super) struct ZenohSink<'a> {
 }
 
 impl ZenohSink<'_> {
+    /// Publishes the robot's held twin pose, if it holds one, without a deviation. `always`:
+    /// also for a robot whose measured poses pair after their call, which then stops waiting for
+    /// them (its measured poses did not come).
+    pub(super) fn release_paired_pose(&mut self, always: bool) {
+        let Some(state) = self.robot.as_deref_mut() else {
+            return;
+        };
+        let Some(pose) = state.paired.as_deref_mut() else {
+            return;
+        };
+        if pose.state != PairedState::Held || (pose.pairs_later && !always) {
+            return;
+        }
+        pose.state = PairedState::Alone;
+        pose.pairs_later = false;
+        let payload = pose.payload(self.sinks.outlet.encoding(), None);
+        let declared = state.declared.as_ref();
+        self.sinks
+            .outlet
+            .publish(declared, &pose.robot, Stream::Paired, payload);
+    }
+
+    /// Keeps `robot`'s twin pose for the paired stream, until its deviation comes or the call
+    /// ends; the one before it goes out alone first if its deviation never came.
+    fn hold_paired_pose(
+        &mut self,
+        robot: &Robot,
+        stamp_s: f64,
+        seq: u64,
+        frame: OutputFrame,
+        fields: PoseFields,
+    ) {
+        self.release_paired_pose(true);
+        let Some(state) = self.robot.as_deref_mut() else {
+            // Only a tracked robot has twin poses: nothing to keep them for otherwise.
+            return;
+        };
+        match state.paired.as_deref_mut() {
+            Some(pose) => {
+                pose.stamp_s = stamp_s;
+                pose.seq = seq;
+                pose.frame = frame;
+                pose.fields = fields;
+                pose.state = PairedState::Held;
+            }
+            None => {
+                state.paired = Some(Box::new(PairedPose {
+                    robot: Arc::clone(robot.shared_id()),
+                    stamp_s,
+                    seq,
+                    frame,
+                    fields,
+                    state: PairedState::Held,
+                    pairs_later: false,
+                }));
+            }
+        }
+    }
+
+    /// Publishes `deviation`, paired at `stamp_s`, with the robot's twin pose of that stamp; or
+    /// on the deviation stream when the robot's newest pose has another stamp (a measured pose
+    /// paired by interpolation, or after a newer joint sample).
+    fn put_paired_deviation(&mut self, robot: &Robot, stamp_s: f64, deviation: &Deviation) {
+        let encoding = self.sinks.outlet.encoding();
+        let paired = self
+            .robot
+            .as_deref_mut()
+            .and_then(|state| state.paired.as_deref_mut())
+            .filter(|pose| pose.stamp_s.to_bits() == stamp_s.to_bits())
+            .map(|pose| {
+                if pose.state == PairedState::Alone {
+                    pose.pairs_later = true;
+                }
+                pose.state = PairedState::Paired;
+                pose.payload(encoding, Some(deviation))
+            });
+        if let Some(payload) = paired {
+            self.put(robot.id(), Stream::Paired, payload);
+        } else {
+            let payload = deviation_payload(encoding, robot, stamp_s, deviation);
+            self.put(robot.id(), Stream::Deviation, payload);
+        }
+    }
+
     /// Publishes `payload` on `robot`'s `stream` ([`Outlet::publish`]).
     fn put(&self, robot: &str, stream: Stream, payload: impl Into<ZBytes>) {
         let declared = self
@@ -337,13 +477,21 @@ impl Sink for ZenohSink<'_> {
         pose: &PoseReadout,
     ) {
         let fields = PoseFields::from(pose);
-        let payload: ZBytes = match self.sinks.outlet.encoding() {
-            OutputEncoding::Json => {
-                json::pose_json_bytes(robot.id(), stamp_s, seq, frame.as_str(), &fields).into()
+        match self.sinks.outlet.shape() {
+            OutputShape::Separate => {
+                let payload: ZBytes = match self.sinks.outlet.encoding() {
+                    OutputEncoding::Json => {
+                        json::pose_json_bytes(robot.id(), stamp_s, seq, frame.as_str(), &fields)
+                            .into()
+                    }
+                    OutputEncoding::ZenohSerialized => {
+                        zser::twin_pose_bytes(stamp_s, seq, &fields).into()
+                    }
+                };
+                self.put(robot.id(), Stream::Pose, payload);
             }
-            OutputEncoding::ZenohSerialized => zser::twin_pose_bytes(stamp_s, seq, &fields).into(),
-        };
-        self.put(robot.id(), Stream::Pose, payload);
+            OutputShape::Paired => self.hold_paired_pose(robot, stamp_s, seq, frame, fields),
+        }
         if let Some(state) = self.robot.as_deref_mut() {
             state.counts.poses += 1;
             if state.route_demand.pose(stamp_s) {
@@ -379,13 +527,14 @@ impl Sink for ZenohSink<'_> {
         {
             recording.measured(stamp_s, measured, deviation);
         }
-        let payload: ZBytes = match self.sinks.outlet.encoding() {
-            OutputEncoding::Json => {
-                json::deviation_json_bytes(robot.id(), stamp_s, deviation).into()
+        match self.sinks.outlet.shape() {
+            OutputShape::Separate => {
+                let payload =
+                    deviation_payload(self.sinks.outlet.encoding(), robot, stamp_s, deviation);
+                self.put(robot.id(), Stream::Deviation, payload);
             }
-            OutputEncoding::ZenohSerialized => zser::deviation_bytes(stamp_s, deviation).into(),
-        };
-        self.put(robot.id(), Stream::Deviation, payload);
+            OutputShape::Paired => self.put_paired_deviation(robot, stamp_s, deviation),
+        }
     }
 
     /// Publishes the event unless its robot's rate limit keeps it back, and logs it once (at
@@ -483,8 +632,31 @@ impl Sink for ZenohSink<'_> {
     }
 
     fn metrics(&mut self, robot: &Robot, readout: &MetricsReadout) {
+        // A reset, a new epoch or the end: a pose waiting for its deviation goes out first.
+        self.release_paired_pose(true);
         let message = json::MetricsMessage::new(readout);
         self.put(robot.id(), Stream::Metrics, message.to_json_bytes());
+    }
+}
+
+/// A sink lives for one call into the twin: a twin pose that call left waiting goes out as it
+/// ends, unless the robot's measured poses pair after their call.
+impl Drop for ZenohSink<'_> {
+    fn drop(&mut self) {
+        self.release_paired_pose(false);
+    }
+}
+
+/// The message of `deviation`, paired at `stamp_s`, on the deviation stream.
+fn deviation_payload(
+    encoding: OutputEncoding,
+    robot: &Robot,
+    stamp_s: f64,
+    deviation: &Deviation,
+) -> ZBytes {
+    match encoding {
+        OutputEncoding::Json => json::deviation_json_bytes(robot.id(), stamp_s, deviation).into(),
+        OutputEncoding::ZenohSerialized => zser::deviation_bytes(stamp_s, deviation).into(),
     }
 }
 

@@ -18,7 +18,7 @@ from zenoh.ext import UInt64, z_deserialize
 from support.checks import Checks
 from support.process import ArmtwinProcess, wait_until
 from support.twin_reference import MEASURED_KEYS, joint_message, load_fmpy
-from support.zenoh_clients import PREFIX, Collector, TwinClient
+from support.zenoh_clients import PREFIX, EncodingCollector, TwinClient
 
 WATCHDOG_S = 180.0
 POSE_KEYS = ("x", "y", "z", "roll", "pitch", "yaw", "qx", "qy", "qz", "qw")
@@ -29,20 +29,6 @@ PERIOD_S = 0.1
 # their joint sample, on their own key stamped between two joint samples, or not at all.
 EMBEDDED, AFTER, BETWEEN, NONE = "embedded", "after", "between", "none"
 ROBOTS = (EMBEDDED, AFTER, BETWEEN, NONE)
-
-
-class EncodingCollector(Collector):
-    """A Collector that also records each output stream's encodings."""
-
-    def __init__(self):
-        super().__init__()
-        self.encodings: dict[str, set[str]] = {}
-
-    def __call__(self, sample: zenoh.Sample) -> None:
-        super().__call__(sample)
-        stream = str(sample.key_expr).split("/", 2)[1]
-        with self._lock:
-            self.encodings.setdefault(stream, set()).add(str(sample.encoding))
 
 
 def config(encoding: str, outputs: str) -> str:

@@ -39,7 +39,7 @@ from support.twin_reference import (
     reference_poses,
     reference_stats,
 )
-from support.zenoh_clients import PREFIX, Collector, TwinClient
+from support.zenoh_clients import PREFIX, EncodingCollector, TwinClient
 
 CONFIG = """\
 [service]
@@ -56,20 +56,6 @@ WATCHDOG_S = 420.0
 JOINTS_ENCODING = zenoh.Encoding.ZENOH_SERIALIZED.with_schema("armtwin/joints/v1")
 POSE_ENCODING = zenoh.Encoding.ZENOH_SERIALIZED.with_schema("armtwin/pose/v1")
 DEVIATION_KEYS = ("dx", "dy", "dz", "position", "quat_distance", "angle", "droll", "dpitch", "dyaw")
-
-
-class EncodingCollector(Collector):
-    """A Collector that also records each output stream's encodings."""
-
-    def __init__(self):
-        super().__init__()
-        self.encodings: dict[str, set[str]] = {}
-
-    def __call__(self, sample: zenoh.Sample) -> None:
-        super().__call__(sample)
-        stream = str(sample.key_expr).split("/", 2)[1]
-        with self._lock:
-            self.encodings.setdefault(stream, set()).add(str(sample.encoding))
 
 
 @pytest.fixture

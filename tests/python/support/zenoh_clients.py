@@ -141,6 +141,20 @@ def reply_payloads(replies) -> tuple[list[tuple[str, dict]], list[dict]]:
     return oks, errs
 
 
+
+class EncodingCollector(Collector):
+    """A Collector that also records each output stream's encodings."""
+
+    def __init__(self):
+        super().__init__()
+        self.encodings: dict[str, set[str]] = {}
+
+    def __call__(self, sample: zenoh.Sample) -> None:
+        super().__call__(sample)
+        stream = str(sample.key_expr).split("/", 2)[1]
+        with self._lock:
+            self.encodings.setdefault(stream, set()).add(str(sample.encoding))
+
 class TwinClient:
     """One Python Zenoh peer connected to armtwin's listener."""
 

@@ -71,7 +71,18 @@ impl PoseMessage {
 /// sample, and a message would copy the robot id first.
 #[must_use]
 pub fn pose_json_bytes(robot: &str, t: f64, seq: u64, frame: &str, pose: &PoseFields) -> Vec<u8> {
-    let mut object = FlatObject::with_capacity(POSE_JSON_CAPACITY);
+    pose_object(POSE_JSON_CAPACITY, robot, (t, seq), frame, pose).finish()
+}
+
+/// A twin pose's fields in an object of `capacity` bytes, left open for more.
+fn pose_object(
+    capacity: usize,
+    robot: &str,
+    (t, seq): (f64, u64),
+    frame: &str,
+    pose: &PoseFields,
+) -> FlatObject {
+    let mut object = FlatObject::with_capacity(capacity);
     object.string("robot", robot);
     object.number("t", t);
     object.unsigned("seq", seq);
@@ -79,7 +90,7 @@ pub fn pose_json_bytes(robot: &str, t: f64, seq: u64, frame: &str, pose: &PoseFi
     for (name, value) in PoseFields::NAMES.into_iter().zip(pose.values()) {
         object.number(name, value);
     }
-    object.finish()
+    object
 }
 
 /// The JSON of a twin pose (the fields of [`pose_json_bytes`]) followed, when a measured pose
@@ -95,14 +106,7 @@ pub fn paired_json_bytes(
     pose: &PoseFields,
     deviation: Option<&Deviation>,
 ) -> Vec<u8> {
-    let mut object = FlatObject::with_capacity(PAIRED_JSON_CAPACITY);
-    object.string("robot", robot);
-    object.number("t", t);
-    object.unsigned("seq", seq);
-    object.string("frame", frame);
-    for (name, value) in PoseFields::NAMES.into_iter().zip(pose.values()) {
-        object.number(name, value);
-    }
+    let mut object = pose_object(PAIRED_JSON_CAPACITY, robot, (t, seq), frame, pose);
     if let Some(deviation) = deviation {
         deviation_fields(&mut object, deviation);
     }

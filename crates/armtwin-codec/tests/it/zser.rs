@@ -97,9 +97,9 @@ fn a_joint_message_with_measured_reads_as_its_json_twin() {
     assert_eq!(measured.pose, json_pose(MEASURED));
 }
 
-#[test]
-fn outputs_deserialize_with_zenoh_ext() {
-    let pose = PoseFields {
+/// The twin pose of the output tests.
+fn output_pose() -> PoseFields {
+    PoseFields {
         x: 0.1,
         y: -0.2,
         z: 0.3,
@@ -110,14 +110,12 @@ fn outputs_deserialize_with_zenoh_ext() {
         qy: 0.5,
         qz: -0.5,
         qw: 0.5,
-    };
-    let bytes = zser::twin_pose_bytes(4.5, u64::MAX - 1, &pose);
-    assert_eq!(bytes.len(), 97);
-    let (t, seq, values): (f64, u64, Vec<f64>) = z_deserialize(&ZBytes::from(bytes)).unwrap();
-    assert_eq!((t, seq), (4.5, u64::MAX - 1));
-    assert_eq!(values, pose.values());
+    }
+}
 
-    let deviation = Deviation {
+/// The deviation of the output tests.
+fn output_deviation() -> Deviation {
+    Deviation {
         dx_m: 1e-3,
         dy_m: -2e-3,
         dz_m: 3e-3,
@@ -127,7 +125,19 @@ fn outputs_deserialize_with_zenoh_ext() {
         droll_rad: 1e-4,
         dpitch_rad: -2e-4,
         dyaw_rad: 3e-4,
-    };
+    }
+}
+
+#[test]
+fn outputs_deserialize_with_zenoh_ext() {
+    let pose = output_pose();
+    let bytes = zser::twin_pose_bytes(4.5, u64::MAX - 1, &pose);
+    assert_eq!(bytes.len(), 97);
+    let (t, seq, values): (f64, u64, Vec<f64>) = z_deserialize(&ZBytes::from(bytes)).unwrap();
+    assert_eq!((t, seq), (4.5, u64::MAX - 1));
+    assert_eq!(values, pose.values());
+
+    let deviation = output_deviation();
     let bytes = zser::deviation_bytes(4.5, &deviation);
     assert_eq!(bytes.len(), 81);
     let (t, values): (f64, Vec<f64>) = z_deserialize(&ZBytes::from(bytes)).unwrap();
@@ -157,29 +167,8 @@ fn outputs_deserialize_with_zenoh_ext() {
 
 #[test]
 fn a_paired_json_message_holds_the_pose_and_deviation_messages_fields() {
-    let pose = PoseFields {
-        x: 0.1,
-        y: -0.2,
-        z: 0.3,
-        roll: 1.0,
-        pitch: -0.5,
-        yaw: 3.0,
-        qx: 0.5,
-        qy: 0.5,
-        qz: -0.5,
-        qw: 0.5,
-    };
-    let deviation = Deviation {
-        dx_m: 1e-3,
-        dy_m: -2e-3,
-        dz_m: 3e-3,
-        position_m: 3.7e-3,
-        quat_distance: 1e-7,
-        angle_rad: 9e-4,
-        droll_rad: 1e-4,
-        dpitch_rad: -2e-4,
-        dyaw_rad: 3e-4,
-    };
+    let pose = output_pose();
+    let deviation = output_deviation();
     let parse = |bytes: &[u8]| -> serde_json::Map<String, serde_json::Value> {
         serde_json::from_slice(bytes).unwrap()
     };

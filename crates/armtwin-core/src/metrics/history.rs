@@ -102,8 +102,7 @@ impl Ring {
     }
 
     fn slot_of(&self, unit: i64) -> usize {
-        // In `0..len`.
-        unit.rem_euclid(self.span()).unsigned_abs() as usize
+        ring_slot(unit, self.rows.len())
     }
 
     /// The row of `unit`, moving the ring on to it if it is newer than the newest; `None` if it
@@ -189,9 +188,21 @@ impl MemorySeconds {
     }
 
     fn slot_of(&self, minute: i64) -> usize {
-        let len = i64::try_from(self.slots.len()).unwrap_or(i64::MAX);
-        minute.rem_euclid(len).unsigned_abs() as usize
+        ring_slot(minute, self.slots.len())
     }
+}
+
+/// The slot of `unit` (a second, a minute) in a ring of `len` slots, unit `u` at `u mod len`:
+/// in `0..len`.
+///
+/// # Panics
+///
+/// If `len` is 0.
+#[must_use]
+pub fn ring_slot(unit: i64, len: usize) -> usize {
+    // A ring of more than 2⁶³ slots could not be allocated.
+    let len = i64::try_from(len).unwrap_or(i64::MAX);
+    unit.rem_euclid(len).unsigned_abs() as usize
 }
 
 impl SecondsArchive for MemorySeconds {

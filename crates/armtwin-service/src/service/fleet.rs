@@ -338,11 +338,7 @@ impl CellState {
         let mut sink = sinks.of(&mut self.outputs);
         let twin = self.twin.get_or_insert_with(|| {
             sink.tracking(robot);
-            let twin = Twin::new(robot.clone(), config);
-            match sinks.history_log().archive() {
-                Some(archive) => twin.with_seconds_archive(archive),
-                None => twin,
-            }
+            sinks.history_log().attach(Twin::new(robot.clone(), config))
         });
         Stepping {
             twin,
@@ -420,10 +416,7 @@ impl Fleet {
             return false;
         }
         self.sinks.of(&mut state.outputs).tracking(robot);
-        state.twin = Some(match self.sinks.history_log().archive() {
-            Some(archive) => twin.with_seconds_archive(archive),
-            None => twin,
-        });
+        state.twin = Some(self.sinks.history_log().attach(twin));
         true
     }
 

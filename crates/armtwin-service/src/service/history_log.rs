@@ -8,7 +8,8 @@
 
 use std::sync::Arc;
 
-use armtwin_core::metrics::{History, MinuteOfSeconds, SecondTotals, SecondsArchive};
+use armtwin_core::metrics::{History, MinuteOfSeconds, SecondTotals, SecondsArchive, ring_slot};
+use armtwin_core::pipeline::Twin;
 use armtwin_recorder::Spool;
 
 use crate::config::ServiceConfig;
@@ -47,13 +48,16 @@ impl HistoryLog {
         }
     }
 
-    /// A robot's archive in the log.
-    pub(super) fn archive(&self) -> Option<Box<dyn SecondsArchive>> {
-        let log = self.log.as_ref()?;
-        Some(Box::new(LoggedSeconds::new(
-            Arc::clone(log),
-            self.history_s,
-        )))
+    /// `twin`, its history keeping the seconds of closed minutes in the log (as it was when
+    /// there is none).
+    pub(super) fn attach(&self, twin: Twin) -> Twin {
+        match &self.log {
+            Some(log) => twin.with_seconds_archive(Box::new(LoggedSeconds::new(
+                Arc::clone(log),
+                self.history_s,
+            ))),
+            None => twin,
+        }
     }
 }
 
@@ -77,8 +81,7 @@ impl LoggedSeconds {
     }
 
     fn slot_of(&self, minute: i64) -> usize {
-        let len = i64::try_from(self.slots.len()).unwrap_or(i64::MAX);
-        minute.rem_euclid(len).unsigned_abs() as usize
+        ring_slot(minute, self.slots.len())
     }
 }
 

@@ -479,15 +479,13 @@ impl Sink for ZenohSink<'_> {
         let fields = PoseFields::from(pose);
         match self.sinks.outlet.shape() {
             OutputShape::Separate => {
-                let payload: ZBytes = match self.sinks.outlet.encoding() {
-                    OutputEncoding::Json => {
-                        json::pose_json_bytes(robot.id(), stamp_s, seq, frame.as_str(), &fields)
-                            .into()
-                    }
-                    OutputEncoding::ZenohSerialized => {
-                        zser::twin_pose_bytes(stamp_s, seq, &fields).into()
-                    }
-                };
+                let payload = pose_payload(
+                    self.sinks.outlet.encoding(),
+                    robot,
+                    (stamp_s, seq),
+                    frame,
+                    &fields,
+                );
                 self.put(robot.id(), Stream::Pose, payload);
             }
             OutputShape::Paired => self.hold_paired_pose(robot, stamp_s, seq, frame, fields),
@@ -644,6 +642,22 @@ impl Sink for ZenohSink<'_> {
 impl Drop for ZenohSink<'_> {
     fn drop(&mut self) {
         self.release_paired_pose(false);
+    }
+}
+
+/// The message of a twin pose on the pose stream.
+fn pose_payload(
+    encoding: OutputEncoding,
+    robot: &Robot,
+    (stamp_s, seq): (f64, u64),
+    frame: OutputFrame,
+    fields: &PoseFields,
+) -> ZBytes {
+    match encoding {
+        OutputEncoding::Json => {
+            json::pose_json_bytes(robot.id(), stamp_s, seq, frame.as_str(), fields).into()
+        }
+        OutputEncoding::ZenohSerialized => zser::twin_pose_bytes(stamp_s, seq, fields).into(),
     }
 }
 

@@ -141,7 +141,6 @@ def reply_payloads(replies) -> tuple[list[tuple[str, dict]], list[dict]]:
     return oks, errs
 
 
-
 class EncodingCollector(Collector):
     """A Collector that also records each output stream's encodings."""
 
@@ -158,10 +157,14 @@ class EncodingCollector(Collector):
 class TwinClient:
     """One Python Zenoh peer connected to armtwin's listener."""
 
-    def __init__(self, endpoint: str):
+    def __init__(self, endpoint: str, subscribe: bool = True):
+        """``subscribe``: collect every ``twin/**`` output. A client that only feeds and queries
+        leaves it off, as a gateway does: armtwin's metrics wait on a subscriber's link, so a
+        subscriber that falls behind slows the twins, and a gateway sharing its session has its
+        puts held with them (docs/protocol/delivery.md)."""
         self.session = open_session(endpoint)
         self.collector = Collector()
-        self.subscriber = self.session.declare_subscriber(f"{PREFIX}/**", self.collector)
+        self.subscriber = self.session.declare_subscriber(f"{PREFIX}/**", self.collector) if subscribe else None
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._closed = False
 

@@ -1,7 +1,8 @@
 """Alerts out of the box: config/prometheus/alerts.yml passes ``promtool check rules`` and its unit
 tests (``promtool test rules``), config/prometheus.yml loads it, and the per-robot gauges the rules
 read follow a real ``armtwin gateway rtde`` on a real service's ``/metrics``: waiting for its
-controller → ``armtwin_gateway_streaming`` 0; streaming → 1 and ``armtwin_robot_last_sample_age_seconds``
+controller → ``armtwin_gateway_streaming`` 0, and the robot, named in the configuration, is
+``armtwin_robot_expected`` with no sample age (what ``ArmtwinRobotNotSeen`` reads); streaming → 1 and ``armtwin_robot_last_sample_age_seconds``
 small; stopped → 0 and the age grows. Every metric the rules name is one that ``/metrics`` exposes.
 
 promtool is the one beside the Prometheus scripts/test-tools.sh unpacks.
@@ -22,11 +23,14 @@ from support.process import Process, free_port, wait_until
 RULES = REPO_ROOT / "config" / "prometheus" / "alerts.yml"
 RULE_TESTS = REPO_ROOT / "config" / "prometheus" / "alerts_test.yml"
 ROBOT = "cell-1/ur10e"
-# Effort watched: the collision and payload gauges the rules read exist.
-CONFIG = """\
+# Effort watched: the collision and payload gauges the rules read exist. The robot is named:
+# expected from the start.
+CONFIG = f"""\
 [robots.default]
 model = "ur10e"
 effort = true
+
+[robots."{ROBOT}"]
 """
 TIMEOUT_S = 60.0
 
@@ -80,10 +84,11 @@ def test_the_gauges_follow_a_real_gateway(armtwin_bin, tmp_path):
         stand_in = StandIn(tmp_path, controller_port)
         try:
             gateway.start()
-            # No controller yet: the gateway waits, and the robot is not tracked.
+            # No controller yet: the gateway waits, and the robot is expected but not tracked.
             assert wait_until(lambda: gauge(metrics(), "armtwin_gateway_streaming") == 0.0, TIMEOUT_S, 0.1), (
                 metrics(), gateway.logs())
             assert gauge(metrics(), "armtwin_robot_last_sample_age_seconds") is None
+            assert gauge(metrics(), "armtwin_robot_expected") == 1.0, metrics()
 
             stand_in.start()
             assert wait_until(lambda: gauge(metrics(), "armtwin_gateway_streaming") == 1.0, TIMEOUT_S, 0.1), (

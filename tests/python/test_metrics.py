@@ -106,9 +106,17 @@ def test_grafana_dashboard_structure():
     ids = [panel["id"] for panel in dashboard["panels"]]
     assert len(ids) == len(set(ids))
     provisioned = (REPO_ROOT / "config" / "grafana" / "provisioning" / "datasources" / "armtwin.yaml").read_text()
+    # Every query reads the Prometheus the `datasource` variable picks: the provisioned one by
+    # default, any other once imported into a Grafana of one's own.
+    variables = {v["name"]: v for v in dashboard["templating"]["list"]}
+    source = variables["datasource"]
+    assert (source["type"], source["query"]) == ("datasource", "prometheus"), source
+    assert f"uid: {source['current']['value']}" in provisioned, source
+    assert variables["robot"]["datasource"]["uid"] == "${datasource}"
     for panel in dashboard["panels"]:
         assert {"x", "y", "w", "h"} <= set(panel["gridPos"]), panel["title"]
+        assert panel["datasource"]["uid"] == "${datasource}", panel["title"]
         for target in panel["targets"]:
-            assert f"uid: {target['datasource']['uid']}" in provisioned, panel["title"]
+            assert target["datasource"]["uid"] == "${datasource}", panel["title"]
     kinds = {panel["type"] for panel in dashboard["panels"]}
     assert {"heatmap", "table", "timeseries"} <= kinds

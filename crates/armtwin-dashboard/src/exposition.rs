@@ -478,12 +478,31 @@ fn register_gateways(registry: &mut Registry, gateways: &[(Arc<str>, bool)]) {
     );
 }
 
-/// The exposition of the fleet's rows, its gateways and the service's totals (`OpenMetrics`
-/// text, which Prometheus reads; it ends with `# EOF`).
+/// Registers `armtwin_robot_expected`: 1 per robot the configuration names, from the service's
+/// start, so that a robot which never speaks after a restart has a series an alert can miss its
+/// sample age beside.
+fn register_expected(registry: &mut Registry, expected: &[Arc<str>]) {
+    let family = Gauges::default();
+    for robot in expected {
+        family
+            .get_or_create(&vec![("robot", robot.to_string())])
+            .set(1.0);
+    }
+    registry.register(
+        "robot_expected",
+        "1 for each robot the configuration names in a robots.<id> table: expected to stream from \
+         the start, whether it has spoken since or not",
+        family,
+    );
+}
+
+/// The exposition of the fleet's rows, its gateways, the robots it expects and the service's
+/// totals (`OpenMetrics` text, which Prometheus reads; it ends with `# EOF`).
 pub(crate) fn render(
     totals: &ServiceTotals,
     rows: &[FleetRow],
     gateways: &[(Arc<str>, bool)],
+    expected: &[Arc<str>],
 ) -> String {
     let mut registry = Registry::with_prefix("armtwin");
     let families = RobotFamilies::register(&mut registry);
@@ -491,8 +510,9 @@ pub(crate) fn render(
         families.add(row);
     }
     register_gateways(&mut registry, gateways);
+    register_expected(&mut registry, expected);
     register_totals(&mut registry, totals);
-    let mut text = String::with_capacity(256 + rows.len() * 2048 + gateways.len() * 64);
+    let mut text = String::with_capacity(256 + rows.len() * 2048 + (gateways.len() + expected.len()) * 64);
     // Writing into a String cannot fail.
     let _ = encode(&mut text, &registry);
     text

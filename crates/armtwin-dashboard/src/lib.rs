@@ -138,6 +138,8 @@ struct FleetRead {
     keys: Vec<Option<OwnedKeyExpr>>,
     /// The robots with a gateway token, and whether it streams.
     gateways: Vec<(Arc<str>, bool)>,
+    /// The robots the configuration names.
+    expected: Arc<[Arc<str>]>,
 }
 
 /// The fleet's other instances' robots, read through the mesh for the fleet pages.
@@ -226,6 +228,7 @@ impl AppState {
                 rows,
                 keys,
                 gateways: view.gateways(),
+                expected: view.expected(),
             }
         };
         // Only a panic of the read gives an empty fleet, until the next read.
@@ -235,6 +238,7 @@ impl AppState {
             rows: Vec::new(),
             keys: Vec::new(),
             gateways: Vec::new(),
+            expected: Arc::new([]),
         };
         self.fleet.get(max_age, read, failed).await
     }
@@ -364,7 +368,7 @@ async fn healthz() -> &'static str {
 async fn metrics(State(state): State<AppState>) -> Response {
     // A scrape sees the twin as it is at the scrape: no shared read older than it.
     let read = state.fleet(Duration::ZERO).await;
-    let text = exposition::render(&read.totals, &read.rows, &read.gateways);
+    let text = exposition::render(&read.totals, &read.rows, &read.gateways, &read.expected);
     (
         [(
             header::CONTENT_TYPE,
@@ -736,6 +740,7 @@ mod tests {
             rows,
             keys,
             gateways: Vec::new(),
+            expected: Arc::new([]),
         }
     }
 
@@ -895,7 +900,8 @@ mod tests {
             (Arc::from("cell/\"odd\"\\id"), true),
             (Arc::from("gone"), false),
         ];
-        let text = exposition::render(&ServiceTotals::default(), &[quoted], &gateways);
+        let expected = [Arc::from("cell/\"odd\"\\id"), Arc::from("cell/silent")];
+        let text = exposition::render(&ServiceTotals::default(), &[quoted], &gateways, &expected);
         let robot = r#"robot="cell/\"odd\"\\id""#;
         for line in [
             format!("armtwin_position_error_mae_meters{{{robot},scope=\"window\"}} 0.004"),
@@ -905,6 +911,8 @@ mod tests {
             format!("armtwin_robot_last_sample_age_seconds{{{robot}}} 0.25"),
             format!("armtwin_gateway_streaming{{{robot}}} 1"),
             "armtwin_gateway_streaming{robot=\"gone\"} 0".to_owned(),
+            format!("armtwin_robot_expected{{{robot}}} 1"),
+            "armtwin_robot_expected{robot=\"cell/silent\"} 1".to_owned(),
             "armtwin_robots_tracked 0".to_owned(),
             "armtwin_robots_refused_total 0".to_owned(),
             "armtwin_robots_retired_total 0".to_owned(),
@@ -921,7 +929,7 @@ mod tests {
             snapshot_age_s: Some(2.5),
             ..ServiceTotals::default()
         };
-        let text = exposition::render(&totals, &[], &[]);
+        let text = exposition::render(&totals, &[], &[], &[]);
         assert!(text.contains("armtwin_snapshot_age_seconds 2.5"), "{text}");
     }
 }

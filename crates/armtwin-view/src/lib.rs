@@ -58,6 +58,9 @@ pub trait FleetSource: Send + Sync + 'static {
     /// configured or tracked, in id order, with whether the gateway streams (its `streaming`
     /// token is declared).
     fn gateways(&self) -> Vec<(Arc<str>, bool)>;
+    /// The robots the configuration names (`[robots."<id>"]`), in id order: expected from the
+    /// start, whether they have spoken since or not.
+    fn expected(&self) -> Arc<[Arc<str>]>;
     /// The key expression of the robots this instance twins (`[service] robots`).
     fn own_shard(&self) -> Arc<str>;
     /// The robots the fleet's other instances twin, read through the mesh (blocks for up to a

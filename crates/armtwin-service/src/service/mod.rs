@@ -272,6 +272,7 @@ async fn start_dashboard(
         tokens,
         Peers::new(session.clone(), config.keys.clone()),
         config.shard.as_str(),
+        config.robots.keys(),
     );
     let dashboard = door.open(listener, Arc::new(view));
     (dashboard, watch)

@@ -22,6 +22,7 @@ pub(super) struct FleetView {
     gateways: Arc<GatewayTokens>,
     peers: Peers,
     shard: Arc<str>,
+    expected: Arc<[Arc<str>]>,
 }
 
 impl FleetView {
@@ -30,12 +31,19 @@ impl FleetView {
         gateways: Arc<GatewayTokens>,
         peers: Peers,
         shard: &str,
+        configured: impl IntoIterator<Item = impl AsRef<str>>,
     ) -> Self {
+        let mut expected: Vec<Arc<str>> = configured
+            .into_iter()
+            .map(|id| Arc::from(id.as_ref()))
+            .collect();
+        expected.sort();
         Self {
             fleet,
             gateways,
             peers,
             shard: Arc::from(shard),
+            expected: expected.into(),
         }
     }
 }
@@ -120,6 +128,10 @@ impl FleetSource for FleetView {
 
     fn gateways(&self) -> Vec<(Arc<str>, bool)> {
         self.gateways.read(|id| self.fleet.find(id).is_some())
+    }
+
+    fn expected(&self) -> Arc<[Arc<str>]> {
+        Arc::clone(&self.expected)
     }
 
     fn own_shard(&self) -> Arc<str> {

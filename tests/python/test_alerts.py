@@ -41,16 +41,16 @@ def promtool(*args) -> subprocess.CompletedProcess:
 
 
 def test_the_rules_pass_promtool_and_their_unit_tests():
+    every_alert = set(re.findall(r"^\s+- alert: (\w+)$", RULES.read_text(), re.M))
     checked = promtool("check", "rules", RULES)
     assert checked.returncode == 0, checked.stdout + checked.stderr
-    assert "SUCCESS: 8 rules found" in checked.stdout, checked.stdout
+    assert f"SUCCESS: {len(every_alert)} rules found" in checked.stdout, checked.stdout
     tested = promtool("test", "rules", RULE_TESTS)
     assert tested.returncode == 0, tested.stdout + tested.stderr
     # The shipped scrape configuration loads the rules.
     config = promtool("check", "config", REPO_ROOT / "config" / "prometheus.yml")
     assert config.returncode == 0, config.stdout + config.stderr
     assert "1 rule files found" in config.stdout, config.stdout
-    every_alert = set(re.findall(r"^\s+- alert: (\w+)$", RULES.read_text(), re.M))
     assert every_alert == set(re.findall(r"alertname: (\w+)$", RULE_TESTS.read_text(), re.M)), (
         "an alert without a unit test")
 

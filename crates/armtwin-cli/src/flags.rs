@@ -60,6 +60,18 @@ pub enum Command {
     HttpToken(HttpTokenArgs),
     /// The service's configuration: `config show` prints the effective one.
     Config(ConfigArgs),
+    /// Check a configuration before it runs: each robot's model, calibration and tool, the
+    /// controllers `serve` would stream (ports, model), who may reach each door, the recorder's
+    /// folder. One line per check (OK, WARN, FAIL); exits 1 when one fails.
+    Doctor(DoctorArgs),
+}
+
+/// `armtwin doctor` arguments.
+#[derive(Debug, Args)]
+pub struct DoctorArgs {
+    /// The configuration file (TOML); without it, the built-in `config/armtwin.toml`.
+    #[arg(short = 'c', long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
 }
 
 /// `armtwin config` arguments.

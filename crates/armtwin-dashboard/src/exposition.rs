@@ -512,7 +512,8 @@ pub(crate) fn render(
     register_gateways(&mut registry, gateways);
     register_expected(&mut registry, expected);
     register_totals(&mut registry, totals);
-    let mut text = String::with_capacity(256 + rows.len() * 2048 + (gateways.len() + expected.len()) * 64);
+    let mut text =
+        String::with_capacity(256 + rows.len() * 2048 + (gateways.len() + expected.len()) * 64);
     // Writing into a String cannot fail.
     let _ = encode(&mut text, &registry);
     text

@@ -66,14 +66,41 @@ pub enum DashboardError {
 /// Reads the model and serial number of the controller whose dashboard server is at
 /// `host:port`, within [`EXCHANGE_TIMEOUT`].
 pub async fn read_identity(host: &str, port: u16) -> Result<Identity, DashboardError> {
+    Ok(read(host, port, false).await?.0)
+}
+
+/// [`read_identity`], and the controller's software version (`PolyscopeVersion`: major, minor,
+/// bugfix, build), which tells an e-Series `UR10` from a CB3's where no RTDE link is open.
+pub async fn read_identity_and_version(
+    host: &str,
+    port: u16,
+) -> Result<(Identity, Option<[u32; 4]>), DashboardError> {
+    read(host, port, true).await
+}
+
+async fn read(
+    host: &str,
+    port: u16,
+    with_version: bool,
+) -> Result<(Identity, Option<[u32; 4]>), DashboardError> {
     let address = format!("{host}:{port}");
-    match timeout(EXCHANGE_TIMEOUT, exchange(host, port, &address)).await {
+    match timeout(
+        EXCHANGE_TIMEOUT,
+        exchange(host, port, &address, with_version),
+    )
+    .await
+    {
         Ok(result) => result,
         Err(_) => Err(DashboardError::Silent { address }),
     }
 }
 
-async fn exchange(host: &str, port: u16, address: &str) -> Result<Identity, DashboardError> {
+async fn exchange(
+    host: &str,
+    port: u16,
+    address: &str,
+    with_version: bool,
+) -> Result<(Identity, Option<[u32; 4]>), DashboardError> {
     let socket =
         TcpStream::connect((host, port))
             .await
@@ -92,11 +119,32 @@ async fn exchange(host: &str, port: u16, address: &str) -> Result<Identity, Dash
     let serial = ask(&mut connection, "get serial number")
         .await
         .map_err(io)?;
+    let version = if with_version {
+        version_of(&ask(&mut connection, "PolyscopeVersion").await.map_err(io)?)
+    } else {
+        None
+    };
     // Polite, not needed: the server closes a connection its client closed.
     let _ = connection.get_mut().write_all(b"quit\n").await;
-    Ok(Identity {
+    let identity = Identity {
         model: Some(model).filter(|answer| is_model(answer)),
         serial: Some(serial).filter(|answer| is_serial(answer)),
+    };
+    Ok((identity, version))
+}
+
+/// The version in a `PolyscopeVersion` answer (`URSoftware 5.21.0.9 (Jan 01 2025)`): its first
+/// word of four dotted numbers.
+fn version_of(answer: &str) -> Option<[u32; 4]> {
+    answer.split_whitespace().find_map(|word| {
+        let mut parts = word.split('.').map(str::parse::<u32>);
+        let version = [
+            parts.next()?.ok()?,
+            parts.next()?.ok()?,
+            parts.next()?.ok()?,
+            parts.next()?.ok()?,
+        ];
+        parts.next().is_none().then_some(version)
     })
 }
 
@@ -154,5 +202,19 @@ mod tests {
         assert!(!is_model("é10"));
         assert!(is_serial("20235500001"));
         assert!(!is_serial("") && !is_serial("Could not understand: 'get serial number'"));
+    }
+
+    #[test]
+    fn a_software_version_is_read_from_its_answer() {
+        assert_eq!(
+            version_of("URSoftware 5.21.0.9 (Jan 01 2025)"),
+            Some([5, 21, 0, 9])
+        );
+        assert_eq!(
+            version_of("URSoftware 3.15.7.106331 (Mar 22 2021)"),
+            Some([3, 15, 7, 106_331])
+        );
+        assert_eq!(version_of("Could not understand: 'PolyscopeVersion'"), None);
+        assert_eq!(version_of("URSoftware 5.21 (x)"), None);
     }
 }

@@ -9,6 +9,9 @@
 //! - [`dashboard`]: the controller's dashboard server, read for its model and serial number.
 //! - `link`: one controller's connection, reconnection and publishing.
 //!
+//! The same links run inside `serve` on the service's own session ([`InService`], for
+//! `[robots."<id>"] rtde = "ADDRESS"`).
+//!
 //! Owns the fleet's settings (a fleet file, `gateways.toml`) and the session's lifetime; must
 //! not parse RTDE bytes (the codec's `rtde` module does).
 
@@ -19,13 +22,16 @@ mod link;
 use std::collections::HashSet;
 use std::future::Future;
 use std::path::PathBuf;
+use std::pin::Pin;
 
 use serde::Deserialize;
 use thiserror::Error;
 use tokio::sync::watch;
 use tracing::info;
+use zenoh::Session;
 
 use armtwin_codec::rtde::DEFAULT_PORT;
+use armtwin_mesh::beside::{Beside, Running};
 use armtwin_mesh::keys::{self, KeySpace, PlainKeyError, Stream};
 use armtwin_mesh::zenoh_section::ZenohSection;
 use armtwin_mesh::{
@@ -126,6 +132,18 @@ pub enum GatewayError {
     /// No controller to stream.
     #[error("no controller to stream")]
     Empty,
+    /// A controller's address is not `HOST` or `HOST:PORT`.
+    #[error(
+        "robot '{robot}': '{address}' is not a controller's address ({problem}): write HOST, HOST:PORT or [IPv6]:PORT"
+    )]
+    Address {
+        /// The robot id.
+        robot: String,
+        /// The address as written.
+        address: String,
+        /// What is wrong with it.
+        problem: &'static str,
+    },
     /// The session could not be configured or opened.
     #[error(transparent)]
     Mesh(#[from] MeshError),
@@ -151,6 +169,78 @@ pub fn parse_fleet(
     ))
 }
 
+impl ControllerSettings {
+    /// Robot `robot`'s controller at `address` (`HOST`, `HOST:PORT`, `[IPv6]:PORT` or a bare
+    /// IPv6 address; RTDE's port unless one is given), with the other settings' defaults.
+    pub fn at(robot: &str, address: &str) -> Result<Self, GatewayError> {
+        let refuse = |problem| GatewayError::Address {
+            robot: robot.to_owned(),
+            address: address.to_owned(),
+            problem,
+        };
+        let port_of = |text: &str| match text.parse::<u16>() {
+            Ok(0) | Err(_) => Err(refuse("the port is not a number within 1 … 65535")),
+            Ok(port) => Ok(port),
+        };
+        let (host, port) = if let Some(rest) = address.strip_prefix('[') {
+            let (host, after) = rest
+                .split_once(']')
+                .ok_or_else(|| refuse("an unclosed '['"))?;
+            match after {
+                "" => (host, DEFAULT_PORT),
+                _ => match after.strip_prefix(':') {
+                    Some(port) => (host, port_of(port)?),
+                    None => return Err(refuse("text after ']' that is not ':PORT'")),
+                },
+            }
+        } else {
+            // Bare, a host carries no colon and an IPv6 address several (and no port).
+            match address.split_once(':') {
+                Some((host, port)) if !port.contains(':') => (host, port_of(port)?),
+                _ => (address, DEFAULT_PORT),
+            }
+        };
+        if host.is_empty() || host.chars().any(char::is_whitespace) {
+            return Err(refuse("no host"));
+        }
+        Ok(Self {
+            robot: robot.to_owned(),
+            host: host.to_owned(),
+            port,
+            dashboard_port: default_dashboard_port(),
+            frequency_hz: default_frequency_hz(),
+            record: None,
+        })
+    }
+}
+
+/// Checks every robot id (each named once) and frequency of `controllers`, of which there is
+/// at least one.
+fn check_controllers(controllers: &[ControllerSettings]) -> Result<(), GatewayError> {
+    if controllers.is_empty() {
+        return Err(GatewayError::Empty);
+    }
+    let mut robots = HashSet::new();
+    for controller in controllers {
+        keys::robot_id(&controller.robot).map_err(|problem| GatewayError::Key {
+            text: controller.robot.clone(),
+            problem,
+        })?;
+        if !robots.insert(controller.robot.as_str()) {
+            return Err(GatewayError::DuplicateRobot {
+                robot: controller.robot.clone(),
+            });
+        }
+        if !(controller.frequency_hz > 0.0 && controller.frequency_hz <= 500.0) {
+            return Err(GatewayError::Frequency {
+                robot: controller.robot.clone(),
+                frequency_hz: controller.frequency_hz,
+            });
+        }
+    }
+    Ok(())
+}
+
 impl GatewaySettings {
     /// Checks every robot id, the prefix and the frequencies.
     pub fn check(&self) -> Result<KeySpace, GatewayError> {
@@ -158,28 +248,58 @@ impl GatewaySettings {
             text: self.key_prefix.clone(),
             problem,
         })?;
-        if self.controllers.is_empty() {
-            return Err(GatewayError::Empty);
-        }
-        let mut robots = HashSet::new();
-        for controller in &self.controllers {
-            keys::robot_id(&controller.robot).map_err(|problem| GatewayError::Key {
-                text: controller.robot.clone(),
-                problem,
-            })?;
-            if !robots.insert(controller.robot.as_str()) {
-                return Err(GatewayError::DuplicateRobot {
-                    robot: controller.robot.clone(),
-                });
-            }
-            if !(controller.frequency_hz > 0.0 && controller.frequency_hz <= 500.0) {
-                return Err(GatewayError::Frequency {
-                    robot: controller.robot.clone(),
-                    frequency_hz: controller.frequency_hz,
-                });
-            }
-        }
+        check_controllers(&self.controllers)?;
         Ok(keys)
+    }
+}
+
+/// Controllers streamed on a session the caller owns: `serve`'s, for the robots it names with
+/// `rtde`. The links are those of `armtwin gateway rtde`, reconnection, controller facts,
+/// liveliness tokens and recording alike.
+pub struct InService {
+    controllers: Vec<ControllerSettings>,
+}
+
+impl InService {
+    /// Checks `controllers` (see [`GatewaySettings::check`]).
+    pub fn new(controllers: Vec<ControllerSettings>) -> Result<Self, GatewayError> {
+        check_controllers(&controllers)?;
+        Ok(Self { controllers })
+    }
+}
+
+impl Beside for InService {
+    fn start(self: Box<Self>, session: Session, keys: KeySpace) -> Box<dyn Running> {
+        let (stop, stopped) = watch::channel(false);
+        let mut links = tokio::task::JoinSet::new();
+        for controller in self.controllers {
+            links.spawn(link::run(
+                session.clone(),
+                keys.clone(),
+                controller,
+                stopped.clone(),
+            ));
+        }
+        Box::new(Links { stop, links })
+    }
+}
+
+/// The running links of [`InService`].
+struct Links {
+    stop: watch::Sender<bool>,
+    links: tokio::task::JoinSet<()>,
+}
+
+impl Running for Links {
+    fn stop(self: Box<Self>) -> Pin<Box<dyn Future<Output = ()> + Send>> {
+        let Self { stop, mut links } = *self;
+        Box::pin(async move {
+            let _ = stop.send(true);
+            bounded("stopping the controllers' links", TEARDOWN_STEP, async {
+                while links.join_next().await.is_some() {}
+            })
+            .await;
+        })
     }
 }
 
@@ -199,23 +319,13 @@ pub async fn run(
         zid = %session.zid(),
         "gateway rtde started"
     );
-    let (stop, stopped) = watch::channel(false);
-    let mut links = tokio::task::JoinSet::new();
-    for controller in settings.controllers {
-        links.spawn(link::run(
-            session.clone(),
-            keys.clone(),
-            controller,
-            stopped.clone(),
-        ));
-    }
+    let links = Box::new(InService {
+        controllers: settings.controllers,
+    })
+    .start(session.clone(), keys);
     shutdown.await;
     info!("stopping the gateway");
-    let _ = stop.send(true);
-    bounded("stopping the controllers' links", TEARDOWN_STEP, async {
-        while links.join_next().await.is_some() {}
-    })
-    .await;
+    links.stop().await;
     close_session(&session).await?;
     Ok(())
 }
@@ -257,6 +367,45 @@ mod tests {
             controllers,
         };
         settings.check().unwrap();
+    }
+
+    #[test]
+    fn a_controller_is_found_by_its_address() {
+        let at = |address| {
+            ControllerSettings::at("r", address)
+                .map(|c| (c.host, c.port))
+                .map_err(|e| e.to_string())
+        };
+        assert_eq!(at("10.0.0.5"), Ok(("10.0.0.5".to_owned(), 30004)));
+        assert_eq!(at("10.0.0.5:30005"), Ok(("10.0.0.5".to_owned(), 30005)));
+        assert_eq!(
+            at("ur-cell1.local"),
+            Ok(("ur-cell1.local".to_owned(), 30004))
+        );
+        assert_eq!(at("fd00::5"), Ok(("fd00::5".to_owned(), 30004)));
+        assert_eq!(at("[fd00::5]:30005"), Ok(("fd00::5".to_owned(), 30005)));
+        assert_eq!(at("[fd00::5]"), Ok(("fd00::5".to_owned(), 30004)));
+        for bad in [
+            "10.0.0.5:",
+            "10.0.0.5:0",
+            "10.0.0.5:99999",
+            "[fd00::5",
+            "[fd00::5]x",
+            "",
+            ":30004",
+            "a b",
+        ] {
+            let error = at(bad).expect_err(bad);
+            assert!(
+                error.starts_with(&format!("robot 'r': '{bad}' is not a controller's address")),
+                "{error}"
+            );
+        }
+        let controller = ControllerSettings::at("r", "h").unwrap();
+        assert_eq!(
+            (controller.dashboard_port, controller.frequency_hz),
+            (29999, 500.0)
+        );
     }
 
     #[test]

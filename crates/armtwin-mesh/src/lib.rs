@@ -2,6 +2,7 @@
 //! `replay`, `record`, the gateway, the benchmarks).
 //!
 //! Layout:
+//! - [`beside`]: work a process runs on the service's session beside the twin.
 //! - [`keys`]: armtwin's key space: every key built and read, the robot-id grammar.
 //! - [`ros2`]: ROS 2 on Zenoh: `rmw_zenoh` and bridge key layouts, the twin pose output's key.
 //! - [`ingest`]: the codec a Zenoh sample's encoding selects.
@@ -15,6 +16,7 @@
 //! Must not know the twin, the fleet, the service's configuration or any HTTP: it is the plumbing
 //! they share.
 
+pub mod beside;
 pub mod controller;
 pub mod ingest;
 pub mod keys;

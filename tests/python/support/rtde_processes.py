@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import contextlib
 import json
+import re
 import sys
 import time
 from pathlib import Path
 
-from support.paths import SUPPORT_DIR
+from support.paths import REPO_ROOT, SUPPORT_DIR
 from support.process import STARTUP_TIMEOUT_S, ArmtwinProcess, Process, wait_until
 from support.zenoh_clients import open_session
 
@@ -72,3 +73,19 @@ def serving(binary: Path, workdir: Path, config_text: str):
         subscriber.undeclare()
         session.close()
         proc.stop()
+
+
+def doc_plant(controllers: dict[str, tuple[int, int]]) -> str:
+    """docs/ur-rtde.md's ``plant.toml``, its robots those of ``controllers`` in order, each
+    controller's address on loopback at its (RTDE port, dashboard server port)."""
+    block = re.search(r"```toml\n# plant\.toml\n(.*?)```", (REPO_ROOT / "docs" / "ur-rtde.md").read_text(), re.S)
+    assert block, "docs/ur-rtde.md has no plant.toml"
+    text = block.group(1)
+    assert re.findall(r'^\[robots\."([^"]+)"\]$', text, re.M) == list(controllers), text
+    ports = iter(controllers.values())
+
+    def address(_match) -> str:
+        port, dashboard_port = next(ports)
+        return f'rtde = "127.0.0.1:{port}"\nrtde_dashboard_port = {dashboard_port}'
+
+    return re.sub(r'^rtde = "[^"]+"$', address, text, flags=re.M)

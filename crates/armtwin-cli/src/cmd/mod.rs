@@ -13,6 +13,7 @@ mod acl;
 mod calibrate;
 mod certs;
 mod config;
+mod doctor;
 mod fk;
 mod fmu;
 mod gateway;
@@ -63,6 +64,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Config(ConfigArgs {
             command: ConfigCommand::Show(args),
         }) => config::show(&args),
+        Command::Doctor(args) => doctor::run(&args),
     }
 }
 

@@ -4,7 +4,9 @@
 //! Owns the runtime and the shutdown signal's wiring; must not hold service logic.
 
 use anyhow::{Context, Result};
-use armtwin_service::config::{Overrides, ServiceConfig};
+use armtwin_gateway::{ControllerSettings, InService};
+use armtwin_mesh::beside::Beside;
+use armtwin_service::config::{Overrides, RtdeLink, ServiceConfig};
 use armtwin_service::service;
 
 use super::shutdown_signal;
@@ -30,9 +32,37 @@ pub(super) fn run(args: &ServeArgs) -> Result<()> {
         .enable_all()
         .build()
         .context("cannot start the async runtime")?;
+    let controllers = rtde_links(&config.rtde_links)?;
     runtime.block_on(async {
         let http = armtwin_dashboard::DashboardDoor::new(config.http_access.clone());
-        service::serve(config, Some(Box::new(http)), shutdown_signal()).await?;
+        service::serve(config, Some(Box::new(http)), controllers, shutdown_signal()).await?;
         Ok(())
     })
+}
+
+/// The controllers of `[robots."<id>"] rtde`, streamed by `armtwin gateway rtde`'s links on the
+/// service's session; none without any.
+fn rtde_links(links: &[RtdeLink]) -> Result<Option<Box<dyn Beside>>> {
+    if links.is_empty() {
+        return Ok(None);
+    }
+    let mut controllers = Vec::with_capacity(links.len());
+    for link in links {
+        let mut controller = ControllerSettings::at(&link.robot, &link.address)?;
+        if let Some(port) = link.dashboard_port {
+            controller.dashboard_port = port;
+        }
+        if let Some(frequency_hz) = link.frequency_hz {
+            controller.frequency_hz = frequency_hz;
+        }
+        controller.record.clone_from(&link.record);
+        tracing::info!(
+            robot = %controller.robot,
+            host = %controller.host,
+            port = controller.port,
+            "streaming the robot's controller over RTDE"
+        );
+        controllers.push(controller);
+    }
+    Ok(Some(Box::new(InService::new(controllers)?)))
 }

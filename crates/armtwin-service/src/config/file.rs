@@ -253,6 +253,12 @@ pub(super) struct RobotSection {
     pub(super) ros2_pose: Option<Ros2PoseSection>,
     /// The flight recorder's ring for this robot (`[recorder] enabled` when unset).
     pub(super) record: Option<bool>,
+    /// The robot's UR controller, `HOST[:PORT]`, which `serve` streams over RTDE itself.
+    pub(super) rtde: Option<String>,
+    pub(super) rtde_dashboard_port: Option<u16>,
+    pub(super) rtde_frequency_hz: Option<f64>,
+    /// Every data package to this CSV, as `armtwin gateway rtde --record` writes it.
+    pub(super) rtde_record: Option<PathBuf>,
 }
 
 #[derive(Debug, Deserialize)]

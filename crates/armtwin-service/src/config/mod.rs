@@ -32,8 +32,8 @@ use thiserror::Error;
 
 use self::file::{AlignSection, File, SelfCalibrationSection, ServiceSection};
 pub use self::recorder::RecorderConfig;
-pub use self::robots::ConfiguredTools;
-use self::robots::{SharedSettings, load_pose_outputs, load_robots};
+pub use self::robots::{ConfiguredTools, RtdeLink};
+use self::robots::{SharedSettings, load_pose_outputs, load_robots, load_rtde_links};
 pub use self::sources::{Ros2Source, SourceConfig, SourceRobot, SourceStream};
 use self::sources::{SourceContext, load_sources};
 use armtwin_core::align::AlignConfig;
@@ -250,6 +250,8 @@ pub struct ServiceConfig {
     pub recorder: RecorderConfig,
     /// `[opcua]` (or `--opcua`): the OPC UA server; `None`, none.
     pub opcua: Option<armtwin_opcua::OpcUaSettings>,
+    /// `[robots."<id>"] rtde`: the UR controllers `serve` streams itself, in robot id order.
+    pub rtde_links: Vec<RtdeLink>,
 }
 
 /// The text of the configuration at `path` (none when `None`: the embedded default alone), its
@@ -373,6 +375,7 @@ impl ServiceConfig {
             },
         )?;
         let ros2_pose = load_pose_outputs(&file.robots, source_name, &keys)?;
+        let rtde_links = load_rtde_links(&file.robots, (source_name, base_dir))?;
         let (shard, snapshots) = check_deployment(&service, &robots, (source_name, base_dir))?;
         let (http_listen, http_access) =
             http::load_http(&file.http, overrides.http_listen, (source_name, base_dir))?;
@@ -437,6 +440,7 @@ impl ServiceConfig {
             snapshots,
             http_listen,
             http_access,
+            rtde_links,
             recorder,
             opcua,
         })

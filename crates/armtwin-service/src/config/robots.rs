@@ -346,6 +346,71 @@ fn robot_settings(
     })
 }
 
+/// `[robots."<id>"] rtde`: a UR controller `serve` streams itself over RTDE, on its own session.
+/// What is not set here takes `armtwin gateway rtde`'s defaults.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RtdeLink {
+    /// The robot the controller's samples are published as.
+    pub robot: String,
+    /// `HOST`, `HOST:PORT` or `[IPv6]:PORT`, as written.
+    pub address: String,
+    /// `rtde_dashboard_port`: the controller's dashboard server, read for its model and serial.
+    pub dashboard_port: Option<u16>,
+    /// `rtde_frequency_hz`: the output frequency to ask for.
+    pub frequency_hz: Option<f64>,
+    /// `rtde_record`: a CSV of every data package, relative to the configuration's folder.
+    pub record: Option<PathBuf>,
+}
+
+/// The RTDE links of the robot sections, in robot id order; `[robots.default]` may set none of
+/// their keys (every robot would stream one controller).
+pub(super) fn load_rtde_links(
+    sections: &HashMap<String, RobotSection>,
+    (source_name, base_dir): (&str, &Path),
+) -> Result<Vec<RtdeLink>, ConfigError> {
+    if let Some(default) = sections.get("default") {
+        let keys = [
+            ("rtde", default.rtde.is_some()),
+            ("rtde_dashboard_port", default.rtde_dashboard_port.is_some()),
+            ("rtde_frequency_hz", default.rtde_frequency_hz.is_some()),
+            ("rtde_record", default.rtde_record.is_some()),
+        ];
+        if let Some((key, _)) = keys.iter().find(|(_, set)| *set) {
+            return Err(ConfigError::Invalid {
+                source_name: source_name.to_owned(),
+                field: format!("robots.default.{key}"),
+                problem: "a controller is one robot's: set it in that robot's section".to_owned(),
+            });
+        }
+    }
+    let mut links = Vec::new();
+    for (id, section) in sections {
+        let Some(address) = &section.rtde else {
+            let stray = section.rtde_dashboard_port.is_some()
+                || section.rtde_frequency_hz.is_some()
+                || section.rtde_record.is_some();
+            if stray && id != "default" {
+                return Err(ConfigError::Invalid {
+                    source_name: source_name.to_owned(),
+                    field: format!("robots.\"{id}\".rtde"),
+                    problem: "missing: the other rtde_ keys describe the link to that controller"
+                        .to_owned(),
+                });
+            }
+            continue;
+        };
+        links.push(RtdeLink {
+            robot: id.clone(),
+            address: address.clone(),
+            dashboard_port: section.rtde_dashboard_port,
+            frequency_hz: section.rtde_frequency_hz,
+            record: section.rtde_record.as_ref().map(|path| base_dir.join(path)),
+        });
+    }
+    links.sort_by(|a, b| a.robot.cmp(&b.robot));
+    Ok(links)
+}
+
 /// The twin pose outputs of `[robots.default]` and of every robot section.
 /// Each output's key is checked to stay out of armtwin's own keys (`keys`).
 pub(super) fn load_pose_outputs(

@@ -13,6 +13,7 @@
 use serde_json::Value;
 
 use crate::config::AdminAccess;
+use crate::exposure::{endpoints, is_local, json_at};
 
 /// Why the admin queries are refused on a session configured as `zenoh` (its effective Zenoh
 /// configuration), or `None` when they are answered.
@@ -47,49 +48,6 @@ pub(super) fn refusal(admin: AdminAccess, zenoh: &zenoh::Config) -> Option<Strin
             })
         }
     }
-}
-
-/// The JSON value at `path` of `zenoh`, if it has one.
-fn json_at(zenoh: &zenoh::Config, path: &str) -> Option<Value> {
-    zenoh
-        .get_json(path)
-        .ok()
-        .and_then(|text| serde_json::from_str(&text).ok())
-}
-
-/// Every endpoint an endpoint list names: a list, or a list per mode (all modes counted).
-fn endpoints(value: Option<Value>) -> Vec<String> {
-    let mut found = Vec::new();
-    let mut next: Vec<Value> = value.into_iter().collect();
-    while let Some(value) = next.pop() {
-        match value {
-            Value::String(endpoint) => found.push(endpoint),
-            Value::Array(items) => next.extend(items),
-            Value::Object(by_mode) => next.extend(by_mode.into_iter().map(|(_, v)| v)),
-            _ => {}
-        }
-    }
-    found
-}
-
-/// Whether `endpoint` (`proto/address[?config][#metadata]`) is reachable from this host alone.
-fn is_local(endpoint: &str) -> bool {
-    let locator = endpoint.split(['?', '#']).next().unwrap_or_default();
-    let Some((protocol, address)) = locator.split_once('/') else {
-        return false;
-    };
-    if protocol.starts_with("unixsock") || protocol == "unixpipe" {
-        return true;
-    }
-    // `host:port`, `[v6]:port`; the port's absence is the address's problem, not ours.
-    let host = match address.strip_prefix('[') {
-        Some(rest) => rest.split(']').next().unwrap_or_default(),
-        None => address.rsplit_once(':').map_or(address, |(host, _)| host),
-    };
-    host.eq_ignore_ascii_case("localhost")
-        || host
-            .parse::<std::net::IpAddr>()
-            .is_ok_and(|ip| ip.is_loopback())
 }
 
 #[cfg(test)]

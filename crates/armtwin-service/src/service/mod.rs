@@ -73,6 +73,7 @@ use self::sink::Sinks;
 use self::snapshot::restore_snapshot;
 use crate::config::{OutputShape, ServiceConfig};
 use crate::snapshot::SnapshotStore;
+use armtwin_mesh::beside::Beside;
 use armtwin_mesh::keys::Stream;
 use armtwin_mesh::{TEARDOWN_STEP, aggregate_publishers, bounded, close_session, zenoh_config_of};
 use armtwin_view::{HttpDoor, OpenHttpDoor};
@@ -98,10 +99,12 @@ async fn abandon(
 /// every twin (final metrics for every robot), close the session (which undeclares the robots'
 /// publishers and tokens at once). `http` serves
 /// `[http] listen` (the command line hands in the dashboard); a configuration that asks for it
-/// without one is refused.
+/// without one is refused. `beside` runs on the session from the first input to the shutdown's
+/// start (the command line hands in the RTDE links of `[robots."<id>"] rtde`).
 pub async fn serve(
     config: ServiceConfig,
     http: Option<Box<dyn HttpDoor>>,
+    beside: Option<Box<dyn Beside>>,
     shutdown: impl Future<Output = ()>,
 ) -> Result<ServeReport, ServiceError> {
     // Bound first: an address in use fails the start before anything joins the mesh.
@@ -112,17 +115,7 @@ pub async fn serve(
     };
     let mut zenoh_config = zenoh_config_of(&config.zenoh)?;
     let keys = &config.keys;
-    // The outputs with a publisher per streaming robot: at the sample rate, and the metrics.
-    let sample_rate_streams: &[Stream] = match config.outputs {
-        OutputShape::Separate => &[Stream::Pose, Stream::Deviation],
-        OutputShape::Paired => &[Stream::Paired],
-    };
-    let aggregated: Vec<String> = sample_rate_streams
-        .iter()
-        .chain(&[Stream::Metrics])
-        .map(|&stream| keys.every_robot(stream))
-        .collect();
-    aggregate_publishers(&mut zenoh_config, &aggregated)?;
+    aggregate_outputs(&config, &mut zenoh_config)?;
     let admin_refusal = admin::refusal(config.admin, &zenoh_config);
     let session = zenoh::open(zenoh_config).await?;
     // A list the `[zenoh] file` sets itself is the file's, which `listen`/`connect` do not hold.
@@ -179,9 +172,13 @@ pub async fn serve(
     };
 
     let opcua = opcua.and_then(|bound| start_opcua(bound, &fleet));
+    let beside = beside.map(|beside| beside.start(session.clone(), keys.clone()));
 
     shutdown.await;
     close_doors(dashboard, gateway_watch, opcua).await;
+    if let Some(beside) = beside {
+        beside.stop().await;
+    }
     info!("shutting down: stopping intake");
     intake.undeclare().await;
     // Samples that arrive after this are ignored: the control thread finishes the pipeline.
@@ -215,6 +212,25 @@ pub async fn serve(
         "armtwin stopped"
     );
     Ok(report)
+}
+
+/// Declares the outputs with a publisher per streaming robot (at the sample rate, and the
+/// metrics) as one publisher each on the mesh.
+fn aggregate_outputs(
+    config: &ServiceConfig,
+    zenoh_config: &mut zenoh::Config,
+) -> Result<(), ServiceError> {
+    let sample_rate_streams: &[Stream] = match config.outputs {
+        OutputShape::Separate => &[Stream::Pose, Stream::Deviation],
+        OutputShape::Paired => &[Stream::Paired],
+    };
+    let aggregated: Vec<String> = sample_rate_streams
+        .iter()
+        .chain(&[Stream::Metrics])
+        .map(|&stream| config.keys.every_robot(stream))
+        .collect();
+    aggregate_publishers(zenoh_config, &aggregated)?;
+    Ok(())
 }
 
 /// Starts the dashboard on `listener`, with the subscribers of the gateways' tokens it reads

@@ -153,9 +153,14 @@ impl Service {
         let config = config_for(&endpoint);
         let (shutdown_tx, shutdown_rx) = tokio::sync::oneshot::channel::<()>();
         let http = dashboard_door(&config);
-        let server = tokio::spawn(armtwin_service::service::serve(config, Some(http), async {
-            let _ = shutdown_rx.await;
-        }));
+        let server = tokio::spawn(armtwin_service::service::serve(
+            config,
+            Some(http),
+            None,
+            async {
+                let _ = shutdown_rx.await;
+            },
+        ));
         let deadline = tokio::time::Instant::now() + RECEIVE_LIMIT;
         while tokio::net::TcpStream::connect(("127.0.0.1", port))
             .await

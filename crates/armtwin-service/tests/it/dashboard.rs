@@ -162,7 +162,7 @@ async fn an_address_in_use_fails_the_start() {
     let http = dashboard_door(&config);
     let outcome = tokio::time::timeout(
         TEST_LIMIT,
-        armtwin_service::service::serve(config, Some(http), std::future::pending()),
+        armtwin_service::service::serve(config, Some(http), None, std::future::pending()),
     )
     .await
     .expect("fails at once");

@@ -1,0 +1,138 @@
+"""``armtwin doctor`` finds each fault planted in a configuration, and passes docs/ur-rtde.md's
+plant.toml against three stand-in controllers: a controller's port closed, a controller whose
+dashboard server says another model, a robot without its calibration, a recorder folder that
+cannot be written, and a Zenoh listener open to the network without access control. One line per
+check, ``OK``, ``WARN`` or ``FAIL``; exit 1 on a failure.
+
+The stand-ins (rtde_server.py) answer the dashboard server's commands as a UR controller's does
+(checked by ur-rtde's ``DashboardClient`` in test_rtde_controller.py). Nothing is bound beyond
+loopback: doctor reads the listener's address from the configuration, it does not open it.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from support import rtde_recording
+from support.paths import DATA_DIR, REPO_ROOT
+from support.process import free_port, run_armtwin
+from support.rtde_processes import StandIn, doc_plant
+
+CALIBRATION = REPO_ROOT / "config" / "examples" / "calibration.conf"
+
+
+@pytest.fixture
+def recording(tmp_path):
+    rows = rtde_recording.rtde_rows(DATA_DIR / "ur10e_lasttest.csv", limit=200)
+    return rtde_recording.write(rows, tmp_path / "rows.csv")
+
+
+@pytest.fixture
+def stand_ins(tmp_path, recording):
+    started = []
+
+    def start(model: str = "UR10") -> StandIn:
+        stand_in = StandIn(recording, "--dashboard-port", 0, "--model", model, workdir=tmp_path)
+        started.append(stand_in)
+        return stand_in
+
+    yield start
+    for stand_in in started:
+        stand_in.stop()
+
+
+def doctor(tmp_path, config_text: str):
+    config = tmp_path / "plant.toml"
+    config.write_text(config_text)
+    result = run_armtwin("doctor", "-c", config)
+    lines = result.stdout.splitlines()
+    return result.returncode, lines, result
+
+
+def line_of(lines: list[str], check: str) -> list[str]:
+    return [line for line in lines if line.split(" ", 1)[1].lstrip().startswith(check + ":")]
+
+
+def test_the_guides_plant_passes(tmp_path, stand_ins):
+    robots = ["cell-1/ur10e", "cell-2/ur10e", "cell-3/ur10e"]
+    started = {robot: stand_ins() for robot in robots}
+    plant = doc_plant({robot: (s.ports[0], s.dashboard_ports[0]) for robot, s in started.items()})
+    code, lines, result = doctor(tmp_path, plant)
+    assert code == 0, result.stdout + result.stderr
+    for robot in robots:
+        [controller_ok] = [line for line in line_of(lines, f"controller of {robot}") if "dashboard" in line]
+        assert controller_ok.startswith("OK ") and "a ur10e, as configured" in controller_ok, controller_ok
+        [port_ok] = [line for line in line_of(lines, f"controller of {robot}") if "RTDE port" in line]
+        assert port_ok.startswith("OK ") and "accepts" in port_ok, port_ok
+        # No calibration in the guide's file: said, not failed.
+        [robot_line] = line_of(lines, f"robot {robot}")
+        assert robot_line.startswith("WARN") and "without a calibration" in robot_line, robot_line
+        assert line_of(lines, f"robot {robot} tool") == [f"OK   robot {robot} tool: its controller's (RTDE tcp_offset)"]
+    assert not [line for line in lines if line.startswith("FAIL")], result.stdout
+    [listen] = [line for line in lines if "zenoh listen" in line]
+    assert listen.startswith("OK ") and "this host only" in listen, listen
+
+
+def test_each_planted_fault_is_found(tmp_path, stand_ins):
+    healthy, other_model = stand_ins("UR10"), stand_ins("UR5")
+    closed_port, closed_dashboard = free_port(), free_port()
+    not_a_folder = tmp_path / "a-file"
+    not_a_folder.write_text("")
+    config = f"""\
+[zenoh]
+listen = ["tcp/0.0.0.0:{free_port()}"]
+
+[recorder]
+dir = "{not_a_folder}/recordings"
+
+[robots.default]
+model = "ur10e"
+
+[robots."cell-1/ur10e"]
+calibration = "{CALIBRATION}"
+rtde = "127.0.0.1:{healthy.ports[0]}"
+rtde_dashboard_port = {healthy.dashboard_ports[0]}
+
+[robots."cell-2/ur10e"]
+rtde = "127.0.0.1:{other_model.ports[0]}"
+rtde_dashboard_port = {other_model.dashboard_ports[0]}
+
+[robots."cell-3/ur10e"]
+tcp = [0.0, 0.0, 0.1, 0.0, 0.0, 0.0]
+rtde = "127.0.0.1:{closed_port}"
+rtde_dashboard_port = {closed_dashboard}
+"""
+    code, lines, result = doctor(tmp_path, config)
+    assert code == 1, result.stdout + result.stderr
+    failed = [line for line in lines if line.startswith("FAIL")]
+
+    # The healthy arm: calibrated, reachable, the model it says.
+    assert line_of(lines, "robot cell-1/ur10e") == ["OK   robot cell-1/ur10e: ur10e with its calibration"]
+    assert all(line.startswith("OK ") for line in line_of(lines, "controller of cell-1/ur10e")), lines
+    # A controller that is another arm, in its own words.
+    [mismatch] = [line for line in failed if line.startswith("FAIL controller of cell-2/ur10e")]
+    assert "'UR5'" in mismatch and "a ur5e, the configuration says ur10e" in mismatch, mismatch
+    # A missing calibration, said for the robots without one.
+    assert line_of(lines, "robot cell-2/ur10e")[0].startswith("WARN"), lines
+    # A closed port: RTDE's and the dashboard server's.
+    closed = [line for line in failed if line.startswith("FAIL controller of cell-3/ur10e")]
+    assert any(f"RTDE port 127.0.0.1:{closed_port}" in line for line in closed), closed
+    assert any("dashboard server" in line for line in closed), closed
+    assert line_of(lines, "robot cell-3/ur10e tool") == ["OK   robot cell-3/ur10e tool: the configuration's tcp"]
+    # A recorder folder that cannot be made.
+    [recorder] = line_of(lines, "recorder")
+    assert recorder.startswith("FAIL") and "cannot be written" in recorder, recorder
+    # A door open to the network.
+    [listen] = [line for line in lines if "zenoh listen tcp/0.0.0.0" in line]
+    assert listen.startswith("FAIL") and "anyone on the network" in listen, listen
+    assert lines[-1] == f"{len(failed)} failed, {sum(line.startswith('WARN') for line in lines)} to look at", lines
+
+
+def test_a_configuration_that_does_not_load_fails_alone(tmp_path):
+    code, lines, result = doctor(tmp_path, '[robots."cell-1/ur10e"]\nrtde = "10.0.0.5:0"\n')
+    # The address is checked where the controller is: doctor says it, the rest goes on.
+    assert code == 1, result.stdout
+    assert any(line.startswith("FAIL controller of cell-1/ur10e") and "not a controller's address" in line
+               for line in lines), lines
+    code, lines, result = doctor(tmp_path, "[service]\nno_such_key = 1\n")
+    assert code == 1 and lines[0].startswith("FAIL configuration:"), result.stdout

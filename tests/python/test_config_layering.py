@@ -2,7 +2,8 @@
 serves where the built-in configuration says (tcp/127.0.0.1:7447) and a client there gets the
 robot's poses; a `[zenoh] file` keeps its own mode and endpoints, and a client listens nowhere it
 is not told to; `armtwin config show` prints the effective configuration, every default filled in,
-and where the mode and endpoints came from; `serve` warns when nothing can reach it."""
+and where the mode and endpoints came from; `serve` warns when nothing can reach it; a built-in
+relative path is taken from the folder of the file given, or the working directory without one."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from support.paths import REPO_ROOT
-from support.process import Process, Router, free_port, port_accepts, run_armtwin
+from support.process import Process, Router, free_port, port_accepts, run_armtwin, wait_until
 from support.zenoh_clients import TwinClient
 
 DEFAULT_PORT = 7447
@@ -175,3 +176,31 @@ def test_a_client_by_flag_alone_listens_nowhere(tmp_path, armtwin_bin, router_bi
     processes.append(told.start())
     told.wait_port(port, f"listen on 127.0.0.1:{port}, as -l says")
     assert listening_ports(told.proc.pid) == [port]
+
+
+def test_a_built_in_path_is_taken_from_the_folder_of_the_file_given(tmp_path, armtwin_bin, processes):
+    # The built-in [recorder] dir, "recordings", is a path like any other of the effective
+    # configuration: beside the file given with -c, and in the working directory without one
+    # (docs/configuration.md), never beside the built-in file's own place in the checkout.
+    site, run = tmp_path / "site", tmp_path / "run"
+    site.mkdir()
+    run.mkdir()
+    (site / "armtwin.toml").write_text(ROBOTS_ONLY)
+    for name, file_args, folder in (("with-file", ["-c", site / "armtwin.toml"], site), ("built-in", [], run)):
+        port = free_port()
+        serve = Process(f"armtwin-{name}", [armtwin_bin, "serve", *file_args, "-l", f"tcp/127.0.0.1:{port}"], run)
+        processes.append(serve.start())
+        serve.wait_port(port, f"listen on 127.0.0.1:{port}")
+        client = TwinClient(f"tcp/127.0.0.1:{port}", subscribe=False)
+        try:
+            client.ready(["r1"])
+            joints = client.joints("r1")
+            for seq in range(200):
+                client.put_json(joints, {"t": 1.0 + seq * 0.01, "q": Q, "seq": seq})
+            [reply] = client.get("twin/admin/record/r1?pre_s=1;post_s=0")
+            path = run / json.loads(reply.ok.payload.to_string())["path"]
+            assert path.parent == folder / "recordings" / "r1", (path, serve.logs())
+            assert wait_until(path.exists, 20.0), (path, serve.logs())
+        finally:
+            client.close()
+        serve.stop()

@@ -1,6 +1,7 @@
 """The guides say each thing once, and their links land: a prose paragraph shared by two places
 of README.md and docs/**/*.md fails (both places named, so one can link to the other), and so
-does a relative link to a file or heading that does not exist. The Markdown reader is
+does a relative link to a file or heading that does not exist; docs/configuration.md's table of
+sections names every section of config/armtwin.toml. The Markdown reader is
 support/doc_commands.py's."""
 
 from __future__ import annotations
@@ -128,3 +129,26 @@ def test_every_relative_link_of_the_markdown_finds_its_file_and_heading():
             elif anchor and linked.suffix == ".md" and anchor not in anchors(linked):
                 broken.append(f"{document.relative_to(REPO_ROOT)}: {target} (no such heading)")
     assert not broken, "\n".join(broken)
+
+
+def top_level_sections(headers: list[str]) -> set[str]:
+    """The first key of each TOML table header (`[robots."a/b".sensors]` → `robots`)."""
+    return {re.split(r'[.\s]', header.strip().strip('[]').strip(), maxsplit=1)[0] for header in headers}
+
+
+def test_the_configuration_guide_has_a_row_for_every_section_of_the_built_in_configuration():
+    # config/armtwin.toml shows every key the parser reads, commented out where it has no default
+    # (the Rust test config::documented_keys holds that); docs/configuration.md's table of sections
+    # must name each of its sections. A header is a line of its own, commented or not, a comment
+    # after it allowed; prose that starts with a header's name is not one.
+    built_in = (REPO_ROOT / "config" / "armtwin.toml").read_text().splitlines()
+    headers = [m.group(1) for line in built_in
+               if (m := re.match(r"^#?\s*(\[\[?[^\]]+\]\]?)\s*(#.*)?$", line))]
+    sections = top_level_sections(headers)
+    assert {"zenoh", "robots", "sources", "opcua"} <= sections, sections
+    guide = (REPO_ROOT / "docs" / "configuration.md").read_text()
+    table = guide.split("## Sections", 1)[1]
+    rows = [line.split("|")[1] for line in table.splitlines() if line.startswith("| `[")]
+    named = top_level_sections(re.findall(r"`(\[\[?[^`]+\]\]?)`", "".join(rows)))
+    assert named == sections, (f"docs/configuration.md's sections table leaves out {sorted(sections - named)} "
+                               f"and names {sorted(named - sections)}, which config/armtwin.toml has not")

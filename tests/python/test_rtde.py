@@ -4,10 +4,13 @@ checked by an independent RTDE client (ur-rtde).
 No real controller or URSim runs here. The stand-in serves rows of the project's real UR10e
 recording (tests/data/ur10e_lasttest.csv, converted by rtde_recording.py) faster than real time;
 every process binds loopback only, ports are picked free, scouting is off, every wait is bounded.
+A real UR3e's RTDE recording (tests/data/ur3e_rad_program.csv) served the same way shows what the
+effort monitor watches collisions on, and with which thresholds, for a robot the gateway feeds.
 """
 
 from __future__ import annotations
 
+import csv
 import json
 import random
 import shutil
@@ -338,3 +341,86 @@ def test_a_controller_that_comes_up_late_is_streamed_once_it_does(
         gateway.stop()
         if stand_in is not None:
             stand_in.stop()
+
+
+# ----------------------------------------------------------------------------------------------
+# effort on a real UR3e's currents
+# ----------------------------------------------------------------------------------------------
+
+# 35.5 s of a real UR3e over RTDE at 25 Hz, target_current among its columns (tests/data/README.md).
+UR3E_RECORDING = DATA_DIR / "ur3e_rad_program.csv"
+# 10 % of each UR3e joint's largest torque (N·m): the rated-torque share of docs/load-twin.md.
+UR3E_RATED_SHARE_NM = [5.4, 5.4, 2.8, 0.9, 0.9, 0.9]
+FIXED_NM = [20.0, 20.0, 10.0, 3.0, 3.0, 3.0]
+EFFORT_CONFIG = """\
+[service]
+metrics_period_ms = 50
+pose_congestion = "block"
+{effort}
+[robots.default]
+model = "ur3e"
+effort = true
+
+[robots."cell-1/ur3e-fixed"]
+collision_threshold_nm = {fixed}
+"""
+
+
+def ur3e_rtde_recording(tmp_path: Path) -> tuple[Path, int]:
+    """The UR3e recording as a controller serves it (its ``wall_clock`` column is the recording
+    host's, no RTDE variable), and its number of rows."""
+    with open(UR3E_RECORDING, newline="") as handle:
+        rows = list(csv.reader(handle))
+    kept = [index for index, name in enumerate(rows[0]) if name != "wall_clock"]
+    path = tmp_path / "ur3e.csv"
+    with open(path, "w", newline="") as handle:
+        csv.writer(handle).writerows([[row[index] for index in kept] for row in rows])
+    return path, len(rows) - 1
+
+
+@pytest.mark.parametrize("threshold_learning_s", [None, 0.0], ids=["built-in", "unlearnt"])
+def test_a_ur3e_through_the_gateway_has_collisions_watched_on_its_target_current(
+    armtwin_bin, tmp_path, threshold_learning_s
+):
+    # What docs/ur-rtde.md and docs/load-twin.md say a robot fed by the gateway gets: collisions
+    # on measured less target current, thresholds learnt unless the robot fixes its own (twice the
+    # rated share meanwhile: 35.5 s is shorter than the built-in 60 s of learning), the rated
+    # share itself with threshold_learning_s = 0.
+    effort = "" if threshold_learning_s is None else f"[effort]\nthreshold_learning_s = {threshold_learning_s}\n"
+    config = EFFORT_CONFIG.format(effort=effort, fixed=FIXED_NM)
+    path, n = ur3e_rtde_recording(tmp_path)
+    robots = ["cell-1/ur3e", "cell-1/ur3e-fixed"]
+    readouts = {robot: 0 for robot in robots}
+
+    def count(sample):
+        robot = str(sample.key_expr).removeprefix("twin/effort/")
+        readouts[robot] = readouts.get(robot, 0) + 1
+
+    stand_ins, gateways = [], []
+    with serving(armtwin_bin, tmp_path, config) as service:
+        subscriber = service.session.declare_subscriber("twin/effort/**", count)
+        try:
+            for robot in robots:
+                stand_ins.append(StandIn(path, "--fast", workdir=tmp_path))
+                gateways.append(Gateway(armtwin_bin, tmp_path, service.endpoint, "--host", "127.0.0.1",
+                                        "--port", stand_ins[-1].ports[0], "--robot", robot))
+            assert wait_until(lambda: all(readouts[robot] >= n for robot in robots), STREAM_TIMEOUT_S), (
+                readouts, gateways[0].logs()[-3000:])
+            collision = {robot: state(service, robot)["effort"]["collision"] for robot in robots}
+        finally:
+            subscriber.undeclare()
+            codes = [gateway.stop().code for gateway in gateways]
+            for stand_in in stand_ins:
+                stand_in.stop()
+    assert codes == [0] * len(codes), codes
+    assert readouts == {robot: n for robot in robots}, readouts
+    learnt, fixed = collision["cell-1/ur3e"], collision["cell-1/ur3e-fixed"]
+    assert learnt["detection"] == fixed["detection"] == "target_current", collision
+    if threshold_learning_s is None:
+        assert learnt["threshold_source"] == "learning", learnt
+        assert learnt["threshold_nm"] == pytest.approx([2 * nm for nm in UR3E_RATED_SHARE_NM], rel=1e-12)
+    else:
+        assert learnt["threshold_source"] == "rated", learnt
+        assert learnt["threshold_nm"] == pytest.approx(UR3E_RATED_SHARE_NM, rel=1e-12)
+    assert fixed["threshold_source"] == "configured", fixed
+    assert fixed["threshold_nm"] == FIXED_NM, fixed

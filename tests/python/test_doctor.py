@@ -11,6 +11,8 @@ loopback: doctor reads the listener's address from the configuration, it does no
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from support import rtde_recording
@@ -62,8 +64,11 @@ def test_the_guides_plant_passes(tmp_path, stand_ins):
     for robot in robots:
         [controller_ok] = [line for line in line_of(lines, f"controller of {robot}") if "dashboard" in line]
         assert controller_ok.startswith("OK ") and "a ur10e, as configured" in controller_ok, controller_ok
-        [port_ok] = [line for line in line_of(lines, f"controller of {robot}") if "RTDE port" in line]
-        assert port_ok.startswith("OK ") and "accepts" in port_ok, port_ok
+        [port_ok] = [line for line in line_of(lines, f"controller of {robot}") if "RTDE at" in line]
+        assert port_ok.startswith("OK ") and "streams (controller software 5.21.0.9, protocol 2)" in port_ok, port_ok
+        # The nominal twin against the controller's own pose: measured, in mm.
+        [twin] = line_of(lines, f"twin of {robot}")
+        assert re.search(r"\d+\.\d\d mm from the controller's own TCP pose", twin), twin
         # No calibration in the guide's file: said, not failed.
         [robot_line] = line_of(lines, f"robot {robot}")
         assert robot_line.startswith("WARN") and "without a calibration" in robot_line, robot_line
@@ -106,9 +111,17 @@ rtde_dashboard_port = {closed_dashboard}
     assert code == 1, result.stdout + result.stderr
     failed = [line for line in lines if line.startswith("FAIL")]
 
-    # The healthy arm: calibrated, reachable, the model it says.
+    # A reachable arm, the model it says, with a calibration...
     assert line_of(lines, "robot cell-1/ur10e") == ["OK   robot cell-1/ur10e: ur10e with its calibration"]
-    assert all(line.startswith("OK ") for line in line_of(lines, "controller of cell-1/ur10e")), lines
+    cell_1 = line_of(lines, "controller of cell-1/ur10e")
+    assert [line for line in cell_1 if line.startswith("OK ")] == [
+        line for line in cell_1 if "RTDE at" in line or "dashboard server" in line], "\n".join(lines)
+    # ... that is not this arm's (the synthetic example file): the twin measured
+    # against the controller's own pose says so; the recorded arm's nominal model does not.
+    [wrong] = line_of(lines, "twin of cell-1/ur10e")
+    assert wrong.startswith("WARN") and "above the 5.0-mm alarm" in wrong, wrong
+    [nominal] = line_of(lines, "twin of cell-2/ur10e")
+    assert nominal.startswith("OK ") and "(alarm at 5.0 mm)" in nominal, nominal
     # A controller that is another arm, in its own words.
     [mismatch] = [line for line in failed if line.startswith("FAIL controller of cell-2/ur10e")]
     assert "'UR5'" in mismatch and "a ur5e, the configuration says ur10e" in mismatch, mismatch
@@ -116,7 +129,7 @@ rtde_dashboard_port = {closed_dashboard}
     assert line_of(lines, "robot cell-2/ur10e")[0].startswith("WARN"), lines
     # A closed port: RTDE's and the dashboard server's.
     closed = [line for line in failed if line.startswith("FAIL controller of cell-3/ur10e")]
-    assert any(f"RTDE port 127.0.0.1:{closed_port}" in line for line in closed), closed
+    assert any(f"RTDE at 127.0.0.1:{closed_port}: cannot connect" in line for line in closed), closed
     assert any("dashboard server" in line for line in closed), closed
     assert line_of(lines, "robot cell-3/ur10e tool") == ["OK   robot cell-3/ur10e tool: the configuration's tcp"]
     # A recorder folder that cannot be made.

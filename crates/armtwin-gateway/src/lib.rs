@@ -19,6 +19,8 @@ pub mod clock;
 pub mod dashboard;
 mod link;
 
+pub use link::{LinkError, probe};
+
 use std::collections::HashSet;
 use std::future::Future;
 use std::path::PathBuf;

@@ -51,19 +51,25 @@ const ANSWER_TIMEOUT: Duration = Duration::from_secs(2);
 /// How long a streaming controller may stay silent: it sends at 125 or 500 Hz.
 const SILENCE_TIMEOUT: Duration = Duration::from_secs(1);
 
-/// Why a link ended.
+/// Why a link ended, or a probe failed.
 #[derive(Debug, Error)]
-enum LinkError {
+pub enum LinkError {
+    /// The controller's port refused or failed the connection.
     #[error("cannot connect: {0}")]
     Connect(std::io::Error),
+    /// No answer (or data package) within the time the exchange allows.
     #[error("no answer within {0:?}")]
     Silent(Duration),
+    /// The controller closed the connection.
     #[error("the controller closed the link")]
     Closed,
+    /// The connection failed.
     #[error("link: {0}")]
     Io(#[from] std::io::Error),
+    /// What the controller sent is not RTDE as armtwin speaks it.
     #[error("RTDE: {0}")]
     Protocol(#[from] RtdeError),
+    /// Publishing failed.
     #[error("zenoh: {0}")]
     Zenoh(zenoh::Error),
 }
@@ -94,6 +100,44 @@ struct Recorder {
     file: std::io::BufWriter<std::fs::File>,
     recipe: Option<armtwin_codec::rtde::Recipe>,
     line: String,
+}
+
+/// Connects to the controller at `host:port`, runs RTDE's exchange up to its first data package
+/// and leaves, streaming nothing (`armtwin doctor`): what the controller says of itself, and the
+/// package.
+pub async fn probe(host: &str, port: u16) -> Result<(Started, RtdeSample), LinkError> {
+    let mut socket = match timeout(CONNECT_TIMEOUT, TcpStream::connect((host, port))).await {
+        Ok(Ok(socket)) => socket,
+        Ok(Err(error)) => return Err(LinkError::Connect(error)),
+        Err(_) => return Err(LinkError::Silent(CONNECT_TIMEOUT)),
+    };
+    let (mut handshake, first) = Handshake::new(super::DEFAULT_FREQUENCY_HZ)?;
+    socket.write_all(&first).await?;
+    let mut splitter = FrameSplitter::new();
+    let mut buffer = vec![0_u8; 16 * 1024];
+    let mut started = None;
+    loop {
+        let read = match timeout(ANSWER_TIMEOUT, socket.read(&mut buffer)).await {
+            Ok(read) => read?,
+            Err(_) => return Err(LinkError::Silent(ANSWER_TIMEOUT)),
+        };
+        if read == 0 {
+            return Err(LinkError::Closed);
+        }
+        splitter.extend(&buffer[..read])?;
+        while let Some(frame) = splitter.next_frame()? {
+            match handshake.on_frame(frame)? {
+                Progress::Send(bytes) => socket.write_all(&bytes).await?,
+                Progress::Started(now) => started = Some(now),
+                Progress::Sample(sample) => {
+                    if let Some(started) = started.take() {
+                        return Ok((started, sample));
+                    }
+                }
+                Progress::Text(_) => {}
+            }
+        }
+    }
 }
 
 /// Runs one controller's link until `shutdown` says stop.

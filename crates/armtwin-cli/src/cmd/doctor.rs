@@ -10,18 +10,16 @@
 
 use std::fmt::Write as _;
 use std::path::Path;
-use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
+use armtwin_codec::rtde::RtdeSample;
+use armtwin_core::kinematics::{OutputFrame, TcpOffset};
 use armtwin_gateway::{ControllerSettings, dashboard};
 use armtwin_mesh::controller::ControllerFacts;
 use armtwin_service::config::{Overrides, RtdeLink, ServiceConfig};
 use armtwin_service::exposure::{self, Verdict};
 
 use crate::flags::DoctorArgs;
-
-/// How long a controller's port may take to accept.
-const CONNECT_TIMEOUT: Duration = Duration::from_secs(2);
 
 /// The lines so far, and how many failed.
 #[derive(Default)]
@@ -139,22 +137,34 @@ async fn check_controller(config: &ServiceConfig, link: &RtdeLink, report: &mut 
         }
     };
     let (host, port) = (controller.host.as_str(), controller.port);
-    match tokio::time::timeout(CONNECT_TIMEOUT, tokio::net::TcpStream::connect((host, port))).await
-    {
-        Ok(Ok(_)) => report.line(
-            Verdict::Ok,
-            &check,
-            &format!("RTDE port {host}:{port} accepts"),
-        ),
-        Ok(Err(e)) => report.line(
+    match armtwin_gateway::probe(host, port).await {
+        Ok((started, sample)) => {
+            let version = started.controller;
+            report.line(
+                Verdict::Ok,
+                &check,
+                &format!(
+                    "RTDE at {host}:{port} streams (controller software {}.{}.{}.{}, protocol {})",
+                    version.major,
+                    version.minor,
+                    version.bugfix,
+                    version.build,
+                    started.version.number()
+                ),
+            );
+            if !started.dropped.is_empty() {
+                report.line(
+                    Verdict::Warn,
+                    &check,
+                    &format!("the controller lacks {}: streamed without them", started.dropped.join(", ")),
+                );
+            }
+            compare_with_controller(config, &link.robot, &sample, report);
+        }
+        Err(e) => report.line(
             Verdict::Fail,
             &check,
-            &format!("RTDE port {host}:{port}: {e} (is RTDE on, and the port open in every firewall between?)"),
-        ),
-        Err(_) => report.line(
-            Verdict::Fail,
-            &check,
-            &format!("RTDE port {host}:{port}: no answer within {CONNECT_TIMEOUT:?}"),
+            &format!("RTDE at {host}:{port}: {e} (is RTDE on, and port {port} open in every firewall between?)"),
         ),
     }
     let dashboard_port = controller.dashboard_port;
@@ -201,6 +211,79 @@ async fn check_controller(config: &ServiceConfig, link: &RtdeLink, report: &mut 
             &check,
             &format!("dashboard server at {host}:{dashboard_port} says {says}: the model is not checked against {configured}"),
         ),
+    }
+}
+
+/// The twin of `robot` against the controller's own TCP pose at the joints of its first data
+/// package: the error a missing calibration or a wrong tool makes, measured, against the alarm.
+fn compare_with_controller(
+    config: &ServiceConfig,
+    robot: &str,
+    sample: &RtdeSample,
+    report: &mut Report,
+) {
+    let check = format!("twin of {robot}");
+    let settings = &config.robots[robot];
+    let Some(measured) = sample.actual_tcp_pose else {
+        report.line(
+            Verdict::Warn,
+            &check,
+            "the controller sends no actual_TCP_pose: not compared",
+        );
+        return;
+    };
+    if settings.model.frame() != OutputFrame::Base {
+        report.line(
+            Verdict::Ok,
+            &check,
+            "frame base_link: not compared with RTDE's base-frame pose",
+        );
+        return;
+    }
+    // The tool the twin will use: the configuration's, else the controller's.
+    let controller_tool = sample.tcp_offset.and_then(TcpOffset::from_ur_pose);
+    let model = match controller_tool {
+        Some(tool) if !config.configured_tools.sets(robot) => settings.model.with_tool(tool),
+        _ => Ok((*settings.model).clone()),
+    };
+    let pose = match model
+        .map_err(|e| e.to_string())
+        .and_then(|model| model.pose(&sample.actual_q_rad).map_err(|e| e.to_string()))
+    {
+        Ok(pose) => pose,
+        Err(e) => {
+            report.line(
+                Verdict::Fail,
+                &check,
+                &format!("the twin cannot be computed: {e}"),
+            );
+            return;
+        }
+    };
+    let error_m = (0..3)
+        .map(|axis| (pose.position_m[axis] - measured[axis]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    let alarm_m = settings.alarm.position_m;
+    let figure = format!(
+        "{:.2} mm from the controller's own TCP pose at its current joints",
+        error_m * 1e3
+    );
+    match alarm_m {
+        Some(alarm_m) if error_m > alarm_m => report.line(
+            Verdict::Warn,
+            &check,
+            &format!(
+                "{figure}, above the {:.1}-mm alarm: the position alarm would stay on (a calibration or the tool missing?)",
+                alarm_m * 1e3
+            ),
+        ),
+        Some(alarm_m) => report.line(
+            Verdict::Ok,
+            &check,
+            &format!("{figure} (alarm at {:.1} mm)", alarm_m * 1e3),
+        ),
+        None => report.line(Verdict::Ok, &check, &figure),
     }
 }
 

@@ -92,14 +92,19 @@ class Recorder:
         self.events.append(event)
 
 
-def stream(client: TwinClient, done: threading.Event) -> list[float]:
-    """Sends PHASES of the recording to ROBOT; returns the last joints sent (rad)."""
+def stream(client: TwinClient, done: threading.Event, go: threading.Event) -> list[float]:
+    """Sends PHASES of the recording to ROBOT, the later ones once ``go`` is set (the client has
+    browsed the robot and subscribed, however long a loaded machine makes that); returns the
+    last joints sent (rad)."""
     rows = lasttest_rows()
     publisher = client.joints(ROBOT)
     period_s = 1.0 / RATE_HZ
     next_at = time.monotonic()
     last = []
-    for start, end, offset_m in PHASES:
+    for phase, (start, end, offset_m) in enumerate(PHASES):
+        if phase == 1:
+            go.wait(TIMEOUT_S)
+            next_at = time.monotonic()
         for index in range(start, end):
             q, measured = rows[index]
             pose = list(measured)
@@ -189,9 +194,9 @@ async def scenario(workdir: Path, service: ArmtwinProcess, url: str) -> None:
         twin = TwinClient(service.endpoint)
         try:
             twin.ready([ROBOT])
-            done = threading.Event()
+            done, go = threading.Event(), threading.Event()
             sent: list[list[float]] = []
-            sender = threading.Thread(target=lambda: sent.append(stream(twin, done)), daemon=True)
+            sender = threading.Thread(target=lambda: sent.append(stream(twin, done, go)), daemon=True)
             sender.start()
 
             # The robot appears under DeviceSet once first twinned, as a MotionDeviceSystem.
@@ -217,6 +222,7 @@ async def scenario(workdir: Path, service: ArmtwinProcess, url: str) -> None:
 
             # Changes at the sampling interval while the robot streams.
             await subscription.subscribe_data_change([source_time, positions[0]])
+            go.set()
             await asyncio.sleep(1.5)
             assert not done.is_set(), "the recording ended before the changes were counted"
             times = [at for at, node, _ in recorder.changes if node == source_time]

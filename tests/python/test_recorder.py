@@ -290,3 +290,36 @@ def test_a_robot_that_sets_incidents_off_without_pause_takes_only_its_own_share(
     assert r2_files == sorted(r2_paths), (r2_files, r2_paths)
     print(f"\n[fair recorder] {sent} flooding samples, {len(gaps)} gap events, {r1_incidents} incidents of r1 "
           f"({len(r1_files)} kept), r2's 2 files kept")
+
+
+def test_an_operator_asks_for_an_incident_from_the_command_line(armtwin_bin, tmp_path):
+    """`armtwin record --incident ROBOT` asks the twin as an operator's query does: it prints the
+    twin's reply, whose file then appears; a robot the twin does not have is its refusal, in its
+    words, and a non-zero exit."""
+    recordings = tmp_path / "recordings"
+    proc = ArmtwinProcess(armtwin_bin, tmp_path, config(recordings), 120.0)
+    proc.start()
+    client = TwinClient(proc.endpoint, subscribe=False)
+    try:
+        gateway = Gateway(client, "r1", rate_hz=200.0, rows=400, start_t=T0)
+        gateway.start()
+        assert wait_until(lambda: (get_json(client.session, "twin/state/r1") or [(None, {})])[0][1]
+                          .get("metrics", {}).get("paired", 0) >= 100, 20.0)
+        asked = run_armtwin("record", "--incident", "r1", "--pre-s", "0.2", "--post-s", "0", "-e", proc.endpoint)
+        assert asked.returncode == 0, asked.stderr
+        answer = json.loads(asked.stdout)
+        assert answer["robot"] == "r1" and answer["trigger"] == "operator", answer
+        assert abs(answer["until_s"] - answer["from_s"] - 0.2) < 1e-6, answer
+        assert f"r1: incident file {answer['path']}" in asked.stderr, asked.stderr
+        assert wait_until(lambda: Path(answer["path"]).exists(), 20.0), list(recordings.rglob("*"))
+        assert Path(answer["path"]).parent.parent == recordings
+
+        refused = run_armtwin("record", "--incident", "nobody", "-e", proc.endpoint)
+        assert refused.returncode == 1, refused.stdout
+        assert "the twin of 'nobody' refused:" in refused.stderr, refused.stderr
+        wildcard = run_armtwin("record", "--incident", "r*", "-e", proc.endpoint)
+        assert wildcard.returncode == 1 and "robots 'r*'" in wildcard.stderr, wildcard.stderr
+        gateway.join(timeout=30)
+    finally:
+        client.close()
+        proc.stop()

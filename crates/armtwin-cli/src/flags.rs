@@ -327,12 +327,28 @@ pub struct ReplayArgs {
 #[derive(Debug, Args)]
 pub struct RecordArgs {
     /// Robot ids, or key expressions over them (`r1`, `cell-1/*`, `**`).
-    #[arg(required = true, value_name = "ROBOTS")]
+    #[arg(required_unless_present = "incident", value_name = "ROBOTS")]
     pub robots: Vec<String>,
     /// A directory for one file per robot (`<robot, escaped>.mcap`), or a file ending in
     /// `.mcap` for a single robot (the first heard; others are refused).
-    #[arg(short = 'o', long = "out", value_name = "DIR|FILE.mcap")]
-    pub out: PathBuf,
+    #[arg(
+        short = 'o',
+        long = "out",
+        value_name = "DIR|FILE.mcap",
+        required_unless_present = "incident"
+    )]
+    pub out: Option<PathBuf>,
+    /// Instead: ask the twin of ROBOT for an incident file now, as an operator does, and print
+    /// the file's name; the twin's flight recorder writes it (docs/recorder.md).
+    #[arg(long, value_name = "ROBOT", conflicts_with_all = ["robots", "out", "duration"])]
+    pub incident: Option<String>,
+    /// With --incident: seconds before the robot's newest sample [default: the twin's
+    /// `[recorder] pre_s`, which is also the most].
+    #[arg(long, value_name = "SECONDS", requires = "incident")]
+    pub pre_s: Option<f64>,
+    /// With --incident: seconds after it [default: the twin's `[recorder] post_s`, also the most].
+    #[arg(long, value_name = "SECONDS", requires = "incident")]
+    pub post_s: Option<f64>,
     /// Seconds to record [default: until Ctrl-C].
     #[arg(long, value_name = "SECONDS")]
     pub duration: Option<f64>,

@@ -132,6 +132,91 @@ pub enum RecordError {
     /// The writer thread could not start or ended in a panic.
     #[error("the writer thread: {0}")]
     Writer(String),
+    /// No twin answered the incident request.
+    #[error(
+        "no twin of '{robot}' answered within {limit:?}: is armtwin serving it, and may this \
+         session's identity ask (the operator role, behind an access control)?"
+    )]
+    Unanswered {
+        /// The robot asked for.
+        robot: String,
+        /// How long the request waited.
+        limit: Duration,
+    },
+    /// The twin refused the incident request.
+    #[error("the twin of '{robot}' refused: {reason}")]
+    Refused {
+        /// The robot asked for.
+        robot: String,
+        /// The twin's reply.
+        reason: String,
+    },
+}
+
+/// How long a twin may take to answer an incident request.
+pub const INCIDENT_LIMIT: Duration = Duration::from_secs(10);
+
+/// Asks the twin of `robot` for an incident file now, as an operator does with
+/// `get <prefix>/admin/record/<robot>` (docs/recorder.md): of the seconds before its newest sample
+/// and after, `pre_s` and `post_s` (the configured ones when `None`). Returns the twin's reply,
+/// which names the file the incident will be.
+pub async fn ask_incident(
+    zenoh: &ZenohSection,
+    key_prefix: &str,
+    robot: &str,
+    (pre_s, post_s): (Option<f64>, Option<f64>),
+) -> Result<serde_json::Value, RecordError> {
+    let keys = KeySpace::of_prefix(key_prefix)?;
+    armtwin_mesh::keys::robot_id(robot).map_err(|problem| RecordError::Robots {
+        robots: robot.to_owned(),
+        reason: problem.to_string(),
+    })?;
+    let key = keys.key(Stream::Record, robot);
+    let parameters: Vec<String> = [("pre_s", pre_s), ("post_s", post_s)]
+        .into_iter()
+        .filter_map(|(name, value)| value.map(|value| format!("{name}={value}")))
+        .collect();
+    let selector = if parameters.is_empty() {
+        key
+    } else {
+        format!("{key}?{}", parameters.join(";"))
+    };
+    let session = zenoh::open(zenoh_config_of(zenoh)?).await?;
+    let answer = async {
+        let replies = session
+            .get(selector.as_str())
+            .timeout(INCIDENT_LIMIT)
+            .await?;
+        match replies.recv_async().await {
+            Ok(reply) => match reply.result() {
+                Ok(sample) => Ok(serde_json::from_slice(&sample.payload().to_bytes())
+                    .unwrap_or_else(|_| {
+                        serde_json::Value::String(
+                            String::from_utf8_lossy(&sample.payload().to_bytes()).into_owned(),
+                        )
+                    })),
+                Err(error) => {
+                    let text = String::from_utf8_lossy(&error.payload().to_bytes()).into_owned();
+                    // The twin's refusals are `{"error": "…"}`.
+                    let reason = serde_json::from_str::<serde_json::Value>(&text)
+                        .ok()
+                        .and_then(|body| body.get("error")?.as_str().map(str::to_owned))
+                        .unwrap_or(text);
+                    Err(RecordError::Refused {
+                        robot: robot.to_owned(),
+                        reason,
+                    })
+                }
+            },
+            Err(_) => Err(RecordError::Unanswered {
+                robot: robot.to_owned(),
+                limit: INCIDENT_LIMIT,
+            }),
+        }
+    }
+    .await;
+    let _ = close_session(&session).await;
+    answer
 }
 
 /// A message as it arrived, for the writer thread.

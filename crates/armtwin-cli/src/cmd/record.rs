@@ -14,10 +14,53 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use super::shutdown_signal;
 use crate::flags::RecordArgs;
 
+/// How `record` joins the mesh: a client, which the peer it joins (a bare `armtwin serve`) routes
+/// every robot's streams to, the gateways' included, where a peer would hear only what that peer
+/// publishes itself.
+fn joining(args: &RecordArgs) -> ZenohSection {
+    ZenohSection {
+        mode: ZenohMode::Client,
+        ..ZenohSection::joining_default_service()
+    }
+    .overridden(&args.zenoh.overrides())
+}
+
+/// `--incident ROBOT`: the twin's reply printed (JSON, on stdout), and the file's name on stderr.
+#[allow(clippy::print_stdout, reason = "the reply is the command's output")]
+fn incident(args: &RecordArgs, robot: &str) -> Result<()> {
+    for (name, value) in [("--pre-s", args.pre_s), ("--post-s", args.post_s)] {
+        if let Some(value) = value
+            && !(value.is_finite() && value >= 0.0)
+        {
+            bail!("{name} must be a number of seconds, 0 or more, got {value}");
+        }
+    }
+    // Zenoh's runtime needs a multi-threaded one; one worker does for one query.
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    let reply = runtime.block_on(record::ask_incident(
+        &joining(args),
+        &args.prefix,
+        robot,
+        (args.pre_s, args.post_s),
+    ))?;
+    println!("{reply}");
+    if let Some(path) = reply.get("path").and_then(|path| path.as_str()) {
+        eprintln!("{robot}: incident file {path}");
+    }
+    Ok(())
+}
+
 /// Robots named on the progress line; the rest are counted.
 const NAMED: usize = 4;
 
 pub(super) fn run(args: &RecordArgs) -> Result<()> {
+    if let Some(robot) = &args.incident {
+        return incident(args, robot);
+    }
     let duration = args
         .duration
         .map(|s| {
@@ -32,19 +75,16 @@ pub(super) fn run(args: &RecordArgs) -> Result<()> {
     if args.joints == 0 || args.max_robots == 0 || args.queue == 0 {
         bail!("--joints, --max-robots and --queue must be at least 1");
     }
-    let output = if args.out.extension().is_some_and(|e| e == "mcap") {
-        RecordOutput::File(args.out.clone())
-    } else {
-        RecordOutput::Directory(args.out.clone())
+    let Some(out) = &args.out else {
+        bail!("--out is needed to record");
     };
-    // A client: the peer it joins (a bare `armtwin serve`) routes every robot's streams to it,
-    // the gateways' included, where a peer would hear only what that peer publishes itself.
-    let zenoh = ZenohSection {
-        mode: ZenohMode::Client,
-        ..ZenohSection::joining_default_service()
+    let output = if out.extension().is_some_and(|e| e == "mcap") {
+        RecordOutput::File(out.clone())
+    } else {
+        RecordOutput::Directory(out.clone())
     };
     let settings = RecordSettings {
-        zenoh: zenoh.overridden(&args.zenoh.overrides()),
+        zenoh: joining(args),
         key_prefix: args.prefix.clone(),
         robots: args.robots.clone(),
         output,

@@ -206,7 +206,20 @@ def test_the_image_serves_the_dashboard_on_the_port_it_exposes(tmp_path, armtwin
     shown = subprocess.run([str(armtwin_bin), "config", "show", "-c", str(config)],
                            capture_output=True, text=True, timeout=30)
     assert shown.returncode == 0, shown.stderr
-    assert tomllib.loads(shown.stdout)["http"]["listen"] == http
+    effective = tomllib.loads(shown.stdout)
+    assert effective["http"]["listen"] == http
+    # The recorder writes where the image's user may: a folder the image makes its own.
+    user = instructions["USER"][0]
+    [owned] = [line for line in instructions["RUN"] if f"chown -R {user}" in line]
+    own_dir = owned.split()[-1]
+    assert effective["recorder"]["enabled"] and effective["recorder"]["dir"].startswith(own_dir + "/"), (
+        effective["recorder"], owned)
+    assert effective["recorder"]["dir"] in owned.split(), owned
+    # OPC UA's port is exposed, for a configuration that turns it on.
+    assert "4840" in instructions["EXPOSE"][0].split()
+    # The guide's word: the image holds config/ under /etc/armtwin/.
+    assert "config/ /etc/armtwin/" in instructions["COPY"], instructions["COPY"]
+    assert "`config/` under `/etc/armtwin/`" in (REPO / "docs" / "fleet.md").read_text()
 
 
 def test_the_compose_topology_runs_natively(tmp_path, armtwin_bin):

@@ -14,11 +14,14 @@ bounded.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
 from support import rtde_recording, ur_reference
 from support.paths import DATA_DIR
+from support.dashboard import http_get
 from support.process import free_port, wait_until
 from support.rtde_processes import StandIn, doc_plant, serving
 from support.zenoh_clients import get_json
@@ -45,7 +48,20 @@ def test_one_file_twins_three_controllers_with_their_own_tools(armtwin_bin, tmp_
     # The controllers come up after the service: its links wait for them, as for a controller
     # that reboots, and every event they cause is heard.
     ports = {robot: (free_port(), free_port()) for robot in ARMS}
-    with serving(armtwin_bin, tmp_path, doc_plant(ports)) as service:
+    http_port = free_port()
+    plant = doc_plant(ports) + f'\n[http]\nlisten = "127.0.0.1:{http_port}"\n'
+    with serving(armtwin_bin, tmp_path, plant) as service:
+        def gauges(name: str) -> dict[str, float]:
+            status, body = http_get(f"http://127.0.0.1:{http_port}/metrics")
+            assert status == 200, body
+            return {robot: float(value) for robot, value in
+                    re.findall(rf'^{name}{{robot="([^"]+)"}} (\S+)$', body.decode(), re.M)}
+
+        # Before any controller answers: every robot expected, every link waiting.
+        assert wait_until(lambda: gauges("armtwin_gateway_streaming") == {r: 0.0 for r in ARMS}, TIMEOUT_S), (
+            gauges("armtwin_gateway_streaming"))
+        assert gauges("armtwin_robot_expected") == {r: 1.0 for r in ARMS}
+
         for robot, (tcp, serial, model) in ARMS.items():
             port, dashboard_port = ports[robot]
             processes.append(StandIn(recordings[robot], "--port", port, "--dashboard-port", dashboard_port,
@@ -74,6 +90,8 @@ def test_one_file_twins_three_controllers_with_their_own_tools(armtwin_bin, tmp_
             quaternion = ur_reference.canonical_quat(transform[:3, :3])[0]
             assert [twin["qx"], twin["qy"], twin["qz"], twin["qw"]] == pytest.approx(quaternion, abs=1e-9), robot
 
+        assert wait_until(lambda: gauges("armtwin_gateway_streaming") == {r: 1.0 for r in ARMS}, TIMEOUT_S), (
+            gauges("armtwin_gateway_streaming"))
         # Each link holds the gateway's streaming token, as `armtwin gateway rtde` does.
         replies = service.session.liveliness().get("twin/gateway/streaming/**", timeout=5.0)
         streaming = sorted(str(r.ok.key_expr) for r in replies if r.ok is not None)

@@ -23,6 +23,7 @@ import os
 import shutil
 import threading
 import time
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -32,7 +33,7 @@ from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
 from support.gateway import MEASURED_KEYS, lasttest_rows
-from support.process import ArmtwinProcess, free_port, port_accepts, wait_until
+from support.process import ArmtwinProcess, free_port, port_accepts, run_armtwin, wait_until
 from support.zenoh_clients import TwinClient
 
 DI = "http://opcfoundation.org/UA/DI/"
@@ -310,3 +311,50 @@ def test_certificates_refused_before_sign_in_cannot_fill_the_disk(armtwin_bin, t
         assert time.time() - newest.stat().st_mtime < 30, "the newest refused certificate is kept"
         assert len(kept) >= 32, f"only {len(kept)} kept: more removed than the bound asks"
     assert "refused client certificates removed" in service.logs()
+
+
+def test_a_user_from_opcua_user_signs_in_where_clients_are_told(armtwin_bin, tmp_path):
+    """`armtwin opcua-user` prints an entry whose digest an independent PBKDF2 (Python's hashlib)
+    checks; with it pasted under [opcua], that user signs in. `advertise` is the URL every
+    endpoint names, while the server listens on `endpoint`."""
+    made = run_armtwin("opcua-user", "mes", input="plant floor 7\n")
+    assert made.returncode == 0, made.stderr
+    entry = tomllib.loads(made.stdout)["opcua"]["users"][0]
+    scheme, iterations, salt, digest = entry["password_hash"].split(":")
+    assert (entry["name"], scheme, int(iterations)) == ("mes", "pbkdf2-sha256", 600_000), entry
+    assert hashlib.pbkdf2_hmac("sha256", b"plant floor 7", bytes.fromhex(salt), int(iterations)).hex() == digest
+    assert run_armtwin("opcua-user", "mes", input="\n").returncode == 1
+
+    port = free_port()
+    text = config(port).split("[[opcua.users]]")[0].replace(
+        "[opcua]\n", f'[opcua]\nadvertise = "opc.tcp://localhost:{port}"\n') + made.stdout
+    service = ArmtwinProcess(armtwin_bin, tmp_path, text, watchdog_s=120.0)
+    service.start()
+    try:
+        assert wait_until(lambda: port_accepts(port), 15.0), service.logs()
+        url = f"opc.tcp://127.0.0.1:{port}"
+
+        async def sign_in() -> None:
+            endpoints = await Client(url, timeout=5).connect_and_get_server_endpoints()
+            assert {e.EndpointUrl.rstrip("/") for e in endpoints} == {f"opc.tcp://localhost:{port}"}, endpoints
+            keys = tmp_path / "client"
+            keys.mkdir()
+            await setup_self_signed_certificate(keys / "key.pem", keys / "cert.der", APP_URI, "localhost",
+                                                [ExtendedKeyUsageOID.CLIENT_AUTH], {"commonName": "mes"})
+            await refused(await secured(url, keys, "mes", "plant floor 7"))
+            trusted = tmp_path / "pki" / "trusted"
+            trusted.mkdir(exist_ok=True)
+            [rejected] = list((tmp_path / "pki" / "rejected").glob("*.der"))
+            shutil.move(rejected, trusted / rejected.name)
+            assert "Bad" in await refused(await secured(url, keys, "mes", "plant floor 8"))
+            client = await secured(url, keys, "mes", "plant floor 7")
+            await client.connect()
+            try:
+                assert ROBOTICS in await client.get_namespace_array()
+            finally:
+                await client.disconnect()
+
+        asyncio.run(asyncio.wait_for(sign_in(), 90.0))
+    finally:
+        stopped = service.stop()
+    assert stopped.code == 0, service.logs()

@@ -58,6 +58,9 @@ pub enum Command {
     /// A new token for the dashboard: the secret (shown once) and the `[[http.tokens]]` entry
     /// that holds its salted digest.
     HttpToken(HttpTokenArgs),
+    /// A user of the OPC UA server: its password read from stdin (one line), the
+    /// `[[opcua.users]]` entry that holds its salted digest printed.
+    OpcuaUser(OpcuaUserArgs),
     /// The service's configuration: `config show` prints the effective one.
     Config(ConfigArgs),
     /// Check a configuration before it runs: each robot's model, calibration and tool, the
@@ -97,6 +100,13 @@ pub struct ConfigShowArgs {
     /// The configuration file (TOML); without it, the built-in `config/armtwin.toml`.
     #[arg(short = 'c', long, value_name = "FILE")]
     pub config: Option<PathBuf>,
+}
+
+/// `armtwin opcua-user` arguments.
+#[derive(Debug, Args)]
+pub struct OpcuaUserArgs {
+    /// The user name clients sign in with.
+    pub name: String,
 }
 
 /// `armtwin http-token` arguments.

@@ -3,6 +3,7 @@
 //!
 //! Must not log or keep a password it was given.
 
+use std::fmt::Write as _;
 use std::num::NonZeroU32;
 
 use ring::pbkdf2;
@@ -13,6 +14,11 @@ const SCHEME: &str = "pbkdf2-sha256";
 const DIGEST_LEN: usize = 32;
 /// The fewest iterations taken: fewer would make a stolen configuration cheap to search.
 const MIN_ITERATIONS: u32 = 1_000;
+/// Iterations of a digest made here: OWASP's figure for PBKDF2-HMAC-SHA256 (its Password Storage
+/// Cheat Sheet), paid once per sign-in.
+pub const ITERATIONS: u32 = 600_000;
+/// Bytes of a salt made here.
+const SALT_LEN: usize = 16;
 
 /// A password's stored digest: `pbkdf2-sha256:<iterations>:<salt, hex>:<digest, hex>`.
 #[derive(Clone, PartialEq, Eq)]
@@ -75,6 +81,46 @@ impl PasswordHash {
         })
     }
 
+    /// `password`'s digest with a fresh random salt and [`ITERATIONS`]; `None` only when the
+    /// system's random source fails.
+    #[must_use]
+    pub fn of(password: &str) -> Option<Self> {
+        use ring::rand::SecureRandom as _;
+        let mut salt = vec![0_u8; SALT_LEN];
+        ring::rand::SystemRandom::new().fill(&mut salt).ok()?;
+        let iterations = NonZeroU32::new(ITERATIONS)?;
+        let mut digest = [0_u8; DIGEST_LEN];
+        pbkdf2::derive(
+            pbkdf2::PBKDF2_HMAC_SHA256,
+            iterations,
+            &salt,
+            password.as_bytes(),
+            &mut digest,
+        );
+        Some(Self {
+            iterations,
+            salt,
+            digest,
+        })
+    }
+
+    /// The stored form, as [`parse`](Self::parse) reads it.
+    #[must_use]
+    pub fn to_stored(&self) -> String {
+        let hex = |bytes: &[u8]| {
+            bytes.iter().fold(String::new(), |mut text, byte| {
+                let _ = write!(text, "{byte:02x}");
+                text
+            })
+        };
+        format!(
+            "{SCHEME}:{}:{}:{}",
+            self.iterations,
+            hex(&self.salt),
+            hex(&self.digest)
+        )
+    }
+
     /// Whether `password` is the one digested, compared in constant time.
     #[must_use]
     pub fn verify(&self, password: &str) -> bool {
@@ -103,6 +149,17 @@ fn from_hex(text: &str) -> Option<Vec<u8>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_digest_made_here_is_read_back_and_checks_its_password_alone() {
+        let made = PasswordHash::of("plant-floor").expect("a random source");
+        let stored = made.to_stored();
+        assert!(stored.starts_with("pbkdf2-sha256:600000:"), "{stored}");
+        let read = PasswordHash::parse(&stored).expect("readable");
+        assert!(read.verify("plant-floor") && !read.verify("plant-floor "));
+        let again = PasswordHash::of("plant-floor").expect("a random source");
+        assert_ne!(again.to_stored(), stored, "a fresh salt each time");
+    }
 
     /// `hashlib.pbkdf2_hmac("sha256", b"plant-floor", bytes.fromhex("00112233445566778899aabbccddeeff"), 1000).hex()`
     /// in Python: an implementation other than ring's.

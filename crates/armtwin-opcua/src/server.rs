@@ -124,8 +124,9 @@ impl OpcUaServer {
             .application_name("armtwin")
             .application_uri("urn:armtwin:server")
             .product_uri("urn:armtwin")
-            .host(settings.host.clone())
-            .port(settings.port)
+            // The endpoints' URLs are the advertised ones; the listener above is the bound one.
+            .host(settings.advertised.0.clone())
+            .port(settings.advertised.1)
             .discovery_urls(vec![settings.url.clone()])
             .pki_dir(settings.pki_dir.clone())
             .trust_client_certs(false)

@@ -19,8 +19,11 @@ use crate::password::PasswordHash;
 #[derive(Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OpcUaSection {
-    /// `opc.tcp://HOST:PORT`.
+    /// `opc.tcp://HOST:PORT`: where the server listens.
     pub endpoint: Option<String>,
+    /// `opc.tcp://HOST:PORT`: the URL clients are told, when it is not `endpoint` (a server
+    /// listening on every interface, or behind a name or a port mapping).
+    pub advertise: Option<String>,
     /// How often the server copies every twin's state into its nodes (ms).
     pub sampling_interval_ms: Option<u64>,
     /// Anonymous clients are let in.
@@ -55,12 +58,14 @@ pub struct UserSection {
 /// The OPC UA server's checked settings.
 #[derive(Debug, Clone)]
 pub struct OpcUaSettings {
-    /// The endpoint's URL, as clients are told it.
+    /// The endpoint's URL, as clients are told it (`advertise`, else `endpoint`).
     pub url: String,
     /// The host the server binds.
     pub host: String,
     /// The port it binds.
     pub port: u16,
+    /// The host and port of `url`: its endpoints' own.
+    pub advertised: (String, u16),
     /// How often the server copies every twin's state into its nodes.
     pub sampling_interval: Duration,
     /// Anonymous clients are let in.
@@ -114,6 +119,25 @@ impl OpcUaSettings {
             field: "endpoint",
             problem: format!("'{url}' is not opc.tcp://HOST:PORT"),
         })?;
+        let (url, advertised) = match &section.advertise {
+            Some(advertise) => {
+                let advertised = parse_endpoint(advertise).ok_or_else(|| SettingsError {
+                    field: "advertise",
+                    problem: format!("'{advertise}' is not opc.tcp://HOST:PORT"),
+                })?;
+                (advertise.as_str(), advertised)
+            }
+            None if host.parse::<IpAddr>().is_ok_and(|ip| ip.is_unspecified()) => {
+                return Err(SettingsError {
+                    field: "advertise",
+                    problem: format!(
+                        "'{url}' is where the server listens, not an address a client can \
+                         reach: give advertise = \"opc.tcp://<this host's name or address>:{port}\""
+                    ),
+                });
+            }
+            None => (url, (host.clone(), port)),
+        };
         let sampling_interval_ms = section
             .sampling_interval_ms
             .unwrap_or(DEFAULT_SAMPLING_INTERVAL_MS);
@@ -170,6 +194,7 @@ impl OpcUaSettings {
         };
         Ok(Some(Self {
             url: url.to_owned(),
+            advertised,
             security_none: section.security_none || is_loopback(&host),
             host,
             port,
@@ -218,6 +243,10 @@ mod tests {
     fn section(endpoint: &str, anonymous: bool, users: &[&str]) -> OpcUaSection {
         OpcUaSection {
             endpoint: Some(endpoint.to_owned()),
+            // Every interface is no URL for clients.
+            advertise: endpoint
+                .contains("0.0.0.0")
+                .then(|| endpoint.replace("0.0.0.0", "plant-gw")),
             anonymous,
             users: users
                 .iter()
@@ -235,6 +264,50 @@ mod tests {
         let settings =
             OpcUaSettings::from_section(&OpcUaSection::default(), None, Path::new("")).unwrap();
         assert!(settings.is_none());
+    }
+
+    #[test]
+    fn clients_are_told_the_advertised_url_and_never_every_interface() {
+        let told = |endpoint: &str, advertise: Option<&str>| {
+            let section = OpcUaSection {
+                endpoint: Some(endpoint.to_owned()),
+                advertise: advertise.map(str::to_owned),
+                anonymous: true,
+                ..OpcUaSection::default()
+            };
+            OpcUaSettings::from_section(&section, None, Path::new(""))
+                .map(|settings| settings.map(|s| (s.url, s.advertised, s.host, s.port)))
+                .map_err(|e| e.to_string())
+        };
+        assert_eq!(
+            told("opc.tcp://127.0.0.1:4840", None),
+            Ok(Some((
+                "opc.tcp://127.0.0.1:4840".to_owned(),
+                ("127.0.0.1".to_owned(), 4840),
+                "127.0.0.1".to_owned(),
+                4840
+            )))
+        );
+        assert_eq!(
+            told("opc.tcp://0.0.0.0:4840", Some("opc.tcp://plant-gw:48400")),
+            Ok(Some((
+                "opc.tcp://plant-gw:48400".to_owned(),
+                ("plant-gw".to_owned(), 48400),
+                "0.0.0.0".to_owned(),
+                4840
+            )))
+        );
+        let refused = told("opc.tcp://0.0.0.0:4840", None).unwrap_err();
+        assert!(
+            refused.starts_with(
+                "opcua.advertise: 'opc.tcp://0.0.0.0:4840' is where the server listens"
+            ),
+            "{refused}"
+        );
+        let refused = told("opc.tcp://[::]:4840", None).unwrap_err();
+        assert!(refused.starts_with("opcua.advertise:"), "{refused}");
+        let refused = told("opc.tcp://127.0.0.1:4840", Some("plant-gw:4840")).unwrap_err();
+        assert!(refused.contains("is not opc.tcp://HOST:PORT"), "{refused}");
     }
 
     #[test]

@@ -20,6 +20,7 @@ mod gateway;
 mod http_token;
 mod ik;
 mod models;
+mod opcua_user;
 mod record;
 mod replay;
 mod serve;
@@ -61,6 +62,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Acl(args) => acl::run(&args),
         Command::Certs(args) => certs::run(&args),
         Command::HttpToken(args) => http_token::run(&args),
+        Command::OpcuaUser(args) => opcua_user::run(&args),
         Command::Config(ConfigArgs {
             command: ConfigCommand::Show(args),
         }) => config::show(&args),

@@ -102,39 +102,90 @@ struct Recorder {
     line: String,
 }
 
-/// Connects to the controller at `host:port`, runs RTDE's exchange up to its first data package
-/// and leaves, streaming nothing (`armtwin doctor`): what the controller says of itself, and the
-/// package.
-pub async fn probe(host: &str, port: u16) -> Result<(Started, RtdeSample), LinkError> {
-    let mut socket = match timeout(CONNECT_TIMEOUT, TcpStream::connect((host, port))).await {
-        Ok(Ok(socket)) => socket,
-        Ok(Err(error)) => return Err(LinkError::Connect(error)),
-        Err(_) => return Err(LinkError::Silent(CONNECT_TIMEOUT)),
-    };
-    let (mut handshake, first) = Handshake::new(super::DEFAULT_FREQUENCY_HZ)?;
-    socket.write_all(&first).await?;
-    let mut splitter = FrameSplitter::new();
-    let mut buffer = vec![0_u8; 16 * 1024];
-    let mut started = None;
-    loop {
-        let read = match timeout(ANSWER_TIMEOUT, socket.read(&mut buffer)).await {
+/// One connection's RTDE exchange: the socket, the handshake and the frames being read.
+struct Exchange {
+    socket: TcpStream,
+    handshake: Handshake,
+    splitter: FrameSplitter,
+    buffer: Vec<u8>,
+}
+
+impl Exchange {
+    /// Connects to `host:port` and sends the exchange's first request, asking for `frequency_hz`.
+    async fn open(host: &str, port: u16, frequency_hz: f64) -> Result<Self, LinkError> {
+        let mut socket = match timeout(CONNECT_TIMEOUT, TcpStream::connect((host, port))).await {
+            Ok(Ok(socket)) => socket,
+            Ok(Err(error)) => return Err(LinkError::Connect(error)),
+            Err(_) => return Err(LinkError::Silent(CONNECT_TIMEOUT)),
+        };
+        socket.set_nodelay(true)?;
+        let (handshake, first) = Handshake::new(frequency_hz)?;
+        socket.write_all(&first).await?;
+        Ok(Self {
+            socket,
+            handshake,
+            splitter: FrameSplitter::new(),
+            buffer: vec![0_u8; 16 * 1024],
+        })
+    }
+
+    /// How long the controller may stay silent now: an answer's time during the exchange, a
+    /// cycle's once the data packages flow.
+    fn limit(&self) -> Duration {
+        if self.handshake.is_streaming() {
+            SILENCE_TIMEOUT
+        } else {
+            ANSWER_TIMEOUT
+        }
+    }
+
+    /// Takes what one read (bounded by `limit`) brought: answers the controller where the
+    /// exchange asks to, and puts every other step in `out` (emptied first).
+    async fn take(
+        &mut self,
+        read: Result<std::io::Result<usize>, tokio::time::error::Elapsed>,
+        limit: Duration,
+        out: &mut Vec<Progress>,
+    ) -> Result<(), LinkError> {
+        out.clear();
+        let read = match read {
             Ok(read) => read?,
-            Err(_) => return Err(LinkError::Silent(ANSWER_TIMEOUT)),
+            Err(_) => return Err(LinkError::Silent(limit)),
         };
         if read == 0 {
             return Err(LinkError::Closed);
         }
-        splitter.extend(&buffer[..read])?;
-        while let Some(frame) = splitter.next_frame()? {
-            match handshake.on_frame(frame)? {
-                Progress::Send(bytes) => socket.write_all(&bytes).await?,
+        self.splitter.extend(&self.buffer[..read])?;
+        while let Some(frame) = self.splitter.next_frame()? {
+            match self.handshake.on_frame(frame)? {
+                Progress::Send(bytes) => self.socket.write_all(&bytes).await?,
+                progress => out.push(progress),
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Connects to the controller at `host:port`, runs RTDE's exchange up to its first data package
+/// and leaves, streaming nothing (`armtwin doctor`): what the controller says of itself, and the
+/// package.
+pub async fn probe(host: &str, port: u16) -> Result<(Started, RtdeSample), LinkError> {
+    let mut exchange = Exchange::open(host, port, super::DEFAULT_FREQUENCY_HZ).await?;
+    let mut steps = Vec::new();
+    let mut started = None;
+    loop {
+        let limit = exchange.limit();
+        let read = timeout(limit, exchange.socket.read(&mut exchange.buffer)).await;
+        exchange.take(read, limit, &mut steps).await?;
+        for step in steps.drain(..) {
+            match step {
                 Progress::Started(now) => started = Some(now),
                 Progress::Sample(sample) => {
                     if let Some(started) = started.take() {
                         return Ok((started, sample));
                     }
                 }
-                Progress::Text(_) => {}
+                Progress::Send(_) | Progress::Text(_) => {}
             }
         }
     }
@@ -279,51 +330,37 @@ impl Robot {
     }
 
     async fn stream_inner(&mut self) -> Result<std::convert::Infallible, LinkError> {
-        let address = (self.settings.host.as_str(), self.settings.port);
-        let mut socket = match timeout(CONNECT_TIMEOUT, TcpStream::connect(address)).await {
-            Ok(Ok(socket)) => socket,
-            Ok(Err(error)) => return Err(LinkError::Connect(error)),
-            Err(_) => return Err(LinkError::Silent(CONNECT_TIMEOUT)),
-        };
-        socket.set_nodelay(true)?;
-        let (mut handshake, first) = Handshake::new(self.settings.frequency_hz)?;
-        socket.write_all(&first).await?;
-        let mut splitter = FrameSplitter::new();
-        let mut buffer = vec![0_u8; 16 * 1024];
+        let mut exchange = Exchange::open(
+            &self.settings.host,
+            self.settings.port,
+            self.settings.frequency_hz,
+        )
+        .await?;
         // Read beside the samples, never before them: a dashboard server out of reach costs
         // the stream nothing.
         let host = self.settings.host.clone();
         let identity = dashboard::read_identity(&host, self.settings.dashboard_port);
         let mut identity = std::pin::pin!(identity);
         let mut identity_pending = true;
+        // Kept across reads: a data package's steps allocate nothing once it has grown.
+        let mut steps = Vec::new();
         loop {
-            let limit = if handshake.is_streaming() {
-                SILENCE_TIMEOUT
-            } else {
-                ANSWER_TIMEOUT
-            };
+            let limit = exchange.limit();
             let read = tokio::select! {
-                read = timeout(limit, socket.read(&mut buffer)) => read,
+                read = timeout(limit, exchange.socket.read(&mut exchange.buffer)) => read,
                 identity = &mut identity, if identity_pending => {
                     identity_pending = false;
                     self.identified(identity).await;
                     continue;
                 }
             };
-            let read = match read {
-                Ok(read) => read?,
-                Err(_) => return Err(LinkError::Silent(limit)),
-            };
-            if read == 0 {
-                return Err(LinkError::Closed);
-            }
-            splitter.extend(&buffer[..read])?;
-            while let Some(frame) = splitter.next_frame()? {
-                match handshake.on_frame(frame)? {
-                    Progress::Send(bytes) => socket.write_all(&bytes).await?,
+            exchange.take(read, limit, &mut steps).await?;
+            for step in steps.drain(..) {
+                match step {
                     Progress::Started(started) => self.started(started).await,
                     Progress::Sample(sample) => self.publish(&sample).await?,
                     Progress::Text(text) => self.text(&text),
+                    Progress::Send(_) => {}
                 }
             }
         }

@@ -424,3 +424,35 @@ def test_a_ur3e_through_the_gateway_has_collisions_watched_on_its_target_current
         assert learnt["threshold_nm"] == pytest.approx(UR3E_RATED_SHARE_NM, rel=1e-12)
     assert fixed["threshold_source"] == "configured", fixed
     assert fixed["threshold_nm"] == FIXED_NM, fixed
+
+
+def test_a_recording_is_appended_to_across_restarts_and_another_file_is_left_alone(
+    tmp_path, lasttest_rows, service, started
+):
+    """`--record` of a restarted gateway appends under the header the file has, never truncates;
+    a file whose columns are not this controller's is left byte for byte as it was."""
+    # Each run's controller streams rows of its own: a truncated file would not begin with the
+    # first run's.
+    paths = [recording(tmp_path, lasttest_rows[:300], name="first.csv"),
+             recording(tmp_path, lasttest_rows[300:600], name="second.csv")]
+    recorded = tmp_path / "recorded.csv"
+    runs = []
+    for path in paths:
+        _, gateway = started(path, ["--fast"], ["--record", recorded])
+        before = len(runs[-1]) if runs else 1
+        assert wait_until(lambda: recorded.exists() and len(recorded.read_text().splitlines()) > before + 10,
+                          STREAM_TIMEOUT_S), gateway.logs()
+        assert gateway.stop().code == 0, gateway.logs()
+        runs.append(recorded.read_text().splitlines())
+        assert runs[-1].count(",".join(rtde_recording.HEADER)) == 1, runs[-1][:3]
+    # The second run's rows follow the first's, which are as they were.
+    assert runs[1][:len(runs[0])] == runs[0] and len(runs[1]) > len(runs[0]), (len(runs[0]), len(runs[1]))
+    assert "appending to the recording an earlier run wrote" in gateway.logs()
+
+    other = tmp_path / "other.csv"
+    other.write_text("timestamp,something_else\n1.0,2.0\n")
+    before = other.read_bytes()
+    _, gateway = started(paths[0], ["--fast"], ["--record", other])
+    assert wait_until(lambda: "left as it is, not recording" in gateway.logs(), STREAM_TIMEOUT_S), gateway.logs()
+    assert gateway.stop().code == 0, gateway.logs()
+    assert other.read_bytes() == before

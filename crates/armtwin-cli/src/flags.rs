@@ -186,7 +186,8 @@ pub struct RtdeArgs {
     /// Output frequency to ask the controller for (Hz; e-Series up to 500, CB3 up to 125).
     #[arg(long, value_name = "HZ", default_value_t = armtwin_gateway::DEFAULT_FREQUENCY_HZ)]
     pub frequency: f64,
-    /// Also write every data package to this CSV (`ur_rtde`'s form: `armtwin validate` reads it).
+    /// Also write every data package to this CSV (`ur_rtde`'s form: `armtwin validate` reads it),
+    /// appended to an earlier run's of the same columns; a file of other columns is left alone.
     #[arg(long, value_name = "FILE", conflicts_with = "config")]
     pub record: Option<PathBuf>,
     /// A fleet file: `[[controllers]]` with `robot`, `host`, optional `port`,

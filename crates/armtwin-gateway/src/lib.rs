@@ -61,7 +61,8 @@ pub struct ControllerSettings {
     /// The output frequency to ask for (Hz).
     #[serde(default = "default_frequency_hz", rename = "frequency")]
     pub frequency_hz: f64,
-    /// Also write every data package to this CSV (`ur_rtde`'s form).
+    /// Also write every data package to this CSV (`ur_rtde`'s form), appended to an earlier
+    /// run's of the same columns.
     #[serde(default)]
     pub record: Option<PathBuf>,
 }

@@ -95,11 +95,39 @@ struct Robot {
     published: Arc<Mutex<Option<ControllerFacts>>>,
 }
 
-/// `--record`: the CSV of every data package, under the first connection's recipe.
+/// `--record`: the CSV of every data package, under the first connection's recipe, appended to
+/// what an earlier run wrote under the same columns; a file of other columns is left as it is.
 struct Recorder {
     file: std::io::BufWriter<std::fs::File>,
     recipe: Option<armtwin_codec::rtde::Recipe>,
     line: String,
+    /// The header line the file already had (an earlier run's), if it was not empty.
+    earlier_header: Option<String>,
+}
+
+/// The longest header line read back from an earlier recording: a recipe's names, never more.
+const MAX_HEADER_BYTES: u64 = 64 * 1024;
+
+impl Recorder {
+    /// Opens `path` to append to, creating it; reads the header an earlier run wrote.
+    fn open(path: &std::path::Path) -> std::io::Result<Self> {
+        use std::io::BufRead as _;
+        let file = std::fs::OpenOptions::new()
+            .create(true)
+            .read(true)
+            .append(true)
+            .open(path)?;
+        let mut first = String::new();
+        std::io::BufReader::new(std::io::Read::take(&file, MAX_HEADER_BYTES))
+            .read_line(&mut first)?;
+        let header = first.trim_end_matches(['\n', '\r']);
+        Ok(Self {
+            file: std::io::BufWriter::new(file),
+            recipe: None,
+            line: String::new(),
+            earlier_header: (!header.is_empty()).then(|| header.to_owned()),
+        })
+    }
 }
 
 /// One connection's RTDE exchange: the socket, the handshake and the frames being read.
@@ -211,19 +239,10 @@ pub(super) async fn run(
             return;
         }
     };
-    let recorder = match settings
-        .record
-        .as_deref()
-        .map(std::fs::File::create)
-        .transpose()
-    {
-        Ok(file) => file.map(|file| Recorder {
-            file: std::io::BufWriter::new(file),
-            recipe: None,
-            line: String::new(),
-        }),
+    let recorder = match settings.record.as_deref().map(Recorder::open).transpose() {
+        Ok(recorder) => recorder,
         Err(error) => {
-            warn!(robot = %settings.robot, %error, "cannot create the recording: not recording");
+            warn!(robot = %settings.robot, %error, "cannot open the recording: not recording");
             None
         }
     };
@@ -394,10 +413,25 @@ impl Robot {
             && recorder.recipe.is_none()
         {
             let header = record::header(&started.recipe);
-            if let Err(error) = writeln!(recorder.file, "{header}") {
-                warn!(robot = %self.settings.robot, %error, "cannot write the recording");
+            match recorder.earlier_header.as_deref() {
+                None => {
+                    if let Err(error) = writeln!(recorder.file, "{header}") {
+                        warn!(robot = %self.settings.robot, %error, "cannot write the recording");
+                    }
+                    recorder.recipe = Some(started.recipe);
+                }
+                Some(earlier) if earlier == header => {
+                    info!(robot = %self.settings.robot, "appending to the recording an earlier run wrote");
+                    recorder.recipe = Some(started.recipe);
+                }
+                Some(_) => {
+                    warn!(
+                        robot = %self.settings.robot,
+                        "the recording holds other columns than this controller's: left as it is, not recording (name another file)"
+                    );
+                    self.recorder = None;
+                }
             }
-            recorder.recipe = Some(started.recipe);
         }
         self.say(true).await;
     }
@@ -522,6 +556,7 @@ impl Robot {
             file,
             recipe: Some(recipe),
             line,
+            ..
         }) = &mut self.recorder
         {
             line.clear();

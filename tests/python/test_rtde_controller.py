@@ -134,7 +134,7 @@ def test_the_controllers_tcp_serial_and_model_reach_the_twin(tmp_path, rows, ser
     assert [e for e in service.events if e.get("kind") == "epoch"], service.events
     model_events = controller_events(service, "model")
     assert [e["detail"] for e in model_events] == [
-        {"fact": "model", "configured": "ur10e", "controller": "ur5e", "serial": SERIAL}
+        {"fact": "model", "configured": "ur10e", "controller": "ur5e", "serial": SERIAL, "in_use": False}
     ], service.events
     assert "ur5e" in model_events[0]["reason"] and "ur10e" in model_events[0]["reason"]
     assert not controller_events(service, "dashboard"), service.events

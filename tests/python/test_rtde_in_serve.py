@@ -30,9 +30,12 @@ from support.zenoh_clients import get_json
 ARMS = {
     "cell-1/ur10e": ([0.0, 0.0, 0.12, 0.0, 0.0, 0.0], "20235500011", "UR10"),
     "cell-2/ur10e": ([0.01, -0.02, 0.15, 0.1, -0.2, 0.3], "20235500012", "UR10"),
-    # An e-Series UR5 where the configuration says ur10e: twinned as configured, and said.
+    # An e-Series UR5 under [robots.default]'s ur10e: the robot names no model of its own, so
+    # its twin takes the controller's.
     "cell-3/ur10e": ([0.0, 0.05, 0.08, 0.0, 0.3, 0.0], "20235500013", "UR5"),
 }
+# The model each twin computes with: the one the controller says.
+TWINNED = {"cell-1/ur10e": "ur10e", "cell-2/ur10e": "ur10e", "cell-3/ur10e": "ur5e"}
 TIMEOUT_S = 30.0
 
 
@@ -82,9 +85,10 @@ def test_one_file_twins_three_controllers_with_their_own_tools(armtwin_bin, tmp_
             assert answer["controller"]["tcp_offset"] == tcp, robot
             assert answer["tool"] == pytest.approx(tcp, abs=1e-15), robot
             assert answer["controller"]["model"] == model, robot
+            assert answer["model"] == TWINNED[robot], (robot, answer["model"])
             # The twin pose is FK with this controller's TCP, by an independent implementation.
             assert answer["joints"]["t"] == answer["twin"]["t"]
-            transform = ur_reference.fk("ur10e", np.array(answer["joints"]["q"]), tcp=tcp)[0]
+            transform = ur_reference.fk(TWINNED[robot], np.array(answer["joints"]["q"]), tcp=tcp)[0]
             twin = answer["twin"]
             assert [twin["x"], twin["y"], twin["z"]] == pytest.approx(transform[:3, 3], abs=1e-9), robot
             quaternion = ur_reference.canonical_quat(transform[:3, :3])[0]
@@ -101,8 +105,9 @@ def test_one_file_twins_three_controllers_with_their_own_tools(armtwin_bin, tmp_
                         if e.get("kind") == "controller" and e["detail"].get("fact") == "model"]
         assert [(e["robot"], e["detail"]) for e in model_events] == [
             ("cell-3/ur10e", {"fact": "model", "configured": "ur10e", "controller": "ur5e",
-                              "serial": ARMS["cell-3/ur10e"][1]})
+                              "serial": ARMS["cell-3/ur10e"][1], "in_use": True})
         ], service.events
+        assert "the twin computes with ur5e" in model_events[0]["reason"], model_events
         stopped = service.stop()
         assert stopped.code == 0, service.logs()
         assert service.logs(limit=10**9).count("streaming the robot's controller over RTDE") == 3

@@ -33,7 +33,9 @@ use thiserror::Error;
 use self::file::{AlignSection, File, SelfCalibrationSection, ServiceSection};
 pub use self::recorder::RecorderConfig;
 pub use self::robots::{ConfiguredTools, RtdeLink};
-use self::robots::{SharedSettings, load_pose_outputs, load_robots, load_rtde_links};
+use self::robots::{
+    SharedSettings, load_pose_outputs, load_robots, load_rtde_links, models_from_controller,
+};
 pub use self::sources::{Ros2Source, SourceConfig, SourceRobot, SourceStream};
 use self::sources::{SourceContext, load_sources};
 use armtwin_core::align::AlignConfig;
@@ -252,6 +254,9 @@ pub struct ServiceConfig {
     pub opcua: Option<armtwin_opcua::OpcUaSettings>,
     /// `[robots."<id>"] rtde`: the UR controllers `serve` streams itself, in robot id order.
     pub rtde_links: Vec<RtdeLink>,
+    /// The robots that take the model their controller says (`rtde`, and no `model` or
+    /// `calibration` of their own).
+    pub models_from_controller: std::collections::HashSet<String>,
 }
 
 /// The text of the configuration at `path` (none when `None`: the embedded default alone), its
@@ -441,6 +446,7 @@ impl ServiceConfig {
             http_listen,
             http_access,
             rtde_links,
+            models_from_controller: models_from_controller(&file.robots),
             recorder,
             opcua,
         })

@@ -346,6 +346,24 @@ fn robot_settings(
     })
 }
 
+/// The robots that take their controller's model: those whose controller `serve` streams
+/// (`rtde`) and whose own section names neither a `model` nor a `calibration` (a calibration is
+/// one arm's, so it names the model too).
+pub(super) fn models_from_controller(
+    sections: &HashMap<String, RobotSection>,
+) -> std::collections::HashSet<String> {
+    sections
+        .iter()
+        .filter(|(id, section)| {
+            *id != "default"
+                && section.rtde.is_some()
+                && section.model.is_none()
+                && section.calibration.is_none()
+        })
+        .map(|(id, _)| id.clone())
+        .collect()
+}
+
 /// `[robots."<id>"] rtde`: a UR controller `serve` streams itself over RTDE, on its own session.
 /// What is not set here takes `armtwin gateway rtde`'s defaults.
 #[derive(Debug, Clone, PartialEq)]

@@ -11,7 +11,10 @@ use serde_json::json;
 use tracing::{debug, warn};
 
 use super::fleet::{Fleet, Lookup, Stepping};
+use std::sync::Arc;
+
 use armtwin_core::kinematics::TcpOffset;
+use armtwin_core::model::{RobotModel, catalog};
 use armtwin_core::pipeline::Robot;
 use armtwin_mesh::controller::ControllerFacts;
 
@@ -32,10 +35,13 @@ pub(super) fn take_facts(fleet: &Fleet, id: &str, payload: &[u8]) {
         match fleet.lookup(id) {
             Lookup::Found(cell) => {
                 let robot = cell.robot().clone();
-                let tool_configured = fleet.tool_configured(id);
+                let taken = Taken {
+                    tool: !fleet.tool_configured(id),
+                    model: fleet.model_from_controller(id),
+                };
                 let facts = facts.clone();
                 if fleet.step(&cell, |stepping| {
-                    apply(&robot, tool_configured, facts, stepping);
+                    apply(&robot, taken, facts, stepping);
                 }) {
                     return;
                 }
@@ -51,8 +57,16 @@ pub(super) fn take_facts(fleet: &Fleet, id: &str, payload: &[u8]) {
     }
 }
 
+/// What of the controller's a robot's twin takes: its TCP (unless the configuration sets one),
+/// its model (for a robot `serve` streams with no model of its own).
+#[derive(Debug, Clone, Copy)]
+struct Taken {
+    tool: bool,
+    model: bool,
+}
+
 /// The facts into `robot`'s twin, with an event for each that changed and matters.
-fn apply(robot: &Robot, tool_configured: bool, facts: ControllerFacts, stepping: Stepping<'_>) {
+fn apply(robot: &Robot, taken: Taken, facts: ControllerFacts, stepping: Stepping<'_>) {
     let Stepping {
         twin,
         mut sink,
@@ -67,7 +81,7 @@ fn apply(robot: &Robot, tool_configured: bool, facts: ControllerFacts, stepping:
     if let Some(tcp_offset) = facts.tcp_offset
         && previous.tcp_offset != facts.tcp_offset
     {
-        let in_use = !tool_configured;
+        let in_use = taken.tool;
         let reason = if in_use {
             format!("the controller's TCP is tcp_offset {tcp_offset:?}: the twin uses it")
         } else {
@@ -88,22 +102,35 @@ fn apply(robot: &Robot, tool_configured: bool, facts: ControllerFacts, stepping:
     }
     let configured = &robot.settings().model.arm().name;
     let model_news = facts.catalog_model() != previous.catalog_model();
-    if model_news
-        && facts.model_agrees(configured) == Some(false)
+    if facts.model_agrees(configured) == Some(false)
         && let Some(model) = facts.catalog_model()
     {
         let serial = facts.serial.as_deref().unwrap_or("unknown");
-        let reason = format!(
-            "the controller is a {model} (serial number {serial}), the configuration says \
-             {configured}: the twin computes with {configured}"
-        );
-        let detail = json!({
-            "fact": "model",
-            "configured": configured,
-            "controller": model,
-            "serial": facts.serial,
-        });
-        sink.controller_event(id, &reason, &detail);
+        // Taken once per twin: a twin made again (after a retirement) takes it again.
+        let take = taken.model && twin.model().arm().name != model;
+        let detail = |in_use: bool| {
+            json!({
+                "fact": "model",
+                "configured": configured,
+                "controller": model,
+                "serial": facts.serial,
+                "in_use": in_use,
+            })
+        };
+        if take {
+            let reason = format!(
+                "the controller is a {model} (serial number {serial}); the robot names no model \
+                 of its own: the twin computes with {model}"
+            );
+            sink.controller_event(id, &reason, &detail(true));
+            take_model(id, &model, twin, &mut sink);
+        } else if model_news && !taken.model {
+            let reason = format!(
+                "the controller is a {model} (serial number {serial}), the configuration says \
+                 {configured}: the twin computes with {configured}"
+            );
+            sink.controller_event(id, &reason, &detail(false));
+        }
     }
     if let Some(error) = &facts.dashboard_error
         && previous.dashboard_error.as_ref() != Some(error)
@@ -113,5 +140,26 @@ fn apply(robot: &Robot, tool_configured: bool, facts: ControllerFacts, stepping:
              serial number are unknown, the model is not checked"
         );
         sink.controller_event(id, &reason, &json!({"fact": "dashboard", "error": error}));
+    }
+}
+
+/// `twin` computes with the catalog's `model` from now on, its tool and output frame kept: a new
+/// metrics epoch, as any model replaced.
+fn take_model(
+    id: &str,
+    model: &str,
+    twin: &mut armtwin_core::pipeline::Twin,
+    sink: &mut impl armtwin_core::pipeline::Sink,
+) {
+    let current = twin.model();
+    let replaced = catalog::arm(model)
+        .and_then(|arm| RobotModel::new(arm, None, *current.tool(), current.frame()))
+        .map_err(|e| e.to_string())
+        .and_then(|model| {
+            twin.replace_model(Arc::new(model), sink)
+                .map_err(|e| e.to_string())
+        });
+    if let Err(error) = replaced {
+        warn!(robot = id, model, %error, "the controller's model cannot be the twin's");
     }
 }

@@ -64,6 +64,8 @@ pub(super) struct Fleet {
     shard: KeyExpr<'static>,
     /// Which robots' TCP the configuration sets.
     configured_tools: ConfiguredTools,
+    /// The robots that take the model their controller says.
+    models_from_controller: std::collections::HashSet<String>,
     pipeline: PipelineConfig,
     directory: RwLock<Directory>,
     /// What every robot's sink shares.
@@ -366,6 +368,7 @@ impl Fleet {
         Self {
             shard: config.shard.clone(),
             configured_tools: config.configured_tools.clone(),
+            models_from_controller: config.models_from_controller.clone(),
             pipeline: config.pipeline,
             directory: RwLock::new(Directory {
                 robots: RobotDirectory::new(config.default_robot.clone(), config.robots.clone())
@@ -506,6 +509,12 @@ impl Fleet {
     /// Whether the configuration sets robot `id`'s TCP: if not, the twin takes its controller's.
     pub(super) fn tool_configured(&self, id: &str) -> bool {
         self.configured_tools.sets(id)
+    }
+
+    /// Whether robot `id` takes the model its controller says (see
+    /// [`ServiceConfig::models_from_controller`]).
+    pub(super) fn model_from_controller(&self, id: &str) -> bool {
+        self.models_from_controller.contains(id)
     }
 
     /// Admits robot `id` under the default settings (or finds it configured or tracked), or

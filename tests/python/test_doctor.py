@@ -16,11 +16,13 @@ import re
 import pytest
 
 from support import rtde_recording
+from support.dashboard import DashboardService, Prometheus
 from support.paths import DATA_DIR, REPO_ROOT
-from support.process import free_port, run_armtwin
+from support.process import free_port, run_armtwin, wait_until
 from support.rtde_processes import StandIn, doc_plant
 
 CALIBRATION = REPO_ROOT / "config" / "examples" / "calibration.conf"
+RULES = REPO_ROOT / "config" / "prometheus" / "alerts.yml"
 
 
 @pytest.fixture
@@ -149,3 +151,30 @@ def test_a_configuration_that_does_not_load_fails_alone(tmp_path):
                for line in lines), lines
     code, lines, result = doctor(tmp_path, "[service]\nno_such_key = 1\n")
     assert code == 1 and lines[0].startswith("FAIL configuration:"), result.stdout
+
+
+@pytest.mark.parametrize("job, rules", [("armtwin", True), ("robots", False)])
+def test_a_prometheus_is_asked_for_its_job_and_rules(armtwin_bin, tmp_path, job, rules):
+    """A real Prometheus scraping a real service: doctor finds the job that scrapes its /metrics
+    and says when its name is not the one ArmtwinDown reads, and which shipped rules it lacks."""
+    config = tmp_path / "site.toml"
+    service = DashboardService(armtwin_bin, tmp_path, '[robots.default]\nmodel = "ur10e"\n')
+    with service, Prometheus(tmp_path, f"127.0.0.1:{service.http_port}", job=job,
+                             rule_files=[RULES] if rules else []) as prometheus:
+        config.write_text(f'[http]\nlisten = "127.0.0.1:{service.http_port}"\n')
+        assert wait_until(lambda: prometheus.value(f'up{{job="{job}"}}') == 1.0, 30.0, 0.5)
+        result = run_armtwin("doctor", "-c", config, "--prometheus", f"http://127.0.0.1:{prometheus.port}")
+        lines = [line for line in result.stdout.splitlines() if "prometheus http://" in line]
+        assert result.returncode == 0, result.stdout + result.stderr
+        [scraped] = [line for line in lines if "scrapes" in line]
+        [held] = [line for line in lines if "alerting rules" in line]
+        every = len(re.findall(r"^\s+- alert: ", RULES.read_text(), re.M))
+        if rules:
+            assert scraped.startswith("OK ") and f"job 'armtwin' scrapes http://127.0.0.1:{service.http_port}/metrics" in scraped
+            assert held.startswith("OK ") and f"holds armtwin's {every} alerting rules" in held, held
+        else:
+            assert scraped.startswith("WARN") and "job 'robots'" in scraped and 'up{job="armtwin"}' in scraped
+            assert held.startswith("WARN") and f"lacks {every} of armtwin's {every}" in held, held
+    # A Prometheus that is not there is a failure of its own.
+    gone = run_armtwin("doctor", "-c", config, "--prometheus", f"http://127.0.0.1:{free_port()}")
+    assert gone.returncode == 1 and "cannot read its targets" in gone.stdout, gone.stdout

@@ -75,6 +75,10 @@ pub struct DoctorArgs {
     /// The configuration file (TOML); without it, the built-in `config/armtwin.toml`.
     #[arg(short = 'c', long, value_name = "FILE")]
     pub config: Option<PathBuf>,
+    /// A Prometheus (`http://HOST:PORT`) to ask whether it scrapes this service's `/metrics`, under
+    /// which job, and whether it holds armtwin's alerting rules.
+    #[arg(long, value_name = "URL")]
+    pub prometheus: Option<String>,
 }
 
 /// `armtwin config` arguments.

@@ -99,13 +99,15 @@ class DashboardService:
 class Prometheus(Process):
     """A Prometheus scraping ``target`` every second, its data in ``workdir``."""
 
-    def __init__(self, workdir, target: str):
+    def __init__(self, workdir, target: str, job: str = "armtwin", rule_files: list[Path] = ()):
         self.binary = prometheus_path()
         self.port = free_port()
         self.config = workdir / "prometheus.yml"
+        rules = "".join(f"  - {path}\n" for path in rule_files)
         self.config.write_text(
             "global:\n  scrape_interval: 1s\n  evaluation_interval: 1s\n"
-            "scrape_configs:\n  - job_name: armtwin\n    static_configs:\n"
+            + (f"rule_files:\n{rules}" if rules else "")
+            + f"scrape_configs:\n  - job_name: {job}\n    static_configs:\n"
             f"      - targets: ['{target}']\n"
         )
         self.data = workdir / "prometheus-data"

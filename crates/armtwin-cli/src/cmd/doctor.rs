@@ -10,6 +10,7 @@
 
 use std::fmt::Write as _;
 use std::path::Path;
+use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use armtwin_codec::rtde::RtdeSample;
@@ -72,6 +73,9 @@ pub(super) fn run(args: &DoctorArgs) -> Result<()> {
         report.line(door.verdict, &door.name, &door.who);
     }
     check_recorder(&config, &mut report);
+    if let Some(prometheus) = &args.prometheus {
+        runtime.block_on(check_prometheus(&config, prometheus, &mut report));
+    }
     print!("{}", report.text);
     println!("{} failed, {} to look at", report.failed, report.warned);
     if report.failed > 0 {
@@ -318,4 +322,172 @@ fn probe_writable(dir: &Path) -> std::io::Result<()> {
     let probe = dir.join(format!(".armtwin-doctor-{}", std::process::id()));
     std::fs::write(&probe, b"probe")?;
     std::fs::remove_file(&probe)
+}
+
+/// The alerting rules armtwin ships (`config/prometheus/alerts.yml`), by name.
+const SHIPPED_RULES: &str = include_str!("../../../../config/prometheus/alerts.yml");
+
+/// How long Prometheus may take to answer.
+const PROMETHEUS_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// The most of an answer read: a Prometheus of many targets answers in megabytes.
+const MAX_ANSWER_BYTES: usize = 16 << 20;
+
+/// Whether the Prometheus at `base` scrapes this service's `/metrics`, under which job, and
+/// whether it holds the shipped rules.
+async fn check_prometheus(config: &ServiceConfig, base: &str, report: &mut Report) {
+    let check = format!("prometheus {base}");
+    let Some(listen) = config.http_listen else {
+        report.line(
+            Verdict::Warn,
+            &check,
+            "no [http] listen: this service serves no /metrics to scrape",
+        );
+        return;
+    };
+    let targets = match get_json(base, "/api/v1/targets?state=active").await {
+        Ok(answer) => answer,
+        Err(e) => {
+            report.line(
+                Verdict::Fail,
+                &check,
+                &format!("cannot read its targets: {e}"),
+            );
+            return;
+        }
+    };
+    let port = format!(":{}/metrics", listen.port());
+    let ours: Vec<&serde_json::Value> = targets["data"]["activeTargets"]
+        .as_array()
+        .map(|all| {
+            all.iter()
+                .filter(|t| {
+                    t["scrapeUrl"]
+                        .as_str()
+                        .is_some_and(|url| url.ends_with(&port))
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    if ours.is_empty() {
+        report.line(
+            Verdict::Fail,
+            &check,
+            &format!(
+                "scrapes no /metrics on port {}: add a job for it (docs/alerts.md)",
+                listen.port()
+            ),
+        );
+    }
+    for target in ours {
+        let job = target["labels"]["job"].as_str().unwrap_or("?");
+        let url = target["scrapeUrl"].as_str().unwrap_or("?");
+        let health = target["health"].as_str().unwrap_or("unknown");
+        if health != "up" && health != "unknown" {
+            let error = target["lastError"].as_str().unwrap_or("");
+            report.line(
+                Verdict::Fail,
+                &check,
+                &format!("job '{job}' scrapes {url}, which is {health}: {error}"),
+            );
+        } else if job == "armtwin" {
+            report.line(Verdict::Ok, &check, &format!("job 'armtwin' scrapes {url}"));
+        } else {
+            report.line(
+                Verdict::Warn,
+                &check,
+                &format!(
+                    "job '{job}' scrapes {url}: ArmtwinDown reads up{{job=\"armtwin\"}}, so name \
+                     the job armtwin or change that rule"
+                ),
+            );
+        }
+    }
+    check_rules(base, &check, report).await;
+}
+
+/// Whether the Prometheus at `base` holds the shipped alerting rules.
+async fn check_rules(base: &str, check: &str, report: &mut Report) {
+    let rules = match get_json(base, "/api/v1/rules?type=alert").await {
+        Ok(answer) => answer,
+        Err(e) => {
+            report.line(Verdict::Fail, check, &format!("cannot read its rules: {e}"));
+            return;
+        }
+    };
+    let loaded: std::collections::BTreeSet<&str> = rules["data"]["groups"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .flat_map(|group| group["rules"].as_array().into_iter().flatten())
+        .filter_map(|rule| rule["name"].as_str())
+        .collect();
+    let shipped: Vec<&str> = SHIPPED_RULES
+        .lines()
+        .filter_map(|line| line.trim().strip_prefix("- alert: "))
+        .collect();
+    let missing: Vec<&str> = shipped
+        .iter()
+        .copied()
+        .filter(|name| !loaded.contains(name))
+        .collect();
+    if missing.is_empty() {
+        report.line(
+            Verdict::Ok,
+            check,
+            &format!("holds armtwin's {} alerting rules", shipped.len()),
+        );
+    } else {
+        report.line(
+            Verdict::Warn,
+            check,
+            &format!(
+                "lacks {} of armtwin's {} alerting rules ({}): load config/prometheus/alerts.yml",
+                missing.len(),
+                shipped.len(),
+                missing.join(", ")
+            ),
+        );
+    }
+}
+
+/// `base` (`http://HOST:PORT`) `path`'s JSON answer, within [`PROMETHEUS_TIMEOUT`] and
+/// [`MAX_ANSWER_BYTES`].
+async fn get_json(base: &str, path: &str) -> Result<serde_json::Value, String> {
+    use http_body_util::{BodyExt as _, Empty, Limited};
+    let authority = base
+        .strip_prefix("http://")
+        .ok_or("give http://HOST:PORT (a Prometheus behind TLS is not read here)")?
+        .trim_end_matches('/');
+    let exchange = async {
+        let stream = tokio::net::TcpStream::connect(authority)
+            .await
+            .map_err(|e| e.to_string())?;
+        let (mut sender, connection) =
+            hyper::client::conn::http1::handshake(hyper_util::rt::TokioIo::new(stream))
+                .await
+                .map_err(|e| e.to_string())?;
+        tokio::spawn(connection);
+        let request = hyper::Request::get(path)
+            .header(hyper::header::HOST, authority)
+            .body(Empty::<hyper::body::Bytes>::new())
+            .map_err(|e| e.to_string())?;
+        let response = sender
+            .send_request(request)
+            .await
+            .map_err(|e| e.to_string())?;
+        let status = response.status();
+        let body = Limited::new(response.into_body(), MAX_ANSWER_BYTES)
+            .collect()
+            .await
+            .map_err(|e| e.to_string())?
+            .to_bytes();
+        if !status.is_success() {
+            return Err(format!("{path}: HTTP {status}"));
+        }
+        serde_json::from_slice(&body).map_err(|e| format!("{path}: {e}"))
+    };
+    tokio::time::timeout(PROMETHEUS_TIMEOUT, exchange)
+        .await
+        .map_err(|_| format!("no answer within {PROMETHEUS_TIMEOUT:?}"))?
 }

@@ -8,6 +8,8 @@
 
 use std::ops::RangeInclusive;
 
+use thiserror::Error;
+
 use super::stats::stats_from_sums;
 use super::{METRIC_COUNT, Metric, Stats, StatsSet, WindowStats, WindowTotals, acceptable};
 
@@ -334,6 +336,29 @@ impl SecondsTier {
 /// Exact seconds a history keeps at most, its newest: older ones are kept by the minute only.
 pub const SECONDS_TIER_S: usize = 600;
 
+/// Why a snapshot's minutes are not taken ([`History::restore_minutes`]): none is then.
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+pub enum MinutesError {
+    /// A row whose second is not a minute's first.
+    #[error("minute t = {second} is not a multiple of 60")]
+    OffTheMinute {
+        /// Its second.
+        second: i64,
+    },
+    /// A row not after the one before it.
+    #[error("minute t = {second} is not after the one before")]
+    OutOfOrder {
+        /// Its second.
+        second: i64,
+    },
+    /// A row of no pair, or of a total that is negative or not finite.
+    #[error("minute t = {second} holds no pair or a bad total")]
+    BadTotals {
+        /// Its second.
+        second: i64,
+    },
+}
+
 /// The totals of the last `history_s` seconds of source time in two tiers: each second of the
 /// newest [`SECONDS_TIER_S`] (all of them when `history_s` is no longer), and each minute (on the
 /// grid of whole minutes, `⌊second / 60⌋`) of the whole span. Both tiers take every slice and
@@ -471,29 +496,23 @@ impl History {
     ///
     /// A row that is not on a minute, out of order, empty, or with a total that is negative or
     /// not finite: nothing is taken.
-    pub fn restore_minutes(&mut self, rows: &[HistoryRow]) -> Result<(), String> {
+    pub fn restore_minutes(&mut self, rows: &[HistoryRow]) -> Result<(), MinutesError> {
         let mut previous: Option<i64> = None;
         for row in rows {
             let totals = &row.totals;
             let sound = |values: &[f64; 2]| values.iter().all(|x| x.is_finite() && *x >= 0.0);
             if row.second.rem_euclid(MINUTE_S) != 0 {
-                return Err(format!("minute t = {} is not a multiple of 60", row.second));
+                return Err(MinutesError::OffTheMinute { second: row.second });
             }
             if previous.is_some_and(|previous| row.second <= previous) {
-                return Err(format!(
-                    "minute t = {} is not after the one before",
-                    row.second
-                ));
+                return Err(MinutesError::OutOfOrder { second: row.second });
             }
             if totals.n == 0
                 || !sound(&totals.sums)
                 || !sound(&totals.sums_of_squares)
                 || !sound(&totals.maxima)
             {
-                return Err(format!(
-                    "minute t = {} holds no pair or a bad total",
-                    row.second
-                ));
+                return Err(MinutesError::BadTotals { second: row.second });
             }
             previous = Some(row.second);
         }
@@ -674,7 +693,7 @@ impl WindowWithHistory {
     /// # Errors
     ///
     /// Those of [`History::restore_minutes`].
-    pub fn restore_history_minutes(&mut self, rows: &[HistoryRow]) -> Result<(), String> {
+    pub fn restore_history_minutes(&mut self, rows: &[HistoryRow]) -> Result<(), MinutesError> {
         match &mut self.history {
             Some(history) => history.restore_minutes(rows),
             None => Ok(()),

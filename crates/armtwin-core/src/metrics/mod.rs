@@ -22,8 +22,8 @@ pub use cumulative::{CumulativeParts, CumulativeStats};
 pub use deviation::Deviation;
 pub use history::{
     DEFAULT_HISTORY_S, HISTORY_METRICS, History, HistoryRow, MINUTE_S, MemorySeconds,
-    MinuteOfSeconds, SECONDS_TIER_S, SecondTotals, SecondsArchive, WindowWithHistory, ring_slot,
-    stats_of,
+    MinuteOfSeconds, MinutesError, SECONDS_TIER_S, SecondTotals, SecondsArchive, WindowWithHistory,
+    ring_slot, stats_of,
 };
 pub use stats::{Stats, StatsSet};
 pub use window::{DEFAULT_WINDOW_SLICES, SlicedWindow, WindowStats, WindowTotals};

@@ -93,7 +93,7 @@ pub enum RestoreError {
         /// The robot.
         robot: String,
         /// Why.
-        problem: String,
+        problem: crate::metrics::MinutesError,
     },
     /// The applied calibration does not make a model of the robot's arm.
     #[error("robot '{robot}': the applied calibration does not fit its arm: {problem}")]

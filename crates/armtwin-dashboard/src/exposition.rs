@@ -425,6 +425,16 @@ fn register_totals(registry: &mut Registry, totals: &ServiceTotals) {
             "Incident files not written (a full disk, a full queue)",
             totals.recorder.failures,
         ),
+        (
+            "history_log_dropped",
+            "Minutes of the histories' seconds not kept, the disk behind (their minutes are)",
+            totals.history_log.dropped,
+        ),
+        (
+            "history_log_write_failures",
+            "Writes to the history log's file that failed (it went on in memory after the first)",
+            totals.history_log.write_failures,
+        ),
     ];
     for (name, help, value) in counters {
         let counter: Counter<u64, AtomicU64> = Counter::default();
@@ -438,6 +448,14 @@ fn register_totals(registry: &mut Registry, totals: &ServiceTotals) {
         "Bytes the flight recorder's log of every robot's recent streams holds (on disk; in memory when the disk refused it)",
         Unit::Bytes,
         ring,
+    );
+    let history_log: Gauge<f64, AtomicU64> = Gauge::default();
+    history_log.set(totals.history_log.bytes as f64);
+    registry.register_with_unit(
+        "history_log",
+        "Bytes the log of the histories' closed minutes of seconds holds ([recorder] history_bytes at most)",
+        Unit::Bytes,
+        history_log,
     );
     let tracked: Gauge<f64, AtomicU64> = Gauge::default();
     tracked.set(totals.robots as f64);

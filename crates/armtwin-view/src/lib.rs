@@ -153,6 +153,20 @@ pub struct ServiceTotals {
     pub snapshot_failures: u64,
     /// The flight recorder's files and memory.
     pub recorder: RecorderTotals,
+    /// The log of the histories' closed minutes of seconds.
+    pub history_log: HistoryLogTotals,
+}
+
+/// The log of the histories' closed minutes of seconds (`[recorder] history_bytes`).
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+pub struct HistoryLogTotals {
+    /// Bytes it holds.
+    pub bytes: u64,
+    /// Minutes not kept because the disk was behind: their seconds are not answered (their
+    /// minute is).
+    pub dropped: u64,
+    /// Writes to its file that failed (it went on in memory after the first).
+    pub write_failures: u64,
 }
 
 /// The flight recorder's totals.

@@ -396,6 +396,11 @@ impl Fleet {
         self.sinks.outlet()
     }
 
+    /// What the log of the histories' closed minutes holds and lost.
+    pub(super) fn history_log_totals(&self) -> armtwin_view::HistoryLogTotals {
+        self.sinks.history_log().totals()
+    }
+
     /// The flight recorder every robot's sink feeds.
     pub(super) fn recorder(&self) -> &Recorder {
         self.sinks.recorder()

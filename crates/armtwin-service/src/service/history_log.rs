@@ -40,6 +40,19 @@ impl HistoryLog {
         }
     }
 
+    /// What the log holds, and what it lost (all 0 without one).
+    pub(super) fn totals(&self) -> armtwin_view::HistoryLogTotals {
+        self.log
+            .as_ref()
+            .map_or_else(armtwin_view::HistoryLogTotals::default, |log| {
+                armtwin_view::HistoryLogTotals {
+                    bytes: log.used_bytes(),
+                    dropped: log.dropped_blocks(),
+                    write_failures: log.write_failures(),
+                }
+            })
+    }
+
     /// No log: the histories keep their seconds in memory.
     pub(super) fn none() -> Self {
         Self {

@@ -81,6 +81,7 @@ impl FleetSource for FleetView {
             snapshot_age_s: fleet.snapshot_age_s(),
             snapshot_failures: fleet.snapshot_failures(),
             recorder: fleet.recorder().totals(),
+            history_log: fleet.history_log_totals(),
         };
         (totals, rows)
     }

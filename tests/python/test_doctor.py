@@ -159,13 +159,15 @@ def test_a_prometheus_is_asked_for_its_job_and_rules(armtwin_bin, tmp_path, job,
     and says when its name is not the one ArmtwinDown reads, and which shipped rules it lacks."""
     config = tmp_path / "site.toml"
     service = DashboardService(armtwin_bin, tmp_path, '[robots.default]\nmodel = "ur10e"\n')
+    # Scraped every 5 s: a loaded machine's debug build answering /metrics in over a second would
+    # be a target down, which doctor rightly fails.
     with service, Prometheus(tmp_path, f"127.0.0.1:{service.http_port}", job=job,
-                             rule_files=[RULES] if rules else []) as prometheus:
+                             rule_files=[RULES] if rules else [], interval_s=5) as prometheus:
         config.write_text(f'[http]\nlisten = "127.0.0.1:{service.http_port}"\n')
         assert wait_until(lambda: prometheus.value(f'up{{job="{job}"}}') == 1.0, 30.0, 0.5)
         result = run_armtwin("doctor", "-c", config, "--prometheus", f"http://127.0.0.1:{prometheus.port}")
         lines = [line for line in result.stdout.splitlines() if "prometheus http://" in line]
-        assert result.returncode == 0, result.stdout + result.stderr
+        assert result.returncode == 0, (result.stdout + result.stderr, prometheus.logs())
         [scraped] = [line for line in lines if "scrapes" in line]
         [held] = [line for line in lines if "alerting rules" in line]
         every = len(re.findall(r"^\s+- alert: ", RULES.read_text(), re.M))

@@ -97,15 +97,17 @@ class DashboardService:
 
 
 class Prometheus(Process):
-    """A Prometheus scraping ``target`` every second, its data in ``workdir``."""
+    """A Prometheus scraping ``target`` every ``interval_s`` (its timeout too), its data in
+    ``workdir``."""
 
-    def __init__(self, workdir, target: str, job: str = "armtwin", rule_files: list[Path] = ()):
+    def __init__(self, workdir, target: str, job: str = "armtwin", rule_files: list[Path] = (),
+                 interval_s: int = 1):
         self.binary = prometheus_path()
         self.port = free_port()
         self.config = workdir / "prometheus.yml"
         rules = "".join(f"  - {path}\n" for path in rule_files)
         self.config.write_text(
-            "global:\n  scrape_interval: 1s\n  evaluation_interval: 1s\n"
+            f"global:\n  scrape_interval: {interval_s}s\n  evaluation_interval: {interval_s}s\n"
             + (f"rule_files:\n{rules}" if rules else "")
             + f"scrape_configs:\n  - job_name: {job}\n    static_configs:\n"
             f"      - targets: ['{target}']\n"
@@ -118,6 +120,10 @@ class Prometheus(Process):
     def __enter__(self) -> Prometheus:
         self.start()
         self.wait_port(self.port, f"listen on {self.port}")
+        # It listens before its storage is open, and answers queries with 503 until then.
+        ready = f"http://127.0.0.1:{self.port}/-/ready"
+        if not wait_until(lambda: http_get(ready)[0] == 200, 60.0, 0.2):
+            raise AssertionError(f"Prometheus never became ready\n{self.logs()}")
         return self
 
     def __exit__(self, *exc) -> None:

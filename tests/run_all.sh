@@ -175,8 +175,9 @@ collect "virtualenvs"
 step pytest "pytest tests/python, $ARMTWIN_PYTEST_WORKERS workers"
 # A test module's tests stay on one worker (they share its module-scoped services); each worker
 # takes its ports from a block of its own (tests/python/support/process.py).
+# The slowest tests are listed at the end: where the step's time goes, in every run's log.
 .venv/bin/python -m pytest tests/python -q -n "$ARMTWIN_PYTEST_WORKERS" --dist loadfile \
-  --ignore=tests/python/test_ros2_real.py
+  --durations=25 --ignore=tests/python/test_ros2_real.py
 
 step ros2 "pytest tests/python/test_ros2_real.py: rclpy through the bridge, in a private network namespace"
 # DDS discovers by multicast: nothing of it leaves this namespace, whose only interface is loopback.

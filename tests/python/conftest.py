@@ -8,6 +8,7 @@ These tests never build it: run ``cargo build`` first.
 from __future__ import annotations
 
 import shutil
+import signal
 import sys
 from pathlib import Path
 
@@ -20,6 +21,12 @@ if HERE not in sys.path:
 
 from support.paths import REPO_ROOT, require_armtwin, router_path  # noqa: E402
 from support.pki import make_fleet_certs  # noqa: E402
+
+# A test command started in the background (`cmd &` in a script, nohup) runs with SIGINT ignored,
+# which every process it starts inherits: the stand-ins and services the tests stop with SIGINT
+# then run until they are killed, 15 s each. A handler here gives every child the default again.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="session")

@@ -441,22 +441,23 @@ fn register_totals(registry: &mut Registry, totals: &ServiceTotals) {
         counter.inc_by(value);
         registry.register(name, help, counter);
     }
-    let ring: Gauge<f64, AtomicU64> = Gauge::default();
-    ring.set(totals.recorder.ring_bytes as f64);
-    registry.register_with_unit(
-        "recorder_ring",
-        "Bytes the flight recorder's log of every robot's recent streams holds (on disk; in memory when the disk refused it)",
-        Unit::Bytes,
-        ring,
-    );
-    let history_log: Gauge<f64, AtomicU64> = Gauge::default();
-    history_log.set(totals.history_log.bytes as f64);
-    registry.register_with_unit(
-        "history_log",
-        "Bytes the log of the histories' closed minutes of seconds holds ([recorder] history_bytes at most)",
-        Unit::Bytes,
-        history_log,
-    );
+    let logs = [
+        (
+            "recorder_ring",
+            "Bytes the flight recorder's log of every robot's recent streams holds (on disk; in memory when the disk refused it)",
+            totals.recorder.ring_bytes,
+        ),
+        (
+            "history_log",
+            "Bytes the log of the histories' closed minutes of seconds holds ([recorder] history_bytes at most)",
+            totals.history_log.bytes,
+        ),
+    ];
+    for (name, help, bytes) in logs {
+        let gauge: Gauge<f64, AtomicU64> = Gauge::default();
+        gauge.set(bytes as f64);
+        registry.register_with_unit(name, help, Unit::Bytes, gauge);
+    }
     let tracked: Gauge<f64, AtomicU64> = Gauge::default();
     tracked.set(totals.robots as f64);
     registry.register("robots_tracked", "Robots the twin tracks", tracked);

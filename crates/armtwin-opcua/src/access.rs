@@ -1,7 +1,7 @@
-//! Who may sign in, and what they may do: read. User names and passwords (checked against
-//! their PBKDF2 digests) on the encrypted endpoints, anonymous clients only when configured,
-//! and no write access for anyone: a twin changes through the admin keys behind the ACL, never
-//! through OPC UA.
+//! Who may sign in, and what they may do: read, and for operators acknowledge and confirm
+//! alarm conditions. User names and passwords (checked against their PBKDF2 digests) on the
+//! encrypted endpoints, anonymous clients (readers) only when configured, and no write access
+//! for anyone: a twin changes through the admin keys behind the ACL, never through OPC UA.
 //!
 //! Must not log a password.
 
@@ -13,11 +13,11 @@ use opcua::server::authenticator::{
     AuthManager, Password, UserToken, user_pass_security_policy_id,
 };
 use opcua::server::{ANONYMOUS_USER_TOKEN_ID, ServerEndpoint};
-use opcua::types::{Error, NodeId, StatusCode, UAString, UserTokenPolicy, UserTokenType};
+use opcua::types::{Error, MethodId, NodeId, StatusCode, UAString, UserTokenPolicy, UserTokenType};
 use tracing::warn;
 
 use crate::password::PasswordHash;
-use crate::settings::User;
+use crate::settings::{Role, User};
 
 /// The user token id the encrypted endpoints list for the configured users.
 pub(crate) const USERS_TOKEN_ID: &str = "users";
@@ -27,7 +27,7 @@ const POLICY_ID_ANONYMOUS: &str = "anonymous";
 
 /// The server's [`AuthManager`].
 pub(crate) struct Access {
-    users: BTreeMap<String, PasswordHash>,
+    users: BTreeMap<String, (PasswordHash, Role)>,
     anonymous: bool,
 }
 
@@ -36,7 +36,7 @@ impl Access {
         Self {
             users: users
                 .iter()
-                .map(|user| (user.name.clone(), user.password.clone()))
+                .map(|user| (user.name.clone(), (user.password.clone(), user.role)))
                 .collect(),
             anonymous,
         }
@@ -68,7 +68,7 @@ impl AuthManager for Access {
             && self
                 .users
                 .get(username)
-                .is_some_and(|hash| hash.verify(password.get()));
+                .is_some_and(|(hash, _)| hash.verify(password.get()));
         if known {
             Ok(UserToken(username.to_owned()))
         } else {
@@ -88,8 +88,23 @@ impl AuthManager for Access {
         user_access_level & (AccessLevel::CURRENT_READ | AccessLevel::HISTORY_READ)
     }
 
-    fn is_user_executable(&self, _token: &UserToken, _method_id: &NodeId) -> bool {
-        false
+    fn is_user_executable(&self, token: &UserToken, method_id: &NodeId) -> bool {
+        match method_id.as_method_id() {
+            Ok(
+                MethodId::ConditionType_ConditionRefresh
+                | MethodId::ConditionType_ConditionRefresh2,
+            ) => true,
+            Ok(
+                MethodId::AcknowledgeableConditionType_Acknowledge
+                | MethodId::AcknowledgeableConditionType_Confirm,
+            ) => {
+                // Anonymous clients have no entry: readers.
+                self.users
+                    .get(&token.0)
+                    .is_some_and(|(_, role)| *role == Role::Operator)
+            }
+            _ => false,
+        }
     }
 
     fn user_token_policies(&self, endpoint: &ServerEndpoint) -> Vec<UserTokenPolicy> {

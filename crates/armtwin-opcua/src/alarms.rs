@@ -1,7 +1,7 @@
-//! A robot's alarms as OPC UA sees them: which changed between two readings, and the event
-//! (message and severity) each change becomes.
+//! A robot's alarms as OPC UA sees them: which changed between two readings, and what each
+//! alarm is called and how severe it is. [`crate::conditions`] makes conditions of them.
 //!
-//! Pure: the server turns the changes into events and notifies them.
+//! Pure.
 
 use crate::reading::AlarmReading;
 #[cfg(test)]
@@ -9,13 +9,15 @@ use crate::reading::RobotReading;
 
 /// Severity of a raised deviation alarm (OPC 10000-5: 601–800, medium high).
 const SEVERITY_DEVIATION: u16 = 700;
+/// Severity of a raised payload alarm (401–600, medium): the twin's dynamics are off, not the arm.
+const SEVERITY_PAYLOAD: u16 = 500;
 /// Severity of a raised collision alarm (801–1000, high).
 const SEVERITY_COLLISION: u16 = 900;
 /// Severity of an alarm that cleared (1–200, low).
 const SEVERITY_CLEARED: u16 = 100;
 
 /// One of a robot's alarms.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub(crate) enum Alarm {
     /// The twin's position deviation.
     Position,
@@ -23,14 +25,61 @@ pub(crate) enum Alarm {
     Angle,
     /// A collision on any joint.
     Collision,
+    /// The identified payload differs from the modelled one.
+    Payload,
+}
+
+impl Alarm {
+    /// Every alarm, in the order of their condition names.
+    pub(crate) const ALL: [Self; 4] = [Self::Position, Self::Angle, Self::Collision, Self::Payload];
+
+    /// The condition's name, also the last part of its node id.
+    pub(crate) fn name(self) -> &'static str {
+        match self {
+            Self::Position => "PositionDeviation",
+            Self::Angle => "OrientationDeviation",
+            Self::Collision => "Collision",
+            Self::Payload => "Payload",
+        }
+    }
+
+    /// The alarm named `name`.
+    pub(crate) fn named(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|alarm| alarm.name() == name)
+    }
+
+    /// The alarm, for people.
+    pub(crate) fn describe(self) -> &'static str {
+        match self {
+            Self::Position => "position deviation alarm",
+            Self::Angle => "orientation deviation alarm",
+            Self::Collision => "collision alarm",
+            Self::Payload => "payload alarm",
+        }
+    }
+
+    /// Its severity (1–1000) when `active`, and once cleared.
+    pub(crate) fn severity(self, active: bool) -> u16 {
+        match (active, self) {
+            (false, _) => SEVERITY_CLEARED,
+            (true, Self::Collision) => SEVERITY_COLLISION,
+            (true, Self::Position | Self::Angle) => SEVERITY_DEVIATION,
+            (true, Self::Payload) => SEVERITY_PAYLOAD,
+        }
+    }
 }
 
 /// Which of a robot's alarms are on.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[expect(
+    clippy::struct_excessive_bools,
+    reason = "independent alarms, any of them on"
+)]
 pub(crate) struct AlarmStates {
     position: bool,
     angle: bool,
     collision: bool,
+    payload: bool,
 }
 
 /// An alarm raised or cleared.
@@ -48,6 +97,7 @@ impl AlarmStates {
             position: reading.position_alarm,
             angle: reading.angle_alarm,
             collision: reading.collision.iter().any(|&on| on),
+            payload: false,
         }
     }
 
@@ -57,12 +107,13 @@ impl AlarmStates {
             position: reading.position,
             angle: reading.angle,
             collision: reading.collision,
+            payload: reading.payload,
         }
     }
 
     /// Whether any alarm is on.
     pub(crate) fn any(self) -> bool {
-        self.position || self.angle || self.collision
+        self.position || self.angle || self.collision || self.payload
     }
 
     /// What changed from `self` to `next`.
@@ -71,32 +122,11 @@ impl AlarmStates {
             (Alarm::Position, self.position, next.position),
             (Alarm::Angle, self.angle, next.angle),
             (Alarm::Collision, self.collision, next.collision),
+            (Alarm::Payload, self.payload, next.payload),
         ]
         .into_iter()
         .filter(|(_, before, after)| before != after)
         .map(|(alarm, _, raised)| AlarmChange { alarm, raised })
-    }
-}
-
-impl AlarmChange {
-    /// The event's message about `robot`.
-    pub(crate) fn message(self, robot: &str) -> String {
-        let what = match self.alarm {
-            Alarm::Position => "position deviation alarm",
-            Alarm::Angle => "orientation deviation alarm",
-            Alarm::Collision => "collision alarm",
-        };
-        let how = if self.raised { "raised" } else { "cleared" };
-        format!("{robot}: {what} {how}")
-    }
-
-    /// The event's severity (1–1000).
-    pub(crate) fn severity(self) -> u16 {
-        match (self.raised, self.alarm) {
-            (false, _) => SEVERITY_CLEARED,
-            (true, Alarm::Collision) => SEVERITY_COLLISION,
-            (true, Alarm::Position | Alarm::Angle) => SEVERITY_DEVIATION,
-        }
     }
 }
 
@@ -128,15 +158,15 @@ mod tests {
         );
         assert_eq!(deviating.changes(deviating).count(), 0);
         let cleared: Vec<_> = deviating.changes(calm).collect();
+        assert!(cleared.iter().all(|change| !change.raised));
         assert!(
-            cleared
-                .iter()
-                .all(|change| !change.raised && change.severity() == SEVERITY_CLEARED)
+            Alarm::Collision.severity(true) > Alarm::Position.severity(true)
+                && Alarm::Position.severity(false) == SEVERITY_CLEARED
         );
-        assert_eq!(
-            raised[0].message("ur10e-1"),
-            "ur10e-1: position deviation alarm raised"
+        assert!(
+            Alarm::ALL
+                .into_iter()
+                .all(|alarm| Alarm::named(alarm.name()) == Some(alarm))
         );
-        assert!(raised[1].severity() > raised[0].severity());
     }
 }

@@ -11,15 +11,21 @@
 //! - `robot`: one robot's nodes and what each variable shows;
 //! - `robots`: armtwin's namespace, the robots' nodes made from the fleet when a request names
 //!   them, and the monitored variables sampled;
-//! - `alarms`: alarm changes and the events they become;
+//! - `alarms`: each alarm's name and severity, and the changes between two readings;
+//! - `conditions`: the alarms as Alarms & Conditions, retained until acknowledged and confirmed;
+//! - `condition_event`: a condition's state as an `AlarmConditionType` event;
+//! - `methods`: `Acknowledge`, `Confirm` (operators) and `ConditionRefresh`;
 //! - `rejected`: the client certificates the server refused, kept within bounds;
-//! - `server`: the server and the sampler thread (monitored variables, alarm events).
+//! - `server`: the server and the sampler thread (monitored variables, condition events).
 //!
 //! Knows nothing of armtwin's twins: the service hands it [`RobotReading`]s.
 
 mod access;
 mod alarms;
+mod condition_event;
+mod conditions;
 mod manager;
+mod methods;
 mod password;
 mod reading;
 mod rejected;
@@ -36,4 +42,4 @@ pub use reading::{
 };
 pub use rejected::{MAX_REJECTED_BYTES, MAX_REJECTED_FILES};
 pub use server::{BoundServer, OpcUaError, OpcUaServer};
-pub use settings::{OpcUaSection, OpcUaSettings, SettingsError, User, UserSection};
+pub use settings::{OpcUaSection, OpcUaSettings, Role, SettingsError, User, UserSection};

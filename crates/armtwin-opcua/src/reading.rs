@@ -23,6 +23,10 @@ pub trait TwinSource: Send + Sync + 'static {
 
 /// Which of a robot's alarms are on.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[expect(
+    clippy::struct_excessive_bools,
+    reason = "independent alarms, any of them on"
+)]
 pub struct AlarmReading {
     /// The position deviation alarm.
     pub position: bool,
@@ -30,6 +34,8 @@ pub struct AlarmReading {
     pub angle: bool,
     /// A collision alarm on any joint.
     pub collision: bool,
+    /// The identified payload differs from the modelled one.
+    pub payload: bool,
 }
 
 /// One robot's state at the moment it was read.

@@ -2,29 +2,35 @@
 //!
 //! The robots' nodes are made from the fleet when a request names them ([`crate::robots`]).
 //! Once per sampling interval the sampler reads the robots whose variables clients monitor and
-//! notifies those items, reads every robot's alarm flags and turns their changes into events,
-//! and prunes the refused client certificates. Nothing here runs on the twins' sample path.
+//! notifies those items, reads every robot's alarm flags and turns their changes into condition
+//! events ([`crate::conditions`]), and prunes the refused client certificates. Nothing here runs
+//! on the twins' sample path.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::path::PathBuf;
-use std::sync::Arc;
 use std::sync::mpsc::{self, RecvTimeoutError};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use opcua::crypto::SecurityPolicy;
-use opcua::nodes::{BaseEventType, Event};
+use opcua::nodes::Event;
+use opcua::server::diagnostics::DiagnosticsNodeManagerBuilder;
+use opcua::server::node_manager::memory::{CoreNodeManagerBuilder, InMemoryNodeManagerBuilder};
 use opcua::server::{
     ANONYMOUS_USER_TOKEN_ID, Server, ServerBuilder, ServerEndpoint, ServerHandle, ServerUserToken,
     SubscriptionCache,
 };
-use opcua::types::{ByteString, MessageSecurityMode, NodeId, ObjectTypeId};
-use ring::rand::{SecureRandom, SystemRandom};
+use opcua::types::{DateTime, MessageSecurityMode};
+use ring::rand::SystemRandom;
 use tracing::{debug, info, warn};
 
 use crate::access::{Access, USERS_TOKEN_ID};
-use crate::alarms::{AlarmChange, AlarmStates};
+use crate::alarms::{Alarm, AlarmStates};
+use crate::condition_event::ConditionEvent;
+use crate::conditions::{ConditionSnapshot, Conditions};
 use crate::manager::{self, NodeSetError};
+use crate::methods::{self, ConditionMethods};
 use crate::reading::TwinSource;
 use crate::rejected;
 use crate::robots::RobotNodeManager;
@@ -103,6 +109,7 @@ pub struct BoundServer {
     handle: ServerHandle,
     listener: tokio::net::TcpListener,
     robots: Arc<RobotNodeManager>,
+    conditions: Arc<Mutex<Conditions>>,
     period: Duration,
     /// Where the stack stores the client certificates it refused, kept within bounds.
     rejected_dir: PathBuf,
@@ -120,7 +127,17 @@ impl OpcUaServer {
                 address: address.clone(),
                 source,
             })?;
+        let conditions = Arc::new(Mutex::new(Conditions::default()));
+        let for_methods = Arc::clone(&conditions);
+        // The condition methods first, ahead of the core node manager that owns their ids
+        // ([`crate::methods`]); then the stack's own two, as `ServerBuilder::new` adds them.
         let mut builder = ServerBuilder::new()
+            .without_node_managers()
+            .with_node_manager(move |context: opcua::server::node_manager::ServerContext| {
+                ConditionMethods::new(&context, for_methods)
+            })
+            .with_node_manager(InMemoryNodeManagerBuilder::new(CoreNodeManagerBuilder))
+            .with_node_manager(DiagnosticsNodeManagerBuilder)
             .application_name("armtwin")
             .application_uri("urn:armtwin:server")
             .product_uri("urn:armtwin")
@@ -175,6 +192,7 @@ impl OpcUaServer {
             handle,
             listener,
             robots,
+            conditions,
             period: settings.sampling_interval,
             rejected_dir: settings.pki_dir.join("rejected"),
         })
@@ -204,6 +222,7 @@ impl BoundServer {
         let sampler = Sampler {
             source,
             robots: self.robots,
+            conditions: self.conditions,
             subscriptions: Arc::clone(self.handle.subscriptions()),
             alarmed: HashMap::new(),
             random: SystemRandom::new(),
@@ -229,6 +248,8 @@ impl BoundServer {
 struct Sampler {
     source: Arc<dyn TwinSource>,
     robots: Arc<RobotNodeManager>,
+    /// Every condition that needs attention, shared with the condition methods.
+    conditions: Arc<Mutex<Conditions>>,
     subscriptions: Arc<SubscriptionCache>,
     /// The robots with an alarm on, as last published, and the turn that last saw each: a robot
     /// without one is kept nowhere.
@@ -294,12 +315,24 @@ impl Sampler {
         }
     }
 
-    /// One turn: the monitored variables sampled, and the alarms' changes notified.
+    /// One turn: the monitored variables sampled, and the alarms' changes notified as condition
+    /// events.
     fn sample(&mut self, turn: u64) {
         self.robots.sample(&self.subscriptions);
-        let mut changes: Vec<(Arc<str>, AlarmChange)> = Vec::new();
+        let mut changes: Vec<(Arc<str>, Alarm, bool)> = Vec::new();
         let alarmed = &mut self.alarmed;
+        // The robots still here, gathered only while a condition may need forgetting.
+        let any_retained = self
+            .conditions
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .len()
+            > 0;
+        let mut present: HashSet<Arc<str>> = HashSet::new();
         self.source.read_alarms(&mut |robot, reading| {
+            if any_retained {
+                present.insert(Arc::clone(robot));
+            }
             let now = AlarmStates::from_alarms(reading);
             let before = alarmed
                 .get(robot)
@@ -307,7 +340,7 @@ impl Sampler {
             changes.extend(
                 before
                     .changes(now)
-                    .map(|change| (Arc::clone(robot), change)),
+                    .map(|change| (Arc::clone(robot), change.alarm, change.raised)),
             );
             if now.any() {
                 alarmed.insert(Arc::clone(robot), (now, turn));
@@ -315,31 +348,45 @@ impl Sampler {
                 alarmed.remove(robot);
             }
         });
-        // A robot retired with an alarm on is forgotten without an event, as its node is gone.
-        alarmed.retain(|_, (_, seen)| *seen == turn);
-        self.notify(&changes);
+        let snapshots: Vec<ConditionSnapshot> = {
+            let mut conditions = self
+                .conditions
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner);
+            // A robot retired with an alarm on is forgotten without an event, as its node is
+            // gone; so are its conditions, cleared or not.
+            alarmed.retain(|_, (_, seen)| *seen == turn);
+            if any_retained {
+                conditions.retain_robots(|robot| present.contains(robot));
+            }
+            changes
+                .iter()
+                .filter_map(|(robot, alarm, raised)| {
+                    let id = methods::event_id(&self.random);
+                    conditions.set_active(robot, *alarm, *raised, DateTime::now(), id)
+                })
+                .collect()
+        };
+        self.notify(snapshots);
     }
 
-    /// Each alarm change as an event from the robot's system node: a client watching the node,
-    /// or the Server object (which every event reaches), receives it.
-    fn notify(&self, changes: &[(Arc<str>, AlarmChange)]) {
+    /// Each condition's new state as an event from the robot's node: a client watching the
+    /// node, or the Server object (which every event reaches), receives it.
+    fn notify(&self, snapshots: Vec<ConditionSnapshot>) {
         let armtwin = self.robots.namespace();
-        for (robot, change) in changes {
-            let root = NodeId::new(armtwin, robot.to_string());
-            let mut id = [0_u8; 16];
-            // Without randomness the id is zero: events stay distinct by time and source.
-            let _ = self.random.fill(&mut id);
-            let event = BaseEventType::new_now(
-                ObjectTypeId::BaseEventType,
-                ByteString::from(id.to_vec()),
-                change.message(robot),
-            )
-            .set_source_node(root.clone())
-            .set_source_name(robot.as_ref().into())
-            .set_severity(change.severity());
-            info!(robot = %robot, severity = change.severity(), message = %change.message(robot), "OPC UA event");
+        for snapshot in snapshots {
+            info!(
+                robot = %snapshot.robot,
+                alarm = snapshot.alarm.name(),
+                active = snapshot.active,
+                severity = snapshot.severity,
+                message = %snapshot.message,
+                "OPC UA condition"
+            );
+            let event = ConditionEvent::new(armtwin, snapshot);
+            let source = event.source().clone();
             self.subscriptions
-                .notify_events([(&event as &dyn Event, &root)].into_iter());
+                .notify_events([(&event as &dyn Event, &source)].into_iter());
         }
     }
 }

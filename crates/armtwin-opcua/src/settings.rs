@@ -45,7 +45,7 @@ pub struct OpcUaSection {
     pub users: Vec<UserSection>,
 }
 
-/// `[[opcua.users]]`: one user name and its password's digest.
+/// `[[opcua.users]]`: one user name, its password's digest and its role.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct UserSection {
@@ -53,6 +53,20 @@ pub struct UserSection {
     pub name: String,
     /// `pbkdf2-sha256:<iterations>:<salt, hex>:<digest, hex>`.
     pub password_hash: String,
+    /// What the user may do beyond reading (`reader` when not given).
+    #[serde(default)]
+    pub role: Role,
+}
+
+/// What a signed-in user may do. Everyone reads; no one writes a variable.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Role {
+    /// Reads, browses, subscribes and refreshes conditions.
+    #[default]
+    Reader,
+    /// A reader who may also acknowledge and confirm alarm conditions.
+    Operator,
 }
 
 /// The OPC UA server's checked settings.
@@ -87,6 +101,8 @@ pub struct User {
     pub name: String,
     /// Its password's digest.
     pub password: PasswordHash,
+    /// What it may do.
+    pub role: Role,
 }
 
 /// Why `[opcua]` cannot be used: the field and the problem.
@@ -149,30 +165,7 @@ impl OpcUaSettings {
                 ),
             });
         }
-        let mut users: Vec<User> = Vec::with_capacity(section.users.len());
-        for entry in &section.users {
-            if entry.name.trim().is_empty() {
-                return Err(SettingsError {
-                    field: "users.name",
-                    problem: "a user name is empty".to_owned(),
-                });
-            }
-            if users.iter().any(|user| user.name == entry.name) {
-                return Err(SettingsError {
-                    field: "users.name",
-                    problem: format!("'{}' is named twice", entry.name),
-                });
-            }
-            let password =
-                PasswordHash::parse(&entry.password_hash).map_err(|e| SettingsError {
-                    field: "users.password_hash",
-                    problem: e.to_string(),
-                })?;
-            users.push(User {
-                name: entry.name.clone(),
-                password,
-            });
-        }
+        let users = users_of(&section.users)?;
         if users.is_empty() && !section.anonymous {
             return Err(SettingsError {
                 field: "users",
@@ -210,6 +203,43 @@ impl OpcUaSettings {
             users,
         }))
     }
+}
+
+/// The `[[opcua.users]]` entries checked: names given once, none empty or reserved, and digests
+/// that parse.
+fn users_of(entries: &[UserSection]) -> Result<Vec<User>, SettingsError> {
+    let mut users: Vec<User> = Vec::with_capacity(entries.len());
+    for entry in entries {
+        if entry.name.trim().is_empty() {
+            return Err(SettingsError {
+                field: "users.name",
+                problem: "a user name is empty".to_owned(),
+            });
+        }
+        if entry.name == opcua::server::ANONYMOUS_USER_TOKEN_ID {
+            // The stack's name for anonymous clients: such a user would lend them its role.
+            return Err(SettingsError {
+                field: "users.name",
+                problem: format!("'{}' is reserved for anonymous clients", entry.name),
+            });
+        }
+        if users.iter().any(|user| user.name == entry.name) {
+            return Err(SettingsError {
+                field: "users.name",
+                problem: format!("'{}' is named twice", entry.name),
+            });
+        }
+        let password = PasswordHash::parse(&entry.password_hash).map_err(|e| SettingsError {
+            field: "users.password_hash",
+            problem: e.to_string(),
+        })?;
+        users.push(User {
+            name: entry.name.clone(),
+            password,
+            role: entry.role,
+        });
+    }
+    Ok(users)
 }
 
 /// `opc.tcp://HOST:PORT[/path]`'s host (an IPv6 address without its brackets) and port.
@@ -253,6 +283,7 @@ mod tests {
                 .map(|name| UserSection {
                     name: (*name).to_owned(),
                     password_hash: HASH.to_owned(),
+                    role: Role::Reader,
                 })
                 .collect(),
             ..OpcUaSection::default()
@@ -375,7 +406,7 @@ mod tests {
     }
 
     #[test]
-    fn a_user_named_twice_or_a_lone_certificate_is_refused() {
+    fn a_user_named_twice_or_anonymous_or_a_lone_certificate_is_refused() {
         let twice = section("opc.tcp://127.0.0.1:4840", false, &["mes", "mes"]);
         assert_eq!(
             OpcUaSettings::from_section(&twice, None, Path::new(""))
@@ -383,6 +414,9 @@ mod tests {
                 .field,
             "users.name"
         );
+        let anonymous = section("opc.tcp://127.0.0.1:4840", false, &["ANONYMOUS"]);
+        let error = OpcUaSettings::from_section(&anonymous, None, Path::new("")).unwrap_err();
+        assert!(error.problem.contains("reserved"), "{error}");
         let mut lone = section("opc.tcp://127.0.0.1:4840", false, &["mes"]);
         lone.certificate = Some(PathBuf::from("cert.der"));
         assert_eq!(

@@ -65,14 +65,12 @@ impl TwinSource for OpcUaView {
                     return;
                 };
                 let state = twin.state();
+                let effort = state.metrics.effort.as_deref();
                 AlarmReading {
                     position: state.alarms_active.position,
                     angle: state.alarms_active.angle,
-                    collision: state
-                        .metrics
-                        .effort
-                        .as_deref()
-                        .is_some_and(|effort| effort.collision.iter().any(|&on| on)),
+                    collision: effort.is_some_and(|effort| effort.collision.iter().any(|&on| on)),
+                    payload: effort.is_some_and(|effort| effort.payload_mismatch),
                 }
             };
             visit(cell.robot().shared_id(), alarms);

@@ -35,6 +35,18 @@ pub(crate) enum ConditionRefusal {
     NotAcked,
 }
 
+/// What an operator does to a condition.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Operation {
+    /// `Acknowledge`: seen.
+    Acknowledge,
+    /// `Confirm`: acknowledged, and the cause dealt with.
+    Confirm,
+}
+
+/// The longest comment kept with a condition (characters).
+const MAX_COMMENT_CHARS: usize = 256;
+
 /// One condition's state, as its next event shows it.
 #[derive(Debug, Clone, PartialEq)]
 #[expect(
@@ -138,55 +150,16 @@ impl Conditions {
         Some(snapshot)
     }
 
-    /// `Acknowledge` by `user` of the condition of `robot` and `alarm` in the state of event
-    /// `acting_on`: its new state.
-    pub(crate) fn acknowledge(
+    /// `operation` by `user` (with `comment`) on the condition of `robot` and `alarm`, in the
+    /// state of event `acting_on`: its new state, which the new event `event_id` at `time` shows.
+    pub(crate) fn operate(
         &mut self,
-        target: (&str, Alarm),
-        acting_on: &[u8],
-        note: (&str, &str),
-        time: DateTime,
-        event_id: [u8; 16],
-    ) -> Result<ConditionSnapshot, ConditionRefusal> {
-        self.act(target, acting_on, |condition| {
-            if condition.acked {
-                return Err(ConditionRefusal::AlreadyAcked);
-            }
-            condition.acked = true;
-            Ok("acknowledged")
-        })
-        .map(|key| self.after_method(key, note, time, event_id))
-    }
-
-    /// `Confirm`, as [`acknowledge`](Self::acknowledge): only once acknowledged.
-    pub(crate) fn confirm(
-        &mut self,
-        target: (&str, Alarm),
-        acting_on: &[u8],
-        note: (&str, &str),
-        time: DateTime,
-        event_id: [u8; 16],
-    ) -> Result<ConditionSnapshot, ConditionRefusal> {
-        self.act(target, acting_on, |condition| {
-            if !condition.acked {
-                return Err(ConditionRefusal::NotAcked);
-            }
-            if condition.confirmed {
-                return Err(ConditionRefusal::AlreadyConfirmed);
-            }
-            condition.confirmed = true;
-            Ok("confirmed")
-        })
-        .map(|key| self.after_method(key, note, time, event_id))
-    }
-
-    /// Finds the condition, checks the event id and applies `change`, which names what it did.
-    fn act(
-        &mut self,
+        operation: Operation,
         (robot, alarm): (&str, Alarm),
         acting_on: &[u8],
-        change: impl FnOnce(&mut ConditionSnapshot) -> Result<&'static str, ConditionRefusal>,
-    ) -> Result<(Arc<str>, Alarm, &'static str), ConditionRefusal> {
+        (user, comment): (&str, &str),
+        (time, event_id): (DateTime, [u8; 16]),
+    ) -> Result<ConditionSnapshot, ConditionRefusal> {
         let key = (Arc::<str>::from(robot), alarm);
         let condition = self
             .retained
@@ -195,31 +168,37 @@ impl Conditions {
         if condition.event_id.as_slice() != acting_on {
             return Err(ConditionRefusal::UnknownEventId);
         }
-        let what = change(condition)?;
-        Ok((key.0, alarm, what))
-    }
-
-    fn after_method(
-        &mut self,
-        (robot, alarm, what): (Arc<str>, Alarm, &'static str),
-        (user, comment): (&str, &str),
-        time: DateTime,
-        event_id: [u8; 16],
-    ) -> ConditionSnapshot {
-        let key = (robot, alarm);
-        let Some(condition) = self.retained.get_mut(&key) else {
-            unreachable!("act found the condition")
+        let what = match operation {
+            Operation::Acknowledge if condition.acked => {
+                return Err(ConditionRefusal::AlreadyAcked);
+            }
+            Operation::Acknowledge => {
+                condition.acked = true;
+                "acknowledged"
+            }
+            Operation::Confirm if !condition.acked => return Err(ConditionRefusal::NotAcked),
+            Operation::Confirm if condition.confirmed => {
+                return Err(ConditionRefusal::AlreadyConfirmed);
+            }
+            Operation::Confirm => {
+                condition.confirmed = true;
+                "confirmed"
+            }
         };
         condition.event_id = event_id;
         condition.time = time;
         condition.last_severity = condition.severity;
-        condition.message = format!("{}: {} {what} by {user}", key.0, alarm.describe());
-        comment.clone_into(&mut condition.comment);
+        condition.message = format!("{robot}: {} {what} by {user}", alarm.describe());
+        condition.comment.clear();
+        // A client's comment is kept with the condition: bounded, whatever the message allows.
+        condition
+            .comment
+            .extend(comment.chars().take(MAX_COMMENT_CHARS));
         user.clone_into(&mut condition.client_user);
         condition.retain = !condition.settled();
         let snapshot = condition.clone();
         self.keep(key, &snapshot);
-        snapshot
+        Ok(snapshot)
     }
 
     /// Keeps the condition while it is retained, forgets it once it is not.
@@ -278,15 +257,27 @@ mod tests {
         // Acting on an old event, or confirming first, is refused.
         let target = ("r1", Alarm::Position);
         assert_eq!(
-            conditions.acknowledge(target, &id(9), OPERATOR, t(3), id(3)),
+            conditions.operate(
+                Operation::Acknowledge,
+                target,
+                &id(9),
+                OPERATOR,
+                (t(3), id(3))
+            ),
             Err(ConditionRefusal::UnknownEventId)
         );
         assert_eq!(
-            conditions.confirm(target, &id(1), OPERATOR, t(3), id(3)),
+            conditions.operate(Operation::Confirm, target, &id(1), OPERATOR, (t(3), id(3))),
             Err(ConditionRefusal::NotAcked)
         );
         let acked = conditions
-            .acknowledge(target, &id(1), OPERATOR, t(3), id(3))
+            .operate(
+                Operation::Acknowledge,
+                target,
+                &id(1),
+                OPERATOR,
+                (t(3), id(3)),
+            )
             .unwrap();
         assert!(acked.active && acked.acked && acked.retain);
         assert_eq!(
@@ -294,7 +285,13 @@ mod tests {
             OPERATOR
         );
         assert_eq!(
-            conditions.acknowledge(target, &id(3), OPERATOR, t(4), id(4)),
+            conditions.operate(
+                Operation::Acknowledge,
+                target,
+                &id(3),
+                OPERATOR,
+                (t(4), id(4))
+            ),
             Err(ConditionRefusal::AlreadyAcked)
         );
         let cleared = conditions
@@ -305,7 +302,7 @@ mod tests {
             "cleared, not yet confirmed"
         );
         let confirmed = conditions
-            .confirm(target, &id(5), OPERATOR, t(6), id(6))
+            .operate(Operation::Confirm, target, &id(5), OPERATOR, (t(6), id(6)))
             .unwrap();
         assert!(
             !confirmed.retain,
@@ -313,7 +310,13 @@ mod tests {
         );
         assert_eq!(conditions.len(), 0, "and the condition is forgotten");
         assert_eq!(
-            conditions.acknowledge(target, &id(6), OPERATOR, t(7), id(7)),
+            conditions.operate(
+                Operation::Acknowledge,
+                target,
+                &id(6),
+                OPERATOR,
+                (t(7), id(7))
+            ),
             Err(ConditionRefusal::UnknownCondition)
         );
     }
@@ -324,7 +327,13 @@ mod tests {
         let mut conditions = Conditions::default();
         conditions.set_active(&robot, Alarm::Collision, true, t(1), id(1));
         conditions
-            .acknowledge(("r1", Alarm::Collision), &id(1), OPERATOR, t(2), id(2))
+            .operate(
+                Operation::Acknowledge,
+                ("r1", Alarm::Collision),
+                &id(1),
+                OPERATOR,
+                (t(2), id(2)),
+            )
             .unwrap();
         conditions.set_active(&robot, Alarm::Collision, false, t(3), id(3));
         let again = conditions
@@ -332,6 +341,21 @@ mod tests {
             .unwrap();
         assert!(again.active && !again.acked && !again.confirmed);
         assert_eq!(again.last_severity, Alarm::Collision.severity(false));
+        let long = "x".repeat(10 * MAX_COMMENT_CHARS);
+        let acked = conditions
+            .operate(
+                Operation::Acknowledge,
+                ("r1", Alarm::Collision),
+                &id(4),
+                ("op", &long),
+                (t(5), id(5)),
+            )
+            .unwrap();
+        assert_eq!(
+            acked.comment.chars().count(),
+            MAX_COMMENT_CHARS,
+            "a comment is bounded"
+        );
         assert_eq!(conditions.retained().count(), 1);
         conditions.retain_robots(|robot| robot != "r1");
         assert_eq!(

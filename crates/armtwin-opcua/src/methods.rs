@@ -26,7 +26,7 @@ use tracing::{info, warn};
 
 use crate::alarms::Alarm;
 use crate::condition_event::{ConditionEvent, parse_condition_id, refresh_event};
-use crate::conditions::{ConditionRefusal, ConditionSnapshot, Conditions};
+use crate::conditions::{ConditionRefusal, ConditionSnapshot, Conditions, Operation};
 use crate::manager::ARMTWIN_URI;
 
 /// The methods this node manager answers, by their standard ids.
@@ -104,18 +104,28 @@ impl ConditionMethods {
             .conditions
             .lock()
             .unwrap_or_else(PoisonError::into_inner);
-        let result = if method == MethodId::AcknowledgeableConditionType_Acknowledge {
-            conditions.acknowledge((&robot, alarm), acting_on, note, DateTime::now(), id)
+        let operation = if method == MethodId::AcknowledgeableConditionType_Acknowledge {
+            Operation::Acknowledge
         } else {
-            conditions.confirm((&robot, alarm), acting_on, note, DateTime::now(), id)
+            Operation::Confirm
         };
-        result.map_err(|refusal| match refusal {
-            ConditionRefusal::UnknownCondition => StatusCode::BadNodeIdUnknown,
-            ConditionRefusal::UnknownEventId => StatusCode::BadEventIdUnknown,
-            ConditionRefusal::AlreadyAcked => StatusCode::BadConditionBranchAlreadyAcked,
-            ConditionRefusal::AlreadyConfirmed => StatusCode::BadConditionBranchAlreadyConfirmed,
-            ConditionRefusal::NotAcked => StatusCode::BadInvalidState,
-        })
+        conditions
+            .operate(
+                operation,
+                (&robot, alarm),
+                acting_on,
+                note,
+                (DateTime::now(), id),
+            )
+            .map_err(|refusal| match refusal {
+                ConditionRefusal::UnknownCondition => StatusCode::BadNodeIdUnknown,
+                ConditionRefusal::UnknownEventId => StatusCode::BadEventIdUnknown,
+                ConditionRefusal::AlreadyAcked => StatusCode::BadConditionBranchAlreadyAcked,
+                ConditionRefusal::AlreadyConfirmed => {
+                    StatusCode::BadConditionBranchAlreadyConfirmed
+                }
+                ConditionRefusal::NotAcked => StatusCode::BadInvalidState,
+            })
     }
 
     /// `ConditionRefresh`: the retained conditions to the caller's subscription `call` names.

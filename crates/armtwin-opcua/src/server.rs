@@ -57,8 +57,9 @@ pub enum OpcUaError {
 
 /// How long stopping may wait for the server's sessions to close.
 const STOP_TIMEOUT: Duration = Duration::from_secs(2);
-/// How often the refused client certificates are pruned.
-const REJECTED_PRUNE_PERIOD: Duration = Duration::from_secs(1);
+/// How often the refused client certificates are pruned, and retired robots' conditions
+/// forgotten (which needs every robot's id: not each sampling interval).
+const PRUNE_PERIOD: Duration = Duration::from_secs(1);
 
 /// A running OPC UA server.
 pub struct OpcUaServer {
@@ -266,8 +267,9 @@ impl Sampler {
         loop {
             turn += 1;
             let started = Instant::now();
-            self.sample(turn);
-            if pruned.elapsed() >= REJECTED_PRUNE_PERIOD {
+            let prune = pruned.elapsed() >= PRUNE_PERIOD;
+            self.sample(turn, prune);
+            if prune {
                 pruned = Instant::now();
                 self.prune_rejected();
             }
@@ -317,20 +319,21 @@ impl Sampler {
 
     /// One turn: the monitored variables sampled, and the alarms' changes notified as condition
     /// events.
-    fn sample(&mut self, turn: u64) {
+    fn sample(&mut self, turn: u64, prune: bool) {
         self.robots.sample(&self.subscriptions);
         let mut changes: Vec<(Arc<str>, Alarm, bool)> = Vec::new();
         let alarmed = &mut self.alarmed;
-        // The robots still here, gathered only while a condition may need forgetting.
-        let any_retained = self
-            .conditions
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .len()
-            > 0;
+        // The robots still here, gathered only on a pruning turn while a condition is retained.
+        let gather = prune
+            && self
+                .conditions
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .len()
+                > 0;
         let mut present: HashSet<Arc<str>> = HashSet::new();
         self.source.read_alarms(&mut |robot, reading| {
-            if any_retained {
+            if gather {
                 present.insert(Arc::clone(robot));
             }
             let now = AlarmStates::from_alarms(reading);
@@ -356,7 +359,7 @@ impl Sampler {
             // A robot retired with an alarm on is forgotten without an event, as its node is
             // gone; so are its conditions, cleared or not.
             alarmed.retain(|_, (_, seen)| *seen == turn);
-            if any_retained {
+            if gather {
                 conditions.retain_robots(|robot| present.contains(robot));
             }
             changes

@@ -13,6 +13,11 @@ import sys
 from pathlib import Path
 
 import pytest
+import zenoh
+
+# Zenoh's errors in the test's own sessions (a link it closed, and why) land in the captured
+# output of the test that failed; without this, only the service's side of a link was logged.
+zenoh.init_log_from_env_or("error")
 
 # `support` is imported from this directory whichever way pytest imports the test modules.
 HERE = str(Path(__file__).resolve().parent)

@@ -19,7 +19,7 @@ import zenoh
 from ruamel.yaml import YAML
 
 from support.paths import router_path
-from support.process import Process, free_port, port_accepts, wait_until
+from support.process import Process, bounded_endpoint, free_port, port_accepts, wait_until
 
 REPO = Path(__file__).resolve().parents[2]
 DOCKER = REPO / "docker"
@@ -226,11 +226,12 @@ def test_the_compose_topology_runs_natively(tmp_path, armtwin_bin):
     services = compose()["services"]
     router_port, rest_port = free_port(), free_port()
     endpoint = f"tcp/127.0.0.1:{router_port}"
+    linked = bounded_endpoint(endpoint)  # every link of the topology, as the other tests' links
     http_ports = {}
 
     def native(argv: list[str], name: str = "") -> list[str]:
         text = [
-            arg.replace("tcp/0.0.0.0:7447", endpoint).replace(ROUTER_ENDPOINT, endpoint)
+            arg.replace("tcp/0.0.0.0:7447", linked).replace(ROUTER_ENDPOINT, linked)
             for arg in argv
         ]
         if "--rest-http-port" in text:

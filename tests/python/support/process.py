@@ -37,6 +37,22 @@ RUN_TIMEOUT_S = 60
 # Ports handed out below Linux's ephemeral range (32768-60999 by default), where no outgoing
 # connection takes one: each pytest-xdist worker its own block, so two tests running at once
 # never get the same port, walked in turn from a random start so a port is seldom reused soon.
+# The send buffer of the test's Zenoh links, in their TCP and TLS endpoints (the kernel doubles
+# it). Left to itself, Linux grows a socket's send buffer to megabytes while its peer is slower,
+# and wakes the writer only once about half of it has drained: a test feeding a debug build on a
+# loaded machine saw a put wait longer than Zenoh's `wait_before_close` (5 s) for that wake-up,
+# and Zenoh then closed the link and lost what it held, with the receiver still reading. With this
+# bound a blocked put waits for a few hundred messages to drain, not thousands.
+LINK_SNDBUF = 65536
+
+
+def bounded_endpoint(endpoint: str) -> str:
+    """``endpoint`` with :data:`LINK_SNDBUF`, unless it already names link options."""
+    if "#" in endpoint or not endpoint.startswith(("tcp/", "tls/")):
+        return endpoint
+    return f"{endpoint}#so_sndbuf={LINK_SNDBUF}"
+
+
 PORT_BLOCK_START = 20000
 PORT_BLOCK_SIZE = 1500
 PORT_BLOCKS = 8
@@ -264,7 +280,7 @@ class Router(Process):
         self.port = port or free_port()
         self.rest_port = free_port() if rest else None
         self.endpoint = f"{scheme}/127.0.0.1:{self.port}" if scheme == "tcp" else f"{scheme}/localhost:{self.port}"
-        argv = [binary, "-l", self.endpoint, "--no-multicast-scouting"]
+        argv = [binary, "-l", bounded_endpoint(self.endpoint), "--no-multicast-scouting"]
         if config is not None:
             argv += ["-c", config]
         for endpoint in connect or []:

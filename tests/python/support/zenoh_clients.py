@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import zenoh
 
-from support.process import wait_until
+from support.process import bounded_endpoint, wait_until
 
 PREFIX = "twin"
 INPUT_STREAMS = ("joints", "measured")
@@ -32,12 +32,10 @@ OUTPUT_STREAMS = ("pose", "deviation", "metrics", "events")
 
 MATCH_TIMEOUT_S = 15.0
 QUERY_TIMEOUT_S = 10.0
-
-
 def open_session(endpoint: str) -> zenoh.Session:
     conf = zenoh.Config()
     conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("connect/endpoints", json.dumps([bounded_endpoint(endpoint)]))
     conf.insert_json5("listen/endpoints", "[]")
     conf.insert_json5("scouting/multicast/enabled", "false")
     return zenoh.open(conf)
@@ -238,7 +236,7 @@ class TwinClient:
 def client_config(endpoint: str, tls: dict | None = None) -> zenoh.Config:
     conf = zenoh.Config()
     conf.insert_json5("mode", '"client"')
-    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("connect/endpoints", json.dumps([bounded_endpoint(endpoint)]))
     conf.insert_json5("scouting/multicast/enabled", "false")
     for key, value in (tls or {}).items():
         conf.insert_json5(f"transport/link/tls/{key}", json.dumps(value))

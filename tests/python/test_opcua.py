@@ -5,9 +5,11 @@ DI's ``DeviceSet`` browsed to the robot's OPC 40010 motion device, each axis's `
 the last joints streamed in its ``EngineeringUnits``, the arm's nameplate with the serial number its
 gateway reported of the controller, changes at the sampling interval, an event
 when the twin's position alarm is raised and one when it clears, no write accepted, and the
-robot's node gone once it is retired.
+robot's node gone once it is retired. The position alarm as an Alarms & Conditions alarm, through
+asyncua's own alarms-and-conditions subscription: raised, sent again by a ConditionRefresh,
+acknowledged and confirmed by an operator and refused to a reader, cleared and let go.
 
-Written against OPC 40010-1, OPC 10000-100 and docs/opcua.md, not the Rust source.
+Written against OPC 40010-1, OPC 10000-100, OPC 10000-9 and docs/opcua.md, not the Rust source.
 
 Run: ``ARMTWIN_BIN=$PWD/target/debug/armtwin .venv/bin/python -m pytest tests/python/test_opcua.py -q``
 """
@@ -360,6 +362,188 @@ def test_a_user_from_opcua_user_signs_in_where_clients_are_told(armtwin_bin, tmp
                 await client.disconnect()
 
         asyncio.run(asyncio.wait_for(sign_in(), 90.0))
+    finally:
+        stopped = service.stop()
+    assert stopped.code == 0, service.logs()
+
+
+OPERATOR, READER = ("shift-lead", "acknowledge-7"), ("scada", "read-only-3")
+ACKNOWLEDGE, CONFIRM = ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge), ua.NodeId(
+    ua.ObjectIds.AcknowledgeableConditionType_Confirm)
+CONDITION_TYPES = [ua.ObjectIds.AlarmConditionType, ua.ObjectIds.RefreshStartEventType,
+                   ua.ObjectIds.RefreshEndEventType]
+def conditions_config(port: int) -> str:
+    """config(), its one user replaced by an operator and a reader."""
+    users = "".join(
+        f'\n[[opcua.users]]\nname = "{name}"\npassword_hash = "{password_hash(password)}"\nrole = "{role}"\n'
+        for (name, password), role in ((OPERATOR, "operator"), (READER, "reader")))
+    return config(port).split("[[opcua.users]]")[0] + users
+
+
+class Offsetting:
+    """Streams the recording to ROBOT at 500 Hz, its measured x moved by ``offset_m``, until
+    stopped: 2 cm raises the 5-mm position alarm after its 0.5-s hold, 0 clears it."""
+
+    def __init__(self, twin: TwinClient):
+        self.offset_m = 0.0
+        self._rows = lasttest_rows()[:PHASES[-1][1]]  # rows with a measured pose each
+        self._publisher = twin.joints(ROBOT)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self):
+        index, period_s, next_at = 0, 0.002, time.monotonic()
+        while not self._stop.is_set():
+            q, measured = self._rows[index % len(self._rows)]
+            pose = list(measured)
+            pose[0] += self.offset_m
+            self._publisher.put(json.dumps({"t": 1000.0 + index * period_s, "q": q,
+                                            "measured": dict(zip(MEASURED_KEYS, pose))}))
+            index += 1
+            next_at += period_s
+            time.sleep(max(0.0, next_at - time.monotonic()))
+
+    def stop(self):
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
+async def until(predicate, timeout: float) -> bool:
+    """wait_until for a coroutine: the client's notifications arrive on this event loop, which a
+    blocking wait would hold."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        await asyncio.sleep(0.02)
+    return True
+
+
+def field(event, name: str):
+    return getattr(event, name, None)
+
+
+async def trusted_client(workdir: Path, url: str, name: str, password: str) -> Path:
+    """A client certificate for ``name``, refused once and then trusted as an administrator would."""
+    keys = workdir / f"client-{name}"
+    keys.mkdir()
+    await setup_self_signed_certificate(keys / "key.pem", keys / "cert.der", APP_URI, "localhost",
+                                        [ExtendedKeyUsageOID.CLIENT_AUTH], {"commonName": name})
+    await refused(await secured(url, keys, name, password, SIGN_IN_S))
+    trusted = workdir / "pki" / "trusted"
+    trusted.mkdir(exist_ok=True)
+    for rejected in (workdir / "pki" / "rejected").glob("*.der"):
+        shutil.move(rejected, trusted / rejected.name)
+    return keys
+
+
+async def conditions_scenario(workdir: Path, service: ArmtwinProcess, url: str) -> None:
+    keys = await trusted_client(workdir, url, *OPERATOR)
+    operator = await secured(url, keys, *OPERATOR, SIGN_IN_S)
+    reader = await secured(url, keys, *READER, SIGN_IN_S)
+    async with operator, reader:
+        seen_by_operator, seen_by_reader = Recorder(), Recorder()
+        subscriptions = {}
+        for client, recorder in ((operator, seen_by_operator), (reader, seen_by_reader)):
+            subscription = await client.create_subscription(SAMPLING_MS, recorder)
+            # asyncua's own alarms-and-conditions filter for these types: every field they declare
+            # or inherit, and the ConditionId (an empty browse path, read as `event.NodeId`).
+            await subscription.subscribe_alarms_and_conditions(evtypes=CONDITION_TYPES, queuesize=100)
+            subscriptions[client] = subscription
+
+        def conditions(recorder: Recorder) -> list:
+            return [e for e in recorder.events if field(e, "ConditionName") == "PositionDeviation"]
+
+        async def latest(recorder: Recorder, **states):
+            """Waits for a condition event in ``states`` (field name to value), and returns it."""
+            def match():
+                found = [e for e in conditions(recorder)
+                         if all(field(e, key.replace("_", "/")) == value for key, value in states.items())]
+                return found[-1] if found else None
+            assert await until(lambda: match() is not None, TIMEOUT_S), (
+                states, recorder.events[-3:], service.logs()[-3000:])
+            return match()
+
+        twin = TwinClient(service.endpoint)
+        twin.ready([ROBOT])
+        stream = Offsetting(twin)
+        try:
+            # Raised: active, unacknowledged, retained, at the deviation alarm's severity.
+            stream.offset_m = 0.02
+            raised = await latest(seen_by_operator, ActiveState_Id=True, AckedState_Id=False)
+            assert (raised.Retain, raised.Severity, field(raised, "ActiveState").Text) == (True, 700, "Active")
+            assert raised.SourceName == ROBOT and ROBOT in raised.Message.Text, raised
+            condition = reader.get_node(raised.NodeId)
+            assert raised.NodeId.NamespaceIndex == await reader.get_namespace_index(ARMTWIN), raised.NodeId
+
+            # A refresh sends the reader's subscription the retained condition between its markers.
+            before = len(seen_by_reader.events)
+            await reader.get_node(ua.ObjectIds.ConditionType).call_method(
+                ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh),
+                ua.Variant(subscriptions[reader].subscription_id, ua.VariantType.UInt32))
+
+            def refreshed():
+                types = [e.EventType for e in seen_by_reader.events[before:]]
+                return ua.NodeId(ua.ObjectIds.RefreshEndEventType) in types
+            assert await until(refreshed, TIMEOUT_S), seen_by_reader.events[before:]
+            window = seen_by_reader.events[before:]
+            start = [e.EventType for e in window].index(ua.NodeId(ua.ObjectIds.RefreshStartEventType))
+            end = [e.EventType for e in window].index(ua.NodeId(ua.ObjectIds.RefreshEndEventType))
+            inside = [e for e in window[start + 1:end] if field(e, "ConditionName") == "PositionDeviation"]
+            assert [(e.EventId, field(e, "ActiveState/Id")) for e in inside] == [(raised.EventId, True)], window
+
+            # A reader may not acknowledge; an operator may, once, on the latest event.
+            comment = ua.LocalizedText("checked the fixture")
+            with pytest.raises(ua.uaerrors.BadUserAccessDenied):
+                await condition.call_method(ACKNOWLEDGE, ua.Variant(raised.EventId, ua.VariantType.ByteString), comment)
+            await operator.get_node(raised.NodeId).call_method(
+                ACKNOWLEDGE, ua.Variant(raised.EventId, ua.VariantType.ByteString), comment)
+            acked = await latest(seen_by_reader, ActiveState_Id=True, AckedState_Id=True)
+            assert (acked.Retain, acked.ClientUserId, field(acked, "Comment").Text) == (
+                True, OPERATOR[0], "checked the fixture"), acked
+            with pytest.raises(ua.uaerrors.BadConditionBranchAlreadyAcked):
+                await operator.get_node(raised.NodeId).call_method(
+                    ACKNOWLEDGE, ua.Variant(acked.EventId, ua.VariantType.ByteString), comment)
+            with pytest.raises(ua.uaerrors.BadEventIdUnknown):
+                await operator.get_node(raised.NodeId).call_method(
+                    CONFIRM, ua.Variant(raised.EventId, ua.VariantType.ByteString), comment)
+
+            # Cleared: inactive, still retained until confirmed; confirmed, it is let go.
+            stream.offset_m = 0.0
+            cleared = await latest(seen_by_operator, ActiveState_Id=False, AckedState_Id=True)
+            assert (cleared.Retain, cleared.Severity) == (True, 100), cleared
+            with pytest.raises(ua.uaerrors.BadUserAccessDenied):
+                await condition.call_method(CONFIRM, ua.Variant(cleared.EventId, ua.VariantType.ByteString), comment)
+            await operator.get_node(raised.NodeId).call_method(
+                CONFIRM, ua.Variant(cleared.EventId, ua.VariantType.ByteString), comment)
+            settled = await latest(seen_by_reader, ConfirmedState_Id=True)
+            assert (settled.Retain, field(settled, "ActiveState/Id")) == (False, False), settled
+
+            # Nothing is retained any more: a refresh sends its two markers alone.
+            before = len(seen_by_reader.events)
+            await reader.get_node(ua.ObjectIds.ConditionType).call_method(
+                ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh),
+                ua.Variant(subscriptions[reader].subscription_id, ua.VariantType.UInt32))
+            assert await until(refreshed, TIMEOUT_S), seen_by_reader.events[before:]
+            assert not [e for e in seen_by_reader.events[before:] if field(e, "ConditionName")]
+        finally:
+            stream.stop()
+            twin.close()
+    log = service.logs()
+    assert "a condition method refused to a reader" in log and "condition changed by a client" in log, log
+
+
+def test_an_operator_acknowledges_and_confirms_a_twin_alarm_a_reader_only_sees_it(armtwin_bin, tmp_path):
+    """The position alarm as an OPC UA AlarmCondition: raised, refreshed, acknowledged and
+    confirmed by an operator of [[opcua.users]], both refused to a reader, cleared and let go."""
+    port = free_port()
+    service = ArmtwinProcess(armtwin_bin, tmp_path, conditions_config(port), watchdog_s=120.0)
+    service.start()
+    try:
+        assert wait_until(lambda: port_accepts(port), 15.0), service.logs()
+        url = f"opc.tcp://127.0.0.1:{port}"
+        asyncio.run(asyncio.wait_for(conditions_scenario(tmp_path, service, url), 120.0))
     finally:
         stopped = service.stop()
     assert stopped.code == 0, service.logs()

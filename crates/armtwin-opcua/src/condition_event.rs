@@ -26,6 +26,15 @@ pub(crate) fn parse_condition_id(id: &str) -> Option<(&str, &str)> {
     Some((robot, path.strip_prefix("Alarms/")?))
 }
 
+/// The type of a condition event and its supertypes: the types a select clause may name to read
+/// its fields.
+const CONDITION_TYPES: [ObjectTypeId; 4] = [
+    ObjectTypeId::BaseEventType,
+    ObjectTypeId::ConditionType,
+    ObjectTypeId::AcknowledgeableConditionType,
+    ObjectTypeId::AlarmConditionType,
+];
+
 /// One condition event.
 #[derive(Debug)]
 pub(crate) struct ConditionEvent {
@@ -127,11 +136,15 @@ impl EventField for ConditionEvent {
 impl Event for ConditionEvent {
     fn get_field(
         &self,
-        _type_definition_id: &NodeId,
+        type_definition_id: &NodeId,
         attribute_id: AttributeId,
         index_range: &NumericRange,
         browse_path: &[QualifiedName],
     ) -> Variant {
+        // A clause of another type (an audit event's, say) selects nothing of a condition's.
+        if !CONDITION_TYPES.iter().any(|t| type_definition_id == t) {
+            return Variant::Empty;
+        }
         // The `ConditionId`: the condition's own node id, named by an empty browse path.
         if browse_path.is_empty() && attribute_id == AttributeId::NodeId {
             return Variant::from(self.condition_id.clone())
@@ -232,5 +245,20 @@ mod tests {
             Some(("cell/r1", "Collision"))
         );
         assert_eq!(parse_condition_id("cell/r1#MotionDevices/Arm"), None);
+        // A clause of a type that is not the condition's nor a supertype selects nothing.
+        let audit = event.get_field(
+            &ObjectTypeId::AuditEventType.into(),
+            AttributeId::Value,
+            &NumericRange::None,
+            &path(&["EventId"]),
+        );
+        assert_eq!(audit, Variant::Empty);
+        let inherited = event.get_field(
+            &ObjectTypeId::BaseEventType.into(),
+            AttributeId::Value,
+            &NumericRange::None,
+            &path(&["Severity"]),
+        );
+        assert_eq!(inherited, Variant::from(900_u16));
     }
 }

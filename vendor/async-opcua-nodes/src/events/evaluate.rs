@@ -34,7 +34,8 @@ impl ParsedEventFilter {
         let fields: Vec<_> = self
             .select_clauses
             .iter()
-            .map(|c| get_field(event, c))
+            // PATCHED (armtwin): a refused select clause answers null in its place.
+            .map(|c| c.as_ref().map_or(Variant::Empty, |c| get_field(event, c)))
             .collect();
         Some(EventFieldList {
             client_handle,

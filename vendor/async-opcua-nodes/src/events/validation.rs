@@ -93,7 +93,12 @@ impl ParsedOperand {
 /// Parsed version of the raw [EventFilter].
 pub struct ParsedEventFilter {
     pub(super) content_filter: ParsedContentFilter,
-    pub(super) select_clauses: Vec<ParsedSimpleAttributeOperand>,
+    // PATCHED (armtwin): one entry per select clause of the request, `None` for a clause that
+    // failed validation, so that each event's fields match the client's clauses one to one
+    // (Part 4, EventFieldList: "a one to one match with the fields selected in the EventFilter").
+    // Upstream kept the valid clauses alone, and a client that reads the fields by position got
+    // every field after a refused clause shifted by one.
+    pub(super) select_clauses: Vec<Option<ParsedSimpleAttributeOperand>>,
 }
 
 impl ParsedEventFilter {
@@ -168,9 +173,12 @@ fn validate(
         match validate_select_clause(clause, type_tree) {
             Ok(result) => {
                 select_clause_results.push(StatusCode::Good);
-                final_select_clauses.push(result);
+                final_select_clauses.push(Some(result));
             }
-            Err(e) => select_clause_results.push(e),
+            Err(e) => {
+                select_clause_results.push(e);
+                final_select_clauses.push(None);
+            }
         }
     }
     let (where_clause_result, parsed_where_clause) = validate_where_clause(
@@ -228,9 +236,38 @@ fn validate_select_clause(
         });
     }
 
-    let Some(node) = type_tree.find_type_prop_by_browse_path(&clause.type_definition_id, &path)
-    else {
-        return Err(StatusCode::BadNodeIdUnknown);
+    // PATCHED (armtwin): the ConditionId. Part 9 names it by a select clause with the
+    // ConditionType (or a subtype), an empty browse path and the NodeId attribute: the node id of
+    // the condition itself. Upstream looked the empty path up as a property and refused it, so no
+    // client could learn which condition an event was about, and could not acknowledge it.
+    if path.is_empty()
+        && attribute_id == AttributeId::NodeId
+        && type_tree.is_subtype_of(
+            &clause.type_definition_id,
+            &ObjectTypeId::ConditionType.into(),
+        )
+    {
+        return Ok(ParsedSimpleAttributeOperand {
+            type_definition_id: clause.type_definition_id,
+            browse_path: path,
+            attribute_id,
+            index_range: clause.index_range,
+        });
+    }
+
+    // PATCHED (armtwin): a type's properties include those it inherits (OPC 10000-4,
+    // SimpleAttributeOperand: the browse path is followed from the type definition, as in an
+    // instance of it). Upstream looked at the type's own properties alone, so `EventId` or
+    // `AckedState/Id` selected on the AlarmConditionType were refused.
+    let mut type_id = &clause.type_definition_id;
+    let node = loop {
+        if let Some(node) = type_tree.find_type_prop_by_browse_path(type_id, &path) {
+            break node;
+        }
+        match type_tree.get_supertype(type_id) {
+            Some(supertype) => type_id = supertype,
+            None => return Err(StatusCode::BadNodeIdUnknown),
+        }
     };
 
     // Validate the attribute id. Per spec:

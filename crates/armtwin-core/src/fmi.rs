@@ -393,7 +393,7 @@ pub enum FmuSettingsError {
         joints: usize,
     },
     /// Only catalog models are packaged.
-    #[error("model '{model}': the FMU supports catalog models only, not custom arm files")]
+    #[error("model '{model}': the FMU supports catalog models only, not custom arm or URDF files")]
     CustomArm {
         /// The model value.
         model: String,
@@ -482,7 +482,7 @@ impl FmuSettings {
     ) -> Result<RobotModel, FmuSettingsError> {
         let arm = match ModelRef::parse(&self.model) {
             ModelRef::Catalog(name) => catalog::arm(name)?,
-            ModelRef::CustomArm(_) => {
+            ModelRef::CustomArm(_) | ModelRef::Urdf(_) => {
                 return Err(FmuSettingsError::CustomArm {
                     model: self.model.clone(),
                 });

@@ -7,7 +7,7 @@
 //! - [`invariants`]: the checks the decoders share (finite numbers, unit quaternions, known error
 //!   kinds) and the small writers that re-encode a decoded message.
 //! - one module per decoder, named as its fuzz target: [`json`], [`zser`], [`cdr`],
-//!   [`ros2_attachment`], [`calibration`], [`snapshot`], [`csv`], [`rtde`]; and
+//!   [`ros2_attachment`], [`calibration`], [`snapshot`], [`csv`], [`rtde`], [`urdf`]; and
 //!   [`certificate_names`], the names `armtwin certs` writes; [`fleet`], the fleet description.
 //!
 //! Must not depend on the runtime or the service: the fuzz build instruments all of this crate's
@@ -28,6 +28,7 @@ pub mod json;
 pub mod ros2_attachment;
 pub mod rtde;
 pub mod snapshot;
+pub mod urdf;
 pub mod zser;
 
 // The service's snapshot file, compiled from its source (it names only the core): depending on
@@ -56,5 +57,6 @@ pub const CHECKS: &[(&str, Check)] = &[
     ("ros2_attachment", ros2_attachment::check),
     ("rtde", rtde::check),
     ("snapshot", snapshot::check),
+    ("urdf", urdf::check),
     ("zser", zser::check),
 ];

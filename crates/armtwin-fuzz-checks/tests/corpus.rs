@@ -132,6 +132,11 @@ fn snapshot() {
 }
 
 #[test]
+fn urdf() {
+    run("urdf");
+}
+
+#[test]
 fn zser() {
     run("zser");
 }

@@ -10,7 +10,8 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 use armtwin_codec::PoseFields;
 use armtwin_codec::joint_csv::{JointCsvReader, PoseCsvWriter};
-use armtwin_core::model::RobotModel;
+use armtwin_core::model::urdf::{JointKind, UrdfRobot};
+use armtwin_core::model::{ModelRef, RobotModel};
 use serde::Serialize;
 
 use crate::flags::FkArgs;
@@ -32,6 +33,12 @@ fn to_radians(q: &mut [f64], degrees: bool) {
 }
 
 pub(super) fn run(args: &FkArgs) -> Result<()> {
+    if let ModelRef::Urdf(path) = ModelRef::parse(&args.robot.model) {
+        return run_urdf(args, path);
+    }
+    if args.base_link.is_some() || args.tip_link.is_some() {
+        bail!("--base-link and --tip-link name links of a URDF --model");
+    }
     let model = args.robot.load()?;
     if let Some(path) = &args.csv {
         return run_csv(&model, path, args.deg);
@@ -46,6 +53,46 @@ pub(super) fn run(args: &FkArgs) -> Result<()> {
     let mut q = args.joints.clone();
     to_radians(&mut q, args.deg);
     let pose = model.pose(&q)?;
+    let output = FkOutput {
+        pose: PoseFields::from(&pose.readout()),
+        matrix: args.matrix.then(|| pose.homogeneous_rows()),
+    };
+    let stdout = io::stdout();
+    let mut out = stdout.lock();
+    serde_json::to_writer(&mut out, &output)?;
+    writeln!(out)?;
+    Ok(())
+}
+
+/// The tip link's pose in the base link's frame, from a URDF; joint values base to tip (rad, or m
+/// for prismatic joints). The calibration, TCP and frame flags are for DH models.
+fn run_urdf(args: &FkArgs, path: &Path) -> Result<()> {
+    if args.robot.calibration.is_some() || args.robot.tcp.is_some() || args.csv.is_some() {
+        bail!("--calibration, --tcp and --csv are not taken with a URDF --model yet");
+    }
+    let text = super::read_text(path)?;
+    let chain = UrdfRobot::parse(&text)
+        .and_then(|robot| robot.chain(args.base_link.as_deref(), args.tip_link.as_deref()))
+        .with_context(|| path.display().to_string())?;
+    if args.joints.len() != chain.joint_count() {
+        let names: Vec<_> = chain.joints.iter().map(|j| j.name.as_str()).collect();
+        bail!(
+            "{}: the chain from '{}' to '{}' has {} moving joints ({}); got {} values",
+            path.display(),
+            chain.base_link,
+            chain.tip_link,
+            chain.joint_count(),
+            names.join(", "),
+            args.joints.len()
+        );
+    }
+    let mut q = args.joints.clone();
+    for (value, joint) in q.iter_mut().zip(&chain.joints) {
+        if args.deg && joint.kind != JointKind::Prismatic {
+            *value = value.to_radians();
+        }
+    }
+    let pose = chain.pose(&q).with_context(|| path.display().to_string())?;
     let output = FkOutput {
         pose: PoseFields::from(&pose.readout()),
         matrix: args.matrix.then(|| pose.homogeneous_rows()),

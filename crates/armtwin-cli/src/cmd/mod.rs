@@ -33,7 +33,7 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 use armtwin_codec::recording::{self, ColumnMap, PoseForm, Recording};
 use armtwin_core::kinematics::TcpOffset;
-use armtwin_core::model::{Calibration, ModelRef, RobotModel, catalog, custom};
+use armtwin_core::model::{Calibration, ModelError, ModelRef, RobotModel, catalog, custom};
 use armtwin_offline::rosbag::{self, BagOptions, BagTopics};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
@@ -203,6 +203,9 @@ impl RobotArgs {
                 custom::parse_arm(&read_text(path)?, &path.display().to_string())?
             }
             ModelRef::Catalog(name) => catalog::arm(name)?,
+            ModelRef::Urdf(path) => {
+                return Err(ModelError::UrdfKinematicsOnly(path.display().to_string()).into());
+            }
         };
         let calibration = self
             .calibration

@@ -11,6 +11,7 @@ pub mod custom;
 pub mod inertia;
 mod reference;
 pub mod ur_inertia;
+pub mod urdf;
 
 use thiserror::Error;
 
@@ -84,6 +85,11 @@ pub enum ModelError {
         /// What does not fit.
         reason: String,
     },
+    /// A URDF named where only a DH model is taken yet.
+    #[error(
+        "{0}: a URDF model is taken by `armtwin fk` so far; this command and `serve` take a catalog arm or a custom arm's TOML (docs/kinematics.md)"
+    )]
+    UrdfKinematicsOnly(String),
     /// A custom arm file is invalid.
     #[error("{source_name}: {reason}")]
     CustomArm {

@@ -1,5 +1,5 @@
-//! How a configuration or a command line names a robot's arm: a catalog name (`ur10e`) or the
-//! path of a custom arm's TOML file (`arm.toml`).
+//! How a configuration or a command line names a robot's arm: a catalog name (`ur10e`), the
+//! path of a custom arm's TOML file (`arm.toml`) or of a URDF description (`robot.urdf`).
 //!
 //! Owns that one rule. Must not open the file: the caller reads it and hands the text to
 //! [`custom::parse_arm`](super::custom::parse_arm).
@@ -16,6 +16,7 @@ use std::path::Path;
 ///     ModelRef::parse("arms/my_arm.toml"),
 ///     ModelRef::CustomArm(Path::new("arms/my_arm.toml"))
 /// );
+/// assert_eq!(ModelRef::parse("panda.urdf"), ModelRef::Urdf(Path::new("panda.urdf")));
 /// ```
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ModelRef<'a> {
@@ -24,21 +25,21 @@ pub enum ModelRef<'a> {
     /// The path of a custom arm's TOML description (relative to whatever the caller resolves
     /// paths against).
     CustomArm(&'a Path),
+    /// The path of a URDF description ([`urdf`](super::urdf)).
+    Urdf(&'a Path),
 }
 
 impl<'a> ModelRef<'a> {
-    /// What `name` refers to: a path ending in `.toml` is a custom arm, anything else a catalog
-    /// name (an unknown one is refused by the catalog, with the names it has).
+    /// What `name` refers to: a path ending in `.toml` is a custom arm, one ending in `.urdf` a
+    /// URDF, anything else a catalog name (an unknown one is refused by the catalog, with the
+    /// names it has).
     #[must_use]
     pub fn parse(name: &'a str) -> Self {
         let path = Path::new(name);
-        if path
-            .extension()
-            .is_some_and(|extension| extension == "toml")
-        {
-            Self::CustomArm(path)
-        } else {
-            Self::Catalog(name)
+        match path.extension().and_then(|e| e.to_str()) {
+            Some("toml") => Self::CustomArm(path),
+            Some("urdf") => Self::Urdf(path),
+            _ => Self::Catalog(name),
         }
     }
 }

@@ -174,6 +174,11 @@ impl RobotSource<'_> {
                 custom::parse_arm(&text, &path).map_err(|e| self.model_error(e))?
             }
             ModelRef::Catalog(name) => catalog::arm(name).map_err(|e| self.model_error(e))?,
+            ModelRef::Urdf(path) => {
+                return Err(
+                    self.model_error(ModelError::UrdfKinematicsOnly(path.display().to_string()))
+                );
+            }
         };
         let calibration = match self.pick(|s| s.calibration.clone()) {
             Some(relative) => {

@@ -1,0 +1,175 @@
+use std::f64::consts::FRAC_PI_2;
+
+use approx::assert_relative_eq;
+use nalgebra::Vector3;
+
+use super::*;
+
+/// A base, a fixed mount 0.1 m up, a revolute joint about z, a 0.5-m link, a prismatic joint
+/// along its x, and two leaves: the tool and a camera on the mount.
+const ARM: &str = r#"<?xml version="1.0"?>
+<robot name="two">
+  <link name="base"/><link name="mount"/><link name="upper"/><link name="tool"/><link name="camera"/>
+  <joint name="mount_fixed" type="fixed">
+    <parent link="base"/><child link="mount"/><origin xyz="0 0 0.1"/>
+  </joint>
+  <joint name="shoulder" type="revolute">
+    <parent link="mount"/><child link="upper"/><axis xyz="0 0 2"/>
+    <limit lower="-3" upper="3" effort="150" velocity="2.5"/>
+  </joint>
+  <joint name="slide" type="prismatic">
+    <parent link="upper"/><child link="tool"/><origin xyz="0.5 0 0" rpy="0 0 1.5707963267948966"/>
+    <axis xyz="1 0 0"/><limit lower="0" upper="0.2" effort="50" velocity="0.1"/>
+  </joint>
+  <joint name="camera_fixed" type="fixed">
+    <parent link="mount"/><child link="camera"/><origin xyz="0 0.05 0"/>
+  </joint>
+</robot>"#;
+
+fn error_of(text: &str) -> UrdfError {
+    UrdfRobot::parse(text)
+        .and_then(|r| r.chain(None, Some("tool")))
+        .unwrap_err()
+}
+
+#[test]
+fn a_chain_folds_fixed_joints_and_moves_revolute_and_prismatic_joints() {
+    let robot = UrdfRobot::parse(ARM).unwrap();
+    assert_eq!(robot.name, "two");
+    assert_eq!(robot.root_link(), "base");
+    assert_eq!(robot.leaf_links(), ["tool", "camera"]);
+    let chain = robot.chain(None, Some("tool")).unwrap();
+    let names: Vec<_> = chain.joints.iter().map(|j| j.name.as_str()).collect();
+    assert_eq!(names, ["shoulder", "slide"]);
+    assert_eq!(chain.joints[0].kind, JointKind::Revolute);
+    assert_eq!(chain.joints[0].limits.max_rad, Some(3.0));
+    assert_eq!(chain.joints[0].max_effort, Some(150.0));
+    assert_eq!(chain.joints[1].kind, JointKind::Prismatic);
+    // Shoulder at 90°: the upper link points along y; the slide (turned 90° more) along −x.
+    let pose = chain.pose(&[FRAC_PI_2, 0.2]).unwrap();
+    assert_relative_eq!(
+        pose.position_m,
+        Vector3::new(-0.2, 0.5, 0.1),
+        epsilon = 1e-15
+    );
+    assert_relative_eq!(pose.rotation * Vector3::x(), -Vector3::x(), epsilon = 1e-15);
+    // From the mount, without the fixed joint before it; to the camera, no moving joint at all.
+    let from_mount = robot.chain(Some("mount"), Some("tool")).unwrap();
+    assert_relative_eq!(
+        from_mount.pose(&[0.0, 0.0]).unwrap().position_m,
+        Vector3::new(0.5, 0.0, 0.0),
+        epsilon = 1e-15
+    );
+    let camera = robot.chain(None, Some("camera")).unwrap();
+    assert_eq!(camera.joint_count(), 0);
+    assert_relative_eq!(
+        camera.pose(&[]).unwrap().position_m,
+        Vector3::new(0.0, 0.05, 0.1)
+    );
+}
+
+#[test]
+fn a_chain_needs_its_tip_named_among_several_leaves_and_a_base_on_its_way() {
+    let robot = UrdfRobot::parse(ARM).unwrap();
+    let leaves = robot.chain(None, None).unwrap_err().to_string();
+    assert!(leaves.contains("'tool', 'camera'"), "{leaves}");
+    let off = robot
+        .chain(Some("camera"), Some("tool"))
+        .unwrap_err()
+        .to_string();
+    assert!(off.contains("'camera' is not between"), "{off}");
+    let missing = robot.chain(None, Some("gripper")).unwrap_err().to_string();
+    assert!(
+        missing.contains("'gripper' is not in the URDF"),
+        "{missing}"
+    );
+    let chain = robot.chain(None, Some("tool")).unwrap();
+    assert_eq!(
+        chain.pose(&[0.0]).unwrap_err(),
+        UrdfError::JointCount {
+            expected: 2,
+            got: 1
+        }
+    );
+    assert_eq!(
+        chain.pose(&[f64::NAN, 0.0]).unwrap_err(),
+        UrdfError::NotFinite("shoulder".to_owned())
+    );
+}
+
+#[test]
+fn bad_descriptions_are_refused_naming_what_is_wrong() {
+    let cases: &[(&str, &str, &str)] = &[
+        (
+            r#"type="prismatic""#,
+            r#"type="floating""#,
+            "joint 'slide': type 'floating'",
+        ),
+        (
+            r#"<axis xyz="1 0 0"/>"#,
+            r#"<axis xyz="0 0 0"/>"#,
+            "joint 'slide': its axis has no length",
+        ),
+        (
+            r#"xyz="0.5 0 0""#,
+            r#"xyz="0.5 zero 0""#,
+            "joint 'slide': origin xyz '0.5 zero 0' is not three finite numbers",
+        ),
+        (
+            r#"lower="0" upper="0.2""#,
+            r#"lower="0.3" upper="0.2""#,
+            "joint 'slide': limit lower 0.3 is above upper 0.2",
+        ),
+        (
+            r#"<child link="tool"/>"#,
+            r#"<child link="toll"/>"#,
+            "joint 'slide': link 'toll' is not defined",
+        ),
+        (
+            r#"<child link="camera"/>"#,
+            r#"<child link="tool"/>"#,
+            "link 'tool' is the child of two joints",
+        ),
+        (
+            r#"<link name="camera"/>"#,
+            r#"<link name="camera"/><link name="spare"/>"#,
+            "2 trees, not one: roots 'base', 'spare'",
+        ),
+        (
+            r#"<axis xyz="1 0 0"/>"#,
+            r#"<axis xyz="1 0 0"/><mimic joint="shoulder"/>"#,
+            "joint 'slide': mimics another joint",
+        ),
+        (
+            r#"<robot name="two">"#,
+            r#"<robot name="two" xmlns:xacro="http://ros.org/wiki/xacro"><xacro:property name="l" value="1"/>"#,
+            "xacro template (<xacro:property>)",
+        ),
+        (
+            r#"xyz="0.5 0 0""#,
+            r#"xyz="${l} 0 0""#,
+            "xacro template (xyz=\"${l} 0 0\")",
+        ),
+    ];
+    for (from, to, expected) in cases {
+        assert!(ARM.contains(from), "{from}");
+        let error = error_of(&ARM.replacen(from, to, 1)).to_string();
+        assert!(error.contains(expected), "{to}: {error}");
+    }
+    assert!(matches!(error_of("<robot"), UrdfError::Xml(_)));
+    assert!(matches!(
+        error_of(r#"<!DOCTYPE robot [<!ENTITY a "aaaa">]><robot name="x"/>"#),
+        UrdfError::Xml(_)
+    ));
+    assert_eq!(
+        error_of("<model/>"),
+        UrdfError::NotARobot("model".to_owned())
+    );
+    let huge = " ".repeat(MAX_URDF_BYTES + 1);
+    assert_eq!(
+        error_of(&huge),
+        UrdfError::TooLarge {
+            bytes: MAX_URDF_BYTES + 1
+        }
+    );
+}

@@ -1,0 +1,133 @@
+"""`armtwin fk --model FILE.urdf`: the pose of a chain of any arm's URDF, against Pinocchio's.
+
+Five descriptions from example-robot-data (tests/data/urdf/, BSD-3-Clause), read unchanged: Franka
+Panda (fixed joints to its TCP, mimic fingers off the chain), UR5, Kinova Jaco (continuous
+joints), Unitree Z1 (its one leaf taken as the tip) and PAL TIAGo (a prismatic torso lift under the
+arm, and the head's chain beside it). Pinocchio builds the whole model from the same file; every
+joint off the chain stays at its neutral position. Random joint values within each joint's limits
+(continuous joints over a full turn); the tip link's pose in the base link's frame must agree to
+1e-12 m and 1e-12 in every rotation matrix entry.
+
+Written against the URDF specification (wiki.ros.org/urdf/XML) and Pinocchio, not the Rust source.
+
+Run: ``ARMTWIN_BIN=$PWD/target/debug/armtwin .venv/bin/python -m pytest tests/python/test_urdf.py -q``
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from support.paths import REPO_ROOT
+from support.process import run_armtwin
+
+URDF_DIR = REPO_ROOT / "tests" / "data" / "urdf"
+CONFIGURATIONS = 12
+TOLERANCE = 1e-12
+# (file, base link or None for the root, tip link or None for the one leaf)
+CHAINS = [
+    ("panda.urdf", "panda_link0", "panda_hand_tcp"),
+    ("ur5_robot.urdf", None, "tool0"),
+    ("ur5_robot.urdf", "base_link", "ee_link"),
+    ("kinova.urdf", None, "j2s6s200_end_effector"),
+    ("z1.urdf", None, None),
+    ("tiago_no_hand.urdf", None, "wrist_ft_tool_link"),
+    ("tiago_no_hand.urdf", "torso_lift_link", "xtion_optical_frame"),
+]
+
+
+def chain_joints(model: pin.Model, base: str, tip: str) -> list[int]:
+    """Pinocchio's moving joints between the base and tip links' bodies, base first."""
+    def joints_to(frame_name: str) -> list[int]:
+        joint = model.frames[model.getFrameId(frame_name)].parentJoint
+        path = []
+        while joint != 0:
+            path.append(joint)
+            joint = model.parents[joint]
+        return path[::-1]
+
+    to_base, to_tip = joints_to(base), joints_to(tip)
+    assert to_tip[:len(to_base)] == to_base, (base, tip)
+    return to_tip[len(to_base):]
+
+
+def random_value(model: pin.Model, joint: int, rng: np.random.Generator) -> float:
+    index, nq = model.joints[joint].idx_q, model.joints[joint].nq
+    if nq == 2:  # continuous: cos and sin in the configuration
+        return float(rng.uniform(-math.pi, math.pi))
+    low, high = model.lowerPositionLimit[index], model.upperPositionLimit[index]
+    return float(rng.uniform(low, high))
+
+
+def set_value(model: pin.Model, q: np.ndarray, joint: int, value: float) -> None:
+    index, nq = model.joints[joint].idx_q, model.joints[joint].nq
+    if nq == 2:
+        q[index], q[index + 1] = math.cos(value), math.sin(value)
+    else:
+        q[index] = value
+
+
+def root_link(path) -> str:
+    import xml.etree.ElementTree as ET
+
+    robot = ET.parse(path).getroot()
+    children = {j.find("child").get("link") for j in robot.findall("joint")}
+    return next(link.get("name") for link in robot.findall("link") if link.get("name") not in children)
+
+
+@pytest.mark.parametrize("file,base,tip", CHAINS, ids=[f"{f}:{b or 'root'}->{t or 'leaf'}" for f, b, t in CHAINS])
+def test_the_chain_pose_equals_pinocchios(armtwin_bin, file, base, tip):
+    path = URDF_DIR / file
+    model = pin.buildModelFromUrdf(str(path))
+    data = model.createData()
+    base_name = base or root_link(path)
+    tip_name = tip or "gripperMover"  # z1's one leaf, which armtwin must find by itself
+    joints = chain_joints(model, base_name, tip_name)
+    rng = np.random.default_rng(sum(map(ord, file + base_name + tip_name)))
+    flags = ["--model", str(path)]
+    if base:
+        flags += ["--base-link", base]
+    if tip:
+        flags += ["--tip-link", tip]
+    worst_m, worst_rotation = 0.0, 0.0
+    for _ in range(CONFIGURATIONS):
+        values = [random_value(model, joint, rng) for joint in joints]
+        q = pin.neutral(model)
+        for joint, value in zip(joints, values):
+            set_value(model, q, joint, value)
+        pin.forwardKinematics(model, data, q)
+        pin.updateFramePlacements(model, data)
+        expected = data.oMf[model.getFrameId(base_name)].inverse() * data.oMf[model.getFrameId(tip_name)]
+        run = run_armtwin("fk", *flags, "--matrix", "--", *[repr(v) for v in values])
+        assert run.returncode == 0, run.stderr
+        matrix = np.array(json.loads(run.stdout)["matrix"])
+        worst_m = max(worst_m, float(np.max(np.abs(matrix[:3, 3] - expected.translation))))
+        worst_rotation = max(worst_rotation, float(np.max(np.abs(matrix[:3, :3] - expected.rotation))))
+    print(f"\n[{file} {base_name} -> {tip_name}] {len(joints)} joints, {CONFIGURATIONS} configurations: "
+          f"worst position {worst_m:.1e} m, worst rotation entry {worst_rotation:.1e}")
+    assert worst_m <= TOLERANCE and worst_rotation <= TOLERANCE, (worst_m, worst_rotation)
+
+
+def test_a_chain_that_cannot_be_chosen_or_a_xacro_is_refused_naming_why(armtwin_bin, tmp_path):
+    panda = URDF_DIR / "panda.urdf"
+    leaves = run_armtwin("fk", "--model", str(panda), "0")
+    assert leaves.returncode != 0
+    assert "leaf links ('panda_hand_tcp', 'panda_leftfinger', 'panda_rightfinger')" in leaves.stderr, leaves.stderr
+    mimic = run_armtwin("fk", "--model", str(panda), "--tip-link", "panda_rightfinger", *["0"] * 8)
+    assert mimic.returncode != 0 and "joint 'panda_finger_joint2'" in mimic.stderr, mimic.stderr
+    count = run_armtwin("fk", "--model", str(panda), "--tip-link", "panda_hand_tcp", "0", "0")
+    assert count.returncode != 0 and "has 7 moving joints (panda_joint1" in count.stderr, count.stderr
+    template = tmp_path / "arm.urdf"
+    text = panda.read_text()
+    assert 'xmlns:xacro="http://www.ros.org/wiki/xacro">' in text  # declared, unused: a URDF still
+    template.write_text(text.replace('xmlns:xacro="http://www.ros.org/wiki/xacro">',
+                                     'xmlns:xacro="http://www.ros.org/wiki/xacro"><xacro:include filename="hand.xacro"/>', 1))
+    xacro = run_armtwin("fk", "--model", str(template), "0")
+    assert xacro.returncode != 0 and "xacro robot.urdf.xacro > robot.urdf" in xacro.stderr, xacro.stderr
+    # The commands that take a DH model say where a URDF is taken, rather than misreading it.
+    ik = run_armtwin("ik", "--model", str(panda), "--pose=0.3,0,0.5,1,0,0,0")
+    assert ik.returncode != 0 and "a URDF model is taken by `armtwin fk` so far" in ik.stderr, ik.stderr

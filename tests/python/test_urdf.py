@@ -131,3 +131,38 @@ def test_a_chain_that_cannot_be_chosen_or_a_xacro_is_refused_naming_why(armtwin_
     # The commands that take a DH model say where a URDF is taken, rather than misreading it.
     ik = run_armtwin("ik", "--model", str(panda), "--pose=0.3,0,0.5,1,0,0,0")
     assert ik.returncode != 0 and "a URDF model is taken by `armtwin fk` so far" in ik.stderr, ik.stderr
+
+
+TORQUE_TOLERANCE = 1e-9  # relative to the torque vector's largest entry (at least 1 N·m or N)
+
+
+@pytest.mark.parametrize("file,base,tip", CHAINS, ids=[f"{f}:{b or 'root'}->{t or 'leaf'}" for f, b, t in CHAINS])
+def test_the_chain_torques_equal_pinocchios_rnea_on_the_whole_model(armtwin_bin, file, base, tip):
+    """Inverse dynamics of the chain with every body of the tree: Pinocchio's RNEA on the whole
+    model, every joint off the chain at its neutral position and at rest, gravity 9.81 m/s²."""
+    path = URDF_DIR / file
+    model = pin.buildModelFromUrdf(str(path))
+    data = model.createData()
+    base_name = base or root_link(path)
+    tip_name = tip or "gripperMover"
+    joints = chain_joints(model, base_name, tip_name)
+    rng = np.random.default_rng(7 + sum(map(ord, file + base_name + tip_name)))
+    flags = ["--model", str(path)] + (["--base-link", base] if base else []) + (["--tip-link", tip] if tip else [])
+    worst = 0.0
+    for _ in range(CONFIGURATIONS):
+        values = [random_value(model, joint, rng) for joint in joints]
+        qd = rng.uniform(-2.0, 2.0, len(joints))
+        qdd = rng.uniform(-5.0, 5.0, len(joints))
+        q = pin.neutral(model)
+        v, a = np.zeros(model.nv), np.zeros(model.nv)
+        for k, joint in enumerate(joints):
+            set_value(model, q, joint, values[k])
+            v[model.joints[joint].idx_v], a[model.joints[joint].idx_v] = qd[k], qdd[k]
+        expected = pin.rnea(model, data, q, v, a)[[model.joints[j].idx_v for j in joints]]
+        listed = lambda xs: ",".join(repr(float(x)) for x in xs)  # noqa: E731
+        run = run_armtwin("torques", *flags, f"--q={listed(values)}", f"--qd={listed(qd)}", f"--qdd={listed(qdd)}")
+        assert run.returncode == 0, run.stderr
+        got = np.array(json.loads(run.stdout)["torque"])
+        worst = max(worst, float(np.max(np.abs(got - expected)) / max(1.0, float(np.max(np.abs(expected))))))
+    print(f"\n[{file} {base_name} -> {tip_name}] torques at {CONFIGURATIONS} states: worst relative {worst:.1e}")
+    assert worst <= TORQUE_TOLERANCE, worst

@@ -27,6 +27,8 @@ pub enum Command {
     Fk(FkArgs),
     /// List the built-in robot models with their DH parameters and joint limits.
     Models(ModelsArgs),
+    /// Inverse dynamics: the joint torques (JSON) for positions, velocities and accelerations.
+    Torques(TorquesArgs),
     /// Run the live twin service on Zenoh (peer on tcp/127.0.0.1:7447 by default).
     Serve(ServeArgs),
     /// Publish a recording (CSV) to the mesh as a gateway would, for `armtwin serve` to twin.
@@ -569,6 +571,34 @@ pub struct FkArgs {
     /// Joint angles q1 … qn (radians unless --deg).
     #[arg(allow_negative_numbers = true, value_name = "Q")]
     pub joints: Vec<f64>,
+}
+
+/// `armtwin torques` arguments.
+#[derive(Debug, Args)]
+pub struct TorquesArgs {
+    /// A catalog model with published inertias (the UR arms), or a URDF file (its `<inertial>`s).
+    #[arg(long, default_value = "ur10e")]
+    pub model: String,
+    /// With a URDF: the chain's base link (default: the root link).
+    #[arg(long, value_name = "LINK")]
+    pub base_link: Option<String>,
+    /// With a URDF: the chain's tip link (default: the one leaf link).
+    #[arg(long, value_name = "LINK")]
+    pub tip_link: Option<String>,
+    /// Joint positions, base to tip (rad, or m for a prismatic joint), comma-separated.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        allow_negative_numbers = true,
+        required = true
+    )]
+    pub q: Vec<f64>,
+    /// Joint velocities (rad/s or m/s); zeros when left out.
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
+    pub qd: Vec<f64>,
+    /// Joint accelerations (rad/s² or m/s²); zeros when left out.
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
+    pub qdd: Vec<f64>,
 }
 
 /// `armtwin models` arguments.

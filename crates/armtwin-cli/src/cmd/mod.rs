@@ -24,6 +24,7 @@ mod opcua_user;
 mod record;
 mod replay;
 mod serve;
+mod torques;
 mod validate;
 
 pub use validate::{EXIT_GATE_FAILED, GateFailed};
@@ -47,6 +48,7 @@ pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Fk(args) => fk::run(&args),
         Command::Models(args) => models::run(&args),
+        Command::Torques(args) => torques::run(&args),
         Command::Serve(args) => serve::run(&args),
         Command::Replay(args) => replay::run(&args),
         Command::Record(args) => record::run(&args),

@@ -8,7 +8,7 @@
 
 use std::collections::{HashMap, HashSet};
 
-use nalgebra::{IsometryMatrix3, Rotation3, Translation3, Unit, Vector3};
+use nalgebra::{IsometryMatrix3, Matrix3, Rotation3, Translation3, Unit, Vector3};
 use thiserror::Error;
 
 use super::JointLimits;
@@ -53,6 +53,14 @@ pub enum UrdfError {
     Joint {
         /// The joint's name.
         joint: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A link's `<inertial>` is missing a value or malformed.
+    #[error("link '{link}': {reason}")]
+    Link {
+        /// The link's name.
+        link: String,
         /// What is wrong.
         reason: String,
     },
@@ -148,12 +156,34 @@ struct RawJoint {
     mimic: bool,
 }
 
+/// A link's mass properties, in its own frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Inertial {
+    /// Mass (kg).
+    pub mass_kg: f64,
+    /// Centre of mass in the link frame (m).
+    pub com_m: Vector3<f64>,
+    /// Inertia about the centre of mass, in the link frame's axes (kg·m²).
+    pub inertia_kg_m2: Matrix3<f64>,
+}
+
+impl Inertial {
+    /// No mass.
+    pub const MASSLESS: Self = Self {
+        mass_kg: 0.0,
+        com_m: Vector3::new(0.0, 0.0, 0.0),
+        inertia_kg_m2: Matrix3::new(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    };
+}
+
 /// A URDF description: its name, links and joints, checked to form one tree.
 #[derive(Debug, Clone)]
 pub struct UrdfRobot {
     /// The `<robot name>`.
     pub name: String,
     links: Vec<String>,
+    /// Per link (as `links`), its `<inertial>`; massless without one.
+    inertials: Vec<Inertial>,
     joints: Vec<RawJoint>,
     /// The joint whose child is each link.
     joint_to: HashMap<String, usize>,
@@ -304,6 +334,51 @@ fn parse_joint(node: roxmltree::Node) -> Result<RawJoint, UrdfError> {
     })
 }
 
+/// A link's `<inertial>`: `<origin>` (the centre of mass and the inertia's axes), `<mass value>`
+/// and `<inertia ixx ixy ixz iyy iyz izz>`; massless when absent.
+fn parse_inertial(link: roxmltree::Node, name: &str) -> Result<Inertial, UrdfError> {
+    let Some(inertial) = child(link, "inertial") else {
+        return Ok(Inertial::MASSLESS);
+    };
+    let fail = |reason: String| UrdfError::Link {
+        link: name.to_owned(),
+        reason,
+    };
+    // The same readers as a joint's, their errors re-labelled with the link.
+    let relabel = |error: UrdfError| match error {
+        UrdfError::Joint { reason, .. } => fail(format!("inertial {reason}")),
+        other => other,
+    };
+    let origin = origin_of(inertial, name).map_err(relabel)?;
+    let mass_kg = child(inertial, "mass")
+        .and_then(|m| m.attribute("value"))
+        .ok_or_else(|| fail("<inertial> has no <mass value=…>".to_owned()))
+        .and_then(|t| number(t, "mass", name).map_err(relabel))?;
+    if mass_kg < 0.0 {
+        return Err(fail(format!("mass {mass_kg} is negative")));
+    }
+    let inertia =
+        child(inertial, "inertia").ok_or_else(|| fail("<inertial> has no <inertia>".to_owned()))?;
+    let mut moments = [0.0; 6];
+    for (value, key) in moments
+        .iter_mut()
+        .zip(["ixx", "ixy", "ixz", "iyy", "iyz", "izz"])
+    {
+        let text = inertia
+            .attribute(key)
+            .ok_or_else(|| fail(format!("<inertia> has no {key}")))?;
+        *value = number(text, key, name).map_err(relabel)?;
+    }
+    let [ixx, ixy, ixz, iyy, iyz, izz] = moments;
+    let in_origin_axes = Matrix3::new(ixx, ixy, ixz, ixy, iyy, iyz, ixz, iyz, izz);
+    let rotation = origin.rotation.matrix();
+    Ok(Inertial {
+        mass_kg,
+        com_m: origin.translation.vector,
+        inertia_kg_m2: rotation * in_origin_axes * rotation.transpose(),
+    })
+}
+
 /// The first xacro element, or attribute with a `${…}` expression, in the document.
 fn xacro_left(document: &roxmltree::Document) -> Option<String> {
     document.descendants().find_map(|node| {
@@ -344,26 +419,34 @@ impl UrdfRobot {
         }
         let name = root.attribute("name").unwrap_or_default().to_owned();
         let mut links = Vec::new();
+        let mut inertials = Vec::new();
         let mut joints = Vec::new();
         for node in root.children().filter(roxmltree::Node::is_element) {
             if links.len() + joints.len() >= 2 * MAX_URDF_JOINTS {
                 return Err(UrdfError::TooManyElements);
             }
             match node.tag_name().name() {
-                "link" => links.push(
-                    node.attribute("name")
-                        .ok_or_else(|| UrdfError::Naming("a <link> has no name".to_owned()))?
-                        .to_owned(),
-                ),
+                "link" => {
+                    let link = node
+                        .attribute("name")
+                        .ok_or_else(|| UrdfError::Naming("a <link> has no name".to_owned()))?;
+                    inertials.push(parse_inertial(node, link)?);
+                    links.push(link.to_owned());
+                }
                 "joint" => joints.push(parse_joint(node)?),
                 _ => {}
             }
         }
-        Self::checked(name, links, joints)
+        Self::checked(name, links, inertials, joints)
     }
 
     /// Checks that the links and joints form one tree, and indexes it.
-    fn checked(name: String, links: Vec<String>, joints: Vec<RawJoint>) -> Result<Self, UrdfError> {
+    fn checked(
+        name: String,
+        links: Vec<String>,
+        inertials: Vec<Inertial>,
+        joints: Vec<RawJoint>,
+    ) -> Result<Self, UrdfError> {
         let mut known = HashSet::with_capacity(links.len());
         for link in &links {
             if !known.insert(link.as_str()) {
@@ -416,6 +499,7 @@ impl UrdfRobot {
         let robot = Self {
             name,
             links,
+            inertials,
             joints,
             joint_to,
             root,
@@ -580,6 +664,9 @@ impl UrdfChain {
         })
     }
 }
+
+mod dynamics;
+pub use dynamics::{STANDARD_GRAVITY_M_S2, UrdfDynamics};
 
 #[cfg(test)]
 mod tests;

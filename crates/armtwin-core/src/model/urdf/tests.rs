@@ -173,3 +173,44 @@ fn bad_descriptions_are_refused_naming_what_is_wrong() {
         }
     );
 }
+
+/// A 2-kg point mass 0.5 m out on a link that turns about y, hung from a fixed base.
+const PENDULUM: &str = r#"<robot name="pendulum">
+  <link name="base"/>
+  <link name="arm"><inertial><origin xyz="0.5 0 0"/><mass value="2"/>
+    <inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/></inertial></link>
+  <joint name="hinge" type="continuous"><parent link="base"/><child link="arm"/><axis xyz="0 1 0"/></joint>
+</robot>"#;
+
+#[test]
+fn a_pendulum_needs_the_torque_of_its_weight_and_its_acceleration() {
+    let robot = UrdfRobot::parse(PENDULUM).unwrap();
+    let chain = robot.chain(None, None).unwrap();
+    let dynamics = UrdfDynamics::new(&robot, &chain).unwrap();
+    // Horizontal (q = 0): gravity (−z) on the mass at +x turns it by +m g l about y (r × F), so
+    // the joint holds it with −m g l.
+    let hold = dynamics.inverse_dynamics(&[0.0], &[0.0], &[0.0]).unwrap();
+    assert_relative_eq!(hold[0], -2.0 * STANDARD_GRAVITY_M_S2 * 0.5, epsilon = 1e-12);
+    // Hanging straight down, at rest: no torque; accelerating: m l² q̈.
+    let hanging = dynamics
+        .inverse_dynamics(&[FRAC_PI_2], &[3.0], &[4.0])
+        .unwrap();
+    assert_relative_eq!(hanging[0], 2.0 * 0.25 * 4.0, epsilon = 1e-12);
+    assert_eq!(
+        dynamics.inverse_dynamics(&[0.0], &[], &[0.0]).unwrap_err(),
+        UrdfError::JointCount {
+            expected: 1,
+            got: 0
+        }
+    );
+    let negative = UrdfRobot::parse(&PENDULUM.replace(r#"value="2""#, r#"value="-2""#));
+    assert_eq!(
+        negative.unwrap_err().to_string(),
+        "link 'arm': mass -2 is negative"
+    );
+    let missing = UrdfRobot::parse(&PENDULUM.replace(r#" izz="0""#, ""));
+    assert_eq!(
+        missing.unwrap_err().to_string(),
+        "link 'arm': <inertia> has no izz"
+    );
+}

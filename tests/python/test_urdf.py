@@ -166,3 +166,40 @@ def test_the_chain_torques_equal_pinocchios_rnea_on_the_whole_model(armtwin_bin,
         worst = max(worst, float(np.max(np.abs(got - expected)) / max(1.0, float(np.max(np.abs(expected))))))
     print(f"\n[{file} {base_name} -> {tip_name}] torques at {CONFIGURATIONS} states: worst relative {worst:.1e}")
     assert worst <= TORQUE_TOLERANCE, worst
+
+
+@pytest.mark.parametrize("frame", ["base", "base_link"])
+def test_the_exported_urdf_of_a_calibrated_ur_arm_gives_armtwins_poses_in_pinocchio(armtwin_bin, tmp_path, frame):
+    """`armtwin models --urdf ur10e` with a calibration (the example file: synthetic, with the
+    hundreds of metres of cancelling delta_d a real controller's file has), a tool and a frame:
+    Pinocchio's pose of the tip equals `armtwin fk`'s with the same flags to 1e-9, and armtwin
+    reads its own file back to the same poses."""
+    calibration = REPO_ROOT / "config" / "examples" / "calibration.conf"
+    flags = ["--calibration", calibration, "--tcp=0.01,-0.02,0.15,0.1,-0.2,0.3", "--frame", frame]
+    exported = run_armtwin("models", "--urdf", "ur10e", *flags)
+    assert exported.returncode == 0, exported.stderr
+    urdf = tmp_path / "ur10e_calibrated.urdf"
+    urdf.write_text(exported.stdout)
+    model = pin.buildModelFromXML(exported.stdout)
+    data = model.createData()
+    assert [model.names[j] for j in range(1, model.njoints)] == [
+        "shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]
+    rng = np.random.default_rng(5)
+    worst_pinocchio, worst_read_back = 0.0, 0.0
+    for _ in range(CONFIGURATIONS):
+        q = rng.uniform(-math.pi, math.pi, 6)
+        values = ["--", *[repr(float(v)) for v in q]]
+        twin = run_armtwin("fk", "--model", "ur10e", *flags, "--matrix", *values)
+        assert twin.returncode == 0, twin.stderr
+        expected = np.array(json.loads(twin.stdout)["matrix"])
+        pin.forwardKinematics(model, data, q)
+        pin.updateFramePlacements(model, data)
+        tip = data.oMf[model.getFrameId("tcp")].homogeneous
+        worst_pinocchio = max(worst_pinocchio, float(np.max(np.abs(tip[:3] - expected[:3]))))
+        again = run_armtwin("fk", "--model", urdf, "--matrix", *values)
+        assert again.returncode == 0, again.stderr
+        read_back = np.array(json.loads(again.stdout)["matrix"])
+        worst_read_back = max(worst_read_back, float(np.max(np.abs(read_back[:3] - expected[:3]))))
+    print(f"\n[ur10e calibrated, {frame}] Pinocchio on the exported URDF against armtwin fk: worst {worst_pinocchio:.1e}; "
+          f"armtwin on its own URDF: worst {worst_read_back:.1e}")
+    assert worst_pinocchio <= 1e-9 and worst_read_back <= 1e-9, (worst_pinocchio, worst_read_back)

@@ -607,6 +607,20 @@ pub struct ModelsArgs {
     /// Print JSON instead of a table.
     #[arg(long)]
     pub json: bool,
+    /// Write the URDF of this model (a catalog arm or a custom arm's TOML) to stdout, with
+    /// `--calibration`, `--tcp` and `--frame` folded into its joint origins.
+    #[arg(long, value_name = "MODEL", conflicts_with = "json")]
+    pub urdf: Option<String>,
+    /// With `--urdf`: the robot's factory calibration (as `armtwin fk`'s).
+    #[arg(long, value_name = "FILE", requires = "urdf")]
+    pub calibration: Option<PathBuf>,
+    /// With `--urdf`: the tool (TCP) offset `x,y,z,rx,ry,rz` (as `armtwin fk`'s); the tip link is
+    /// then `tcp`, else `tool0` (the flange).
+    #[arg(long, value_name = "X,Y,Z,RX,RY,RZ", value_parser = parse_tcp, requires = "urdf")]
+    pub tcp: Option<TcpOffset>,
+    /// With `--urdf`: the root link's frame, the controller's `base` or ROS `base_link`.
+    #[arg(long, value_enum, default_value_t = FrameArg::Base, requires = "urdf")]
+    pub frame: FrameArg,
 }
 
 /// Parses `x,y,z,rx,ry,rz`; also accepts the pendant's `p[x, y, z, rx, ry, rz]` spelling.

@@ -598,6 +598,23 @@ impl Chain {
         }
     }
 
+    /// The chain as URDF-style joint origins: per joint, `parent_from_joint = Fₖ₋₁ · Rz(θₖ)`
+    /// (`F₀` the first transform: output frame and mounting), each joint turning about its
+    /// frame's z; then the fixed `last_from_tip = Fₙ` (the flange, and the tool when attached).
+    /// `Π (parent_from_jointₖ · Rz(qₖ)) · last_from_tip` is this chain's pose.
+    #[must_use]
+    pub fn joint_origins(&self) -> (Vec<IsometryMatrix3<f64>>, IsometryMatrix3<f64>) {
+        let mut before = self.first;
+        let mut origins = Vec::with_capacity(self.joints.len());
+        for joint in &self.joints {
+            origins.push(
+                before * Rotation3::from_axis_angle(&Vector3::z_axis(), joint.theta_offset_rad),
+            );
+            before = joint.after.to_isometry();
+        }
+        (origins, before)
+    }
+
     /// Number of revolute joints.
     #[must_use]
     pub fn joint_count(&self) -> usize {

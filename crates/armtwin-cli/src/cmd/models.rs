@@ -6,9 +6,10 @@ use std::io::{self, Write};
 
 use anyhow::Result;
 use armtwin_core::model::catalog;
+use armtwin_core::model::urdf::model_urdf;
 use serde::Serialize;
 
-use crate::flags::ModelsArgs;
+use crate::flags::{FrameArg, ModelsArgs, RobotArgs};
 
 #[derive(Serialize)]
 struct ModelListing {
@@ -29,7 +30,30 @@ struct JointListing {
     max_rad: Option<f64>,
 }
 
+/// `--urdf MODEL`: the model's URDF on stdout.
+fn write_urdf(args: &ModelsArgs, model: &str) -> Result<()> {
+    let robot = RobotArgs {
+        model: model.to_owned(),
+        calibration: args.calibration.clone(),
+        tcp: args.tcp,
+        frame: args.frame,
+    }
+    .load()?;
+    let root = match args.frame {
+        FrameArg::Base => "base",
+        FrameArg::BaseLink => "base_link",
+    };
+    let tip = if args.tcp.is_some() { "tcp" } else { "tool0" };
+    io::stdout()
+        .lock()
+        .write_all(model_urdf(&robot, root, tip).as_bytes())?;
+    Ok(())
+}
+
 pub(super) fn run(args: &ModelsArgs) -> Result<()> {
+    if let Some(model) = &args.urdf {
+        return write_urdf(args, model);
+    }
     let listings: Vec<ModelListing> = catalog::UNIVERSAL_ROBOTS
         .iter()
         .map(|entry| {

@@ -214,3 +214,16 @@ fn a_pendulum_needs_the_torque_of_its_weight_and_its_acceleration() {
         "link 'arm': <inertia> has no izz"
     );
 }
+
+#[test]
+fn a_models_urdf_reads_back_to_its_poses() {
+    let model = crate::model::RobotModel::nominal("ur5e").unwrap();
+    let text = model_urdf(&model, "base", "tool0");
+    let chain = UrdfRobot::parse(&text).unwrap().chain(None, None).unwrap();
+    assert_eq!(chain.joints[1].name, "shoulder_lift_joint");
+    let q = [0.3, -1.2, 1.1, -0.4, 0.9, 2.0];
+    let expected = model.pose(&q).unwrap();
+    let got = chain.pose(&q).unwrap();
+    assert_relative_eq!(got.position_m, expected.position_m, epsilon = 1e-14);
+    assert_relative_eq!(got.rotation, expected.rotation, epsilon = 1e-14);
+}

@@ -23,7 +23,9 @@ import pinocchio as pin
 import pytest
 
 from support.paths import REPO_ROOT
-from support.process import run_armtwin
+from support.process import ArmtwinProcess, run_armtwin, wait_until
+from support.twin_reference import joint_message
+from support.zenoh_clients import TwinClient
 
 URDF_DIR = REPO_ROOT / "tests" / "data" / "urdf"
 CONFIGURATIONS = 12
@@ -128,9 +130,10 @@ def test_a_chain_that_cannot_be_chosen_or_a_xacro_is_refused_naming_why(armtwin_
                                      'xmlns:xacro="http://www.ros.org/wiki/xacro"><xacro:include filename="hand.xacro"/>', 1))
     xacro = run_armtwin("fk", "--model", str(template), "0")
     assert xacro.returncode != 0 and "xacro robot.urdf.xacro > robot.urdf" in xacro.stderr, xacro.stderr
-    # The commands that take a DH model say where a URDF is taken, rather than misreading it.
-    ik = run_armtwin("ik", "--model", str(panda), "--pose=0.3,0,0.5,1,0,0,0")
-    assert ik.returncode != 0 and "a URDF model is taken by `armtwin fk` so far" in ik.stderr, ik.stderr
+    # The commands that run the twin's model take revolute chains, and say so of a prismatic joint.
+    tiago = URDF_DIR / "tiago_no_hand.urdf"
+    ik = run_armtwin("ik", "--model", tiago, "--tip-link", "wrist_ft_tool_link", "--pose=0.3,0,0.5,1,0,0,0")
+    assert ik.returncode != 0 and "joint 'torso_lift_joint': is prismatic" in ik.stderr, ik.stderr
 
 
 TORQUE_TOLERANCE = 1e-9  # relative to the torque vector's largest entry (at least 1 N·m or N)
@@ -203,3 +206,56 @@ def test_the_exported_urdf_of_a_calibrated_ur_arm_gives_armtwins_poses_in_pinocc
     print(f"\n[ur10e calibrated, {frame}] Pinocchio on the exported URDF against armtwin fk: worst {worst_pinocchio:.1e}; "
           f"armtwin on its own URDF: worst {worst_read_back:.1e}")
     assert worst_pinocchio <= 1e-9 and worst_read_back <= 1e-9, (worst_pinocchio, worst_read_back)
+
+
+def test_a_panda_from_its_urdf_is_twinned_live(armtwin_bin, tmp_path):
+    """`armtwin serve` with `model` a URDF (the Panda to its hand's TCP, every axis a URDF axis
+    turned onto z inside the twin): its twin poses equal Pinocchio's for the joints streamed, and
+    a measured pose equal to Pinocchio's deviates by nothing."""
+    path = URDF_DIR / "panda.urdf"
+    robot = "lab/panda"
+    config = (f'[robots."{robot}"]\nmodel = "{path}"\ntip_link = "panda_hand_tcp"\n'
+              f'[robots.default]\nmodel = "ur10e"\n')
+    service = ArmtwinProcess(armtwin_bin, tmp_path, config, 120.0)
+    service.start()
+    client = None
+    try:
+        client = TwinClient(service.endpoint)
+        client.ready([robot])
+        model = pin.buildModelFromUrdf(str(path))
+        data = model.createData()
+        joints = chain_joints(model, "panda_link0", "panda_hand_tcp")
+        rng = np.random.default_rng(11)
+        expected = []
+        publisher = client.joints(robot)
+        for k in range(50):
+            values = [random_value(model, joint, rng) for joint in joints]
+            q = pin.neutral(model)
+            for joint, value in zip(joints, values):
+                set_value(model, q, joint, value)
+            pin.framesForwardKinematics(model, data, q)
+            tip = data.oMf[model.getFrameId("panda_link0")].inverse() * data.oMf[model.getFrameId("panda_hand_tcp")]
+            quaternion = pin.Quaternion(tip.rotation).coeffs()  # x, y, z, w
+            pose = [*tip.translation, *quaternion]
+            expected.append(pose)
+            publisher.put(json.dumps(joint_message(0.01 * k, values, pose)))
+        collector = client.collector
+        assert wait_until(lambda: collector.count("deviation", robot) >= 50, 30.0), service.logs()
+        worst_m, worst_quaternion, worst_deviation_m = 0.0, 0.0, 0.0
+        for message, pose in zip(collector.messages("pose", robot), expected):
+            got = np.array([message[key] for key in ("x", "y", "z", "qx", "qy", "qz", "qw")])
+            want = np.array(pose)
+            if want[6] < 0:
+                want[3:] = -want[3:]
+            worst_m = max(worst_m, float(np.max(np.abs(got[:3] - want[:3]))))
+            worst_quaternion = max(worst_quaternion, float(np.max(np.abs(got[3:] - want[3:]))))
+        for message in collector.messages("deviation", robot):
+            worst_deviation_m = max(worst_deviation_m, float(message["position"]))
+        print(f"\n[panda live] 50 poses: worst position {worst_m:.1e} m, quaternion {worst_quaternion:.1e}; "
+              f"worst deviation {worst_deviation_m:.1e} m")
+        assert collector.count("pose", robot) == 50
+        assert worst_m <= TOLERANCE and worst_quaternion <= TOLERANCE and worst_deviation_m <= TOLERANCE
+    finally:
+        if client is not None:
+            client.close()
+        service.stop()

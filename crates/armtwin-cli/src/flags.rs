@@ -509,10 +509,16 @@ impl From<ZenohModeArg> for ZenohMode {
 /// that computes poses.
 #[derive(Debug, Args)]
 pub struct RobotArgs {
-    /// Catalog model (see `armtwin models`), a custom arm's TOML file, or (`armtwin fk` only so far)
-    /// a URDF file.
+    /// Catalog model (see `armtwin models`), a custom arm's TOML file, or a URDF file.
     #[arg(long, default_value = "ur10e")]
     pub model: String,
+    /// With a URDF `--model`: the chain's base link, the frame poses are in (default: the root
+    /// link).
+    #[arg(long, value_name = "LINK")]
+    pub base_link: Option<String>,
+    /// With a URDF `--model`: the chain's tip link, the pose's (default: the one leaf link).
+    #[arg(long, value_name = "LINK")]
+    pub tip_link: Option<String>,
     /// The robot's factory calibration: the controller's `calibration.conf` or the YAML written by
     /// ROS `ur_calibration`.
     #[arg(long, value_name = "FILE")]
@@ -558,12 +564,6 @@ pub struct FkArgs {
     /// Also print the 4×4 homogeneous matrix (row-major) of the pose.
     #[arg(long)]
     pub matrix: bool,
-    /// With a URDF `--model`: the link the pose is in (default: the URDF's root link).
-    #[arg(long, value_name = "LINK")]
-    pub base_link: Option<String>,
-    /// With a URDF `--model`: the link whose pose is printed (default: the URDF's one leaf link).
-    #[arg(long, value_name = "LINK")]
-    pub tip_link: Option<String>,
     /// Read joint angles from a CSV (`q1..qn` or `time,q1..qn` columns; `-` for stdin) and write
     /// the pose CSV `time,x,y,z,roll,pitch,yaw,qx,qy,qz,qw` to stdout.
     #[arg(long, value_name = "FILE", conflicts_with_all = ["joints", "matrix"])]

@@ -516,6 +516,16 @@ impl Chain {
     /// `ur_calibration`); the flange is the last joint frame.
     #[must_use]
     pub fn from_joint_origins(parent_from_joint: &[IsometryMatrix3<f64>]) -> Self {
+        Self::from_origins(parent_from_joint, IsometryMatrix3::identity())
+    }
+
+    /// A chain `O₁ · Rz(q₁) · … · Oₙ · Rz(qₙ) · L` from its joint origins `Oₖ` and the fixed
+    /// `last_from_flange` `L` after the last joint (a URDF chain's tip link).
+    #[must_use]
+    pub fn from_origins(
+        parent_from_joint: &[IsometryMatrix3<f64>],
+        last_from_flange: IsometryMatrix3<f64>,
+    ) -> Self {
         let first = parent_from_joint
             .first()
             .copied()
@@ -527,7 +537,7 @@ impl Chain {
                     parent_from_joint
                         .get(k + 1)
                         .copied()
-                        .unwrap_or_else(IsometryMatrix3::identity),
+                        .unwrap_or(last_from_flange),
                 ),
             })
             .collect();

@@ -36,7 +36,7 @@ pub(super) fn run(args: &FkArgs) -> Result<()> {
     if let ModelRef::Urdf(path) = ModelRef::parse(&args.robot.model) {
         return run_urdf(args, path);
     }
-    if args.base_link.is_some() || args.tip_link.is_some() {
+    if args.robot.base_link.is_some() || args.robot.tip_link.is_some() {
         bail!("--base-link and --tip-link name links of a URDF --model");
     }
     let model = args.robot.load()?;
@@ -72,7 +72,12 @@ fn run_urdf(args: &FkArgs, path: &Path) -> Result<()> {
     }
     let text = super::read_text(path)?;
     let chain = UrdfRobot::parse(&text)
-        .and_then(|robot| robot.chain(args.base_link.as_deref(), args.tip_link.as_deref()))
+        .and_then(|robot| {
+            robot.chain(
+                args.robot.base_link.as_deref(),
+                args.robot.tip_link.as_deref(),
+            )
+        })
         .with_context(|| path.display().to_string())?;
     if args.joints.len() != chain.joint_count() {
         let names: Vec<_> = chain.joints.iter().map(|j| j.name.as_str()).collect();

@@ -34,7 +34,7 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 use armtwin_codec::recording::{self, ColumnMap, PoseForm, Recording};
 use armtwin_core::kinematics::TcpOffset;
-use armtwin_core::model::{Calibration, ModelError, ModelRef, RobotModel, catalog, custom};
+use armtwin_core::model::{Calibration, ModelRef, RobotModel, catalog, custom, urdf};
 use armtwin_offline::rosbag::{self, BagOptions, BagTopics};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
@@ -200,14 +200,23 @@ pub(super) fn read_text(path: &Path) -> Result<String> {
 impl RobotArgs {
     /// Loads the model, calibration and tool these arguments name.
     pub fn load(&self) -> Result<RobotModel> {
-        let arm = match ModelRef::parse(&self.model) {
+        let model = ModelRef::parse(&self.model);
+        if !matches!(model, ModelRef::Urdf(_))
+            && (self.base_link.is_some() || self.tip_link.is_some())
+        {
+            bail!("--base-link and --tip-link name links of a URDF --model");
+        }
+        let arm = match model {
             ModelRef::CustomArm(path) => {
                 custom::parse_arm(&read_text(path)?, &path.display().to_string())?
             }
             ModelRef::Catalog(name) => catalog::arm(name)?,
-            ModelRef::Urdf(path) => {
-                return Err(ModelError::UrdfKinematicsOnly(path.display().to_string()).into());
-            }
+            ModelRef::Urdf(path) => urdf::arm_from_urdf(
+                &read_text(path)?,
+                &path.display().to_string(),
+                self.base_link.as_deref(),
+                self.tip_link.as_deref(),
+            )?,
         };
         let calibration = self
             .calibration

@@ -34,6 +34,8 @@ struct JointListing {
 fn write_urdf(args: &ModelsArgs, model: &str) -> Result<()> {
     let robot = RobotArgs {
         model: model.to_owned(),
+        base_link: None,
+        tip_link: None,
         calibration: args.calibration.clone(),
         tcp: args.tcp,
         frame: args.frame,

@@ -283,6 +283,7 @@ fn bad_parameters_and_mismatched_arms_are_errors() {
     );
     let bare = ArmDescription {
         inertials: None,
+        joint_origins: None,
         ..arm.clone()
     };
     assert!(matches!(

@@ -130,6 +130,7 @@ impl UrEntry {
             ],
             joint_limits,
             inertials: super::ur_inertia::inertials(self.name),
+            joint_origins: None,
         }
     }
 }

@@ -155,6 +155,7 @@ pub fn parse_arm(text: &str, source_name: &str) -> Result<ArmDescription, ModelE
         dh,
         joint_limits,
         inertials,
+        joint_origins: None,
     })
 }
 

@@ -13,6 +13,7 @@ mod reference;
 pub mod ur_inertia;
 pub mod urdf;
 
+use nalgebra::IsometryMatrix3;
 use thiserror::Error;
 
 use crate::kinematics::{
@@ -61,6 +62,19 @@ pub struct ArmDescription {
     /// Link masses, centres of mass and inertias in the DH link frames of `convention`, and rotor
     /// inertias, for [`crate::dynamics`]; `None` when not published or not given.
     pub inertials: Option<ArmInertials>,
+    /// An arm described by its joints' origins (a URDF's chain) rather than a DH table, which is
+    /// then empty.
+    pub joint_origins: Option<JointOrigins>,
+}
+
+/// A chain of joints that turn about their own frame's z, at fixed origins: a URDF's revolute
+/// chain with each axis turned onto z.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JointOrigins {
+    /// Per joint: the previous joint's frame (or the base) to this joint's frame.
+    pub parent_from_joint: Vec<IsometryMatrix3<f64>>,
+    /// The last joint's frame to the flange (the chain's tip link).
+    pub last_from_flange: IsometryMatrix3<f64>,
 }
 
 /// Why a robot model cannot be built.
@@ -85,11 +99,14 @@ pub enum ModelError {
         /// What does not fit.
         reason: String,
     },
-    /// A URDF named where only a DH model is taken yet.
-    #[error(
-        "{0}: a URDF model is taken by `armtwin fk` so far; this command and `serve` take a catalog arm or a custom arm's TOML (docs/kinematics.md)"
-    )]
-    UrdfKinematicsOnly(String),
+    /// A URDF that is not readable, or whose chain the twin cannot take.
+    #[error("{source_name}: {reason}")]
+    Urdf {
+        /// The URDF file.
+        source_name: String,
+        /// What is wrong.
+        reason: String,
+    },
     /// A custom arm file is invalid.
     #[error("{source_name}: {reason}")]
     CustomArm {
@@ -138,9 +155,21 @@ impl RobotModel {
         tool: TcpOffset,
         frame: OutputFrame,
     ) -> Result<Self, ModelError> {
-        let flange_chain = match &calibration {
-            None => Chain::from_dh(arm.convention, &arm.dh),
-            Some(calibration) => calibration.chain_for(&arm)?,
+        let flange_chain = match (&arm.joint_origins, &calibration) {
+            (Some(origins), None) => {
+                Chain::from_origins(&origins.parent_from_joint, origins.last_from_flange)
+            }
+            (Some(_), Some(calibration)) => {
+                return Err(ModelError::CalibrationMismatch {
+                    source_name: calibration.source_name.clone(),
+                    reason: format!(
+                        "'{}' is described by joint origins (a URDF), and a calibration file applies to a DH table: put the robot's calibrated origins in its URDF",
+                        arm.name
+                    ),
+                });
+            }
+            (None, None) => Chain::from_dh(arm.convention, &arm.dh),
+            (None, Some(calibration)) => calibration.chain_for(&arm)?,
         };
         let chain = flange_chain.with_frame_and_tool(frame, &tool);
         Ok(Self {

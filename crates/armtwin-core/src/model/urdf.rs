@@ -7,12 +7,13 @@
 //! every error names the link or joint it is about.
 
 use std::collections::{HashMap, HashSet};
+use std::f64::consts::PI;
 
 use nalgebra::{IsometryMatrix3, Matrix3, Rotation3, Translation3, Unit, Vector3};
 use thiserror::Error;
 
-use super::JointLimits;
-use crate::kinematics::Pose;
+use super::{ArmDescription, JointLimits, JointOrigins};
+use crate::kinematics::{DhConvention, Pose};
 
 /// The largest URDF document taken (bytes). The largest arm descriptions in `example-robot-data`
 /// (whole humanoids, with every collision and visual element) are a few hundred kilobytes.
@@ -617,6 +618,24 @@ impl UrdfRobot {
     }
 }
 
+/// The arm of the chain from `base_link` to `tip_link` (defaults as [`UrdfRobot::chain`]) of the
+/// URDF `text`, read from `source_name`: named after the `<robot>`.
+pub fn arm_from_urdf(
+    text: &str,
+    source_name: &str,
+    base_link: Option<&str>,
+    tip_link: Option<&str>,
+) -> Result<ArmDescription, super::ModelError> {
+    let arm = UrdfRobot::parse(text).and_then(|robot| {
+        let chain = robot.chain(base_link, tip_link)?;
+        chain.arm_description(&robot.name)
+    });
+    arm.map_err(|error| super::ModelError::Urdf {
+        source_name: source_name.to_owned(),
+        reason: error.to_string(),
+    })
+}
+
 fn quoted<'a>(names: impl Iterator<Item = &'a str>) -> String {
     names
         .map(|n| format!("'{n}'"))
@@ -625,6 +644,38 @@ fn quoted<'a>(names: impl Iterator<Item = &'a str>) -> String {
 }
 
 impl UrdfChain {
+    /// The chain as an arm the twin runs (`name`, no DH table, no inertials): each joint's axis
+    /// turned onto its frame's z by a fixed rotation folded into its origin and undone in the
+    /// next one. Prismatic joints are refused: the twin's joints turn.
+    pub fn arm_description(&self, name: &str) -> Result<ArmDescription, UrdfError> {
+        let mut parent_from_joint = Vec::with_capacity(self.joints.len());
+        let mut undo_previous = Rotation3::identity();
+        for joint in &self.joints {
+            if joint.kind == JointKind::Prismatic {
+                return Err(UrdfError::Joint {
+                    joint: joint.name.clone(),
+                    reason: "is prismatic: the live twin takes chains of revolute and continuous joints (`armtwin fk` and `armtwin torques` take prismatic ones)".to_owned(),
+                });
+            }
+            // The rotation taking z onto the axis; a half turn about x for −z.
+            let onto_axis = Rotation3::rotation_between(&Vector3::z(), &joint.axis)
+                .unwrap_or_else(|| Rotation3::from_axis_angle(&Vector3::x_axis(), PI));
+            parent_from_joint.push(undo_previous * joint.parent_from_joint * onto_axis);
+            undo_previous = onto_axis.inverse();
+        }
+        Ok(ArmDescription {
+            name: name.to_owned(),
+            convention: DhConvention::Standard,
+            dh: Vec::new(),
+            joint_limits: self.joints.iter().map(|j| j.limits).collect(),
+            inertials: None,
+            joint_origins: Some(JointOrigins {
+                parent_from_joint,
+                last_from_flange: undo_previous * self.last_from_tip,
+            }),
+        })
+    }
+
     /// The number of moving joints.
     #[must_use]
     pub fn joint_count(&self) -> usize {

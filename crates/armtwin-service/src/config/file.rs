@@ -237,6 +237,10 @@ impl Default for AlignSection {
 #[serde(deny_unknown_fields)]
 pub(super) struct RobotSection {
     pub(super) model: Option<String>,
+    /// With a URDF `model`: the chain's base link (default: the root link).
+    pub(super) base_link: Option<String>,
+    /// With a URDF `model`: the chain's tip link (default: the one leaf link).
+    pub(super) tip_link: Option<String>,
     pub(super) calibration: Option<PathBuf>,
     pub(super) tcp: Option<[f64; 6]>,
     pub(super) frame: Option<String>,

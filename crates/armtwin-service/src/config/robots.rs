@@ -18,7 +18,7 @@ use super::file::{RobotSection, Ros2PoseSection};
 use armtwin_core::dynamics::Payload;
 use armtwin_core::dynamics::monitor::{EffortConfig, EffortMonitor};
 use armtwin_core::kinematics::{OutputFrame, TcpOffset};
-use armtwin_core::model::{Calibration, ModelError, ModelRef, RobotModel, catalog, custom};
+use armtwin_core::model::{Calibration, ModelError, ModelRef, RobotModel, catalog, custom, urdf};
 use armtwin_core::orientation;
 use armtwin_core::pipeline::{AlarmConfig, RobotSettings, SensorStream};
 use armtwin_core::self_calibration::ReservoirConfig;
@@ -174,10 +174,15 @@ impl RobotSource<'_> {
                 custom::parse_arm(&text, &path).map_err(|e| self.model_error(e))?
             }
             ModelRef::Catalog(name) => catalog::arm(name).map_err(|e| self.model_error(e))?,
-            ModelRef::Urdf(path) => {
-                return Err(
-                    self.model_error(ModelError::UrdfKinematicsOnly(path.display().to_string()))
-                );
+            ModelRef::Urdf(relative) => {
+                let (text, path) = self.read(relative)?;
+                urdf::arm_from_urdf(
+                    &text,
+                    &path,
+                    self.pick(|s| s.base_link.clone()).as_deref(),
+                    self.pick(|s| s.tip_link.clone()).as_deref(),
+                )
+                .map_err(|e| self.model_error(e))?
             }
         };
         let calibration = match self.pick(|s| s.calibration.clone()) {

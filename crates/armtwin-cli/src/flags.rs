@@ -505,13 +505,9 @@ impl From<ZenohModeArg> for ZenohMode {
     }
 }
 
-/// Which robot: model, its calibration, its tool, and the output frame. Shared by every command
-/// that computes poses.
+/// The chain of a URDF `--model`: its base and tip links.
 #[derive(Debug, Args)]
-pub struct RobotArgs {
-    /// Catalog model (see `armtwin models`), a custom arm's TOML file, or a URDF file.
-    #[arg(long, default_value = "ur10e")]
-    pub model: String,
+pub struct ChainLinks {
     /// With a URDF `--model`: the chain's base link, the frame poses are in (default: the root
     /// link).
     #[arg(long, value_name = "LINK")]
@@ -519,6 +515,18 @@ pub struct RobotArgs {
     /// With a URDF `--model`: the chain's tip link, the pose's (default: the one leaf link).
     #[arg(long, value_name = "LINK")]
     pub tip_link: Option<String>,
+}
+
+/// Which robot: model, its calibration, its tool, and the output frame. Shared by every command
+/// that computes poses.
+#[derive(Debug, Args)]
+pub struct RobotArgs {
+    /// Catalog model (see `armtwin models`), a custom arm's TOML file, or a URDF file.
+    #[arg(long, default_value = "ur10e")]
+    pub model: String,
+    /// With a URDF `--model`: the chain.
+    #[command(flatten)]
+    pub links: ChainLinks,
     /// The robot's factory calibration: the controller's `calibration.conf` or the YAML written by
     /// ROS `ur_calibration`.
     #[arg(long, value_name = "FILE")]
@@ -579,12 +587,9 @@ pub struct TorquesArgs {
     /// A catalog model with published inertias (the UR arms), or a URDF file (its `<inertial>`s).
     #[arg(long, default_value = "ur10e")]
     pub model: String,
-    /// With a URDF: the chain's base link (default: the root link).
-    #[arg(long, value_name = "LINK")]
-    pub base_link: Option<String>,
-    /// With a URDF: the chain's tip link (default: the one leaf link).
-    #[arg(long, value_name = "LINK")]
-    pub tip_link: Option<String>,
+    /// With a URDF `--model`: the chain.
+    #[command(flatten)]
+    pub links: ChainLinks,
     /// Joint positions, base to tip (rad, or m for a prismatic joint), comma-separated.
     #[arg(
         long,

@@ -36,9 +36,6 @@ pub(super) fn run(args: &FkArgs) -> Result<()> {
     if let ModelRef::Urdf(path) = ModelRef::parse(&args.robot.model) {
         return run_urdf(args, path);
     }
-    if args.robot.base_link.is_some() || args.robot.tip_link.is_some() {
-        bail!("--base-link and --tip-link name links of a URDF --model");
-    }
     let model = args.robot.load()?;
     if let Some(path) = &args.csv {
         return run_csv(&model, path, args.deg);
@@ -74,8 +71,8 @@ fn run_urdf(args: &FkArgs, path: &Path) -> Result<()> {
     let chain = UrdfRobot::parse(&text)
         .and_then(|robot| {
             robot.chain(
-                args.robot.base_link.as_deref(),
-                args.robot.tip_link.as_deref(),
+                args.robot.links.base_link.as_deref(),
+                args.robot.links.tip_link.as_deref(),
             )
         })
         .with_context(|| path.display().to_string())?;

@@ -202,7 +202,7 @@ impl RobotArgs {
     pub fn load(&self) -> Result<RobotModel> {
         let model = ModelRef::parse(&self.model);
         if !matches!(model, ModelRef::Urdf(_))
-            && (self.base_link.is_some() || self.tip_link.is_some())
+            && (self.links.base_link.is_some() || self.links.tip_link.is_some())
         {
             bail!("--base-link and --tip-link name links of a URDF --model");
         }
@@ -214,8 +214,8 @@ impl RobotArgs {
             ModelRef::Urdf(path) => urdf::arm_from_urdf(
                 &read_text(path)?,
                 &path.display().to_string(),
-                self.base_link.as_deref(),
-                self.tip_link.as_deref(),
+                self.links.base_link.as_deref(),
+                self.links.tip_link.as_deref(),
             )?,
         };
         let calibration = self

@@ -9,7 +9,7 @@ use armtwin_core::model::catalog;
 use armtwin_core::model::urdf::model_urdf;
 use serde::Serialize;
 
-use crate::flags::{FrameArg, ModelsArgs, RobotArgs};
+use crate::flags::{ChainLinks, FrameArg, ModelsArgs, RobotArgs};
 
 #[derive(Serialize)]
 struct ModelListing {
@@ -34,8 +34,10 @@ struct JointListing {
 fn write_urdf(args: &ModelsArgs, model: &str) -> Result<()> {
     let robot = RobotArgs {
         model: model.to_owned(),
-        base_link: None,
-        tip_link: None,
+        links: ChainLinks {
+            base_link: None,
+            tip_link: None,
+        },
         calibration: args.calibration.clone(),
         tcp: args.tcp,
         frame: args.frame,

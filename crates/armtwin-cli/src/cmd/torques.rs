@@ -39,7 +39,10 @@ pub(super) fn run(args: &TorquesArgs) -> Result<()> {
             let context = || path.display().to_string();
             let robot = UrdfRobot::parse(&text).with_context(context)?;
             let chain = robot
-                .chain(args.base_link.as_deref(), args.tip_link.as_deref())
+                .chain(
+                    args.links.base_link.as_deref(),
+                    args.links.tip_link.as_deref(),
+                )
                 .with_context(context)?;
             let dynamics = UrdfDynamics::new(&robot, &chain).with_context(context)?;
             let count = dynamics.joint_count();
@@ -65,7 +68,7 @@ pub(super) fn run(args: &TorquesArgs) -> Result<()> {
             )
         }
         ModelRef::Catalog(name) => {
-            if args.base_link.is_some() || args.tip_link.is_some() {
+            if args.links.base_link.is_some() || args.links.tip_link.is_some() {
                 bail!("--base-link and --tip-link name links of a URDF --model");
             }
             let arm = catalog::arm(name)?;

@@ -244,8 +244,17 @@ async def scenario(workdir: Path, service: ArmtwinProcess, url: str) -> None:
             sender.join(timeout=TIMEOUT_S)
             assert done.is_set() and sent, "the recording was not streamed"
             last_q = sent[0]
-            # The last joints streamed, in each axis's stated units.
-            await asyncio.sleep(3 * SAMPLING_MS / 1000)
+            # The last joints streamed, in each axis's stated units, once the twin has taken them:
+            # the stream ends when its last put is queued, and a loaded machine's service may be
+            # seconds behind it then.
+            async def shown() -> list[float]:
+                return [await position.read_value() for position in positions]
+
+            deadline = time.monotonic() + TIMEOUT_S
+            while not all(math.isclose(v, math.degrees(q), abs_tol=1e-9) for v, q in zip(await shown(), last_q)):
+                if time.monotonic() > deadline:
+                    break
+                await asyncio.sleep(SAMPLING_MS / 1000)
             for position, q_rad in zip(positions, last_q):
                 units = await (await position.get_child("0:EngineeringUnits")).read_value()
                 assert units.DisplayName.Text == "°" and units.UnitId == 17476, units

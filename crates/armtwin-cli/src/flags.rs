@@ -506,7 +506,7 @@ impl From<ZenohModeArg> for ZenohMode {
 }
 
 /// The chain of a URDF `--model`: its base and tip links.
-#[derive(Debug, Args)]
+#[derive(Debug, Default, Args)]
 pub struct ChainLinks {
     /// With a URDF `--model`: the chain's base link, the frame poses are in (default: the root
     /// link).

@@ -10,6 +10,7 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 use armtwin_codec::PoseFields;
 use armtwin_codec::joint_csv::{JointCsvReader, PoseCsvWriter};
+use armtwin_core::kinematics::Pose;
 use armtwin_core::model::urdf::{JointKind, UrdfRobot};
 use armtwin_core::model::{ModelRef, RobotModel};
 use serde::Serialize;
@@ -50,15 +51,7 @@ pub(super) fn run(args: &FkArgs) -> Result<()> {
     let mut q = args.joints.clone();
     to_radians(&mut q, args.deg);
     let pose = model.pose(&q)?;
-    let output = FkOutput {
-        pose: PoseFields::from(&pose.readout()),
-        matrix: args.matrix.then(|| pose.homogeneous_rows()),
-    };
-    let stdout = io::stdout();
-    let mut out = stdout.lock();
-    serde_json::to_writer(&mut out, &output)?;
-    writeln!(out)?;
-    Ok(())
+    print_pose(&pose, args.matrix)
 }
 
 /// The tip link's pose in the base link's frame, from a URDF; joint values base to tip (rad, or m
@@ -95,9 +88,14 @@ fn run_urdf(args: &FkArgs, path: &Path) -> Result<()> {
         }
     }
     let pose = chain.pose(&q).with_context(|| path.display().to_string())?;
+    print_pose(&pose, args.matrix)
+}
+
+/// One pose as a JSON line on stdout, with its 4×4 matrix if asked.
+fn print_pose(pose: &Pose, matrix: bool) -> Result<()> {
     let output = FkOutput {
         pose: PoseFields::from(&pose.readout()),
-        matrix: args.matrix.then(|| pose.homogeneous_rows()),
+        matrix: matrix.then(|| pose.homogeneous_rows()),
     };
     let stdout = io::stdout();
     let mut out = stdout.lock();

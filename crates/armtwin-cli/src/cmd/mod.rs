@@ -39,8 +39,8 @@ use armtwin_offline::rosbag::{self, BagOptions, BagTopics};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::flags::{
-    Cli, Command, ConfigArgs, ConfigCommand, FmuArgs, FmuCommand, GatewayArgs, GatewayCommand,
-    PoseFormArg, RecordingArgs, RobotArgs, TimeUnit,
+    ChainLinks, Cli, Command, ConfigArgs, ConfigCommand, FmuArgs, FmuCommand, GatewayArgs,
+    GatewayCommand, PoseFormArg, RecordingArgs, RobotArgs, TimeUnit,
 };
 
 /// Runs one parsed command line.
@@ -197,15 +197,24 @@ pub(super) fn read_text(path: &Path) -> Result<String> {
     std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))
 }
 
+impl ChainLinks {
+    /// Refuses `--base-link` and `--tip-link` for a model that is not a URDF, rather than ignore
+    /// them.
+    pub(super) fn only_for(&self, model: &ModelRef) -> Result<()> {
+        if !matches!(model, ModelRef::Urdf(_))
+            && (self.base_link.is_some() || self.tip_link.is_some())
+        {
+            bail!("--base-link and --tip-link name links of a URDF --model");
+        }
+        Ok(())
+    }
+}
+
 impl RobotArgs {
     /// Loads the model, calibration and tool these arguments name.
     pub fn load(&self) -> Result<RobotModel> {
         let model = ModelRef::parse(&self.model);
-        if !matches!(model, ModelRef::Urdf(_))
-            && (self.links.base_link.is_some() || self.links.tip_link.is_some())
-        {
-            bail!("--base-link and --tip-link name links of a URDF --model");
-        }
+        self.links.only_for(&model)?;
         let arm = match model {
             ModelRef::CustomArm(path) => {
                 custom::parse_arm(&read_text(path)?, &path.display().to_string())?

@@ -34,10 +34,7 @@ struct JointListing {
 fn write_urdf(args: &ModelsArgs, model: &str) -> Result<()> {
     let robot = RobotArgs {
         model: model.to_owned(),
-        links: ChainLinks {
-            base_link: None,
-            tip_link: None,
-        },
+        links: ChainLinks::default(),
         calibration: args.calibration.clone(),
         tcp: args.tcp,
         frame: args.frame,

@@ -68,9 +68,7 @@ pub(super) fn run(args: &TorquesArgs) -> Result<()> {
             )
         }
         ModelRef::Catalog(name) => {
-            if args.links.base_link.is_some() || args.links.tip_link.is_some() {
-                bail!("--base-link and --tip-link name links of a URDF --model");
-            }
+            args.links.only_for(&ModelRef::Catalog(name))?;
             let arm = catalog::arm(name)?;
             let dynamics = ArmDynamics::<6>::from_arm(&arm)
                 .with_context(|| format!("model '{name}' has no published inertias"))?;
@@ -78,9 +76,6 @@ pub(super) fn run(args: &TorquesArgs) -> Result<()> {
                 let values = values_or_zeros(values, 6, flag)?;
                 Ok(values.try_into().unwrap_or([0.0; 6]))
             };
-            if args.q.len() != 6 {
-                bail!("--q has {} values; {name} has 6 joints", args.q.len());
-            }
             let (q, qd, qdd) = (
                 state(&args.q, "q")?,
                 state(&args.qd, "qd")?,

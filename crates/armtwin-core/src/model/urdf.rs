@@ -14,9 +14,10 @@ use thiserror::Error;
 
 use super::{ArmDescription, JointLimits, JointOrigins};
 use crate::kinematics::{DhConvention, Pose};
+use crate::orientation::{self, Rpy};
 
-/// The largest URDF document taken (bytes). The largest arm descriptions in `example-robot-data`
-/// (whole humanoids, with every collision and visual element) are a few hundred kilobytes.
+/// The largest URDF document taken (bytes): whole humanoids' descriptions, with every collision
+/// and visual element, fit well within it.
 pub const MAX_URDF_BYTES: usize = 4 << 20;
 /// The largest number of XML nodes in a document (elements, attributes' text, comments).
 const MAX_XML_NODES: u32 = 200_000;
@@ -248,7 +249,11 @@ fn origin_of(joint: roxmltree::Node, name: &str) -> Result<IsometryMatrix3<f64>,
         .map_or(Ok(Vector3::zeros()), |t| triple(t, "origin rpy", name))?;
     Ok(IsometryMatrix3::from_parts(
         Translation3::from(xyz),
-        Rotation3::from_euler_angles(rpy.x, rpy.y, rpy.z),
+        Rotation3::from_matrix_unchecked(orientation::matrix_from_rpy(Rpy {
+            roll_rad: rpy.x,
+            pitch_rad: rpy.y,
+            yaw_rad: rpy.z,
+        })),
     ))
 }
 
@@ -423,7 +428,7 @@ impl UrdfRobot {
         let mut inertials = Vec::new();
         let mut joints = Vec::new();
         for node in root.children().filter(roxmltree::Node::is_element) {
-            if links.len() + joints.len() >= 2 * MAX_URDF_JOINTS {
+            if links.len() >= MAX_URDF_JOINTS || joints.len() >= MAX_URDF_JOINTS {
                 return Err(UrdfError::TooManyElements);
             }
             match node.tag_name().name() {
@@ -506,11 +511,30 @@ impl UrdfRobot {
             root,
         };
         // Every link reaches the root: with one root and one parent each, only a loop apart from
-        // the root could fail that.
-        for link in &robot.links {
-            robot.path_to_root(link)?;
+        // the root could fail that. One walk down from the root finds it, in the tree's size.
+        let reached: HashSet<&str> = robot.links_from_root().into_iter().collect();
+        if let Some(on_loop) = robot.links.iter().find(|l| !reached.contains(l.as_str())) {
+            return Err(UrdfError::Tree(format!("link '{on_loop}' is on a loop")));
         }
         Ok(robot)
+    }
+
+    /// Every link reachable from the root, parents before children (breadth first).
+    fn links_from_root(&self) -> Vec<&str> {
+        let mut children: HashMap<&str, Vec<&str>> = HashMap::new();
+        for joint in &self.joints {
+            children
+                .entry(joint.parent.as_str())
+                .or_default()
+                .push(joint.child.as_str());
+        }
+        let mut order = vec![self.root.as_str()];
+        let mut next = 0;
+        while let Some(&link) = order.get(next) {
+            next += 1;
+            order.extend(children.get(link).map_or(&[][..], Vec::as_slice));
+        }
+        order
     }
 
     /// The joints from the root to `link`, root first.

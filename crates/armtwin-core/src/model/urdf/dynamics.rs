@@ -63,39 +63,34 @@ impl UrdfDynamics {
             .enumerate()
             .map(|(index, link)| (link.as_str(), index))
             .collect();
-        let mut children: HashMap<&str, Vec<usize>> = HashMap::new();
-        for (index, joint) in robot.joints.iter().enumerate() {
-            children
-                .entry(joint.parent.as_str())
-                .or_default()
-                .push(index);
-        }
-        let root_inertial = robot.inertials[link_index[robot.root.as_str()]];
-        let mut bodies = vec![TreeBody {
-            parent: None,
-            origin: nalgebra::IsometryMatrix3::identity(),
-            kind: None,
-            axis: Vector3::z_axis(),
-            chain_index: None,
-            inertial: root_inertial,
-        }];
-        // Breadth first from the root: each body after its parent.
-        let mut queue = vec![(robot.root.as_str(), 0_usize)];
-        let mut next = 0;
-        while let Some(&(link, body)) = queue.get(next) {
-            next += 1;
-            for &joint_index in children.get(link).map_or(&[][..], Vec::as_slice) {
-                let joint = &robot.joints[joint_index];
-                bodies.push(TreeBody {
-                    parent: Some(body),
-                    origin: joint.origin,
-                    kind: joint.kind,
-                    axis: joint.axis,
-                    chain_index: chain_index.get(joint.name.as_str()).copied(),
-                    inertial: robot.inertials[link_index[joint.child.as_str()]],
-                });
-                queue.push((joint.child.as_str(), bodies.len() - 1));
-            }
+        // Parents before children: each body's joint hangs from a body already placed.
+        let mut bodies = Vec::with_capacity(robot.links.len());
+        let mut body_of: HashMap<&str, usize> = HashMap::with_capacity(robot.links.len());
+        for link in robot.links_from_root() {
+            let inertial = robot.inertials[link_index[link]];
+            let body = match robot.joint_to.get(link) {
+                None => TreeBody {
+                    parent: None,
+                    origin: nalgebra::IsometryMatrix3::identity(),
+                    kind: None,
+                    axis: Vector3::z_axis(),
+                    chain_index: None,
+                    inertial,
+                },
+                Some(&joint_index) => {
+                    let joint = &robot.joints[joint_index];
+                    TreeBody {
+                        parent: Some(body_of[joint.parent.as_str()]),
+                        origin: joint.origin,
+                        kind: joint.kind,
+                        axis: joint.axis,
+                        chain_index: chain_index.get(joint.name.as_str()).copied(),
+                        inertial,
+                    }
+                }
+            };
+            body_of.insert(link, bodies.len());
+            bodies.push(body);
         }
         if bodies.iter().filter(|b| b.chain_index.is_some()).count() != chain.joints.len() {
             return Err(UrdfError::Chain(

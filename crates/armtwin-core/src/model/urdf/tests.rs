@@ -156,6 +156,13 @@ fn bad_descriptions_are_refused_naming_what_is_wrong() {
         let error = error_of(&ARM.replacen(from, to, 1)).to_string();
         assert!(error.contains(expected), "{to}: {error}");
     }
+    let looped = r#"<robot name="l"><link name="base"/><link name="a"/><link name="b"/>
+        <joint name="ab" type="fixed"><parent link="a"/><child link="b"/></joint>
+        <joint name="ba" type="fixed"><parent link="b"/><child link="a"/></joint></robot>"#;
+    assert_eq!(
+        UrdfRobot::parse(looped).unwrap_err(),
+        UrdfError::Tree("link 'a' is on a loop".to_owned())
+    );
     assert!(matches!(error_of("<robot"), UrdfError::Xml(_)));
     assert!(matches!(
         error_of(r#"<!DOCTYPE robot [<!ENTITY a "aaaa">]><robot name="x"/>"#),

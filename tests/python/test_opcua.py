@@ -62,7 +62,9 @@ def password_hash(password: str) -> str:
 def config(port: int) -> str:
     return f"""\
 [service]
-forget_after_s = 2.0
+# Long enough for a loaded machine's client to read the last joints before the robot retires,
+# short enough for the retirement to be seen within TIMEOUT_S.
+forget_after_s = 5.0
 
 [robots.default]
 model = "ur10e"
@@ -241,29 +243,34 @@ async def scenario(workdir: Path, service: ArmtwinProcess, url: str) -> None:
             assert written[0].is_bad(), written
             assert await serial.read_value() == SERIAL
 
-            sender.join(timeout=TIMEOUT_S)
+            # Off the event loop: a blocking join held asyncua's keep-alive, and its supervisor
+            # then took the client for disconnected.
+            await asyncio.to_thread(sender.join, TIMEOUT_S)
             assert done.is_set() and sent, "the recording was not streamed"
             last_q = sent[0]
             # The last joints streamed, in each axis's stated units, once the twin has taken them:
             # the stream ends when its last put is queued, and a loaded machine's service may be
             # seconds behind it then.
-            async def shown() -> list[float]:
-                return [await position.read_value() for position in positions]
-
-            deadline = time.monotonic() + TIMEOUT_S
-            while not all(math.isclose(v, math.degrees(q), abs_tol=1e-9) for v, q in zip(await shown(), last_q)):
-                if time.monotonic() > deadline:
-                    break
-                await asyncio.sleep(SAMPLING_MS / 1000)
-            for position, q_rad in zip(positions, last_q):
+            # The values are checked as read: the robot retires forget_after_s after its last input,
+            # and a loaded machine's reads can take that long.
+            for position in positions:
                 units = await (await position.get_child("0:EngineeringUnits")).read_value()
                 assert units.DisplayName.Text == "°" and units.UnitId == 17476, units
-                assert math.isclose(await position.read_value(), math.degrees(q_rad), abs_tol=1e-9)
+
+            def last_joints(shown: list[float]) -> bool:
+                return all(math.isclose(v, math.degrees(q), abs_tol=1e-9) for v, q in zip(shown, last_q))
+
+            deadline = time.monotonic() + TIMEOUT_S
+            shown = [await position.read_value() for position in positions]
+            while not last_joints(shown) and time.monotonic() < deadline:
+                await asyncio.sleep(SAMPLING_MS / 1000)
+                shown = [await position.read_value() for position in positions]
+            assert last_joints(shown), (shown, [math.degrees(q) for q in last_q])
 
             # The position alarm raised during the offset phase and cleared after it, as events.
             def alarm_events():
                 return [(e.Severity, e.Message.Text) for e in recorder.events if ROBOT in e.Message.Text]
-            assert wait_until(lambda: len(alarm_events()) >= 2, 5.0), recorder.events
+            assert await until(lambda: len(alarm_events()) >= 2, 5.0), recorder.events
             assert alarm_events() == [
                 (700, f"{ROBOT}: position deviation alarm raised"),
                 (100, f"{ROBOT}: position deviation alarm cleared"),

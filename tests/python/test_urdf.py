@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import math
+import xml.etree.ElementTree as ET
 
 import numpy as np
 import pinocchio as pin
@@ -73,12 +74,23 @@ def set_value(model: pin.Model, q: np.ndarray, joint: int, value: float) -> None
         q[index] = value
 
 
-def root_link(path) -> str:
-    import xml.etree.ElementTree as ET
+def listed(values) -> str:
+    """Numbers as one comma-separated flag value, each read back to the same bits."""
+    return ",".join(repr(float(v)) for v in values)
 
+
+def chain_ends(path, base: str | None, tip: str | None) -> tuple[str, str]:
+    """The chain's base and tip links as the URDF specification makes them: those given, else
+    the root (the link no joint has as its child) and the one leaf (no joint's parent)."""
     robot = ET.parse(path).getroot()
+    links = [link.get("name") for link in robot.findall("link")]
+    parents = {j.find("parent").get("link") for j in robot.findall("joint")}
     children = {j.find("child").get("link") for j in robot.findall("joint")}
-    return next(link.get("name") for link in robot.findall("link") if link.get("name") not in children)
+    [root] = [link for link in links if link not in children]
+    leaves = [link for link in links if link not in parents]
+    if tip is None:
+        assert len(leaves) == 1, leaves
+    return base or root, tip or leaves[0]
 
 
 @pytest.mark.parametrize("file,base,tip", CHAINS, ids=[f"{f}:{b or 'root'}->{t or 'leaf'}" for f, b, t in CHAINS])
@@ -86,8 +98,7 @@ def test_the_chain_pose_equals_pinocchios(armtwin_bin, file, base, tip):
     path = URDF_DIR / file
     model = pin.buildModelFromUrdf(str(path))
     data = model.createData()
-    base_name = base or root_link(path)
-    tip_name = tip or "gripperMover"  # z1's one leaf, which armtwin must find by itself
+    base_name, tip_name = chain_ends(path, base, tip)
     joints = chain_joints(model, base_name, tip_name)
     rng = np.random.default_rng(sum(map(ord, file + base_name + tip_name)))
     flags = ["--model", str(path)]
@@ -146,8 +157,7 @@ def test_the_chain_torques_equal_pinocchios_rnea_on_the_whole_model(armtwin_bin,
     path = URDF_DIR / file
     model = pin.buildModelFromUrdf(str(path))
     data = model.createData()
-    base_name = base or root_link(path)
-    tip_name = tip or "gripperMover"
+    base_name, tip_name = chain_ends(path, base, tip)
     joints = chain_joints(model, base_name, tip_name)
     rng = np.random.default_rng(7 + sum(map(ord, file + base_name + tip_name)))
     flags = ["--model", str(path)] + (["--base-link", base] if base else []) + (["--tip-link", tip] if tip else [])
@@ -162,7 +172,6 @@ def test_the_chain_torques_equal_pinocchios_rnea_on_the_whole_model(armtwin_bin,
             set_value(model, q, joint, values[k])
             v[model.joints[joint].idx_v], a[model.joints[joint].idx_v] = qd[k], qdd[k]
         expected = pin.rnea(model, data, q, v, a)[[model.joints[j].idx_v for j in joints]]
-        listed = lambda xs: ",".join(repr(float(x)) for x in xs)  # noqa: E731
         run = run_armtwin("torques", *flags, f"--q={listed(values)}", f"--qd={listed(qd)}", f"--qdd={listed(qdd)}")
         assert run.returncode == 0, run.stderr
         got = np.array(json.loads(run.stdout)["torque"])

@@ -226,15 +226,21 @@ async def scenario(workdir: Path, service: ArmtwinProcess, url: str) -> None:
             assert (await (await device.get_child(f"{di}:Manufacturer")).read_value()).Text == "Universal Robots"
             twin.session.put(f"twin/controller/{ROBOT}", json.dumps({"model": "UR10", "serial": SERIAL}))
 
-            # Changes at the sampling interval while the robot streams.
+            # Changes while the robot streams, sampled: never more than one per sampling interval,
+            # though the robot sends 1 000 rows a second. How many fewer a loaded machine delivers
+            # is the machine's, so the count is waited for, not a fixed window.
             await subscription.subscribe_data_change([source_time, positions[0]])
             go.set()
-            await asyncio.sleep(1.5)
-            assert not done.is_set(), "the recording ended before the changes were counted"
-            times = [at for at, node, _ in recorder.changes if node == source_time]
+
+            def source_times() -> list[float]:
+                return [at for at, node, _ in recorder.changes if node == source_time]
+
+            assert await until(lambda: len(source_times()) >= 8 or done.is_set(), TIMEOUT_S)
+            times = source_times()
+            assert len(times) >= 3, f"{len(times)} source-time changes while the robot streamed"
             span_s = times[-1] - times[0]
             rate_hz = (len(times) - 1) / span_s
-            assert 0.5 * 1000 / SAMPLING_MS <= rate_hz <= 1.5 * 1000 / SAMPLING_MS, (len(times), span_s)
+            assert rate_hz <= 1.5 * 1000 / SAMPLING_MS, (len(times), span_s)
             assert any(node == positions[0] for _, node, _ in recorder.changes)
 
             # Reading is all a client may do.

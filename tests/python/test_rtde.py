@@ -293,8 +293,10 @@ def test_damaged_frames_end_the_link_not_the_gateway(tmp_path, lasttest_rows, se
         return last_t >= 2000
 
     assert wait_until(reached_end, 30.0, interval=0.1), (last_t, gateway.logs())
+    # The damaged frame ends a link with its reason. A loaded machine's stand-in can also fall
+    # silent past the gateway's 1-s bound first, which ends a link of its own.
     ended = [line for line in gateway.logs().splitlines() if "reconnecting" in line]
-    assert ended and said in ended[0], gateway.logs()
+    assert any(said in line for line in ended), gateway.logs()
     assert gateway.proc.poll() is None
     metrics = metrics_when(service, ROBOT, lambda m: True)
     assert metrics.get("rejected") == 0, metrics

@@ -19,6 +19,8 @@ import time
 import urllib.request
 from pathlib import Path
 
+import numpy as np
+import pinocchio as pin
 from rosbags.typesys import Stores, get_typestore
 
 from support.gateway import Gateway
@@ -40,7 +42,7 @@ ROWS = 6000
 PUSHED = range(3000, 3600)
 
 
-def config(recordings: Path, extra: str = "") -> str:
+def config(recordings: Path, extra: str = "", recorder: str = "") -> str:
     return f"""
 [service]
 metrics_period_ms = 50
@@ -51,6 +53,7 @@ pose_congestion = "block"
 dir = "{recordings}"
 pre_s = {PRE_S}
 post_s = {POST_S}
+{recorder}
 
 [robots.default]
 model = "ur10e"
@@ -77,9 +80,11 @@ def send_all(client: TwinClient, robot: str, t, q, meas) -> None:
         pub.put(json.dumps(joint_message(t[i], q[i], meas[i])))
 
 
-def test_an_alarm_leaves_one_mcap_file_with_what_was_streamed(armtwin_bin, tmp_path):
+def alarm_incident(armtwin_bin, tmp_path: Path, recorder: str = ""):
+    """The service streamed the pushed rows under ``[recorder]`` settings ``recorder``:
+    (its one incident file, its `recorded` event, its `alarm` events, stamps, joints, measured)."""
     recordings = tmp_path / "recordings"
-    proc = ArmtwinProcess(armtwin_bin, tmp_path, config(recordings), 300.0)
+    proc = ArmtwinProcess(armtwin_bin, tmp_path, config(recordings, recorder=recorder), 300.0)
     proc.start()
     client = TwinClient(proc.endpoint)
     robot = "site/cell-1/ur10e"
@@ -95,12 +100,18 @@ def test_an_alarm_leaves_one_mcap_file_with_what_was_streamed(armtwin_bin, tmp_p
         client.close()
         proc.stop()
     assert len(alarms) == 1, alarms
+    files = sorted(recordings.rglob("*.mcap"))
+    assert len(files) == 1, files
+    return files[0], recorded, alarms, t, q, meas
+
+
+def test_an_alarm_leaves_one_mcap_file_with_what_was_streamed(armtwin_bin, tmp_path):
+    # Without the robot drawn: the file is then the reference's, byte for byte.
+    path, recorded, alarms, t, q, meas = alarm_incident(armtwin_bin, tmp_path, "draw_robot = false")
+    recordings, robot = tmp_path / "recordings", "site/cell-1/ur10e"
     t_alarm = alarms[0]["t"]
     assert t[PUSHED.start] < t_alarm < t[PUSHED.stop], t_alarm
 
-    files = sorted(recordings.rglob("*.mcap"))
-    assert len(files) == 1, files
-    path = files[0]
     # The robot id is one directory, escaped; the name is the UTC time and the trigger.
     assert path.parent == recordings / "site%2Fcell-1%2Fur10e", path
     assert re.fullmatch(r"\d{8}T\d{6}\.\d{3}Z-alarm\.mcap", path.name), path.name
@@ -163,6 +174,72 @@ def test_an_alarm_leaves_one_mcap_file_with_what_was_streamed(armtwin_bin, tmp_p
     assert cumulative["n"] == len(window), cumulative["n"]
     assert abs(cumulative["position"]["max"] - max(live)) <= 1e-12, (cumulative["position"], max(live))
     assert abs(cumulative["position"]["mae"] - sum(live) / len(live)) <= 1e-12
+
+
+def rotation_of(q) -> np.ndarray:
+    """The rotation matrix of a ``geometry_msgs/Quaternion``."""
+    x, y, z, w = q.x, q.y, q.z, q.w
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def test_an_incident_file_draws_the_arm_whose_frames_compose_to_the_twin_pose(armtwin_bin, tmp_path):
+    """Foxglove's 3D view of an incident: with the defaults, the file carries the robot's URDF on
+    ``/robot_description`` (read by Pinocchio) and its link frames on ``/tf`` at every joint
+    sample. Walking ``/tf`` from the tool up to the poses' frame gives the twin pose of the same
+    sample to 1e-9 m, and so does Pinocchio's pose of the URDF at the sample's joints. The other
+    topics hold what the file without the robot drawn holds."""
+    path, _, alarms, _, _, _ = alarm_incident(armtwin_bin, tmp_path)
+    channels, messages, metadata = read_mcap(path)
+    drawn = {"/robot_description": "std_msgs/msg/String", "/tf": "tf2_msgs/msg/TFMessage"}
+    assert channels == {topic: (name, "ros2msg", "cdr") for topic, name in {**TOPICS, **drawn}.items()}
+    from_s = float(metadata["armtwin"]["from_s"])
+
+    [(log_time, description, _)] = messages["/robot_description"]
+    assert abs(log_time * 1e-9 - from_s) < 1e-6, (log_time, from_s)
+    model = pin.buildModelFromXML(description.data)
+    data = model.createData()
+    tool = model.getFrameId("tool0")
+    assert tool < len(model.frames) and model.nq == 6, description.data
+
+    twin = messages["/twin/pose"]
+    tfs = messages["/tf"]
+    joints = messages["/joint_states"]
+    assert len(tfs) == len(twin) == len(joints) > 2000, (len(tfs), len(twin))
+    worst_tf_m = worst_tf_rotation = worst_pin_m = 0.0
+    for (_, tf, _), (_, pose, _), (_, joint_state, _) in zip(tfs, twin, joints, strict=True):
+        assert stamp_of(tf.transforms[0].header) == stamp_of(pose.header)
+        parent_of = {t.child_frame_id: t for t in tf.transforms}
+        frame, position, rotation = "tool0", np.zeros(3), np.eye(3)
+        while frame != pose.header.frame_id:
+            step = parent_of[frame].transform
+            r = rotation_of(step.rotation)
+            position = r @ position + [step.translation.x, step.translation.y, step.translation.z]
+            rotation = r @ rotation
+            frame = parent_of[frame].header.frame_id
+        p = pose.pose.position
+        expected = np.array([p.x, p.y, p.z])
+        worst_tf_m = max(worst_tf_m, float(np.abs(position - expected).max()))
+        worst_tf_rotation = max(worst_tf_rotation, float(np.abs(rotation - rotation_of(pose.pose.orientation)).max()))
+        pin.framesForwardKinematics(model, data, np.array(joint_state.position))
+        worst_pin_m = max(worst_pin_m, float(np.abs(data.oMf[tool].translation - expected).max()))
+    print(f"/tf against /twin/pose over {len(tfs)} samples: {worst_tf_m:.2e} m, {worst_tf_rotation:.2e} "
+          f"per rotation entry; Pinocchio's pose of /robot_description: {worst_pin_m:.2e} m")
+    assert worst_tf_m <= 1e-9 and worst_tf_rotation <= 1e-9 and worst_pin_m <= 1e-9
+
+    # Everything else is as without the robot drawn.
+    reference = lzma.decompress((DATA / "recorder" / "ur10e_alarm_incident.mcap.xz").read_bytes())
+    plain = tmp_path / "reference.mcap"
+    plain.write_bytes(reference)
+    print(f"file {path.stat().st_size} bytes drawn, {len(reference)} without")
+    _, plain_messages, _ = read_mcap(plain)
+    for topic in TOPICS:
+        if topic != "/rosout":
+            assert [raw for _, _, raw in messages[topic]] == [raw for _, _, raw in plain_messages[topic]], topic
+    assert alarms[0]["t"] == json.loads(plain_messages["/rosout"][0][1].msg)["t"]
 
 
 def metric(port: int, name: str) -> float | None:

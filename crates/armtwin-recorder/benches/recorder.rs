@@ -140,6 +140,7 @@ fn cut(joints: &RecordRing, measured: &RecordRing, end_s: f64) -> Incident {
         measured: Vec::new(),
         efforts: Vec::new(),
         log: Vec::new(),
+        drawn: None,
     };
     joints.copy_range(from_s, until_s, &mut incident.joints);
     measured.copy_range(from_s, until_s, &mut incident.measured);

@@ -7,12 +7,18 @@
 
 use std::collections::BTreeMap;
 use std::io::{Seek, Write};
+use std::sync::Arc;
 use std::time::SystemTime;
 
+use nalgebra::UnitQuaternion;
+
 use super::mcap_file::{self, McapFile, PoseTopic, pose_of};
+use super::ros2_messages::Transform;
 use armtwin_core::dynamics::monitor::EffortReadout;
 use armtwin_core::kinematics::PoseReadout;
 use armtwin_core::metrics::Deviation;
+use armtwin_core::model::RobotModel;
+use armtwin_core::model::urdf::ModelFrames;
 use armtwin_core::sample::{JointQuantity, JointSample};
 
 pub use super::mcap_file::{METADATA_NAME, WriteError, topics};
@@ -134,7 +140,7 @@ pub struct LogLine {
 }
 
 /// What an incident file holds, copied out of a robot's rings.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone)]
 pub struct Incident {
     /// Robot id.
     pub robot: String,
@@ -160,6 +166,9 @@ pub struct Incident {
     pub efforts: Vec<f64>,
     /// The trigger's line and those of triggers folded in.
     pub log: Vec<LogLine>,
+    /// The model the file draws the robot with, on `/robot_description` and `/tf` (its link
+    /// frames at each joint sample); `None` draws nothing.
+    pub drawn: Option<Arc<RobotModel>>,
 }
 
 impl Incident {
@@ -167,7 +176,9 @@ impl Incident {
     #[must_use]
     pub fn message_count(&self) -> usize {
         let joints = self.joints.len() / self.joint_record.stride();
-        2 * joints
+        let drawn = usize::from(self.drawn.is_some());
+        (2 + drawn) * joints
+            + drawn
             + 2 * (self.measured.len() / MEASURED_STRIDE)
             + self.efforts.len() / EFFORT_STRIDE
             + self.log.len()
@@ -183,10 +194,17 @@ impl Incident {
 /// Writes `incident` as an MCAP file (uncompressed: a few MB at most, written once) to `out`;
 /// the messages written.
 pub fn write_mcap<W: Write + Seek>(out: W, incident: &Incident) -> Result<u64, WriteError> {
-    let mut file = McapFile::create(out)?;
+    let mut file = McapFile::create(out, incident.drawn.is_some())?;
     let frame = incident.frame_id.as_str();
     let names = incident.joint_names();
     let n = incident.joint_record.joint_count;
+    let mut drawing = incident.drawn.as_deref().map(|model| {
+        let frames = ModelFrames::of(model);
+        (frames.urdf(model), frames, Vec::new())
+    });
+    if let Some((urdf, _, _)) = &drawing {
+        file.robot_description(incident.from_s, urdf)?;
+    }
     for record in incident.joints.chunks_exact(incident.joint_record.stride()) {
         let stamp_s = record[0];
         let present = present_bits(record[1]);
@@ -211,6 +229,9 @@ pub fn write_mcap<W: Write + Seek>(out: W, incident: &Incident) -> Result<u64, W
             frame,
             &pose_of(&record[2 + 3 * n..]),
         )?;
+        if let Some((_, frames, scratch)) = &mut drawing {
+            write_tf(&mut file, stamp_s, frames, &record[2..2 + n], scratch)?;
+        }
     }
     for record in incident.measured.chunks_exact(MEASURED_STRIDE) {
         let stamp_s = record[0];
@@ -232,6 +253,33 @@ pub fn write_mcap<W: Write + Seek>(out: W, incident: &Incident) -> Result<u64, W
         file.log(line.stamp_s, line.level, &line.text)?;
     }
     file.finish(metadata(incident))
+}
+
+/// The link frames of `frames` at joints `q_rad` as one `/tf` message.
+fn write_tf<W: Write + Seek>(
+    file: &mut McapFile<W>,
+    stamp_s: f64,
+    frames: &ModelFrames,
+    q_rad: &[f64],
+    scratch: &mut Vec<nalgebra::IsometryMatrix3<f64>>,
+) -> Result<(), mcap_file::WriteError> {
+    frames.transforms(q_rad, scratch);
+    let transforms: Vec<Transform<'_>> = scratch
+        .iter()
+        .zip(frames.child_links())
+        .enumerate()
+        .map(|(k, (parent_from_child, child))| {
+            let t = parent_from_child.translation.vector;
+            let q = UnitQuaternion::from_rotation_matrix(&parent_from_child.rotation);
+            Transform {
+                parent: frames.parent_link(k),
+                child,
+                translation_m: [t.x, t.y, t.z],
+                rotation_xyzw: [q.i, q.j, q.k, q.w],
+            }
+        })
+        .collect();
+    file.tf(stamp_s, &transforms)
 }
 
 /// The metadata record: who, what model, why, and the span.

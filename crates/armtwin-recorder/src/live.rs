@@ -353,7 +353,7 @@ impl<W: Write + Seek> LiveFile<W> {
     /// Starts `robot`'s file, of an arm of `joint_count` joints, on `out`.
     pub fn create(out: W, robot: &str, joint_count: usize) -> Result<Self, WriteError> {
         Ok(Self {
-            file: McapFile::create(out)?,
+            file: McapFile::create(out, false)?,
             robot: robot.to_owned(),
             joint_count,
             joint_names: joint_names(joint_count),

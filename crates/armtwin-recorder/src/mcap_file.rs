@@ -29,6 +29,12 @@ pub mod topics {
     pub const EFFORT: &str = "/twin/effort";
     /// `rcl_interfaces/msg/Log`: the trigger, and every trigger folded into the incident.
     pub const ROSOUT: &str = "/rosout";
+    /// `std_msgs/msg/String`: the robot's URDF, once, at the file's start (files that know the
+    /// robot's model: incidents).
+    pub const ROBOT_DESCRIPTION: &str = "/robot_description";
+    /// `tf2_msgs/msg/TFMessage`: the twin's link frames of each joint sample, named as the
+    /// URDF's links (the same files).
+    pub const TF: &str = "/tf";
 }
 
 /// The name of the MCAP metadata record an armtwin file carries.
@@ -70,10 +76,14 @@ struct Channels {
     deviation: u16,
     effort: u16,
     rosout: u16,
+    /// The robot's description and link frames, when the file draws the robot.
+    robot_description: Option<u16>,
+    tf: Option<u16>,
 }
 
 /// An armtwin MCAP file being written: uncompressed, profile `ros2`, every channel declared up
-/// front (a reader sees the same topics whatever the file holds).
+/// front (a reader sees the same topics whatever the file holds; [`topics::ROBOT_DESCRIPTION`]
+/// and [`topics::TF`] in the files that draw the robot).
 pub struct McapFile<W: Write + Seek> {
     writer: mcap::Writer<W>,
     channels: Channels,
@@ -82,14 +92,15 @@ pub struct McapFile<W: Write + Seek> {
 }
 
 impl<W: Write + Seek> McapFile<W> {
-    /// Starts a file on `out`: header, schemas and channels.
-    pub fn create(out: W) -> Result<Self, WriteError> {
+    /// Starts a file on `out`: header, schemas and channels; those of the robot's description
+    /// and link frames with `robot_frames`.
+    pub fn create(out: W, robot_frames: bool) -> Result<Self, WriteError> {
         let mut writer = mcap::WriteOptions::new()
             .compression(None)
             .profile("ros2")
             .library(concat!("armtwin ", env!("CARGO_PKG_VERSION")))
             .create(out)?;
-        let channels = channels(&mut writer)?;
+        let channels = channels(&mut writer, robot_frames)?;
         Ok(Self {
             writer,
             channels,
@@ -174,6 +185,27 @@ impl<W: Write + Seek> McapFile<W> {
         self.put(self.channels.rosout, stamp_s, &payload)
     }
 
+    /// A `std_msgs/msg/String` on [`topics::ROBOT_DESCRIPTION`]; nothing in a file without
+    /// that channel.
+    pub fn robot_description(&mut self, stamp_s: f64, urdf: &str) -> Result<(), WriteError> {
+        match self.channels.robot_description {
+            Some(channel) => self.put(channel, stamp_s, &msg::string(urdf)),
+            None => Ok(()),
+        }
+    }
+
+    /// A `tf2_msgs/msg/TFMessage` on [`topics::TF`]; nothing in a file without that channel.
+    pub fn tf(
+        &mut self,
+        stamp_s: f64,
+        transforms: &[msg::Transform<'_>],
+    ) -> Result<(), WriteError> {
+        match self.channels.tf {
+            Some(channel) => self.put(channel, stamp_s, &msg::tf_message(stamp_s, transforms)),
+            None => Ok(()),
+        }
+    }
+
     /// Writes the metadata record [`METADATA_NAME`] and the file's summary; the messages
     /// written and the writer.
     pub fn finish(mut self, metadata: BTreeMap<String, String>) -> Result<u64, WriteError> {
@@ -187,7 +219,10 @@ impl<W: Write + Seek> McapFile<W> {
 }
 
 /// Declares the file's schemas and channels.
-fn channels<W: Write + Seek>(writer: &mut mcap::Writer<W>) -> Result<Channels, WriteError> {
+fn channels<W: Write + Seek>(
+    writer: &mut mcap::Writer<W>,
+    robot_frames: bool,
+) -> Result<Channels, WriteError> {
     let mut schema = |message: MessageType| {
         writer.add_schema(message.name, "ros2msg", message.definition.as_bytes())
     };
@@ -198,17 +233,30 @@ fn channels<W: Write + Seek>(writer: &mut mcap::Writer<W>) -> Result<Channels, W
         schema(msg::EFFORT)?,
         schema(msg::LOG)?,
     ];
+    // Declared after the others, so a file without them is what it was before they existed.
+    let frame_schemas = if robot_frames {
+        Some((schema(msg::STRING)?, schema(msg::TF_MESSAGE)?))
+    } else {
+        None
+    };
     let none = BTreeMap::new();
     let mut channel =
         |schema_id: u16, topic: &str| writer.add_channel(schema_id, topic, "cdr", &none);
-    Ok(Channels {
+    let mut channels = Channels {
         joint_states: channel(schemas[0], topics::JOINT_STATES)?,
         twin_pose: channel(schemas[1], topics::TWIN_POSE)?,
         measured_pose: channel(schemas[1], topics::MEASURED_POSE)?,
         deviation: channel(schemas[2], topics::DEVIATION)?,
         effort: channel(schemas[3], topics::EFFORT)?,
         rosout: channel(schemas[4], topics::ROSOUT)?,
-    })
+        robot_description: None,
+        tf: None,
+    };
+    if let Some((string, tf_message)) = frame_schemas {
+        channels.robot_description = Some(channel(string, topics::ROBOT_DESCRIPTION)?);
+        channels.tf = Some(channel(tf_message, topics::TF)?);
+    }
+    Ok(channels)
 }
 
 /// A pose from `[x, y, z, qx, qy, qz, qw]` as given (a canonical quaternion): the components

@@ -95,6 +95,34 @@ pub const LOG: MessageType = MessageType {
     ),
 };
 
+/// `std_msgs/msg/String`: what `/robot_description` carries (a URDF).
+pub const STRING: MessageType = MessageType {
+    name: "std_msgs/msg/String",
+    definition: "string data\n",
+};
+
+/// `tf2_msgs/msg/TFMessage`: what `/tf` carries.
+pub const TF_MESSAGE: MessageType = MessageType {
+    name: "tf2_msgs/msg/TFMessage",
+    definition: concat!(
+        "geometry_msgs/TransformStamped[] transforms\n",
+        "================================================================================\n",
+        "MSG: geometry_msgs/TransformStamped\nstd_msgs/Header header\nstring child_frame_id\n",
+        "geometry_msgs/Transform transform\n",
+        "================================================================================\n",
+        "MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n",
+        "================================================================================\n",
+        "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n",
+        "================================================================================\n",
+        "MSG: geometry_msgs/Transform\ngeometry_msgs/Vector3 translation\n",
+        "geometry_msgs/Quaternion rotation\n",
+        "================================================================================\n",
+        "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n",
+        "================================================================================\n",
+        "MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n",
+    ),
+};
+
 /// `rcl_interfaces/msg/Log` levels.
 pub const LOG_INFO: u8 = 20;
 /// The same, a warning.
@@ -223,10 +251,51 @@ pub fn log(stamp_s: f64, level: u8, name: &str, text: &str) -> Vec<u8> {
     writer.out
 }
 
+/// A `std_msgs/msg/String`.
+#[must_use]
+pub fn string(text: &str) -> Vec<u8> {
+    let mut writer = Writer::new();
+    writer.string(text);
+    writer.out
+}
+
+/// One transform of a `tf2_msgs/msg/TFMessage`: `child` in `parent` as
+/// `[x, y, z]` (m) and `[qx, qy, qz, qw]`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Transform<'a> {
+    /// `header.frame_id`.
+    pub parent: &'a str,
+    /// `child_frame_id`.
+    pub child: &'a str,
+    /// `transform.translation` (m).
+    pub translation_m: [f64; 3],
+    /// `transform.rotation`, `[x, y, z, w]`.
+    pub rotation_xyzw: [f64; 4],
+}
+
+/// A `tf2_msgs/msg/TFMessage` of `transforms`, each stamped `stamp_s`.
+#[must_use]
+pub fn tf_message(stamp_s: f64, transforms: &[Transform<'_>]) -> Vec<u8> {
+    let mut writer = Writer::new();
+    writer.length(transforms.len());
+    for transform in transforms {
+        writer.header(stamp_s, transform.parent);
+        writer.string(transform.child);
+        for &value in transform
+            .translation_m
+            .iter()
+            .chain(&transform.rotation_xyzw)
+        {
+            writer.f64(value);
+        }
+    }
+    writer.out
+}
+
 #[cfg(test)]
 mod tests {
     #![allow(clippy::float_cmp, reason = "decoded values are copied, not computed")]
-    use super::{JOINT_STATE, POSE_STAMPED, SEPARATOR, joint_state};
+    use super::{JOINT_STATE, POSE_STAMPED, SEPARATOR, TF_MESSAGE, joint_state};
     use armtwin_codec::cdr::{self, EffortMeaning, JointNames};
 
     #[test]
@@ -245,7 +314,7 @@ mod tests {
 
     #[test]
     fn schemas_name_every_type_they_use_once() {
-        for schema in [JOINT_STATE, POSE_STAMPED] {
+        for schema in [JOINT_STATE, POSE_STAMPED, TF_MESSAGE] {
             let sections: Vec<&str> = schema.definition.split(SEPARATOR).collect();
             assert!(sections[1..].iter().all(|s| s.starts_with("MSG: ")));
         }

@@ -743,7 +743,7 @@ impl UrdfChain {
 mod dynamics;
 mod export;
 pub use dynamics::{STANDARD_GRAVITY_M_S2, UrdfDynamics};
-pub use export::model_urdf;
+pub use export::{ModelFrames, model_urdf};
 
 #[cfg(test)]
 mod tests;

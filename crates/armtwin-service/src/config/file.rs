@@ -328,6 +328,7 @@ pub(super) struct RecorderSection {
     pub(super) fleet_bytes: usize,
     pub(super) history_s: usize,
     pub(super) history_bytes: u64,
+    pub(super) draw_robot: bool,
 }
 
 impl Default for RecorderSection {
@@ -346,6 +347,7 @@ impl Default for RecorderSection {
             fleet_bytes: 1 << 30,
             history_s: DEFAULT_HISTORY_S,
             history_bytes: 512 << 20,
+            draw_robot: true,
         }
     }
 }

@@ -34,6 +34,9 @@ pub struct RecorderConfig {
     pub fleet_bytes: usize,
     /// The size of the log that holds the robots' closed minutes of history seconds (bytes).
     pub history_bytes: u64,
+    /// Whether incident files draw the robot: its URDF on `/robot_description` and its link
+    /// frames on `/tf` at each joint sample.
+    pub draw_robot: bool,
     /// Where files go and how many are kept (`dir` resolved against the file's directory).
     pub store: StoreSettings,
 }
@@ -77,6 +80,7 @@ impl RecorderConfig {
             robot_bytes: section.robot_bytes,
             fleet_bytes: section.fleet_bytes,
             history_bytes: section.history_bytes,
+            draw_robot: section.draw_robot,
             store: StoreSettings {
                 dir: base_dir.join(&section.dir),
                 max_files: section.max_files,

@@ -20,6 +20,7 @@ use crate::config::RecorderConfig;
 use armtwin_core::dynamics::monitor::EffortReadout;
 use armtwin_core::kinematics::PoseReadout;
 use armtwin_core::metrics::Deviation;
+use armtwin_core::model::RobotModel;
 use armtwin_core::pipeline::{Event, EventDetail, EventKind, Robot};
 use armtwin_core::sample::JointSample;
 use armtwin_mesh::keys::{KeySpace, Stream};
@@ -110,11 +111,8 @@ impl Recorder {
                     .max(EFFORT_STRIDE)
             ],
             joint_record,
-            model: model.arm().name.clone(),
-            calibration_source: model
-                .calibration()
-                .map_or_else(|| "nominal".to_owned(), |c| c.source_name.clone()),
-            frame_id: model.frame().as_str().to_owned(),
+            model: Arc::clone(model),
+            draw: self.config.draw_robot,
             pending: None,
             incident_tokens: INCIDENT_BURST,
             refilled: Instant::now(),
@@ -195,9 +193,10 @@ pub(super) struct RobotRecording {
     efforts: RecordRing,
     /// One record, built before it is pushed.
     scratch: Vec<f64>,
-    model: String,
-    calibration_source: String,
-    frame_id: String,
+    /// The robot's model when it started: the file's names, and what it draws.
+    model: Arc<RobotModel>,
+    /// `[recorder] draw_robot`.
+    draw: bool,
     pending: Option<Pending>,
     /// Incidents the robot may set off now ([`INCIDENT_BURST`] at most), as of `refilled`.
     incident_tokens: f64,
@@ -382,9 +381,12 @@ impl RobotRecording {
     fn empty_incident(&self, robot: &str) -> Incident {
         Incident {
             robot: robot.to_owned(),
-            model: self.model.clone(),
-            calibration_source: self.calibration_source.clone(),
-            frame_id: self.frame_id.clone(),
+            model: self.model.arm().name.clone(),
+            calibration_source: self
+                .model
+                .calibration()
+                .map_or_else(|| "nominal".to_owned(), |c| c.source_name.clone()),
+            frame_id: self.model.frame().as_str().to_owned(),
             trigger: Trigger {
                 kind: "",
                 stamp_s: 0.0,
@@ -398,6 +400,7 @@ impl RobotRecording {
             measured: Vec::new(),
             efforts: Vec::new(),
             log: Vec::new(),
+            drawn: self.draw.then(|| Arc::clone(&self.model)),
         }
     }
 }

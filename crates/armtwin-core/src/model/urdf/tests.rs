@@ -234,3 +234,47 @@ fn a_models_urdf_reads_back_to_its_poses() {
     assert_relative_eq!(got.position_m, expected.position_m, epsilon = 1e-14);
     assert_relative_eq!(got.rotation, expected.rotation, epsilon = 1e-14);
 }
+
+#[test]
+fn a_models_link_transforms_compose_to_its_pose_and_name_its_urdfs_links() {
+    let model = crate::model::RobotModel::nominal("ur10e").unwrap();
+    let frames = ModelFrames::of(&model);
+    assert_eq!(frames.root_link(), "base");
+    let children: Vec<&str> = frames.child_links().collect();
+    assert_eq!(children.first(), Some(&"link_1"));
+    assert_eq!(children.last(), Some(&"tool0"));
+    let q = [0.3, -1.2, 1.1, -0.4, 0.9, 2.0];
+    let mut transforms = Vec::new();
+    frames.transforms(&q, &mut transforms);
+    assert_eq!(transforms.len(), children.len());
+    let composed = transforms
+        .iter()
+        .fold(nalgebra::IsometryMatrix3::identity(), |acc, t| acc * t);
+    let expected = model.pose(&q).unwrap();
+    assert_relative_eq!(
+        composed.translation.vector,
+        expected.position_m,
+        epsilon = 1e-14
+    );
+    assert_relative_eq!(
+        *composed.rotation.matrix(),
+        expected.rotation,
+        epsilon = 1e-14
+    );
+    // Every frame is a link of the URDF, whose parents are the transforms' parents.
+    let text = frames.urdf(&model);
+    let robot = UrdfRobot::parse(&text).unwrap();
+    let chain = robot.chain(None, None).unwrap();
+    assert_eq!(chain.joints.len(), 6);
+    for (k, child) in children.iter().enumerate() {
+        let parent = frames.parent_link(k);
+        assert!(
+            text.contains(&format!(
+                r#"<parent link="{parent}"/><child link="{child}"/>"#
+            )),
+            "{parent} → {child}"
+        );
+    }
+    // A cylinder per link that reaches a next origin: the base's first joint is at its origin.
+    assert_eq!(text.matches("<cylinder").count(), 6, "{text}");
+}

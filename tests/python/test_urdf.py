@@ -17,6 +17,9 @@ from __future__ import annotations
 
 import json
 import math
+import re
+import time
+import urllib.request
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -24,9 +27,9 @@ import pinocchio as pin
 import pytest
 
 from support.paths import REPO_ROOT
-from support.process import ArmtwinProcess, run_armtwin, wait_until
+from support.process import ArmtwinProcess, free_port, run_armtwin, wait_until
 from support.twin_reference import joint_message
-from support.zenoh_clients import TwinClient
+from support.zenoh_clients import TwinClient, get_json
 
 URDF_DIR = REPO_ROOT / "tests" / "data" / "urdf"
 CONFIGURATIONS = 12
@@ -217,6 +220,46 @@ def test_the_exported_urdf_of_a_calibrated_ur_arm_gives_armtwins_poses_in_pinocc
     assert worst_pinocchio <= 1e-9 and worst_read_back <= 1e-9, (worst_pinocchio, worst_read_back)
 
 
+def stream_panda(client: TwinClient, robot: str, count: int, seed: int) -> tuple[float, float, float]:
+    """Streams ``count`` random Panda configurations with Pinocchio's pose of each as the measured
+    pose; waits for their twin poses and deviations. Returns the worst position (m) and quaternion
+    component differences of the twin poses from Pinocchio's, and the worst deviation (m)."""
+    path = URDF_DIR / "panda.urdf"
+    model = pin.buildModelFromUrdf(str(path))
+    data = model.createData()
+    joints = chain_joints(model, "panda_link0", "panda_hand_tcp")
+    rng = np.random.default_rng(seed)
+    collector = client.collector
+    poses_before, deviations_before = collector.count("pose", robot), collector.count("deviation", robot)
+    expected = []
+    publisher = client.joints(robot)
+    for k in range(count):
+        values = [random_value(model, joint, rng) for joint in joints]
+        q = pin.neutral(model)
+        for joint, value in zip(joints, values):
+            set_value(model, q, joint, value)
+        pin.framesForwardKinematics(model, data, q)
+        tip = data.oMf[model.getFrameId("panda_link0")].inverse() * data.oMf[model.getFrameId("panda_hand_tcp")]
+        quaternion = pin.Quaternion(tip.rotation).coeffs()  # x, y, z, w
+        pose = [*tip.translation, *quaternion]
+        expected.append(pose)
+        publisher.put(json.dumps(joint_message(100.0 * seed + 0.01 * k, values, pose)))
+    assert wait_until(lambda: collector.count("deviation", robot) >= deviations_before + count, 30.0), \
+        (collector.count("deviation", robot), collector.count("pose", robot), collector.messages("events", robot)[-5:])
+    assert collector.count("pose", robot) == poses_before + count
+    worst_m, worst_quaternion, worst_deviation_m = 0.0, 0.0, 0.0
+    for message, pose in zip(collector.messages("pose", robot)[poses_before:], expected, strict=True):
+        got = np.array([message[key] for key in ("x", "y", "z", "qx", "qy", "qz", "qw")])
+        want = np.array(pose)
+        if want[6] < 0:
+            want[3:] = -want[3:]
+        worst_m = max(worst_m, float(np.max(np.abs(got[:3] - want[:3]))))
+        worst_quaternion = max(worst_quaternion, float(np.max(np.abs(got[3:] - want[3:]))))
+    for message in collector.messages("deviation", robot)[deviations_before:]:
+        worst_deviation_m = max(worst_deviation_m, float(message["position"]))
+    return worst_m, worst_quaternion, worst_deviation_m
+
+
 def test_a_panda_from_its_urdf_is_twinned_live(armtwin_bin, tmp_path):
     """`armtwin serve` with `model` a URDF (the Panda to its hand's TCP, every axis a URDF axis
     turned onto z inside the twin): its twin poses equal Pinocchio's for the joints streamed, and
@@ -231,39 +274,90 @@ def test_a_panda_from_its_urdf_is_twinned_live(armtwin_bin, tmp_path):
     try:
         client = TwinClient(service.endpoint)
         client.ready([robot])
-        model = pin.buildModelFromUrdf(str(path))
-        data = model.createData()
-        joints = chain_joints(model, "panda_link0", "panda_hand_tcp")
-        rng = np.random.default_rng(11)
-        expected = []
-        publisher = client.joints(robot)
-        for k in range(50):
-            values = [random_value(model, joint, rng) for joint in joints]
-            q = pin.neutral(model)
-            for joint, value in zip(joints, values):
-                set_value(model, q, joint, value)
-            pin.framesForwardKinematics(model, data, q)
-            tip = data.oMf[model.getFrameId("panda_link0")].inverse() * data.oMf[model.getFrameId("panda_hand_tcp")]
-            quaternion = pin.Quaternion(tip.rotation).coeffs()  # x, y, z, w
-            pose = [*tip.translation, *quaternion]
-            expected.append(pose)
-            publisher.put(json.dumps(joint_message(0.01 * k, values, pose)))
-        collector = client.collector
-        assert wait_until(lambda: collector.count("deviation", robot) >= 50, 30.0), service.logs()
-        worst_m, worst_quaternion, worst_deviation_m = 0.0, 0.0, 0.0
-        for message, pose in zip(collector.messages("pose", robot), expected):
-            got = np.array([message[key] for key in ("x", "y", "z", "qx", "qy", "qz", "qw")])
-            want = np.array(pose)
-            if want[6] < 0:
-                want[3:] = -want[3:]
-            worst_m = max(worst_m, float(np.max(np.abs(got[:3] - want[:3]))))
-            worst_quaternion = max(worst_quaternion, float(np.max(np.abs(got[3:] - want[3:]))))
-        for message in collector.messages("deviation", robot):
-            worst_deviation_m = max(worst_deviation_m, float(message["position"]))
+        worst_m, worst_quaternion, worst_deviation_m = stream_panda(client, robot, 50, 11)
         print(f"\n[panda live] 50 poses: worst position {worst_m:.1e} m, quaternion {worst_quaternion:.1e}; "
               f"worst deviation {worst_deviation_m:.1e} m")
-        assert collector.count("pose", robot) == 50
         assert worst_m <= TOLERANCE and worst_quaternion <= TOLERANCE and worst_deviation_m <= TOLERANCE
+    finally:
+        if client is not None:
+            client.close()
+        service.stop()
+
+
+def metric(port: int, name: str) -> float | None:
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=10) as response:
+        body = response.read().decode()
+    match = re.search(rf"^{re.escape(name)} (\S+)$", body, re.MULTILINE)
+    return float(match.group(1)) if match else None
+
+
+def test_a_robot_takes_its_own_description_and_a_robot_with_a_model_checks_it(armtwin_bin, tmp_path):
+    """Descriptions on `twin/description/<robot>`, as a gateway puts them. A robot with no model
+    of its own (here a Panda, while the default model is a six-joint UR10e) takes its URDF: an
+    event, a new metrics epoch, and twin poses equal to Pinocchio's from then on. A robot whose
+    own section sets its model has its description checked: armtwin's own URDF of that model
+    agrees and changes nothing; a UR5's disagrees and is refused, as is a text that is no URDF,
+    each counted on `/metrics`. The same text again is not read twice."""
+    panda, ur10e = "lab/panda", "lab/ur10e"
+    http_port = free_port()
+    config = (f'[http]\nlisten = "127.0.0.1:{http_port}"\n'
+              f'[robots.default]\nmodel = "ur10e"\n'
+              f'[robots."{panda}"]\ntip_link = "panda_hand_tcp"\n'
+              f'[robots."{ur10e}"]\nmodel = "ur10e"\ntip_link = "tool0"\n')
+    service = ArmtwinProcess(armtwin_bin, tmp_path, config, 120.0)
+    service.start()
+    client = None
+    try:
+        client = TwinClient(service.endpoint)
+        client.ready([panda, ur10e])
+        collector = client.collector
+
+        def descriptions(robot: str) -> list[dict]:
+            return [m for m in collector.messages("events", robot) if m["kind"] == "description"]
+
+        # The Panda's own URDF: taken, with a new epoch.
+        panda_text = (URDF_DIR / "panda.urdf").read_text()
+        client.session.put(f"twin/description/{panda}", panda_text)
+        assert wait_until(lambda: descriptions(panda), 20.0), (collector.messages("events", panda), service.logs())
+        [taken] = descriptions(panda)
+        assert taken["detail"]["in_use"] is True and taken["detail"]["joints"] == 7, taken
+        assert taken["detail"]["name"] == "panda", taken
+        assert any(m["kind"] == "epoch" for m in collector.messages("events", panda)), collector.messages("events", panda)
+        worst_m, worst_quaternion, worst_deviation_m = stream_panda(client, panda, 30, 5)
+        print(f"\n[panda from its description] 30 poses: worst position {worst_m:.1e} m, "
+              f"quaternion {worst_quaternion:.1e}; worst deviation {worst_deviation_m:.1e} m")
+        assert worst_m <= TOLERANCE and worst_quaternion <= TOLERANCE and worst_deviation_m <= TOLERANCE
+        # The same text again: not read again, no event.
+        client.session.put(f"twin/description/{panda}", panda_text)
+
+        # armtwin's own URDF of the configured model agrees: an event, nothing changes.
+        own = run_armtwin("models", "--urdf", "ur10e")
+        assert own.returncode == 0, own.stderr
+        client.session.put(f"twin/description/{ur10e}", own.stdout)
+        assert wait_until(lambda: descriptions(ur10e), 20.0), service.logs()
+        [agrees] = descriptions(ur10e)
+        assert agrees["detail"]["in_use"] is False and "agrees" in agrees["reason"], agrees
+        assert agrees["detail"]["position_difference_m"] <= 1e-9, agrees
+
+        # A UR5's description disagrees with the configured UR10e: refused, counted.
+        time.sleep(1.1)  # a robot's description is read once a second at most
+        client.session.put(f"twin/description/{ur10e}", (URDF_DIR / "ur5_robot.urdf").read_text())
+        assert wait_until(lambda: len(descriptions(ur10e)) >= 2, 20.0), service.logs()
+        refused = descriptions(ur10e)[1]
+        assert refused["detail"]["in_use"] is False and "keeps the configured model" in refused["reason"], refused
+        assert refused["detail"]["position_difference_m"] > 0.01, refused
+        # No URDF at all: refused, naming why (or, within a second of the last, as too soon).
+        client.session.put(f"twin/description/{ur10e}", "<robot name='x'><link name='a'/>")
+        assert wait_until(lambda: len(descriptions(ur10e)) >= 3, 20.0), service.logs()
+        garbage = descriptions(ur10e)[2]
+        assert "is refused" in garbage["reason"], garbage
+        assert wait_until(lambda: metric(http_port, "armtwin_descriptions_refused_total") == 2.0, 10.0), \
+            metric(http_port, "armtwin_descriptions_refused_total")
+        assert len(descriptions(panda)) == 1, descriptions(panda)
+        # Each computes with what its state says: the Panda's description, the configured UR10e.
+        [(_, panda_state)] = get_json(client.session, f"twin/state/{panda}")
+        [(_, ur10e_state)] = get_json(client.session, f"twin/state/{ur10e}")
+        assert (panda_state["model"], ur10e_state["model"]) == ("panda", "ur10e"), (panda_state, ur10e_state)
     finally:
         if client is not None:
             client.close()

@@ -49,7 +49,14 @@ const ARMTWIN_DECLARES: [Stream; 18] = [
     Stream::Record,
 ];
 /// What a gateway sends for a robot.
-const INPUTS: [Stream; 3] = [Stream::Joints, Stream::Measured, Stream::Controller];
+const INPUTS: [Stream; 4] = [
+    Stream::Joints,
+    Stream::Measured,
+    Stream::Controller,
+    Stream::Description,
+];
+/// What a gateway keeps the latest of, for an armtwin instance that starts after it.
+const LATEST: [Stream; 2] = [Stream::Controller, Stream::Description];
 /// The tokens a gateway holds for a robot.
 const GATEWAY_TOKENS: [Stream; 2] = [Stream::GatewayStreaming, Stream::GatewayWaiting];
 /// Queryables that only read: the ACL sees a query's key, never its parameters, so every change
@@ -306,12 +313,12 @@ impl Fleet {
                     &self.every(&INPUTS),
                 ),
                 // Each instance asks the gateways what they read of the controllers when it
-                // starts: their TCP, model and serial number.
+                // starts (their TCP, model and serial number), and the robots' descriptions.
                 rule(
                     "armtwin-ask-controllers",
                     &["ingress", "egress"],
                     &["query", "reply"],
-                    &[self.keys.every_robot(Stream::Controller)],
+                    &self.every(&LATEST),
                 ),
                 // Each instance asks the others which robots they own (`[service] robots`).
                 rule(
@@ -460,19 +467,14 @@ impl Fleet {
                     &facts,
                     &["ingress"],
                     &["declare_queryable", "reply"],
-                    &of(&[Stream::Controller]),
+                    &of(&LATEST),
                 ),
                 // Asked by every armtwin instance at its start, on its whole shard
                 // (`<prefix>/controller/**`, `…/site-a/**`), wider than this gateway's robots:
                 // a rule on its own keys would never cover the query, and the service would
                 // run without the controller's TCP until the facts changed. Only armtwin may
                 // ask there, and the gateway answers for its own robots only (above).
-                rule(
-                    &asked,
-                    &["egress"],
-                    &["query"],
-                    &[self.keys.every_robot(Stream::Controller)],
-                ),
+                rule(&asked, &["egress"], &["query"], &self.every(&LATEST)),
             ]);
             section
                 .subjects

@@ -237,10 +237,15 @@ struct Reader<'a> {
 impl<'a> Reader<'a> {
     /// The reader of a whole payload, its header checked.
     fn new(payload: &'a [u8]) -> Result<Self, CdrError> {
-        if payload.len() > MAX_PAYLOAD_BYTES {
+        Self::with_limit(payload, MAX_PAYLOAD_BYTES)
+    }
+
+    /// The same, for a payload of at most `limit` bytes.
+    fn with_limit(payload: &'a [u8], limit: usize) -> Result<Self, CdrError> {
+        if payload.len() > limit {
             return Err(CdrError::TooLarge {
                 bytes: payload.len(),
-                limit: MAX_PAYLOAD_BYTES,
+                limit,
             });
         }
         let [a, b, _, _, body @ ..] = payload else {
@@ -358,7 +363,12 @@ impl<'a> Reader<'a> {
     /// names are only compared with the arm's.
     #[inline]
     fn string_bytes(&mut self, field: Field) -> Result<&'a [u8], CdrError> {
-        let length = self.count(field, 1, MAX_STRING_BYTES)?;
+        self.string_bytes_up_to(field, MAX_STRING_BYTES)
+    }
+
+    /// [`Self::string_bytes`] of a string of at most `limit` bytes (its NUL included).
+    fn string_bytes_up_to(&mut self, field: Field, limit: usize) -> Result<&'a [u8], CdrError> {
+        let length = self.count(field, 1, limit)?;
         let bytes = self.take(length, 1, field)?;
         match bytes.split_last() {
             None => Ok(&[]),
@@ -594,6 +604,18 @@ pub struct DecodedPose<'a> {
     pub xyzw_as_sent: [f64; 4],
 }
 
+/// Decodes a `std_msgs/msg/String` whose text is at most `limit` bytes (a robot's
+/// `/robot_description`, a URDF): the text, checked UTF-8.
+pub fn decode_string(payload: &[u8], limit: usize) -> Result<&str, CdrError> {
+    // The header and the length before the text, its NUL after.
+    let mut reader = Reader::with_limit(payload, limit.saturating_add(9))?;
+    let field = Field::plain("String.data");
+    let bytes = reader.string_bytes_up_to(field, limit.saturating_add(1))?;
+    std::str::from_utf8(bytes).map_err(|_| CdrError::NotUtf8 {
+        field: field.to_string(),
+    })
+}
+
 /// Decodes a `geometry_msgs/msg/PoseStamped`: position (m), and orientation `[x, y, z, w]`
 /// within 5 % of unit norm, normalised and canonicalised to `w ≥ 0` (the JSON decoder's checks).
 pub fn decode_pose_stamped(payload: &[u8]) -> Result<DecodedPose<'_>, CdrError> {
@@ -819,6 +841,28 @@ mod tests {
             let (s, n) = split_stamp(stamp_s);
             assert_eq!(f64::from(s) + f64::from(n) * 1e-9, stamp_s, "{stamp_s}");
         }
+    }
+
+    #[test]
+    fn a_string_message_reads_back_within_its_limit() {
+        let text = "<robot name=\"r\"/>";
+        let mut payload = vec![0x00, 0x01, 0x00, 0x00];
+        payload.extend_from_slice(&u32::try_from(text.len() + 1).unwrap().to_le_bytes());
+        payload.extend_from_slice(text.as_bytes());
+        payload.push(0);
+        assert_eq!(decode_string(&payload, 64).unwrap(), text);
+        assert!(matches!(
+            decode_string(&payload, 4),
+            Err(CdrError::TooLarge { .. } | CdrError::Count { .. })
+        ));
+        let unterminated = &payload[..payload.len() - 1];
+        assert!(decode_string(unterminated, 64).is_err());
+        let mut not_utf8 = payload.clone();
+        not_utf8[9] = 0xff;
+        assert!(matches!(
+            decode_string(&not_utf8, 64),
+            Err(CdrError::NotUtf8 { .. })
+        ));
     }
 
     #[test]

@@ -128,8 +128,7 @@ impl Decoder for Joints {
     type Error = WireError;
 
     fn read(&self, robot: &Robot, payload: &[u8]) -> Result<DecodedJoints, Undecodable> {
-        self.0
-            .read_joints(payload, robot.settings().model.joint_count())
+        self.0.read_joints(payload, robot.joint_count())
     }
 
     fn stamp_hint(&self, payload: &[u8]) -> Option<f64> {

@@ -347,8 +347,9 @@ impl Pipeline {
 
     /// Replaces `robot`'s model (an applied calibration) and starts a new metrics epoch: the
     /// old epoch's final metrics are sent and returned, counters and statistics start afresh
-    /// (deviations of two models must not mix), and an `epoch` event says why. The model must
-    /// keep the robot's joint count, against which its inputs are decoded.
+    /// (deviations of two models must not mix), and an `epoch` event says why. A model of
+    /// another joint count (a robot's own description) starts alignment afresh, unless the
+    /// robot's effort monitor or self-calibration rides on its joints: refused then.
     pub fn replace_model(
         &mut self,
         robot: RobotIndex,

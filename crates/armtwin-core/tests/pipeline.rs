@@ -434,3 +434,57 @@ fn a_replaced_model_starts_a_new_epoch_and_self_calibration_keeps_only_accepted_
         Some(ReplaceModelError::NotTracked)
     );
 }
+
+#[test]
+fn a_twin_takes_a_model_of_another_joint_count_and_computes_with_it() {
+    let (mut pipeline, model, mut directory) = pipeline();
+    let r1 = robot(&mut directory, "r1");
+    let mut sink = Record::default();
+    let q = [0.1, -1.0, 1.0, -1.0, 1.0, 0.5];
+    pipeline.joints(&r1, "k", 0.0, &sample(&model, q, true), &mut sink);
+    pipeline.joints(&r1, "k", 0.01, &sample(&model, q, false), &mut sink);
+    let panda_urdf = include_str!("../../../tests/data/urdf/panda.urdf");
+    let arm = armtwin_core::model::urdf::arm_from_urdf(
+        panda_urdf,
+        "panda.urdf",
+        Some("panda_link0"),
+        Some("panda_hand_tcp"),
+    )
+    .expect("panda");
+    let panda =
+        Arc::new(RobotModel::new(arm, None, *model.tool(), OutputFrame::Base).expect("model"));
+    pipeline
+        .replace_model(r1.index(), Arc::clone(&panda), &mut sink)
+        .expect("no arm-specific monitor rides on the joints");
+    let q7 = [0.1, -0.5, 0.2, -2.0, 0.1, 1.5, 0.7];
+    let seven = JointSample {
+        stamp_s: None,
+        seq: None,
+        q_rad: q7.into_iter().collect(),
+        measured: Some(panda.pose(&q7).expect("valid").readout()),
+        state: None,
+    };
+    pipeline.joints(&r1, "k", 0.02, &seven, &mut sink);
+    let state = pipeline.state(r1.index()).expect("tracked");
+    assert_eq!(
+        (
+            state.metrics.epoch,
+            state.metrics.paired,
+            state.metrics.rejected
+        ),
+        (1, 1, 0)
+    );
+    let (_, pose) = state.last_twin_pose.expect("a pose");
+    let expected = panda.pose(&q7).expect("valid").readout();
+    assert_eq!(pose.position_m, expected.position_m);
+    // Six joints now are refused, as any sample of the wrong count.
+    pipeline.joints(&r1, "k", 0.03, &sample(&model, q, false), &mut sink);
+    assert_eq!(
+        pipeline
+            .state(r1.index())
+            .expect("tracked")
+            .metrics
+            .rejected,
+        1
+    );
+}

@@ -377,9 +377,9 @@ impl RobotFamilies {
     }
 }
 
-/// Registers the service's totals in `registry`.
-fn register_totals(registry: &mut Registry, totals: &ServiceTotals) {
-    let counters = [
+/// The service's counters: name, help and value.
+fn total_counters(totals: &ServiceTotals) -> Vec<(&'static str, &'static str, u64)> {
+    vec![
         (
             "inputs",
             "Inputs (samples and queries) processed",
@@ -411,6 +411,12 @@ fn register_totals(registry: &mut Registry, totals: &ServiceTotals) {
             totals.snapshot_failures,
         ),
         (
+            "descriptions_refused",
+            "Robots' descriptions refused (unreadable, too large or too frequent, of another \
+             joint count, or disagreeing with the robot's own model)",
+            totals.descriptions_refused,
+        ),
+        (
             "recorder_files",
             "Incident files the flight recorder wrote",
             totals.recorder.files,
@@ -435,8 +441,12 @@ fn register_totals(registry: &mut Registry, totals: &ServiceTotals) {
             "Writes to the history log's file that failed (it went on in memory after the first)",
             totals.history_log.write_failures,
         ),
-    ];
-    for (name, help, value) in counters {
+    ]
+}
+
+/// Registers the service's totals in `registry`.
+fn register_totals(registry: &mut Registry, totals: &ServiceTotals) {
+    for (name, help, value) in total_counters(totals) {
         let counter: Counter<u64, AtomicU64> = Counter::default();
         counter.inc_by(value);
         registry.register(name, help, counter);

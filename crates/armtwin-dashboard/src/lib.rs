@@ -917,6 +917,7 @@ mod tests {
             "armtwin_robots_refused_total 0".to_owned(),
             "armtwin_robots_retired_total 0".to_owned(),
             "armtwin_snapshot_failures_total 0".to_owned(),
+            "armtwin_descriptions_refused_total 0".to_owned(),
             "armtwin_history_log_dropped_total 0".to_owned(),
             "armtwin_history_log_write_failures_total 0".to_owned(),
             "armtwin_history_log_bytes 0".to_owned(),

@@ -183,6 +183,7 @@ const SERVICE_LAYERS: &[(&str, &[&str])] = &[
         "duties, each over the fleet",
         &[
             "controller",
+            "description",
             "opcua_view",
             "queries",
             "self_calibration",

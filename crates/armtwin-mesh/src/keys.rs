@@ -58,6 +58,8 @@ pub enum Stream {
     /// What a gateway read of the robot's controller: its TCP, model and serial number (in;
     /// also the gateway's queryable of the latest).
     Controller,
+    /// The robot's own description, a URDF (in; also a gateway's queryable of the latest).
+    Description,
     /// The robot's state (queryable).
     State,
     /// The robot's per-second window statistics over the last `[recorder] history_s`
@@ -93,7 +95,7 @@ pub enum Stream {
 impl Stream {
     /// Every subtree, outputs first: a key expression reaching into several is named by the
     /// first it meets here, and feeding armtwin its own outputs is the worse mistake.
-    pub const ALL: [Self; 23] = [
+    pub const ALL: [Self; 24] = [
         Self::Pose,
         Self::Deviation,
         Self::Paired,
@@ -105,6 +107,7 @@ impl Stream {
         Self::Joints,
         Self::Measured,
         Self::Controller,
+        Self::Description,
         Self::State,
         Self::History,
         Self::Fk,
@@ -134,6 +137,7 @@ impl Stream {
             Self::Joints => "joints",
             Self::Measured => "measured",
             Self::Controller => "controller",
+            Self::Description => "description",
             Self::State => "state",
             Self::History => "history",
             Self::Fk => "fk",
@@ -386,6 +390,7 @@ mod tests {
                 "joints",
                 "measured",
                 "controller",
+                "description",
                 "state",
                 "history",
                 "fk",

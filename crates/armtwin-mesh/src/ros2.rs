@@ -27,6 +27,8 @@ pub use armtwin_codec::ros2_attachment::{
 pub const JOINT_STATE_DDS_TYPE: &str = "sensor_msgs::msg::dds_::JointState_";
 /// The DDS type name `rmw_zenoh` puts in the key of `geometry_msgs/msg/PoseStamped`.
 pub const POSE_STAMPED_DDS_TYPE: &str = "geometry_msgs::msg::dds_::PoseStamped_";
+/// The DDS type name `rmw_zenoh` puts in the key of `std_msgs/msg/String`.
+pub const STRING_DDS_TYPE: &str = "std_msgs::msg::dds_::String_";
 /// The RIHS01 type hash of `sensor_msgs/msg/JointState` (Jazzy, Kilted, Rolling).
 pub const JOINT_STATE_TYPE_HASH: &str =
     "RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e";
@@ -39,6 +41,8 @@ pub const UR_JOINT_TOPIC: &str = "/joint_states";
 /// The UR driver's measured TCP pose topic (`<tf_prefix>base` frame), the default of a
 /// `measured` source.
 pub const UR_POSE_TOPIC: &str = "/tcp_pose_broadcaster/pose";
+/// The topic `robot_state_publisher` publishes a robot's URDF on (transient local).
+pub const DESCRIPTION_TOPIC: &str = "/robot_description";
 /// The topic of the twin pose output unless configured.
 pub const DEFAULT_POSE_OUTPUT_TOPIC: &str = "armtwin/tcp_pose";
 

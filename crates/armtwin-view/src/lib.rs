@@ -151,6 +151,9 @@ pub struct ServiceTotals {
     pub snapshot_age_s: Option<f64>,
     /// Snapshot writes that failed (a full or read-only disk); each is tried again next period.
     pub snapshot_failures: u64,
+    /// Robots' descriptions refused: unreadable, too large or too frequent, of another joint
+    /// count, or disagreeing with the robot's own model.
+    pub descriptions_refused: u64,
     /// The flight recorder's files and memory.
     pub recorder: RecorderTotals,
     /// The log of the histories' closed minutes of seconds.

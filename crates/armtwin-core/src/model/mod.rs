@@ -317,4 +317,53 @@ impl RobotModel {
     pub fn chain(&self) -> &Chain {
         &self.chain
     }
+
+    /// How far `other`'s poses are from this model's, at zero and at [`PROBE_CONFIGURATIONS`]
+    /// spread configurations (within ±1.2 rad of zero): the largest position difference (m)
+    /// and rotation-matrix entry difference. `None` when their joint counts differ.
+    #[must_use]
+    pub fn pose_difference(&self, other: &Self) -> Option<PoseDifference> {
+        let n = self.joint_count();
+        if other.joint_count() != n {
+            return None;
+        }
+        let mut worst = PoseDifference {
+            position_m: 0.0,
+            rotation: 0.0,
+        };
+        let mut q_rad = vec![0.0; n];
+        for probe in 0..=PROBE_CONFIGURATIONS {
+            for (k, q) in q_rad.iter_mut().enumerate() {
+                // Incommensurate frequencies: no two joints move together across the probes.
+                #[allow(clippy::cast_precision_loss, reason = "small counts")]
+                let phase = (probe * (k + 1)) as f64;
+                *q = 1.2 * (0.9 * phase + 0.37 * k as f64).sin() * f64::from(u8::from(probe > 0));
+            }
+            let a = self.chain.pose_unchecked(&q_rad);
+            let b = other.chain.pose_unchecked(&q_rad);
+            worst.position_m = worst.position_m.max((a.position_m - b.position_m).amax());
+            worst.rotation = worst.rotation.max((a.rotation - b.rotation).amax());
+        }
+        Some(worst)
+    }
+}
+
+/// Configurations besides zero at which [`RobotModel::pose_difference`] compares two models.
+pub const PROBE_CONFIGURATIONS: usize = 16;
+
+/// The largest difference between two models' poses ([`RobotModel::pose_difference`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PoseDifference {
+    /// Position (m), the largest coordinate difference.
+    pub position_m: f64,
+    /// The largest rotation-matrix entry difference.
+    pub rotation: f64,
+}
+
+impl PoseDifference {
+    /// Whether both are within `tolerance` (m, and per entry).
+    #[must_use]
+    pub fn within(&self, tolerance: f64) -> bool {
+        self.position_m <= tolerance && self.rotation <= tolerance
+    }
 }

@@ -11,6 +11,7 @@
 
 use std::collections::HashMap;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use super::RobotSettings;
 
@@ -28,12 +29,16 @@ impl RobotIndex {
     }
 }
 
-/// A robot that may be tracked: its index, id and settings (shared, immutable).
+/// A robot that may be tracked: its index, id and settings (shared, immutable), and the joint
+/// count its twin computes with.
 #[derive(Debug, Clone)]
 pub struct Robot {
     index: RobotIndex,
     id: Arc<str>,
     settings: Arc<RobotSettings>,
+    /// Its settings' model's joint count until its twin takes a model of another count (its
+    /// own description): what its inputs are decoded against, read without its twin's lock.
+    joint_count: Arc<AtomicUsize>,
 }
 
 impl Robot {
@@ -59,6 +64,17 @@ impl Robot {
     #[must_use]
     pub fn settings(&self) -> &RobotSettings {
         &self.settings
+    }
+
+    /// The joint count its twin computes with: its inputs are decoded against it.
+    #[must_use]
+    pub fn joint_count(&self) -> usize {
+        self.joint_count.load(Ordering::Relaxed)
+    }
+
+    /// Its twin computes with `joint_count` joints from now on.
+    pub(super) fn set_joint_count(&self, joint_count: usize) {
+        self.joint_count.store(joint_count, Ordering::Relaxed);
     }
 }
 
@@ -178,10 +194,12 @@ impl RobotDirectory {
             RobotIndex(self.robots.len() - 1)
         };
         self.index_of.insert(Arc::clone(&id), index);
+        let joint_count = Arc::new(AtomicUsize::new(settings.model.joint_count()));
         self.robots[index.0] = Some(Robot {
             index,
             id,
             settings,
+            joint_count,
         });
         index
     }

@@ -120,6 +120,7 @@ impl Twin {
     #[must_use]
     pub fn new(robot: Robot, config: &PipelineConfig) -> Self {
         let joint_count = robot.settings().model.joint_count();
+        robot.set_joint_count(joint_count);
         Self {
             model: Arc::clone(&robot.settings().model),
             reservoir: robot
@@ -297,7 +298,9 @@ impl Twin {
         sink: &mut impl Sink,
     ) -> Result<MetricsReadout, ReplaceModelError> {
         let expected = self.model.joint_count();
-        if model.joint_count() != expected {
+        let new_count = model.joint_count() != expected;
+        // The effort monitor and the self-calibration are built for the arm's joints.
+        if new_count && (self.effort.is_some() || self.reservoir.is_some()) {
             return Err(ReplaceModelError::JointCount {
                 expected,
                 got: model.joint_count(),
@@ -306,6 +309,19 @@ impl Twin {
         let last = self.metrics_readout();
         sink.metrics(&self.robot, &last);
         self.restart_statistics();
+        if new_count {
+            // The joints kept for alignment are of the other count: measured poses waiting
+            // for them end unpaired, and alignment starts afresh.
+            let config = *self.aligner.config();
+            for (pending, reason) in self.aligner.finish() {
+                self.unpaired_event(&pending, reason, sink);
+            }
+            self.aligner = Aligner::new(config);
+            self.last_joint_s = None;
+            self.last_joints.clear();
+            self.last_state = None;
+        }
+        self.robot.set_joint_count(model.joint_count());
         self.model = model;
         self.epoch += 1;
         self.dirty = true;

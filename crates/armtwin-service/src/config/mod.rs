@@ -32,7 +32,7 @@ use thiserror::Error;
 
 use self::file::{AlignSection, File, SelfCalibrationSection, ServiceSection};
 pub use self::recorder::RecorderConfig;
-pub use self::robots::{ConfiguredTools, RtdeLink};
+pub use self::robots::{ChainEnds, ConfiguredTools, DescriptionRules, RtdeLink};
 use self::robots::{
     SharedSettings, load_pose_outputs, load_robots, load_rtde_links, models_from_controller,
 };
@@ -233,6 +233,8 @@ pub struct ServiceConfig {
     pub robots: HashMap<String, RobotSettings>,
     /// Which robots' TCP the configuration sets; the others take their controller's.
     pub configured_tools: ConfiguredTools,
+    /// What the robots' own descriptions do to their twins.
+    pub descriptions: DescriptionRules,
     /// `[self_calibration]`.
     pub self_calibration: SelfCalibrationConfig,
     /// `[[sources]]`: inputs on keys of the robots' own (ROS 2 topics, JSON elsewhere).
@@ -438,6 +440,7 @@ impl ServiceConfig {
             },
             robots,
             configured_tools: ConfiguredTools::of(&file.robots),
+            descriptions: DescriptionRules::of(&file.robots),
             self_calibration,
             sources,
             ros2_pose,

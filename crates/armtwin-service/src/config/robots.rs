@@ -36,6 +36,75 @@ pub(super) struct SharedSettings {
     pub(super) window_s: f64,
 }
 
+/// The two ends of the chain taken from a URDF: `base_link` and `tip_link` (unset: the root
+/// link, and the one leaf).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ChainEnds {
+    /// `base_link`.
+    pub base_link: Option<String>,
+    /// `tip_link`.
+    pub tip_link: Option<String>,
+}
+
+/// What a robot's own description (a URDF on `<prefix>/description/<robot>` or from a
+/// `stream = "description"` source) does to its twin: a robot whose own section sets `model`
+/// or `calibration` has it checked against that model; any other (its model the default's)
+/// computes with it. The chain is picked with the robot's `base_link` and `tip_link`, else
+/// `[robots.default]`'s.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct DescriptionRules {
+    own_model: std::collections::HashSet<String>,
+    ends: HashMap<String, ChainEnds>,
+    default_ends: ChainEnds,
+}
+
+impl DescriptionRules {
+    /// Reads them off the `[robots]` sections.
+    pub(super) fn of(sections: &HashMap<String, RobotSection>) -> Self {
+        let default = sections.get("default");
+        let default_ends = ChainEnds {
+            base_link: default.and_then(|s| s.base_link.clone()),
+            tip_link: default.and_then(|s| s.tip_link.clone()),
+        };
+        let mut rules = Self {
+            default_ends: default_ends.clone(),
+            ..Self::default()
+        };
+        for (id, section) in sections.iter().filter(|(id, _)| *id != "default") {
+            if section.model.is_some() || section.calibration.is_some() {
+                rules.own_model.insert(id.clone());
+            }
+            rules.ends.insert(
+                id.clone(),
+                ChainEnds {
+                    base_link: section
+                        .base_link
+                        .clone()
+                        .or_else(|| default_ends.base_link.clone()),
+                    tip_link: section
+                        .tip_link
+                        .clone()
+                        .or_else(|| default_ends.tip_link.clone()),
+                },
+            );
+        }
+        rules
+    }
+
+    /// Whether robot `id`'s own section sets its model: its description is then checked, not
+    /// taken.
+    #[must_use]
+    pub fn has_own_model(&self, id: &str) -> bool {
+        self.own_model.contains(id)
+    }
+
+    /// The chain ends of robot `id`'s description.
+    #[must_use]
+    pub fn ends(&self, id: &str) -> &ChainEnds {
+        self.ends.get(id).unwrap_or(&self.default_ends)
+    }
+}
+
 /// Which robots' TCP the configuration sets (`tcp` in their own section or in
 /// `[robots.default]`): the others take the one their controller reports, when a gateway reads
 /// it (`tcp_offset`).

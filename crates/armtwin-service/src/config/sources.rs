@@ -26,6 +26,9 @@ pub enum SourceStream {
     Joints,
     /// Measured TCP poses in the robot's `base` frame (`PoseStamped` for ROS 2).
     Measured,
+    /// The robot's own description, a URDF (`std_msgs/String` for ROS 2, as
+    /// `robot_state_publisher` publishes `/robot_description`; the text itself for JSON).
+    Description,
 }
 
 impl SourceStream {
@@ -35,6 +38,7 @@ impl SourceStream {
         match self {
             Self::Joints => "joints",
             Self::Measured => "measured",
+            Self::Description => "description",
         }
     }
 }
@@ -226,7 +230,7 @@ fn ros2_source(
             let tf_prefix = section.tf_prefix.clone().unwrap_or_default();
             let joint_names = match (&section.joint_names, section.stream) {
                 (None, _) => JointNames::ur(&tf_prefix),
-                (Some(_), SourceStream::Measured) => {
+                (Some(_), SourceStream::Measured | SourceStream::Description) => {
                     return Err(invalid(
                         "joint_names",
                         "is read only with stream = \"joints\"".to_owned(),
@@ -261,6 +265,15 @@ fn load_source(
     context: &SourceContext<'_>,
 ) -> Result<SourceConfig, ConfigError> {
     let invalid = |name: &str, problem: String| context.invalid(index, name, problem);
+    if section.stream == SourceStream::Description && section.codec == SourceCodec::ZenohSerialized
+    {
+        return Err(invalid(
+            "codec",
+            "stream = \"description\" reads codec = \"ros2\" (std_msgs/String) or \"json\" \
+             (the URDF's text as it is)"
+                .to_owned(),
+        ));
+    }
     let ros2 = ros2_source(index, section, context)?;
     let robot = match (&section.robot, section.robot_from_key) {
         (Some(_), Some(_)) => {
@@ -301,6 +314,7 @@ fn load_source(
             let (default_topic, dds_type) = match section.stream {
                 SourceStream::Joints => (ros2::UR_JOINT_TOPIC, ros2::JOINT_STATE_DDS_TYPE),
                 SourceStream::Measured => (ros2::UR_POSE_TOPIC, ros2::POSE_STAMPED_DDS_TYPE),
+                SourceStream::Description => (ros2::DESCRIPTION_TOPIC, ros2::STRING_DDS_TYPE),
             };
             let topic = section.topic.as_deref().unwrap_or(default_topic);
             let rule = NamespaceRule::new(ros2.scheme, topic, dds_type)

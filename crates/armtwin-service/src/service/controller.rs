@@ -93,11 +93,14 @@ fn apply(robot: &Robot, taken: Taken, facts: ControllerFacts, stepping: Stepping
         };
         let detail = json!({"fact": "tcp_offset", "tcp_offset": tcp_offset, "in_use": in_use});
         sink.controller_event(id, &reason, &detail);
-        if in_use
-            && let Some(tool) = TcpOffset::from_ur_pose(tcp_offset)
-            && let Err(error) = twin.replace_tool(tool, TOOL_SOURCE, &mut sink)
-        {
-            warn!(robot = id, %error, "the controller's TCP cannot be the twin's tool");
+        if in_use && let Some(tool) = TcpOffset::from_ur_pose(tcp_offset) {
+            match twin.replace_tool(tool, TOOL_SOURCE, &mut sink) {
+                Ok(Some(_)) => sink.model_replaced(robot, twin.model()),
+                Ok(None) => {}
+                Err(error) => {
+                    warn!(robot = id, %error, "the controller's TCP cannot be the twin's tool");
+                }
+            }
         }
     }
     let configured = &robot.settings().model.arm().name;
@@ -124,6 +127,7 @@ fn apply(robot: &Robot, taken: Taken, facts: ControllerFacts, stepping: Stepping
             );
             sink.controller_event(id, &reason, &detail(true));
             take_model(id, &model, twin, &mut sink);
+            sink.model_replaced(robot, twin.model());
         } else if model_news && !taken.model {
             let reason = format!(
                 "the controller is a {model} (serial number {serial}), the configuration says \

@@ -17,7 +17,7 @@ use super::calibration_slot::CalibrationSlot;
 use super::publish::Outlet;
 use super::recording::Recorder;
 use super::sink::{RobotOutputState, Sinks, ZenohSink};
-use crate::config::{ConfiguredTools, ServiceConfig};
+use crate::config::{ConfiguredTools, DescriptionRules, ServiceConfig};
 use armtwin_codec::json;
 use armtwin_core::model::RobotModel;
 use armtwin_core::pipeline::{PipelineConfig, Robot, RobotDirectory, Sink, Twin, Untracked};
@@ -66,6 +66,11 @@ pub(super) struct Fleet {
     configured_tools: ConfiguredTools,
     /// The robots that take the model their controller says.
     models_from_controller: std::collections::HashSet<String>,
+    /// What the robots' own descriptions do to their twins.
+    descriptions: DescriptionRules,
+    /// Descriptions refused: unreadable, too large or too frequent, of another joint count,
+    /// or disagreeing with the robot's own model.
+    descriptions_refused: AtomicU64,
     pipeline: PipelineConfig,
     directory: RwLock<Directory>,
     /// What every robot's sink shares.
@@ -172,6 +177,8 @@ pub(super) struct CellState {
     publisher_seqs: Vec<(usize, PublisherSeq)>,
     /// What a gateway last said of the robot's controller.
     controller: Option<ControllerFacts>,
+    /// The robot's last description taken, boxed: most robots never send one.
+    description: Option<Box<DescriptionSeen>>,
     /// Inputs stepped into the twin.
     inputs: u64,
     /// The robot's last input, on the fleet's clock ([`Fleet::clock_ms`]).
@@ -179,6 +186,15 @@ pub(super) struct CellState {
     /// The robot was retired: this cell is no longer the fleet's, and an input that finds it
     /// looks the robot up again.
     retired: bool,
+}
+
+/// What a robot's cell keeps of the last description it read ([`super::description`]).
+#[derive(Debug)]
+pub(super) struct DescriptionSeen {
+    /// A hash of its text: the same text again is not read again.
+    pub(super) digest: u64,
+    /// When it was read.
+    pub(super) at: Instant,
 }
 
 #[cfg(debug_assertions)]
@@ -249,6 +265,7 @@ pub(super) struct Stepping<'a> {
     pub(super) sink: ZenohSink<'a>,
     pub(super) publisher_seqs: &'a mut Vec<(usize, PublisherSeq)>,
     pub(super) controller: &'a mut Option<ControllerFacts>,
+    pub(super) description: &'a mut Option<Box<DescriptionSeen>>,
 }
 
 impl CellState {
@@ -347,6 +364,7 @@ impl CellState {
             sink,
             publisher_seqs: &mut self.publisher_seqs,
             controller: &mut self.controller,
+            description: &mut self.description,
         }
     }
 }
@@ -369,6 +387,8 @@ impl Fleet {
             shard: config.shard.clone(),
             configured_tools: config.configured_tools.clone(),
             models_from_controller: config.models_from_controller.clone(),
+            descriptions: config.descriptions.clone(),
+            descriptions_refused: AtomicU64::new(0),
             pipeline: config.pipeline,
             directory: RwLock::new(Directory {
                 robots: RobotDirectory::new(config.default_robot.clone(), config.robots.clone())
@@ -514,6 +534,21 @@ impl Fleet {
     /// Whether the configuration sets robot `id`'s TCP: if not, the twin takes its controller's.
     pub(super) fn tool_configured(&self, id: &str) -> bool {
         self.configured_tools.sets(id)
+    }
+
+    /// What the robots' own descriptions do to their twins.
+    pub(super) fn descriptions(&self) -> &DescriptionRules {
+        &self.descriptions
+    }
+
+    /// Counts a refused description.
+    pub(super) fn description_refused(&self) {
+        self.descriptions_refused.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Descriptions refused so far.
+    pub(super) fn descriptions_refused(&self) -> u64 {
+        self.descriptions_refused.load(Ordering::Relaxed)
     }
 
     /// Whether robot `id` takes the model its controller says (see

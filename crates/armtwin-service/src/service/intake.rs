@@ -11,6 +11,7 @@ use zenoh::sample::Sample;
 use zenoh::session::Session;
 
 use super::controller::take_facts;
+use super::description::take_description;
 use super::error::ServiceError;
 use super::fleet::{Fleet, Lookup, RobotCell, Stepping};
 use super::queries::{Queries, QueryPool};
@@ -19,6 +20,7 @@ use crate::config::{ServiceConfig, SourceConfig, SourceRobot, SourceStream};
 use armtwin_codec::decoded::{self, Arrival, Decoded, Decoder};
 use armtwin_codec::gateway::{self, Codec, SourceCodec};
 use armtwin_codec::{cdr, zser};
+use armtwin_core::model::urdf::MAX_URDF_BYTES;
 use armtwin_core::pipeline::{MeasuredStream, Robot, Untracked};
 use armtwin_mesh::ingest;
 use armtwin_mesh::keys::{KeySpace, Stream};
@@ -28,6 +30,8 @@ use armtwin_mesh::{TEARDOWN_STEP, bounded, transport_stamp_s};
 /// The subscribers and queryables that feed the twin.
 pub(super) struct Intake {
     subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
+    /// The description sources' subscribers, which read transient-local history.
+    history_subscribers: Vec<zenoh_ext::AdvancedSubscriber<()>>,
     queryables: Vec<zenoh::query::Queryable<()>>,
 }
 
@@ -35,6 +39,12 @@ impl Intake {
     /// Undeclares every subscriber and queryable, each within [`TEARDOWN_STEP`].
     pub(super) async fn undeclare(self) {
         for subscriber in self.subscribers {
+            let step = format!("undeclaring the subscriber on {}", subscriber.key_expr());
+            if let Some(Err(e)) = bounded(&step, TEARDOWN_STEP, subscriber.undeclare()).await {
+                warn!(error = %e, step, "undeclaring failed");
+            }
+        }
+        for subscriber in self.history_subscribers {
             let step = format!("undeclaring the subscriber on {}", subscriber.key_expr());
             if let Some(Err(e)) = bounded(&step, TEARDOWN_STEP, subscriber.undeclare()).await {
                 warn!(error = %e, step, "undeclaring failed");
@@ -61,6 +71,7 @@ fn service_totals(fleet: &Arc<Fleet>) -> impl Fn() -> serde_json::Value + Send +
             "robots_refused": fleet.robots_refused(),
             "robots_retired": fleet.robots_retired(),
             "snapshot_failures": fleet.snapshot_failures(),
+            "descriptions_refused": fleet.descriptions_refused(),
             "recorder": fleet.recorder().totals(),
         })
     }
@@ -102,7 +113,16 @@ pub(super) async fn declare_intake(
             .callback(move |sample| controller.controller(&sample))
             .await?,
     );
-    ask_controllers(session, keys, shard, &router);
+    let description = Arc::clone(&router);
+    subscribers.push(
+        session
+            .declare_subscriber(keys.key(Stream::Description, shard))
+            .callback(move |sample| description.description(&sample))
+            .await?,
+    );
+    for stream in [Stream::Controller, Stream::Description] {
+        ask_gateways(session, keys, shard, &router, stream);
+    }
     for (robot, settings) in &config.robots {
         // A configured robot is in the directory from the start: its sensors' samples need no
         // look-up at all.
@@ -120,7 +140,7 @@ pub(super) async fn declare_intake(
             );
         }
     }
-    declare_sources(session, config, &router, &mut subscribers).await?;
+    let history_subscribers = declare_sources(session, config, &router, &mut subscribers).await?;
     if let Some(why) = &admin_refusal {
         info!("{why}");
     }
@@ -138,16 +158,24 @@ pub(super) async fn declare_intake(
     }
     Ok(Intake {
         subscribers,
+        history_subscribers,
         queryables,
     })
 }
 
-/// Asks the gateways already streaming what they read of their controllers (a gateway puts
-/// its facts when they change, so one that started first would otherwise stay unheard until
-/// then); the answers are taken as the puts are, off the start's path.
-fn ask_controllers(session: &Session, keys: &KeySpace, shard: &str, router: &Arc<Router>) {
+/// Asks the gateways already streaming what they read of their controllers, or the robots'
+/// descriptions (`stream`): a gateway puts them when they change, so one that started first
+/// would otherwise stay unheard until then. The answers are taken as the puts are, off the
+/// start's path.
+fn ask_gateways(
+    session: &Session,
+    keys: &KeySpace,
+    shard: &str,
+    router: &Arc<Router>,
+    stream: Stream,
+) {
     let session = session.clone();
-    let key = keys.key(Stream::Controller, shard);
+    let key = keys.key(stream, shard);
     let router = Arc::clone(router);
     tokio::spawn(async move {
         let replies = match session
@@ -157,13 +185,17 @@ fn ask_controllers(session: &Session, keys: &KeySpace, shard: &str, router: &Arc
         {
             Ok(replies) => replies,
             Err(error) => {
-                warn!(%key, %error, "cannot ask the gateways for their controllers' facts");
+                warn!(%key, %error, "cannot ask the gateways for what they keep");
                 return;
             }
         };
         while let Ok(reply) = replies.recv_async().await {
             if let Ok(sample) = reply.result() {
-                router.controller(sample);
+                if stream == Stream::Description {
+                    router.description(sample);
+                } else {
+                    router.controller(sample);
+                }
             }
         }
     });
@@ -174,24 +206,35 @@ const CONTROLLER_QUERY_TIMEOUT: std::time::Duration = std::time::Duration::from_
 
 /// One subscriber per `[[sources]]` entry (their keys were checked when the configuration
 /// loaded: outside armtwin's own keys and twin pose outputs, disjoint from each other).
+/// The description sources' subscribers come back: they also read the history their
+/// publishers keep (a ROS 2 `/robot_description` is transient local), and ask again for it
+/// from a publisher that appears later.
 async fn declare_sources(
     session: &Session,
     config: &ServiceConfig,
     router: &Arc<Router>,
     subscribers: &mut Vec<zenoh::pubsub::Subscriber<()>>,
-) -> Result<(), ServiceError> {
+) -> Result<Vec<zenoh_ext::AdvancedSubscriber<()>>, ServiceError> {
+    use zenoh_ext::{AdvancedSubscriberBuilderExt as _, HistoryConfig};
+    let mut history_subscribers = Vec::new();
     for (index, source) in config.sources.iter().enumerate() {
         let intake = Arc::new(SourceIntake {
             index,
             config: source.clone(),
         });
         let source_router = Arc::clone(router);
-        subscribers.push(
-            session
-                .declare_subscriber(source.key_expr.clone())
-                .callback(move |sample| source_router.source(&intake, &sample))
-                .await?,
-        );
+        let builder = session
+            .declare_subscriber(source.key_expr.clone())
+            .callback(move |sample| source_router.source(&intake, &sample));
+        if source.stream == SourceStream::Description {
+            history_subscribers.push(
+                builder
+                    .history(HistoryConfig::default().detect_late_publishers())
+                    .await?,
+            );
+        } else {
+            subscribers.push(builder.await?);
+        }
         info!(
             key = %source.key_expr,
             codec = source.codec.as_str(),
@@ -199,7 +242,7 @@ async fn declare_sources(
             "source subscribed"
         );
     }
-    Ok(())
+    Ok(history_subscribers)
 }
 
 /// A `[[sources]]` entry as the service runs it.
@@ -210,6 +253,26 @@ struct SourceIntake {
 }
 
 impl SourceIntake {
+    /// The robot of a sample on `key`, or `None` (said in the log) when its key names none.
+    fn robot_of<'k>(&'k self, key: &'k str) -> Option<&'k str> {
+        match &self.config.robot {
+            SourceRobot::Fixed(id) => Some(id.as_str()),
+            SourceRobot::FromKey(rule) => {
+                let id = rule.robot_of(key);
+                if id.is_none() {
+                    warn!(
+                        %key,
+                        source = %self.config.key_expr,
+                        topic = rule.topic(),
+                        "sample whose key names no robot (no ROS namespace before the topic, or \
+                         another type): ignored"
+                    );
+                }
+                id
+            }
+        }
+    }
+
     /// The gateway `seq` of a joint sample of `robot` with `attachment`; `by_source` is the
     /// robot's [`Stepping::publisher_seqs`], so only the robot's own lock is held.
     fn gateway_seq(
@@ -396,6 +459,20 @@ impl Router {
         }
     }
 
+    /// A robot's description, on `<prefix>/description/<robot>`: the URDF's text.
+    fn description(&self, sample: &Sample) {
+        let key = sample.key_expr().as_str();
+        match self.keys.robot_of(Stream::Description, key) {
+            Ok(id) => {
+                let payload = sample.payload().to_bytes();
+                take_description(&self.fleet, id, key, &Ok(&payload[..]));
+            }
+            Err(error) => {
+                warn!(%key, %error, "description without a robot id in its key: ignored");
+            }
+        }
+    }
+
     /// A pose of one of `robot`'s sensors: the robot is the sensor's, resolved when its key was
     /// declared.
     fn sensor(&self, robot: &Robot, index: usize, sample: &Sample) {
@@ -417,23 +494,21 @@ impl Router {
     /// namespace), decoded with the source's codec, stepped like the built-in inputs.
     fn source(&self, source: &SourceIntake, sample: &Sample) {
         let key = sample.key_expr().as_str();
-        let id = match &source.config.robot {
-            SourceRobot::Fixed(id) => id.as_str(),
-            SourceRobot::FromKey(rule) => {
-                let Some(id) = rule.robot_of(key) else {
-                    warn!(
-                        %key,
-                        source = %source.config.key_expr,
-                        topic = rule.topic(),
-                        "sample whose key names no robot (no ROS namespace before the topic, or \
-                         another type): ignored"
-                    );
-                    return;
-                };
-                id
-            }
+        let Some(id) = source.robot_of(key) else {
+            return;
         };
         let payload = sample.payload().to_bytes();
+        if source.config.stream == SourceStream::Description {
+            // A ROS 2 robot's is a std_msgs/String; any other's, the URDF's text.
+            let text = match &source.config.ros2 {
+                Some(_) => cdr::decode_string(&payload, MAX_URDF_BYTES)
+                    .map(str::as_bytes)
+                    .map_err(|error| format!("not a std_msgs/String: {error}")),
+                None => Ok(&payload[..]),
+            };
+            take_description(&self.fleet, id, key, &text);
+            return;
+        }
         let stream = MeasuredStream::Robot;
         let Some(ros2) = &source.config.ros2 else {
             let fallback_s = || transport_stamp_s(sample);
@@ -447,6 +522,8 @@ impl Router {
                 _ => ingest::codec_of(sample.encoding()),
             };
             match source.config.stream {
+                // Taken above.
+                SourceStream::Description => {}
                 SourceStream::Joints => {
                     let decoder = gateway::Joints(codec);
                     self.intake(id, key, stream, &decoder, &payload, fallback_s, |_, _| {});
@@ -517,6 +594,8 @@ impl Router {
                     },
                 );
             }
+            // Taken above.
+            SourceStream::Description => {}
         }
     }
 }

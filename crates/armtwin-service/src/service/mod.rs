@@ -36,6 +36,7 @@ mod admin;
 mod calibration_slot;
 mod control;
 mod controller;
+mod description;
 mod error;
 mod events;
 mod fleet;

@@ -690,7 +690,10 @@ impl Queries {
         let Some((twin, mut sink)) = self.fleet.twin_and_sink(&mut state) else {
             return Some(Err(ReplaceModelError::NotTracked));
         };
-        let replaced = twin.replace_model(model, &mut sink);
+        let replaced = twin.replace_model(Arc::clone(&model), &mut sink);
+        if replaced.is_ok() {
+            sink.model_replaced(cell.robot(), &model);
+        }
         drop(sink);
         Some(replaced.map(|_| {
             info!(

@@ -79,11 +79,18 @@ impl Recorder {
 
     /// `robot`'s recording, if it records.
     pub(super) fn start(&self, robot: &Robot) -> Option<RobotRecording> {
+        self.start_with(robot, &robot.settings().model)
+    }
+
+    /// The same, of `robot` computing with `model`.
+    pub(super) fn start_with(
+        &self,
+        robot: &Robot,
+        model: &Arc<RobotModel>,
+    ) -> Option<RobotRecording> {
         if !self.config.records(robot.id()) {
             return None;
         }
-        let settings = robot.settings();
-        let model = &settings.model;
         let joint_record = JointRecord {
             joint_count: model.joint_count(),
         };
@@ -233,6 +240,13 @@ impl RobotRecording {
             Some(pending) if stamp_s > pending.until_s => self.cut(robot),
             _ => None,
         }
+    }
+
+    /// The robot computes with `model` from now on: files draw it. Whether the rings go on:
+    /// not when its joints are of another count, and the recording must then start afresh.
+    pub(super) fn follow_model(&mut self, model: &Arc<RobotModel>) -> bool {
+        self.model = Arc::clone(model);
+        model.joint_count() == self.joint_record.joint_count
     }
 
     /// Keeps a paired measured pose and its deviation.

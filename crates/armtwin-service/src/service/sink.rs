@@ -379,12 +379,43 @@ impl ZenohSink<'_> {
         self.sinks.outlet.publish(declared, robot, stream, payload);
     }
 
+    /// `robot`'s twin computes with `model` from now on: its incident files draw it, and its
+    /// recording starts afresh when the joints are of another count.
+    pub(super) fn model_replaced(
+        &mut self,
+        robot: &Robot,
+        model: &Arc<armtwin_core::model::RobotModel>,
+    ) {
+        let Some(state) = self.robot.as_deref_mut() else {
+            return;
+        };
+        let goes_on = state
+            .recording
+            .as_mut()
+            .is_none_or(|recording| recording.follow_model(model));
+        if !goes_on {
+            state.recording = self.sinks.recorder.start_with(robot, model);
+        }
+    }
+
     /// Publishes an event about `robot`'s controller (`kind` `controller`: what a gateway read
-    /// of it, not a sample): always, as alarms are, kept among the recent events and logged at
-    /// warn. `t` is the arrival time: the facts carry no stamp of the controller's.
+    /// of it, not a sample).
     pub(super) fn controller_event(
         &mut self,
         robot: &str,
+        reason: &str,
+        detail: &serde_json::Value,
+    ) {
+        self.mesh_event(robot, "controller", reason, detail);
+    }
+
+    /// Publishes an event of `kind` about what the mesh said of `robot` besides its samples (its
+    /// controller, its description): always, as alarms are, kept among the recent events and
+    /// logged at warn. `t` is the arrival time: such messages carry no stamp of the robot's.
+    pub(super) fn mesh_event(
+        &mut self,
+        robot: &str,
+        kind: &'static str,
         reason: &str,
         detail: &serde_json::Value,
     ) {
@@ -393,7 +424,7 @@ impl ZenohSink<'_> {
             "t": SystemTime::now()
                 .duration_since(UNIX_EPOCH)
                 .map_or(0.0, |since| since.as_secs_f64()),
-            "kind": "controller",
+            "kind": kind,
             "reason": reason,
             "detail": detail,
         });
@@ -406,7 +437,7 @@ impl ZenohSink<'_> {
             recent.push_back(Arc::from(payload.as_slice()));
         }
         self.put(robot, Stream::Events, payload);
-        warn!(robot, kind = "controller", reason, "event");
+        warn!(robot, kind, reason, "event");
     }
 
     /// Prepares `robot`'s twin pose output for ROS tools, if it has one.

@@ -80,6 +80,7 @@ impl FleetSource for FleetView {
             robots_retired: fleet.robots_retired(),
             snapshot_age_s: fleet.snapshot_age_s(),
             snapshot_failures: fleet.snapshot_failures(),
+            descriptions_refused: fleet.descriptions_refused(),
             recorder: fleet.recorder().totals(),
             history_log: fleet.history_log_totals(),
         };

@@ -434,3 +434,108 @@ def test_the_router_refuses_the_bridge_beside_access_control_unless_trusted(rout
     assert result.returncode != 0, result.stderr
     assert "the router has access control, which the ROS 2 bridge bypasses" in result.stderr, result.stderr
     assert "--ros2-trusted" in result.stderr and "panicked" not in result.stderr
+
+
+PANDA_JOINTS = [f"panda_joint{k}" for k in range(1, 8)]
+
+
+def test_a_panda_twins_from_its_own_robot_description_through_the_real_bridge(router_bin, armtwin_bin, tmp_path):
+    """A non-UR arm with no model in armtwin's configuration: a real rclpy node publishes the
+    Panda's URDF (tests/data/urdf/panda.urdf) on ``/panda/robot_description``, transient local as
+    ``robot_state_publisher`` does, *before* armtwin starts; armtwin, given only a description
+    source and a joint source, reads it from the bridge's cache, takes it (an event, a new epoch:
+    seven joints where the default model has six), and twins the node's ``JointState``s: every twin
+    pose equals Pinocchio's pose of the same URDF at the same joints (``robot_state_publisher``'s
+    TF is not installed here) to 1e-12 m."""
+    import pinocchio as pin
+
+    path = DATA_DIR / "urdf" / "panda.urdf"
+    model = pin.buildModelFromUrdf(str(path))
+    data = model.createData()
+    rng = np.random.default_rng(7)
+    n = 200
+    rows, expected = [], []
+    base, tip = model.getFrameId("panda_link0"), model.getFrameId("panda_hand_tcp")
+    for i in range(n):
+        q = pin.neutral(model)
+        values = []
+        for name in PANDA_JOINTS:
+            joint = model.getJointId(name)
+            index = model.joints[joint].idx_q
+            q[index] = rng.uniform(model.lowerPositionLimit[index], model.upperPositionLimit[index])
+            values.append(float(q[index]))
+        pin.framesForwardKinematics(model, data, q)
+        pose = data.oMf[base].inverse() * data.oMf[tip]
+        expected.append((pose.translation.copy(), pose.rotation.copy()))
+        ns = EPOCH_SEC * 10**9 + i * 10**7
+        rows.append({"sec": ns // 10**9, "nanosec": ns % 10**9, "names": PANDA_JOINTS, "q": values})
+    rows_path = tmp_path / "panda_rows.json"
+    rows_path.write_text(json.dumps(rows))
+    config = """\
+[service]
+metrics_period_ms = 50
+pose_congestion = "block"
+
+[robots.default]
+model = "ur10e"
+tip_link = "panda_hand_tcp"        # the chain of the descriptions the robots publish
+
+[[sources]]
+key = "*/robot_description"
+codec = "ros2"
+stream = "description"
+scheme = "bridge"
+robot_from_key = "ros2_namespace"
+[[sources]]
+key = "*/joint_states"
+codec = "ros2"
+stream = "joints"
+scheme = "bridge"
+robot_from_key = "ros2_namespace"
+joint_names = ["panda_joint1", "panda_joint2", "panda_joint3", "panda_joint4", "panda_joint5", "panda_joint6", "panda_joint7"]
+"""
+    deployment = Deployment(router_bin, armtwin_bin, tmp_path, "/", config)
+    go = tmp_path / "go"
+    node = Process("node-panda", [ros2_python(), SUPPORT_DIR / "ros2_description_node.py", "--urdf", path,
+                                  "--rows", rows_path, "--namespace", "/panda", "--go", go],
+                   tmp_path, deployment.ros_env)
+    try:
+        deployment.router.start()
+        node.start()
+        assert wait_until(lambda: '"described"' in node.logs(), 60.0), node.logs()
+        # armtwin starts after the description was published: it comes from the bridge's cache.
+        deployment.armtwin.start()
+        deployment.session = open_client(deployment.router.endpoint)
+        deployment.subscriber = deployment.session.declare_subscriber(f"{PREFIX}/**", deployment.collector)
+        c = deployment.collector
+
+        def taken():
+            return [m for m in c.messages("events", "panda") if m["kind"] == "description"]
+
+        assert wait_until(taken, 60.0), (c.messages("events", "panda"), deployment.logs(), node.logs())
+        [event] = taken()
+        assert event["detail"]["in_use"] is True and event["detail"]["joints"] == 7, event
+        assert event["detail"]["origin"] == "panda/robot_description", event
+        go.write_text("go")
+        assert wait_until(lambda: c.count("pose", "panda") >= n, 90.0), (c.count("pose", "panda"), node.logs(),
+                                                                         c.messages("events", "panda")[-3:])
+        worst_m = worst_rotation = 0.0
+        for message, (position, rotation) in zip(c.messages("pose", "panda"), expected, strict=True):
+            got = np.array([message["x"], message["y"], message["z"]])
+            worst_m = max(worst_m, float(np.abs(got - position).max()))
+            x, y, z, w = message["qx"], message["qy"], message["qz"], message["qw"]
+            got_rotation = np.array([
+                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+            ])
+            worst_rotation = max(worst_rotation, float(np.abs(got_rotation - rotation).max()))
+        print(f"\n[panda through the bridge] {n} poses: worst position {worst_m:.1e} m, rotation entry {worst_rotation:.1e}")
+        assert worst_m <= 1e-12 and worst_rotation <= 1e-12
+        assert deployment.state("panda")["model"] == "panda"
+        assert [m for m in c.messages("events", "panda") if m["kind"] == "rejected"] == []
+    finally:
+        go.unlink(missing_ok=True)
+        node.stop()
+        codes = deployment.stop()
+    assert codes == (0, 0), f"exit codes (armtwin, router) {codes}\n{deployment.logs()}"

@@ -327,6 +327,22 @@ def test_a_robot_takes_its_own_description_and_a_robot_with_a_model_checks_it(ar
         print(f"\n[panda from its description] 30 poses: worst position {worst_m:.1e} m, "
               f"quaternion {worst_quaternion:.1e}; worst deviation {worst_deviation_m:.1e} m")
         assert worst_m <= TOLERANCE and worst_quaternion <= TOLERANCE and worst_deviation_m <= TOLERANCE
+        # The dashboard draws it from its link frames: each joint's origin, then the TCP, as
+        # Pinocchio places them in the base link at the last joints streamed.
+        with urllib.request.urlopen(f"http://127.0.0.1:{http_port}/api/robot/frames?id={panda}", timeout=10) as r:
+            drawn = json.loads(r.read())
+        model = pin.buildModelFromUrdf(str(URDF_DIR / "panda.urdf"))
+        data = model.createData()
+        q = pin.neutral(model)
+        for k, value in enumerate(drawn["q"]):
+            q[model.joints[model.getJointId(f"panda_joint{k + 1}")].idx_q] = value
+        pin.framesForwardKinematics(model, data, q)
+        base = data.oMf[model.getFrameId("panda_link0")].inverse()
+        places = [(base * data.oMi[model.getJointId(f"panda_joint{k}")]).translation for k in range(1, 8)]
+        places.append((base * data.oMf[model.getFrameId("panda_hand_tcp")]).translation)
+        got = np.array([frame["position_m"] for frame in drawn["frames"]])
+        assert drawn["model"] == "panda" and got.shape == (8, 3), drawn
+        assert float(np.abs(got - np.array(places)).max()) <= TOLERANCE, (got, places)
         # The same text again: not read again, no event.
         client.session.put(f"twin/description/{panda}", panda_text)
 

@@ -1,6 +1,7 @@
-//! ROS 2 `sensor_msgs/msg/JointState` and `geometry_msgs/msg/PoseStamped` in CDR: a decoded pose
-//! written back as CDR must decode to the same pose, stamp and frame; a decoded joint state holds
-//! one finite angle per arm joint; every refusal must carry a known cause.
+//! ROS 2 `sensor_msgs/msg/JointState`, `geometry_msgs/msg/PoseStamped` and `std_msgs/msg/String`
+//! (a robot's description) in CDR: a decoded pose written back as CDR must decode to the same
+//! pose, stamp and frame; a decoded joint state holds one finite angle per arm joint; a decoded
+//! string is within its limit and inside the payload; every refusal must carry a known cause.
 
 use crate::invariants::{assert_kind, assert_pose, assert_same_pose, assert_stamp};
 use armtwin_codec::cdr::{self, JointNames};
@@ -34,6 +35,19 @@ pub fn check(payload: &[u8]) {
         joint_state(payload, joints);
     }
     pose_stamped(payload);
+    for limit in [0, 16, 4 << 20] {
+        string(payload, limit);
+    }
+}
+
+fn string(payload: &[u8], limit: usize) {
+    match cdr::decode_string(payload, limit) {
+        Ok(text) => {
+            assert!(text.len() <= limit, "{} bytes over {limit}", text.len());
+            assert!(text.len() + 9 <= payload.len(), "more text than payload");
+        }
+        Err(error) => assert_kind(error.kind(), KINDS),
+    }
 }
 
 fn joint_state(payload: &[u8], joints: &JointNames) {

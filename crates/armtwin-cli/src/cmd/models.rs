@@ -6,10 +6,10 @@ use std::io::{self, Write};
 
 use anyhow::Result;
 use armtwin_core::model::catalog;
-use armtwin_core::model::urdf::model_urdf;
+use armtwin_core::model::urdf::ModelFrames;
 use serde::Serialize;
 
-use crate::flags::{ChainLinks, FrameArg, ModelsArgs, RobotArgs};
+use crate::flags::{ChainLinks, ModelsArgs, RobotArgs};
 
 #[derive(Serialize)]
 struct ModelListing {
@@ -40,14 +40,9 @@ fn write_urdf(args: &ModelsArgs, model: &str) -> Result<()> {
         frame: args.frame,
     }
     .load()?;
-    let root = match args.frame {
-        FrameArg::Base => "base",
-        FrameArg::BaseLink => "base_link",
-    };
-    let tip = if args.tcp.is_some() { "tcp" } else { "tool0" };
     io::stdout()
         .lock()
-        .write_all(model_urdf(&robot, root, tip).as_bytes())?;
+        .write_all(ModelFrames::of(&robot).urdf(&robot).as_bytes())?;
     Ok(())
 }
 

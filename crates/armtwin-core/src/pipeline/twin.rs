@@ -306,12 +306,9 @@ impl Twin {
                 got: model.joint_count(),
             });
         }
-        let last = self.metrics_readout();
-        sink.metrics(&self.robot, &last);
-        self.restart_statistics();
         if new_count {
             // The joints kept for alignment are of the other count: measured poses waiting
-            // for them end unpaired, and alignment starts afresh.
+            // for them end unpaired, in the epoch they came in, and alignment starts afresh.
             let config = *self.aligner.config();
             for (pending, reason) in self.aligner.finish() {
                 self.unpaired_event(&pending, reason, sink);
@@ -321,6 +318,9 @@ impl Twin {
             self.last_joints.clear();
             self.last_state = None;
         }
+        let last = self.metrics_readout();
+        sink.metrics(&self.robot, &last);
+        self.restart_statistics();
         self.robot.set_joint_count(model.joint_count());
         self.model = model;
         self.epoch += 1;

@@ -20,10 +20,25 @@ use super::fleet::{DescriptionSeen, Fleet, Lookup, Stepping};
 use armtwin_core::model::urdf::{self, MAX_URDF_BYTES};
 use armtwin_core::model::{ArmDescription, RobotModel};
 
-/// Two descriptions of a robot are at least this far apart: each parse of an untrusted text of
-/// up to [`MAX_URDF_BYTES`] costs milliseconds, and a robot's description changes when it is
-/// rebuilt, not at a sample's rate.
+/// A robot's descriptions are read [`BURST`] at once and one per this interval after (a token
+/// bucket): each parse of an untrusted text of up to [`MAX_URDF_BYTES`] costs milliseconds, and
+/// a robot's description changes when it is rebuilt, not at a sample's rate. Refusals are said
+/// once per interval at most.
 pub(super) const MIN_INTERVAL: Duration = Duration::from_secs(1);
+
+/// Descriptions a robot may send at once: a start's query racing a gateway's put, a driver
+/// restarted, without losing the newest.
+const BURST: f64 = 4.0;
+
+/// The most joints of a description taken: a ROS 2 `JointState` of more is refused anyway.
+const MAX_JOINTS: usize = 32;
+
+/// A hash of a description's text: the same text again is not read again.
+fn digest_of(text: &[u8]) -> u64 {
+    let mut hasher = DefaultHasher::new();
+    text.hash(&mut hasher);
+    hasher.finish()
+}
 
 /// A description agrees with a model when their poses agree to this (m, and per rotation
 /// entry) at every probe: rounding of the file's decimal origins, far below any calibration.
@@ -48,14 +63,8 @@ pub(super) fn take_description(
         }
     };
     let robot = cell.robot().clone();
-    let payload: &[u8] = text.as_ref().map_or(&[], |bytes| bytes);
-    let digest = {
-        let mut hasher = DefaultHasher::new();
-        payload.hash(&mut hasher);
-        hasher.finish()
-    };
     // First, under the lock, whether to read it at all.
-    let mut read = false;
+    let mut read: Option<&[u8]> = None;
     let stepped = fleet.step(&cell, |stepping| {
         let Stepping {
             mut sink,
@@ -63,52 +72,37 @@ pub(super) fn take_description(
             ..
         } = stepping;
         let now = Instant::now();
-        let refusal = if let Err(error) = text {
-            Some(format!(
-                "the robot's description (on {origin}) is refused: {error}"
-            ))
-        } else if payload.len() > MAX_URDF_BYTES {
-            Some(format!(
-                "the robot's description ({} bytes, on {origin}) is refused: over {MAX_URDF_BYTES} \
-                 bytes",
-                payload.len()
-            ))
-        } else {
-            match description.as_deref() {
-                Some(seen) if seen.digest == digest => return,
-                Some(seen) if now.duration_since(seen.at) < MIN_INTERVAL => Some(format!(
-                    "the robot's description (on {origin}) is refused: another came {:.0} ms \
-                     before, and a robot's description is read once a second at most",
-                    now.duration_since(seen.at).as_secs_f64() * 1e3
-                )),
-                _ => None,
+        let seen = description.get_or_insert_with(|| {
+            Box::new(DescriptionSeen {
+                digest: None,
+                tokens: BURST,
+                refilled: now,
+                refusal_said: None,
+            })
+        });
+        match gate(seen, text, origin, now) {
+            Gate::Same => {}
+            Gate::Read(payload) => read = Some(payload),
+            Gate::Refused(why, detail) => {
+                fleet.description_refused();
+                // Counted always; said once a second at most, so a flood cannot push a robot's
+                // alarms out of its recent events.
+                if seen
+                    .refusal_said
+                    .is_none_or(|said| now.duration_since(said) >= MIN_INTERVAL)
+                {
+                    seen.refusal_said = Some(now);
+                    let reason = format!("the robot's description (on {origin}) is refused: {why}");
+                    sink.mesh_event(robot.id(), "description", &reason, &detail);
+                }
             }
-        };
-        if let Some(reason) = refusal {
-            fleet.description_refused();
-            let detail = json!({"origin": origin, "in_use": false, "bytes": payload.len()});
-            sink.mesh_event(robot.id(), "description", &reason, &detail);
-        } else {
-            *description = Some(Box::new(DescriptionSeen { digest, at: now }));
-            read = true;
         }
     });
-    if !stepped || !read {
+    let Some(payload) = read.filter(|_| stepped) else {
         return;
-    }
+    };
     // Parsed outside the lock: the robot's samples do not wait for it.
-    let ends = fleet.descriptions().ends(id);
-    let arm = std::str::from_utf8(payload)
-        .map_err(|e| format!("not UTF-8 text: {e}"))
-        .and_then(|text| {
-            urdf::arm_from_urdf(
-                text,
-                origin,
-                ends.base_link.as_deref(),
-                ends.tip_link.as_deref(),
-            )
-            .map_err(|e| e.to_string())
-        });
+    let arm = arm_of(fleet, id, origin, payload);
     let own_model = fleet.descriptions().has_own_model(id);
     // A robot retired since is looked up again, as a sample's would be.
     let mut cell = cell;
@@ -126,6 +120,77 @@ pub(super) fn take_description(
     }
 }
 
+/// What becomes of a description as it arrives.
+enum Gate<'t> {
+    /// The last text read, again.
+    Same,
+    /// To be read.
+    Read(&'t [u8]),
+    /// Refused: why, and the event's detail.
+    Refused(String, serde_json::Value),
+}
+
+/// Whether `text` is read, given what `seen` keeps of the robot's descriptions (its tokens
+/// refilled to `now`).
+fn gate<'t>(
+    seen: &mut DescriptionSeen,
+    text: &'t Result<&'t [u8], String>,
+    origin: &str,
+    now: Instant,
+) -> Gate<'t> {
+    seen.tokens = (seen.tokens
+        + now.duration_since(seen.refilled).as_secs_f64() / MIN_INTERVAL.as_secs_f64())
+    .min(BURST);
+    seen.refilled = now;
+    let payload = match text {
+        Err(error) => {
+            return Gate::Refused(
+                error.clone(),
+                json!({"origin": origin, "in_use": false, "error": error}),
+            );
+        }
+        Ok(payload) => *payload,
+    };
+    if payload.len() > MAX_URDF_BYTES {
+        return Gate::Refused(
+            format!("{} bytes, over {MAX_URDF_BYTES}", payload.len()),
+            json!({"origin": origin, "in_use": false, "bytes": payload.len()}),
+        );
+    }
+    let digest = digest_of(payload);
+    if seen.digest == Some(digest) {
+        return Gate::Same;
+    }
+    if seen.tokens < 1.0 {
+        let why = format!(
+            "more than {BURST} descriptions at once, and one a second after: this one is not read"
+        );
+        let detail = json!({"origin": origin, "in_use": false, "error": why});
+        return Gate::Refused(why, detail);
+    }
+    seen.tokens -= 1.0;
+    seen.digest = Some(digest);
+    Gate::Read(payload)
+}
+
+/// The arm of a description's text, its chain between robot `id`'s configured links.
+fn arm_of(fleet: &Fleet, id: &str, origin: &str, payload: &[u8]) -> Result<ArmDescription, String> {
+    let ends = fleet.descriptions().ends(id);
+    let text = std::str::from_utf8(payload).map_err(|e| format!("not UTF-8 text: {e}"))?;
+    let arm = urdf::arm_from_urdf(
+        text,
+        origin,
+        ends.base_link.as_deref(),
+        ends.tip_link.as_deref(),
+    )
+    .map_err(|e| e.to_string())?;
+    let joints = arm.joint_limits.len();
+    if joints > MAX_JOINTS {
+        return Err(format!("its chain has {joints} joints, over {MAX_JOINTS}"));
+    }
+    Ok(arm)
+}
+
 /// The description's arm into `robot`'s twin, with its event.
 fn apply(
     fleet: &Fleet,
@@ -138,8 +203,15 @@ fn apply(
     let Stepping { twin, mut sink, .. } = stepping;
     let id = robot.id();
     let current = Arc::clone(twin.model());
+    // Checked against the robot's own model, else against the one in use; with that model's
+    // tool and frame, so that only the arm is compared.
+    let against = if own_model {
+        Arc::clone(&robot.settings().model)
+    } else {
+        Arc::clone(&current)
+    };
     let candidate = arm.and_then(|arm| {
-        RobotModel::new(arm, None, *current.tool(), current.frame()).map_err(|e| e.to_string())
+        RobotModel::new(arm, None, *against.tool(), against.frame()).map_err(|e| e.to_string())
     });
     let candidate = match candidate {
         Ok(model) => model,
@@ -156,12 +228,6 @@ fn apply(
     };
     let name = candidate.arm().name.clone();
     let joints = candidate.joint_count();
-    // Checked against the robot's own model, else against the one in use.
-    let against = if own_model {
-        Arc::clone(&robot.settings().model)
-    } else {
-        Arc::clone(&current)
-    };
     let difference = against.pose_difference(&candidate);
     let detail = |in_use: bool| {
         json!({

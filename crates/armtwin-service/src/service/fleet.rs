@@ -188,13 +188,16 @@ pub(super) struct CellState {
     retired: bool,
 }
 
-/// What a robot's cell keeps of the last description it read ([`super::description`]).
+/// What a robot's cell keeps of its descriptions ([`super::description`]).
 #[derive(Debug)]
 pub(super) struct DescriptionSeen {
-    /// A hash of its text: the same text again is not read again.
-    pub(super) digest: u64,
-    /// When it was read.
-    pub(super) at: Instant,
+    /// A hash of the last text read: the same text again is not read again.
+    pub(super) digest: Option<u64>,
+    /// Descriptions it may have read now, as of `refilled`.
+    pub(super) tokens: f64,
+    pub(super) refilled: Instant,
+    /// When a refusal was last said on its events key.
+    pub(super) refusal_said: Option<Instant>,
 }
 
 #[cfg(debug_assertions)]
@@ -443,7 +446,12 @@ impl Fleet {
         if state.twin.is_some() {
             return false;
         }
-        self.sinks.of(&mut state.outputs).tracking(robot);
+        let model = Arc::clone(twin.model());
+        let mut sink = self.sinks.of(&mut state.outputs);
+        sink.tracking(robot);
+        // A restored twin may compute with an applied calibration: its files draw that.
+        sink.model_replaced(robot, &model);
+        drop(sink);
         state.twin = Some(self.sinks.history_log().attach(twin));
         true
     }

@@ -242,11 +242,16 @@ impl RobotRecording {
         }
     }
 
-    /// The robot computes with `model` from now on: files draw it. Whether the rings go on:
-    /// not when its joints are of another count, and the recording must then start afresh.
+    /// The robot computes with `model` from now on: files draw it, every sample they hold (an
+    /// incident across a change draws the earlier samples with it too). Whether the rings go
+    /// on: not when its joints are of another count (nothing changes then: the recording must
+    /// cut its pending incident and start afresh).
     pub(super) fn follow_model(&mut self, model: &Arc<RobotModel>) -> bool {
-        self.model = Arc::clone(model);
-        model.joint_count() == self.joint_record.joint_count
+        let same_count = model.joint_count() == self.joint_record.joint_count;
+        if same_count {
+            self.model = Arc::clone(model);
+        }
+        same_count
     }
 
     /// Keeps a paired measured pose and its deviation.

@@ -379,8 +379,9 @@ impl ZenohSink<'_> {
         self.sinks.outlet.publish(declared, robot, stream, payload);
     }
 
-    /// `robot`'s twin computes with `model` from now on: its incident files draw it, and its
-    /// recording starts afresh when the joints are of another count.
+    /// `robot`'s twin computes with `model` from now on: its incident files draw it. When the
+    /// joints are of another count, its pending incident is written now, with what it holds,
+    /// and its recording starts afresh.
     pub(super) fn model_replaced(
         &mut self,
         robot: &Robot,
@@ -389,13 +390,16 @@ impl ZenohSink<'_> {
         let Some(state) = self.robot.as_deref_mut() else {
             return;
         };
-        let goes_on = state
-            .recording
-            .as_mut()
-            .is_none_or(|recording| recording.follow_model(model));
-        if !goes_on {
-            state.recording = self.sinks.recorder.start_with(robot, model);
+        let Some(recording) = state.recording.as_mut() else {
+            return;
+        };
+        if recording.follow_model(model) {
+            return;
         }
+        if let Some(incident) = recording.cut(robot.id()) {
+            self.sinks.recorder.send(incident);
+        }
+        state.recording = self.sinks.recorder.start_with(robot, model);
     }
 
     /// Publishes an event about `robot`'s controller (`kind` `controller`: what a gateway read

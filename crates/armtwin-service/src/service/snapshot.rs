@@ -12,8 +12,9 @@ use armtwin_core::pipeline::{RestoreError, Robot, Twin, TwinRecord, Untracked};
 
 /// Restores the twins of the snapshot in `store`, if there is one, before any input arrives.
 /// The file is taken whole or not at all: when it is damaged, of another format or service, or
-/// names a robot this instance may not track (or of another arm), it is set aside with a
-/// warning naming why, and the service starts fresh.
+/// names a robot this instance may not track, it is set aside with a warning naming why, and
+/// the service starts fresh. A robot whose record is of another arm than its configured model
+/// (it computed with its own description, or its controller's model) starts afresh alone.
 pub(super) fn restore_snapshot(store: &SnapshotStore, fleet: &Fleet, config: &ServiceConfig) {
     let path = store.path().display().to_string();
     let refuse = |error: &SnapshotError| match store.set_aside() {
@@ -90,6 +91,11 @@ pub(super) fn restore_snapshot(store: &SnapshotStore, fleet: &Fleet, config: &Se
         }
         match Twin::restored(robot, &config.pipeline, record) {
             Ok(twin) => restored.push(twin),
+            // It computed with another arm than its configured one (its own description, its
+            // controller's model): that robot starts afresh, the others keep theirs.
+            Err(e @ RestoreError::Arm { .. }) => {
+                warn!(error = %e, "twin not restored: it starts afresh");
+            }
             Err(e) => {
                 refuse(&foreign(e.to_string()));
                 return;

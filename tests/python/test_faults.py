@@ -12,12 +12,10 @@ from __future__ import annotations
 import errno
 import json
 import os
-import re
 import shutil
 import socket
 import threading
 import time
-import urllib.request
 from pathlib import Path
 
 import pytest
@@ -25,6 +23,7 @@ import pytest
 from support.gateway import Gateway
 from support.process import Armtwin, Router, free_port, wait_until
 from support.zenoh_clients import Poses, get_json, open_client, wait_matched, wait_queryable
+from support.dashboard import metric
 
 TWIN_CONFIG = """
 [service]
@@ -55,13 +54,6 @@ def events_of(session, robot: str) -> list[dict]:
 def lost_upstream(events: list[dict]) -> int:
     """Samples the twin never saw, from its `gap` events (`got` − `expected` of the seq)."""
     return sum(e["detail"]["got"] - e["detail"]["expected"] for e in events if e["kind"] == "gap" and "expected" in e["detail"])
-
-
-def metric(port: int, name: str) -> float | None:
-    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=10) as response:
-        body = response.read().decode()
-    match = re.search(rf"^{re.escape(name)} (\S+)$", body, re.MULTILINE)
-    return float(match.group(1)) if match else None
 
 
 def test_a_full_snapshot_disk_is_counted_and_twinning_goes_on(

@@ -16,12 +16,12 @@ import re
 import struct
 import sys
 import time
-import urllib.request
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 from rosbags.typesys import Stores, get_typestore
+from scipy.spatial.transform import Rotation
 
 from support.gateway import Gateway
 from support.mcap_files import TOPICS, read_mcap, seconds, stamp_of
@@ -29,6 +29,7 @@ from support.process import ArmtwinProcess, free_port, run_armtwin, wait_until
 from support.secured_fleet import secured_fleet, stream_until_paired
 from support.twin_reference import joint_message, load_lasttest_naive
 from support.zenoh_clients import TwinClient, get_json, wait_queryable
+from support.dashboard import metric
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 PRE_S = 4.0
@@ -178,12 +179,7 @@ def test_an_alarm_leaves_one_mcap_file_with_what_was_streamed(armtwin_bin, tmp_p
 
 def rotation_of(q) -> np.ndarray:
     """The rotation matrix of a ``geometry_msgs/Quaternion``."""
-    x, y, z, w = q.x, q.y, q.z, q.w
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+    return Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
 
 
 def test_an_incident_file_draws_the_arm_whose_frames_compose_to_the_twin_pose(armtwin_bin, tmp_path):
@@ -240,13 +236,6 @@ def test_an_incident_file_draws_the_arm_whose_frames_compose_to_the_twin_pose(ar
         if topic != "/rosout":
             assert [raw for _, _, raw in messages[topic]] == [raw for _, _, raw in plain_messages[topic]], topic
     assert alarms[0]["t"] == json.loads(plain_messages["/rosout"][0][1].msg)["t"]
-
-
-def metric(port: int, name: str) -> float | None:
-    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=10) as response:
-        body = response.read().decode()
-    match = re.search(rf"^{re.escape(name)} (\S+)$", body, re.MULTILINE)
-    return float(match.group(1)) if match else None
 
 
 # The service under a file size limit (what a full disk does to a write, from the kernel, without

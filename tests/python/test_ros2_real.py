@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
+from scipy.spatial.transform import Rotation
 
 from support.checks import Checks
 from support.paths import DATA_DIR, REPO_ROOT, SUPPORT_DIR
@@ -523,12 +524,7 @@ joint_names = ["panda_joint1", "panda_joint2", "panda_joint3", "panda_joint4", "
         for message, (position, rotation) in zip(c.messages("pose", "panda"), expected, strict=True):
             got = np.array([message["x"], message["y"], message["z"]])
             worst_m = max(worst_m, float(np.abs(got - position).max()))
-            x, y, z, w = message["qx"], message["qy"], message["qz"], message["qw"]
-            got_rotation = np.array([
-                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-            ])
+            got_rotation = Rotation.from_quat([message[k] for k in ("qx", "qy", "qz", "qw")]).as_matrix()
             worst_rotation = max(worst_rotation, float(np.abs(got_rotation - rotation).max()))
         print(f"\n[panda through the bridge] {n} poses: worst position {worst_m:.1e} m, rotation entry {worst_rotation:.1e}")
         assert worst_m <= 1e-12 and worst_rotation <= 1e-12

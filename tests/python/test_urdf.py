@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
 import urllib.request
 import xml.etree.ElementTree as ET
 
@@ -29,6 +28,7 @@ from support.paths import REPO_ROOT
 from support.process import ArmtwinProcess, free_port, run_armtwin, wait_until
 from support.twin_reference import joint_message
 from support.zenoh_clients import TwinClient, get_json
+from support.dashboard import metric
 
 URDF_DIR = REPO_ROOT / "tests" / "data" / "urdf"
 CONFIGURATIONS = 12
@@ -76,6 +76,16 @@ def set_value(model: pin.Model, q: np.ndarray, joint: int, value: float) -> None
         q[index] = value
 
 
+def random_configuration(model: pin.Model, joints: list[int], rng: np.random.Generator) -> tuple[list[float], np.ndarray]:
+    """Random values of the chain's ``joints`` (within limits; continuous over a full turn), and
+    Pinocchio's configuration of the whole model with every other joint at its neutral value."""
+    values = [random_value(model, joint, rng) for joint in joints]
+    q = pin.neutral(model)
+    for joint, value in zip(joints, values):
+        set_value(model, q, joint, value)
+    return values, q
+
+
 def listed(values) -> str:
     """Numbers as one comma-separated flag value, each read back to the same bits."""
     return ",".join(repr(float(v)) for v in values)
@@ -110,10 +120,7 @@ def test_the_chain_pose_equals_pinocchios(armtwin_bin, file, base, tip):
         flags += ["--tip-link", tip]
     worst_m, worst_rotation = 0.0, 0.0
     for _ in range(CONFIGURATIONS):
-        values = [random_value(model, joint, rng) for joint in joints]
-        q = pin.neutral(model)
-        for joint, value in zip(joints, values):
-            set_value(model, q, joint, value)
+        values, q = random_configuration(model, joints, rng)
         pin.forwardKinematics(model, data, q)
         pin.updateFramePlacements(model, data)
         expected = data.oMf[model.getFrameId(base_name)].inverse() * data.oMf[model.getFrameId(tip_name)]
@@ -165,13 +172,11 @@ def test_the_chain_torques_equal_pinocchios_rnea_on_the_whole_model(armtwin_bin,
     flags = ["--model", str(path)] + (["--base-link", base] if base else []) + (["--tip-link", tip] if tip else [])
     worst = 0.0
     for _ in range(CONFIGURATIONS):
-        values = [random_value(model, joint, rng) for joint in joints]
+        values, q = random_configuration(model, joints, rng)
         qd = rng.uniform(-2.0, 2.0, len(joints))
         qdd = rng.uniform(-5.0, 5.0, len(joints))
-        q = pin.neutral(model)
         v, a = np.zeros(model.nv), np.zeros(model.nv)
         for k, joint in enumerate(joints):
-            set_value(model, q, joint, values[k])
             v[model.joints[joint].idx_v], a[model.joints[joint].idx_v] = qd[k], qdd[k]
         expected = pin.rnea(model, data, q, v, a)[[model.joints[j].idx_v for j in joints]]
         run = run_armtwin("torques", *flags, f"--q={listed(values)}", f"--qd={listed(qd)}", f"--qdd={listed(qdd)}")
@@ -233,10 +238,7 @@ def stream_panda(client: TwinClient, robot: str, count: int, seed: int) -> tuple
     expected = []
     publisher = client.joints(robot)
     for k in range(count):
-        values = [random_value(model, joint, rng) for joint in joints]
-        q = pin.neutral(model)
-        for joint, value in zip(joints, values):
-            set_value(model, q, joint, value)
+        values, q = random_configuration(model, joints, rng)
         pin.framesForwardKinematics(model, data, q)
         tip = data.oMf[model.getFrameId("panda_link0")].inverse() * data.oMf[model.getFrameId("panda_hand_tcp")]
         quaternion = pin.Quaternion(tip.rotation).coeffs()  # x, y, z, w
@@ -281,13 +283,6 @@ def test_a_panda_from_its_urdf_is_twinned_live(armtwin_bin, tmp_path):
         if client is not None:
             client.close()
         service.stop()
-
-
-def metric(port: int, name: str) -> float | None:
-    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=10) as response:
-        body = response.read().decode()
-    match = re.search(rf"^{re.escape(name)} (\S+)$", body, re.MULTILINE)
-    return float(match.group(1)) if match else None
 
 
 def test_a_robot_takes_its_own_description_and_a_robot_with_a_model_checks_it(armtwin_bin, tmp_path):

@@ -8,6 +8,7 @@ tests fail, never skip, when one is missing.
 from __future__ import annotations
 
 import json
+import re
 import os
 import shutil
 import urllib.error
@@ -138,3 +139,12 @@ class Prometheus(Process):
     def value(self, expr: str) -> float | None:
         result = self.query(expr)["result"]
         return float(result[0]["value"][1]) if len(result) == 1 else None
+
+
+def metric(port: int, name: str) -> float | None:
+    """The value of the unlabelled series ``name`` on ``/metrics`` at ``port`` (loopback), or
+    ``None`` when it is not there."""
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=10) as response:
+        body = response.read().decode()
+    match = re.search(rf"^{re.escape(name)} (\S+)$", body, re.MULTILINE)
+    return float(match.group(1)) if match else None

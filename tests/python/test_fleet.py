@@ -12,6 +12,7 @@ import time
 import urllib.request
 
 from support.gateway import Gateway
+from support.paths import REPO_ROOT
 from support.process import Armtwin, Router, wait_until
 from support.zenoh_clients import Poses, get_json, open_client, paired_of, wait_matched, wait_queryable
 
@@ -222,6 +223,49 @@ def test_after_a_sigkill_the_twins_come_back_from_the_snapshot(
     assert wait_until(lambda: poses.items, 10)
     assert poses.seqs()[0] == 300, "the pose seq goes on from the snapshot"
     assert wait_until(lambda: paired_of(client, "r1") == 301, 10)
+
+
+def test_a_twin_that_took_its_own_description_starts_afresh_the_others_come_back(
+    tmp_path, armtwin_bin, router_bin, processes, sessions
+):
+    """A snapshot record of a twin computing with another arm than its configured one (here a
+    Panda's own description, taken by a robot under the default UR10e) cannot be restored onto
+    the configured arm: after a restart that robot starts afresh, with a warning naming why, and
+    every other robot's twin comes back from the same file."""
+    state_dir = tmp_path / "state"
+    # p1's own section names its chain's tip, not a model: it takes its description.
+    config = twin_config(extra=f'state_dir = "{state_dir}"\n\n[robots."p1"]\ntip_link = "panda_hand_tcp"')
+    router = Router(router_bin, tmp_path).start()
+    processes.append(router)
+    twin = Armtwin(armtwin_bin, tmp_path, "twin", config, router.endpoint).start()
+    processes.append(twin)
+    client = open_client(router.endpoint)
+    sessions.append(client)
+    assert wait_queryable(client, "twin/state/**")
+    gateway = Gateway(client, "r1")
+    wait_matched(gateway.pub)
+    for _ in range(100):
+        gateway.send_one()
+    assert wait_until(lambda: paired_of(client, "r1") == 100, 15)
+    events = []
+    client.declare_subscriber("twin/events/p1", lambda s: events.append(json.loads(s.payload.to_bytes())))
+    client.put("twin/description/p1", (REPO_ROOT / "tests" / "data" / "urdf" / "panda.urdf").read_text())
+    assert wait_until(lambda: any(e["kind"] == "description" for e in events), 15), events
+    [taken] = [e for e in events if e["kind"] == "description"]
+    assert taken["detail"]["in_use"] is True, taken
+    assert twin.stop().code == 0
+    snapshot = json.loads((state_dir / "twin-state.json").read_text())
+    assert sorted(r["robot"] for r in snapshot["robots"]) == ["p1", "r1"], snapshot
+
+    twin = Armtwin(armtwin_bin, tmp_path, "twin", config, router.endpoint).start()
+    processes.append(twin)
+    log = twin.logs()
+    assert "snapshot refused" not in log, log
+    assert "twin not restored: it starts afresh" in log and "'panda'" in log, log
+    assert wait_queryable(client, "twin/state/**")
+    [(_, after)] = get_json(client, "twin/state/r1")
+    assert after["metrics"]["paired"] == 100, after["metrics"]
+    assert get_json(client, "twin/state/p1") == []
 
 
 def test_a_corrupt_snapshot_is_set_aside_and_the_service_starts_fresh(

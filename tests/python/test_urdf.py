@@ -378,3 +378,34 @@ def test_a_robot_takes_its_own_description_and_a_robot_with_a_model_checks_it(ar
         if client is not None:
             client.close()
         service.stop()
+
+
+def test_a_robot_back_after_its_retirement_computes_with_its_own_description_again(armtwin_bin, tmp_path):
+    """A robot known only by its inputs is retired after `forget_after_s` of silence. One that had
+    taken its own description (a transient-local `/robot_description` is not sent again) comes back
+    computing with it: its first samples of seven joints are twinned, none rejected."""
+    robot = "lab/p2"
+    http_port = free_port()
+    config = (f'[service]\nforget_after_s = 1.0\n[http]\nlisten = "127.0.0.1:{http_port}"\n'
+              f'[robots.default]\nmodel = "ur10e"\ntip_link = "panda_hand_tcp"\n')
+    service = ArmtwinProcess(armtwin_bin, tmp_path, config, 120.0)
+    service.start()
+    client = None
+    try:
+        client = TwinClient(service.endpoint)
+        client.ready([robot])
+        collector = client.collector
+        client.session.put(f"twin/description/{robot}", (URDF_DIR / "panda.urdf").read_text())
+        assert wait_until(lambda: any(m["kind"] == "description" for m in collector.messages("events", robot)), 20.0)
+        stream_panda(client, robot, 10, 3)
+        assert wait_until(lambda: (metric(http_port, "armtwin_robots_retired_total") or 0) >= 1, 30.0), service.logs()
+        worst_m, worst_quaternion, _ = stream_panda(client, robot, 10, 4)
+        assert worst_m <= TOLERANCE and worst_quaternion <= TOLERANCE
+        rejected = [m for m in collector.messages("events", robot) if m["kind"] == "rejected"]
+        assert rejected == [], rejected
+        [(_, state)] = get_json(client.session, f"twin/state/{robot}")
+        assert state["model"] == "panda" and state["metrics"]["paired"] == 10, state["metrics"]
+    finally:
+        if client is not None:
+            client.close()
+        service.stop()

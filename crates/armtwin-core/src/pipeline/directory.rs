@@ -76,6 +76,12 @@ impl Robot {
     pub(super) fn set_joint_count(&self, joint_count: usize) {
         self.joint_count.store(joint_count, Ordering::Relaxed);
     }
+
+    /// Its inputs are decoded against `joint_count` joints until its twin says otherwise: a
+    /// robot back after a retirement, whose twin will compute with a model of its own.
+    pub fn decode_joints(&self, joint_count: usize) {
+        self.set_joint_count(joint_count);
+    }
 }
 
 /// Why a robot may not be tracked.

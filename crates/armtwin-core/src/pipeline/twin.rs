@@ -120,7 +120,6 @@ impl Twin {
     #[must_use]
     pub fn new(robot: Robot, config: &PipelineConfig) -> Self {
         let joint_count = robot.settings().model.joint_count();
-        robot.set_joint_count(joint_count);
         Self {
             model: Arc::clone(&robot.settings().model),
             reservoir: robot

@@ -276,6 +276,7 @@ fn apply(
     match twin.replace_model(Arc::clone(&candidate), &mut sink) {
         Ok(_) => {
             sink.model_replaced(robot, &candidate);
+            fleet.remember_description(robot, &candidate);
             sink.mesh_event(id, "description", &reason, &detail(true));
         }
         // The effort monitor or the self-calibration rides on the old joints.

@@ -6,6 +6,7 @@
 
 #[cfg(debug_assertions)]
 use std::cell::Cell;
+use std::collections::HashMap;
 use std::ops::RangeInclusive;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, RwLock, RwLockReadGuard, RwLockWriteGuard};
@@ -71,6 +72,12 @@ pub(super) struct Fleet {
     /// Descriptions refused: unreadable, too large or too frequent, of another joint count,
     /// or disagreeing with the robot's own model.
     descriptions_refused: AtomicU64,
+    /// The models robots took from their own descriptions, by id: a robot retired and back
+    /// computes with its own again (a transient-local description is not sent twice). At most
+    /// `max_robots` of them; each shares its twin's model.
+    taken_descriptions: Mutex<HashMap<Arc<str>, Arc<RobotModel>>>,
+    /// `[service] max_robots`: the most `taken_descriptions` keeps.
+    max_robots: usize,
     pipeline: PipelineConfig,
     directory: RwLock<Directory>,
     /// What every robot's sink shares.
@@ -351,16 +358,29 @@ impl CellState {
 
     /// The robot's twin (created, and the robot announced, on its first input) and a sink of its
     /// outputs: the twin and the sink borrow separate parts of the state.
+    /// A twin made now computes with `taken`, the model the robot took from its own
+    /// description before it was retired, if it did.
     fn stepping<'a>(
         &'a mut self,
         robot: &Robot,
         config: &PipelineConfig,
         sinks: &'a Sinks,
+        taken: Option<Arc<RobotModel>>,
     ) -> Stepping<'a> {
         let mut sink = sinks.of(&mut self.outputs);
         let twin = self.twin.get_or_insert_with(|| {
             sink.tracking(robot);
-            sinks.history_log().attach(Twin::new(robot.clone(), config))
+            let mut twin = Twin::new(robot.clone(), config);
+            if let Some(model) = taken {
+                match twin.replace_model(Arc::clone(&model), &mut sink) {
+                    Ok(_) => sink.model_replaced(robot, &model),
+                    Err(error) => {
+                        robot.decode_joints(twin.model().joint_count());
+                        tracing::warn!(robot = robot.id(), %error, "its own description cannot be its model again");
+                    }
+                }
+            }
+            sinks.history_log().attach(twin)
         });
         Stepping {
             twin,
@@ -392,6 +412,8 @@ impl Fleet {
             models_from_controller: config.models_from_controller.clone(),
             descriptions: config.descriptions.clone(),
             descriptions_refused: AtomicU64::new(0),
+            taken_descriptions: Mutex::new(HashMap::new()),
+            max_robots: config.max_robots,
             pipeline: config.pipeline,
             directory: RwLock::new(Directory {
                 robots: RobotDirectory::new(config.default_robot.clone(), config.robots.clone())
@@ -559,6 +581,27 @@ impl Fleet {
         self.descriptions_refused.load(Ordering::Relaxed)
     }
 
+    /// Robot `robot` computes with `model`, taken from its own description: kept for its
+    /// return after a retirement (unless `max_robots` others are kept).
+    pub(super) fn remember_description(&self, robot: &Robot, model: &Arc<RobotModel>) {
+        let mut taken = self
+            .taken_descriptions
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        if taken.len() < self.max_robots || taken.contains_key(robot.id()) {
+            taken.insert(Arc::clone(robot.shared_id()), Arc::clone(model));
+        }
+    }
+
+    /// The model robot `id` took from its own description, if it did.
+    fn taken_description(&self, id: &str) -> Option<Arc<RobotModel>> {
+        self.taken_descriptions
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .get(id)
+            .cloned()
+    }
+
     /// Whether robot `id` takes the model its controller says (see
     /// [`ServiceConfig::models_from_controller`]).
     pub(super) fn model_from_controller(&self, id: &str) -> bool {
@@ -606,6 +649,11 @@ impl Fleet {
         match directory.robots.admit(id) {
             Ok(robot) => {
                 let robot = robot.clone();
+                // Back after a retirement, its inputs are decoded against its own description's
+                // joints from the first.
+                if let Some(model) = self.taken_description(id) {
+                    robot.decode_joints(model.joint_count());
+                }
                 Lookup::Found(directory.cell_or_new(&robot, now_ms))
             }
             Err(why) => Lookup::Refused(why),
@@ -779,7 +827,12 @@ impl Fleet {
         }
         guard.inputs += 1;
         guard.last_input_ms = self.clock_ms();
-        input(guard.stepping(&cell.robot, &self.pipeline, &self.sinks));
+        let taken = guard
+            .twin
+            .is_none()
+            .then(|| self.taken_description(cell.robot.id()))
+            .flatten();
+        input(guard.stepping(&cell.robot, &self.pipeline, &self.sinks, taken));
         true
     }
 

@@ -37,7 +37,8 @@ pub(super) fn take_facts(fleet: &Fleet, id: &str, payload: &[u8]) {
                 let robot = cell.robot().clone();
                 let taken = Taken {
                     tool: !fleet.tool_configured(id),
-                    model: fleet.model_from_controller(id),
+                    // The robot's own description, once taken, says more than its model's name.
+                    model: fleet.model_from_controller(id) && fleet.taken_description(id).is_none(),
                 };
                 let facts = facts.clone();
                 if fleet.step(&cell, |stepping| {

@@ -594,7 +594,7 @@ impl Fleet {
     }
 
     /// The model robot `id` took from its own description, if it did.
-    fn taken_description(&self, id: &str) -> Option<Arc<RobotModel>> {
+    pub(super) fn taken_description(&self, id: &str) -> Option<Arc<RobotModel>> {
         self.taken_descriptions
             .lock()
             .unwrap_or_else(PoisonError::into_inner)

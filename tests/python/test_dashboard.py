@@ -10,6 +10,7 @@ Run: ``ARMTWIN_BIN=$PWD/target/debug/armtwin .venv/bin/python -m pytest tests/py
 
 from __future__ import annotations
 
+import json
 import time
 
 import numpy as np
@@ -19,6 +20,7 @@ from playwright.sync_api import sync_playwright
 from support import ur_reference as ur
 from support.dashboard import DashboardService, chromium_path, http_json
 from support.gateway import Gateway
+from support.paths import DATA_DIR
 from support.process import wait_until
 
 CONFIG = """\
@@ -191,3 +193,31 @@ def test_unknown_robot_page_is_a_404_page(armtwin_bin, tmp_path, browser):
         response = page.goto(service.url("/robot/no/such/robot"))
         assert response.status == 404
         assert "No such page" in page.inner_text("#not-found")
+
+
+def test_the_robot_page_draws_an_arm_of_any_model(armtwin_bin, tmp_path, browser):
+    """The 3D view draws whatever chain the twin computes with: a Franka Panda from its URDF
+    (tests/data/urdf/panda.urdf, seven joints), from the same link frames `/api/robot/frames`
+    gives, eight of them (each joint's origin, then the TCP)."""
+    robot = "lab/panda"
+    config = CONFIG + f'\n[robots."{robot}"]\nmodel = "{DATA_DIR / "urdf" / "panda.urdf"}"\ntip_link = "panda_hand_tcp"\n'
+    with DashboardService(armtwin_bin, tmp_path, config) as service:
+        service.client.ready([robot])
+        publisher = service.client.joints(robot)
+        q = [0.3, -0.6, 0.2, -2.0, 0.1, 1.6, 0.7]
+        for k in range(50):
+            q[0] += 0.01
+            publisher.put(json.dumps({"t": 1000.0 + 0.01 * k, "q": q}))
+        assert wait_until(lambda: service.client.collector.count("pose", robot) >= 50, 15.0)
+        page = browser.new_page(viewport={"width": 1280, "height": 900})
+        page.goto(service.url("/robot/" + robot))
+        page.wait_for_function("() => Number(document.getElementById('view').dataset.frames || 0) >= 8",
+                               timeout=15_000)
+        pixels = webgl_pixels(page)
+        assert pixels["drawn"] > 0.02 * pixels["total"], pixels
+        assert pixels["arm"] > 500, pixels
+        assert "panda" in page.inner_text("#model")
+        page.screenshot(path=str(tmp_path / "panda.png"), full_page=True)
+        frames = http_json(service.url("/api/robot/frames?id=" + robot))
+        assert frames["model"] == "panda" and len(frames["frames"]) == 8, frames
+        assert frames["q"] == q

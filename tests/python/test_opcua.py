@@ -249,8 +249,8 @@ async def scenario(workdir: Path, service: ArmtwinProcess, url: str) -> None:
             assert written[0].is_bad(), written
             assert await serial.read_value() == SERIAL
 
-            # Off the event loop: a blocking join held asyncua's keep-alive, and its supervisor
-            # then took the client for disconnected.
+            # Off the event loop: a blocking join would hold asyncua's keep-alive, and its
+            # supervisor would take the client for disconnected.
             await asyncio.to_thread(sender.join, TIMEOUT_S)
             assert done.is_set() and sent, "the recording was not streamed"
             last_q = sent[0]

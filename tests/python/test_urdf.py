@@ -27,7 +27,7 @@ import pytest
 from support.paths import REPO_ROOT
 from support.process import ArmtwinProcess, free_port, run_armtwin, wait_until
 from support.twin_reference import joint_message
-from support.zenoh_clients import TwinClient, get_json
+from support.zenoh_clients import TwinClient, description_publisher, get_json
 from support.dashboard import metric
 
 URDF_DIR = REPO_ROOT / "tests" / "data" / "urdf"
@@ -309,9 +309,10 @@ def test_a_robot_takes_its_own_description_and_a_robot_with_a_model_checks_it(ar
         def descriptions(robot: str) -> list[dict]:
             return [m for m in collector.messages("events", robot) if m["kind"] == "description"]
 
+        describe = {robot: description_publisher(client.session, robot) for robot in (panda, ur10e)}
         # The Panda's own URDF: taken, with a new epoch.
         panda_text = (URDF_DIR / "panda.urdf").read_text()
-        client.session.put(f"twin/description/{panda}", panda_text)
+        describe[panda].put(panda_text)
         assert wait_until(lambda: descriptions(panda), 20.0), (collector.messages("events", panda), service.logs())
         [taken] = descriptions(panda)
         assert taken["detail"]["in_use"] is True and taken["detail"]["joints"] == 7, taken
@@ -338,25 +339,25 @@ def test_a_robot_takes_its_own_description_and_a_robot_with_a_model_checks_it(ar
         assert drawn["model"] == "panda" and got.shape == (8, 3), drawn
         assert float(np.abs(got - np.array(places)).max()) <= TOLERANCE, (got, places)
         # The same text again: not read again, no event.
-        client.session.put(f"twin/description/{panda}", panda_text)
+        describe[panda].put(panda_text)
 
         # armtwin's own URDF of the configured model agrees: an event, nothing changes.
         own = run_armtwin("models", "--urdf", "ur10e")
         assert own.returncode == 0, own.stderr
-        client.session.put(f"twin/description/{ur10e}", own.stdout)
+        describe[ur10e].put(own.stdout)
         assert wait_until(lambda: descriptions(ur10e), 20.0), service.logs()
         [agrees] = descriptions(ur10e)
         assert agrees["detail"]["in_use"] is False and "agrees" in agrees["reason"], agrees
         assert agrees["detail"]["position_difference_m"] <= 1e-9, agrees
 
         # A UR5's description disagrees with the configured UR10e: refused, counted.
-        client.session.put(f"twin/description/{ur10e}", (URDF_DIR / "ur5_robot.urdf").read_text())
+        describe[ur10e].put((URDF_DIR / "ur5_robot.urdf").read_text())
         assert wait_until(lambda: len(descriptions(ur10e)) >= 2, 20.0), service.logs()
         refused = descriptions(ur10e)[1]
         assert refused["detail"]["in_use"] is False and "keeps the configured model" in refused["reason"], refused
         assert refused["detail"]["position_difference_m"] > 0.01, refused
         # No URDF at all: refused on its own, naming why.
-        client.session.put(f"twin/description/{ur10e}", "<robot name='x'><link name='a'/>")
+        describe[ur10e].put("<robot name='x'><link name='a'/>")
         assert wait_until(lambda: len(descriptions(ur10e)) >= 3, 20.0), service.logs()
         garbage = descriptions(ur10e)[2]
         assert "is refused" in garbage["reason"] and "at once" not in garbage["reason"], garbage
@@ -364,7 +365,7 @@ def test_a_robot_takes_its_own_description_and_a_robot_with_a_model_checks_it(ar
         print(f"[not a URDF] {garbage['reason']}")
         # A flood: the first refused beyond the burst is said, the rest only counted.
         for k in range(20):
-            client.session.put(f"twin/description/{ur10e}", f"<robot name='flood-{k}'/>")
+            describe[ur10e].put(f"<robot name='flood-{k}'/>")
         assert wait_until(lambda: (metric(http_port, "armtwin_descriptions_refused_total") or 0) >= 2 + 20, 20.0), \
             metric(http_port, "armtwin_descriptions_refused_total")
         flood = descriptions(ur10e)[3:]
@@ -395,7 +396,7 @@ def test_a_robot_back_after_its_retirement_computes_with_its_own_description_aga
         client = TwinClient(service.endpoint)
         client.ready([robot])
         collector = client.collector
-        client.session.put(f"twin/description/{robot}", (URDF_DIR / "panda.urdf").read_text())
+        description_publisher(client.session, robot).put((URDF_DIR / "panda.urdf").read_text())
         assert wait_until(lambda: any(m["kind"] == "description" for m in collector.messages("events", robot)), 20.0)
         stream_panda(client, robot, 10, 3)
         assert wait_until(lambda: (metric(http_port, "armtwin_robots_retired_total") or 0) >= 1, 30.0), service.logs()

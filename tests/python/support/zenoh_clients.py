@@ -296,3 +296,11 @@ def wait_matched(publisher, timeout: float = 20.0) -> None:
     assert wait_until(lambda: publisher.matching_status.matching, timeout), (
         f"no subscriber of {publisher.key_expr} reached through the router"
     )
+
+
+def description_publisher(session: zenoh.Session, robot: str, timeout: float = MATCH_TIMEOUT_S):
+    """A publisher of ``robot``'s description (`twin/description/<robot>`, as a gateway puts it),
+    once armtwin's subscriber matches: a put before that would reach no one."""
+    publisher = session.declare_publisher(f"twin/description/{robot}")
+    wait_matched(publisher, timeout)
+    return publisher

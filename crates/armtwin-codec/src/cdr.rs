@@ -29,7 +29,7 @@ pub const MAX_JOINT_STATE_ENTRIES: usize = 256;
 pub const MAX_STRING_BYTES: usize = 256;
 
 /// Most joints an arm may have for name matching (the positions are kept on the stack).
-const MAX_ARM_JOINTS: usize = 32;
+pub const MAX_ARM_JOINTS: usize = 32;
 
 /// Why a CDR message was rejected.
 #[derive(Debug, Clone, PartialEq, Error)]

@@ -10,8 +10,6 @@ use std::io::{Seek, Write};
 use std::sync::Arc;
 use std::time::SystemTime;
 
-use nalgebra::UnitQuaternion;
-
 use super::mcap_file::{self, McapFile, PoseTopic, pose_of};
 use super::ros2_messages::Transform;
 use armtwin_core::dynamics::monitor::EffortReadout;
@@ -19,6 +17,7 @@ use armtwin_core::kinematics::PoseReadout;
 use armtwin_core::metrics::Deviation;
 use armtwin_core::model::RobotModel;
 use armtwin_core::model::urdf::ModelFrames;
+use armtwin_core::orientation;
 use armtwin_core::sample::{JointQuantity, JointSample};
 
 pub use super::mcap_file::{METADATA_NAME, WriteError, topics};
@@ -270,12 +269,12 @@ fn write_tf<W: Write + Seek>(
         .enumerate()
         .map(|(k, (parent_from_child, child))| {
             let t = parent_from_child.translation.vector;
-            let q = UnitQuaternion::from_rotation_matrix(&parent_from_child.rotation);
+            let q = orientation::quaternion_from_matrix(parent_from_child.rotation.matrix());
             Transform {
                 parent: frames.parent_link(k),
                 child,
                 translation_m: [t.x, t.y, t.z],
-                rotation_xyzw: [q.i, q.j, q.k, q.w],
+                rotation_xyzw: orientation::quaternion_to_xyzw(&q),
             }
         })
         .collect();

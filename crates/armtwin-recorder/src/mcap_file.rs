@@ -233,7 +233,7 @@ fn channels<W: Write + Seek>(
         schema(msg::EFFORT)?,
         schema(msg::LOG)?,
     ];
-    // Declared after the others, so a file without them is what it was before they existed.
+    // Declared after the others: a file without them keeps the same schema and channel ids.
     let frame_schemas = if robot_frames {
         Some((schema(msg::STRING)?, schema(msg::TF_MESSAGE)?))
     } else {

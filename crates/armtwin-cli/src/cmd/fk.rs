@@ -58,7 +58,7 @@ pub(super) fn run(args: &FkArgs) -> Result<()> {
 /// for prismatic joints). The calibration, TCP and frame flags are for DH models.
 fn run_urdf(args: &FkArgs, path: &Path) -> Result<()> {
     if args.robot.calibration.is_some() || args.robot.tcp.is_some() || args.csv.is_some() {
-        bail!("--calibration, --tcp and --csv are not taken with a URDF --model yet");
+        bail!("--calibration, --tcp and --csv are not taken with a URDF --model");
     }
     let text = super::read_text(path)?;
     let chain = UrdfRobot::parse(&text)

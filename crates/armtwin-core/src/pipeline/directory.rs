@@ -72,15 +72,10 @@ impl Robot {
         self.joint_count.load(Ordering::Relaxed)
     }
 
-    /// Its twin computes with `joint_count` joints from now on.
-    pub(super) fn set_joint_count(&self, joint_count: usize) {
+    /// Its inputs are decoded against `joint_count` joints from now on: its twin took a model
+    /// of that many, or will (a robot back after a retirement, with a model of its own).
+    pub fn set_joint_count(&self, joint_count: usize) {
         self.joint_count.store(joint_count, Ordering::Relaxed);
-    }
-
-    /// Its inputs are decoded against `joint_count` joints until its twin says otherwise: a
-    /// robot back after a retirement, whose twin will compute with a model of its own.
-    pub fn decode_joints(&self, joint_count: usize) {
-        self.set_joint_count(joint_count);
     }
 }
 

@@ -307,12 +307,8 @@ impl Twin {
         }
         if new_count {
             // The joints kept for alignment are of the other count: measured poses waiting
-            // for them end unpaired, in the epoch they came in, and alignment starts afresh.
-            let config = *self.aligner.config();
-            for (pending, reason) in self.aligner.finish() {
-                self.unpaired_event(&pending, reason, sink);
-            }
-            self.aligner = Aligner::new(config);
+            // for them end unpaired, in the epoch they came in.
+            self.restart_alignment(sink);
             self.last_joint_s = None;
             self.last_joints.clear();
             self.last_state = None;
@@ -553,6 +549,15 @@ impl Twin {
         Ok(pose)
     }
 
+    /// Measured poses waiting in the aligner end unpaired, and alignment starts afresh.
+    fn restart_alignment(&mut self, sink: &mut impl Sink) {
+        let config = *self.aligner.config();
+        for (pending, reason) in self.aligner.finish() {
+            self.unpaired_event(&pending, reason, sink);
+        }
+        self.aligner = Aligner::new(config);
+    }
+
     /// Measured stamps must increase strictly; rejects (and returns false) otherwise.
     /// A stamp more than `restart_s` behind its stream's last one means the gateway restarted
     /// its clock: waiting measured poses end unpaired, and alignment, stamp order and the metrics
@@ -569,10 +574,7 @@ impl Twin {
         let Some(last_s) = last_s.filter(|last_s| stamp_s < last_s - config.restart_s) else {
             return;
         };
-        for (pending, reason) in self.aligner.finish() {
-            self.unpaired_event(&pending, reason, sink);
-        }
-        self.aligner = Aligner::new(config);
+        self.restart_alignment(sink);
         if let Some(stats) = &mut self.stats {
             stats.window.restart();
         }

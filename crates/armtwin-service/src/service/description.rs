@@ -5,33 +5,40 @@
 //! epoch. Each outcome is an event (`kind` `description`) on the robot's events key; each
 //! refusal is counted too.
 //!
-//! The text is untrusted: at most [`MAX_URDF_BYTES`], parsed once per distinct text and at most
-//! once per [`MIN_INTERVAL`] per robot, outside the robot's lock.
+//! The text is untrusted: at most [`MAX_URDF_BYTES`] and [`MAX_ARM_JOINTS`], read within a
+//! robot's [`READS`] budget (the same text as the last one read is not read again), parsed
+//! outside the robot's lock.
 
 use std::collections::hash_map::DefaultHasher;
 use std::hash::{Hash as _, Hasher as _};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use serde_json::json;
 use tracing::debug;
 
+use super::events::EventBucket;
 use super::fleet::{DescriptionSeen, Fleet, Lookup, Stepping};
+use crate::config::EventBudget;
+use armtwin_codec::cdr::MAX_ARM_JOINTS;
 use armtwin_core::model::urdf::{self, MAX_URDF_BYTES};
 use armtwin_core::model::{ArmDescription, RobotModel};
 
-/// A robot's descriptions are read [`BURST`] at once and one per this interval after (a token
-/// bucket): each parse of an untrusted text of up to [`MAX_URDF_BYTES`] costs milliseconds, and
-/// a robot's description changes when it is rebuilt, not at a sample's rate. Refusals are said
-/// once per interval at most.
-pub(super) const MIN_INTERVAL: Duration = Duration::from_secs(1);
+/// The descriptions a robot's twin reads: four at once (a start's query racing a gateway's
+/// put, a driver restarted: the newest is not lost), one a second after. Each is an untrusted
+/// text of up to [`MAX_URDF_BYTES`] to parse, and a robot's description changes when it is
+/// rebuilt, not at a sample's rate.
+const READS: EventBudget = EventBudget {
+    per_s: 1.0,
+    burst: 4,
+};
 
-/// Descriptions a robot may send at once: a start's query racing a gateway's put, a driver
-/// restarted, without losing the newest.
-const BURST: f64 = 4.0;
-
-/// The most joints of a description taken: a ROS 2 `JointState` of more is refused anyway.
-const MAX_JOINTS: usize = 32;
+/// The refusals before reading a robot's events key says: one a second, so that a flood cannot
+/// push the robot's alarms out of its recent events. Every one is counted.
+const REFUSALS_SAID: EventBudget = EventBudget {
+    per_s: 1.0,
+    burst: 1,
+};
 
 /// A hash of a description's text: the same text again is not read again.
 fn digest_of(text: &[u8]) -> u64 {
@@ -63,6 +70,11 @@ pub(super) fn take_description(
         }
     };
     let robot = cell.robot().clone();
+    // Hashed before the robot's lock: its samples do not wait for it.
+    let digest = match text {
+        Ok(payload) if payload.len() <= MAX_URDF_BYTES => Some(digest_of(payload)),
+        _ => None,
+    };
     // First, under the lock, whether to read it at all.
     let mut read: Option<&[u8]> = None;
     let stepped = fleet.step(&cell, |stepping| {
@@ -75,23 +87,16 @@ pub(super) fn take_description(
         let seen = description.get_or_insert_with(|| {
             Box::new(DescriptionSeen {
                 digest: None,
-                tokens: BURST,
-                refilled: now,
-                refusal_said: None,
+                reads: EventBucket::full(READS, now),
+                refusals: EventBucket::full(REFUSALS_SAID, now),
             })
         });
-        match gate(seen, text, origin, now) {
+        match gate(seen, text, digest, origin, now) {
             Gate::Same => {}
             Gate::Read(payload) => read = Some(payload),
             Gate::Refused(why, detail) => {
                 fleet.description_refused();
-                // Counted always; said once a second at most, so a flood cannot push a robot's
-                // alarms out of its recent events.
-                if seen
-                    .refusal_said
-                    .is_none_or(|said| now.duration_since(said) >= MIN_INTERVAL)
-                {
-                    seen.refusal_said = Some(now);
+                if seen.refusals.pass(REFUSALS_SAID, now, false).is_ok() {
                     let reason = format!("the robot's description (on {origin}) is refused: {why}");
                     sink.mesh_event(robot.id(), "description", &reason, &detail);
                 }
@@ -130,18 +135,15 @@ enum Gate<'t> {
     Refused(String, serde_json::Value),
 }
 
-/// Whether `text` is read, given what `seen` keeps of the robot's descriptions (its tokens
-/// refilled to `now`).
+/// Whether `text` (whose hash is `digest`, if it is not too large) is read, given what `seen`
+/// keeps of the robot's descriptions.
 fn gate<'t>(
     seen: &mut DescriptionSeen,
     text: &'t Result<&'t [u8], String>,
+    digest: Option<u64>,
     origin: &str,
     now: Instant,
 ) -> Gate<'t> {
-    seen.tokens = (seen.tokens
-        + now.duration_since(seen.refilled).as_secs_f64() / MIN_INTERVAL.as_secs_f64())
-    .min(BURST);
-    seen.refilled = now;
     let payload = match text {
         Err(error) => {
             return Gate::Refused(
@@ -151,24 +153,23 @@ fn gate<'t>(
         }
         Ok(payload) => *payload,
     };
-    if payload.len() > MAX_URDF_BYTES {
+    let Some(digest) = digest else {
         return Gate::Refused(
             format!("{} bytes, over {MAX_URDF_BYTES}", payload.len()),
             json!({"origin": origin, "in_use": false, "bytes": payload.len()}),
         );
-    }
-    let digest = digest_of(payload);
+    };
     if seen.digest == Some(digest) {
         return Gate::Same;
     }
-    if seen.tokens < 1.0 {
+    if seen.reads.pass(READS, now, false).is_err() {
         let why = format!(
-            "more than {BURST} descriptions at once, and one a second after: this one is not read"
+            "more than {} descriptions at once, and {} a second after: this one is not read",
+            READS.burst, READS.per_s
         );
         let detail = json!({"origin": origin, "in_use": false, "error": why});
         return Gate::Refused(why, detail);
     }
-    seen.tokens -= 1.0;
     seen.digest = Some(digest);
     Gate::Read(payload)
 }
@@ -185,8 +186,10 @@ fn arm_of(fleet: &Fleet, id: &str, origin: &str, payload: &[u8]) -> Result<ArmDe
     )
     .map_err(|e| e.to_string())?;
     let joints = arm.joint_limits.len();
-    if joints > MAX_JOINTS {
-        return Err(format!("its chain has {joints} joints, over {MAX_JOINTS}"));
+    if joints > MAX_ARM_JOINTS {
+        return Err(format!(
+            "its chain has {joints} joints, over {MAX_ARM_JOINTS}"
+        ));
     }
     Ok(arm)
 }

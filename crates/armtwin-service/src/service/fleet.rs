@@ -15,6 +15,7 @@ use std::time::{Duration, Instant};
 use zenoh::key_expr::KeyExpr;
 
 use super::calibration_slot::CalibrationSlot;
+use super::events::EventBucket;
 use super::publish::Outlet;
 use super::recording::Recorder;
 use super::sink::{RobotOutputState, Sinks, ZenohSink};
@@ -200,11 +201,10 @@ pub(super) struct CellState {
 pub(super) struct DescriptionSeen {
     /// A hash of the last text read: the same text again is not read again.
     pub(super) digest: Option<u64>,
-    /// Descriptions it may have read now, as of `refilled`.
-    pub(super) tokens: f64,
-    pub(super) refilled: Instant,
-    /// When a refusal was last said on its events key.
-    pub(super) refusal_said: Option<Instant>,
+    /// The texts it may read.
+    pub(super) reads: EventBucket,
+    /// The refusals before reading it may say.
+    pub(super) refusals: EventBucket,
 }
 
 #[cfg(debug_assertions)]
@@ -375,7 +375,7 @@ impl CellState {
                 match twin.replace_model(Arc::clone(&model), &mut sink) {
                     Ok(_) => sink.model_replaced(robot, &model),
                     Err(error) => {
-                        robot.decode_joints(twin.model().joint_count());
+                        robot.set_joint_count(twin.model().joint_count());
                         tracing::warn!(robot = robot.id(), %error, "its own description cannot be its model again");
                     }
                 }
@@ -652,7 +652,7 @@ impl Fleet {
                 // Back after a retirement, its inputs are decoded against its own description's
                 // joints from the first.
                 if let Some(model) = self.taken_description(id) {
-                    robot.decode_joints(model.joint_count());
+                    robot.set_joint_count(model.joint_count());
                 }
                 Lookup::Found(directory.cell_or_new(&robot, now_ms))
             }

@@ -120,9 +120,18 @@ pub(super) async fn declare_intake(
             .callback(move |sample| description.description(&sample))
             .await?,
     );
-    for stream in [Stream::Controller, Stream::Description] {
-        ask_gateways(session, keys, shard, &router, stream);
-    }
+    ask_gateways(
+        session,
+        keys.key(Stream::Controller, shard),
+        &router,
+        Router::controller,
+    );
+    ask_gateways(
+        session,
+        keys.key(Stream::Description, shard),
+        &router,
+        Router::description,
+    );
     for (robot, settings) in &config.robots {
         // A configured robot is in the directory from the start: its sensors' samples need no
         // look-up at all.
@@ -167,20 +176,13 @@ pub(super) async fn declare_intake(
 /// descriptions (`stream`): a gateway puts them when they change, so one that started first
 /// would otherwise stay unheard until then. The answers are taken as the puts are, off the
 /// start's path.
-fn ask_gateways(
-    session: &Session,
-    keys: &KeySpace,
-    shard: &str,
-    router: &Arc<Router>,
-    stream: Stream,
-) {
+fn ask_gateways(session: &Session, key: String, router: &Arc<Router>, take: fn(&Router, &Sample)) {
     let session = session.clone();
-    let key = keys.key(stream, shard);
     let router = Arc::clone(router);
     tokio::spawn(async move {
         let replies = match session
             .get(key.as_str())
-            .timeout(CONTROLLER_QUERY_TIMEOUT)
+            .timeout(GATEWAY_QUERY_TIMEOUT)
             .await
         {
             Ok(replies) => replies,
@@ -191,18 +193,14 @@ fn ask_gateways(
         };
         while let Ok(reply) = replies.recv_async().await {
             if let Ok(sample) = reply.result() {
-                if stream == Stream::Description {
-                    router.description(sample);
-                } else {
-                    router.controller(sample);
-                }
+                take(&router, sample);
             }
         }
     });
 }
 
-/// How long the gateways have to answer the start's query for their controllers' facts.
-const CONTROLLER_QUERY_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(5);
+/// How long the gateways have to answer the start's queries for what they keep.
+const GATEWAY_QUERY_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(5);
 
 /// One subscriber per `[[sources]]` entry (their keys were checked when the configuration
 /// loaded: outside armtwin's own keys and twin pose outputs, disjoint from each other).
@@ -463,6 +461,11 @@ impl Router {
     fn description(&self, sample: &Sample) {
         let key = sample.key_expr().as_str();
         match self.keys.robot_of(Stream::Description, key) {
+            // Refused before the payload is copied, if it is too large.
+            Ok(id) if sample.payload().len() > MAX_URDF_BYTES => {
+                let why = format!("{} bytes, over {MAX_URDF_BYTES}", sample.payload().len());
+                take_description(&self.fleet, id, key, &Err(why));
+            }
             Ok(id) => {
                 let payload = sample.payload().to_bytes();
                 take_description(&self.fleet, id, key, &Ok(&payload[..]));

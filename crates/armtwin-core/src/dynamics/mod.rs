@@ -16,8 +16,10 @@
 //! through its origin: the arm is compiled once to `F₀ · Rz(q₁ + θ₁) · F₁ · … · Rz(qₙ + θₙ)` with
 //! fixed `Fₖ = Rx(α) · (a, 0, d)` (as the kinematics compile it), and each link's parameters are
 //! moved into its joint frame once, so a call needs no per-link offset and the joint axis is
-//! always `z`. Gravity is a vector in the base frame (DH frame 0); the payload's centre of
-//! gravity is in the flange frame, as RTDE's `payload_cog` and the pendant give it.
+//! always `z`. An arm given by its joint origins (a URDF's chain) has its joint frames already,
+//! each `Fₖ` a rotation and an origin, and its links' parameters in them. Gravity is a vector in
+//! the base frame (DH frame 0, a URDF's base link); the payload's centre of gravity is in the
+//! flange frame, as RTDE's `payload_cog` and the pendant give it.
 //!
 //! Torques `τ = M(q) q̈ + C(q, q̇) q̇ + g(q) + J_r q̈ + τ_f(q̇)`: rigid-body terms from the
 //! recursion, `J_r` the reflected rotor inertia (rotor inertia × gear ratio², a diagonal constant
@@ -32,11 +34,11 @@ use nalgebra::{Matrix3, SMatrix, Vector3};
 use thiserror::Error;
 
 use crate::kinematics::{DhConvention, DhParameters};
-use crate::model::ArmDescription;
 pub use crate::model::inertia::{ArmInertials, LinkInertial};
 /// Published inertial and drive parameters of the Universal Robots catalog arms (kept with the
 /// arms' descriptions, which carry them).
 pub use crate::model::ur_inertia as ur;
+use crate::model::{ArmDescription, JointOrigins};
 use crate::trig;
 
 /// Standard gravity as Universal Robots' controller uses it in its torque model (m/s²).
@@ -272,15 +274,17 @@ fn cos_sin(alpha_rad: f64) -> (f64, f64) {
     }
 }
 
-/// A link twist `Rx(α)`. Every catalog arm's twists are 0 or ±π/2, where the rotation only
-/// swaps and negates components: naming those cases saves the recursion a third of its
-/// multiplications (the branch is the same on every call, so it predicts).
+/// A link twist `Rx(α)`, or any fixed rotation between two joint frames (a URDF's joint
+/// origins). Every catalog arm's twists are 0 or ±π/2, where the rotation only swaps and negates
+/// components: naming those cases saves the recursion a third of its multiplications (the branch
+/// is the same on every call, so it predicts).
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Twist {
     Zero,
     QuarterTurn,
     MinusQuarterTurn,
     Other { cos_alpha: f64, sin_alpha: f64 },
+    Rotation(Matrix3<f64>),
 }
 
 impl Twist {
@@ -302,6 +306,22 @@ impl Twist {
         }
     }
 
+    /// The twist of `parent_from_joint`: a named case where it is exactly one (an exact
+    /// identity or quarter turn about x), else the rotation itself.
+    #[allow(clippy::float_cmp, reason = "only exact rotations take the shortcuts")]
+    fn from_rotation(parent_from_joint: &Matrix3<f64>) -> Self {
+        [
+            (Self::Zero, 1.0, 0.0),
+            (Self::QuarterTurn, 0.0, 1.0),
+            (Self::MinusQuarterTurn, 0.0, -1.0),
+        ]
+        .into_iter()
+        .find(|(_, c, s)| {
+            *parent_from_joint == Matrix3::new(1.0, 0.0, 0.0, 0.0, *c, -s, 0.0, *s, *c)
+        })
+        .map_or(Self::Rotation(*parent_from_joint), |(twist, ..)| twist)
+    }
+
     /// `Rx(α) · v`.
     #[inline]
     fn rotate(self, v: &Vector3<f64>) -> Vector3<f64> {
@@ -313,6 +333,7 @@ impl Twist {
                 cos_alpha: c,
                 sin_alpha: s,
             } => Vector3::new(v.x, c * v.y - s * v.z, s * v.y + c * v.z),
+            Self::Rotation(rotation) => rotation * v,
         }
     }
 
@@ -327,6 +348,7 @@ impl Twist {
                 cos_alpha: c,
                 sin_alpha: s,
             } => Vector3::new(v.x, c * v.y + s * v.z, c * v.z - s * v.y),
+            Self::Rotation(rotation) => rotation.tr_mul(v),
         }
     }
 }
@@ -421,13 +443,18 @@ pub struct MomentumTerms<const N: usize = 6> {
 }
 
 impl<const N: usize> ArmDynamics<N> {
-    /// The dynamics of `arm` from its inertial parameters, with gravity 9.82 m/s² along the
-    /// base's −z (a floor mounting, as UR's controller models it), no payload and no friction.
+    /// The dynamics of `arm` from its inertial parameters, with the gravity they are stated
+    /// under (a URDF's: 9.81 m/s² along its root's −z), else 9.82 m/s² along the base's −z (a
+    /// floor mounting, as UR's controller models it); no payload and no friction.
     pub fn from_arm(arm: &ArmDescription) -> Result<Self, DynamicsError> {
-        if arm.dh.len() != N {
+        let joint_count = arm
+            .joint_origins
+            .as_ref()
+            .map_or(arm.dh.len(), |origins| origins.parent_from_joint.len());
+        if joint_count != N {
             return Err(DynamicsError::JointCount {
                 expected: N,
-                got: arm.dh.len(),
+                got: joint_count,
             });
         }
         let inertials = arm
@@ -451,7 +478,18 @@ impl<const N: usize> ArmDynamics<N> {
                 });
             }
         }
-        let (joints, joint_from_link) = compile_geometry::<N>(arm.convention, &arm.dh);
+        let (joints, joint_from_link, last_joint_from_flange) =
+            if let Some(origins) = &arm.joint_origins {
+                compile_origins::<N>(origins)
+            } else {
+                let (joints, joint_from_link) = compile_geometry::<N>(arm.convention, &arm.dh);
+                // Standard DH: the last link frame is the flange; modified: the tool row's.
+                let last = joint_from_link
+                    .last()
+                    .copied()
+                    .unwrap_or((Matrix3::identity(), Vector3::zeros()));
+                (joints, joint_from_link, last)
+            };
         let mut bodies = [Body::NONE; N];
         let mut reflected_rotor_inertia_kg_m2 = [0.0; N];
         for k in 0..N {
@@ -481,10 +519,10 @@ impl<const N: usize> ArmDynamics<N> {
             );
         }
         let last_link = bodies.last().copied().unwrap_or(Body::NONE);
-        let last_joint_from_flange = joint_from_link
-            .last()
-            .copied()
-            .unwrap_or((Matrix3::identity(), Vector3::zeros()));
+        let gravity_base_m_s2 = inertials.gravity_base_m_s2.map_or(
+            Vector3::new(0.0, 0.0, -UR_CONTROLLER_GRAVITY_M_S2),
+            Vector3::from,
+        );
         Ok(Self {
             joints,
             bodies,
@@ -492,7 +530,7 @@ impl<const N: usize> ArmDynamics<N> {
             last_joint_from_flange,
             reflected_rotor_inertia_kg_m2,
             friction: [JointFriction::default(); N],
-            gravity_base_m_s2: Vector3::new(0.0, 0.0, -UR_CONTROLLER_GRAVITY_M_S2),
+            gravity_base_m_s2,
             payload: Payload::NONE,
         })
     }
@@ -872,6 +910,27 @@ fn compile_geometry<const N: usize>(
         }
     });
     (joints, joint_from_link)
+}
+
+/// An arm given by its joint origins compiled to joint frames: they are its joint frames already,
+/// and its links' parameters are in them; the flange is the chain's tip.
+fn compile_origins<const N: usize>(
+    origins: &JointOrigins,
+) -> ([JointGeometry; N], [RigidTransform; N], RigidTransform) {
+    let joints = std::array::from_fn(|k| {
+        let parent_from_joint = &origins.parent_from_joint[k];
+        JointGeometry {
+            twist: Twist::from_rotation(parent_from_joint.rotation.matrix()),
+            origin_m: parent_from_joint.translation.vector,
+            theta_offset_rad: 0.0,
+        }
+    });
+    let flange = &origins.last_from_flange;
+    (
+        joints,
+        [(Matrix3::identity(), Vector3::zeros()); N],
+        (*flange.rotation.matrix(), flange.translation.vector),
+    )
 }
 
 #[cfg(test)]

@@ -212,5 +212,7 @@ fn parse_inertials(section: &DynamicsSection, joint_count: usize) -> Result<ArmI
     Ok(ArmInertials {
         links,
         reflected_rotor_inertia_kg_m2,
+        max_torque_nm: None,
+        gravity_base_m_s2: None,
     })
 }

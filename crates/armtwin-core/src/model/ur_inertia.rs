@@ -277,5 +277,7 @@ pub fn inertials(name: &str) -> Option<ArmInertials> {
     Some(ArmInertials {
         links,
         reflected_rotor_inertia_kg_m2,
+        max_torque_nm: None,
+        gravity_base_m_s2: None,
     })
 }

@@ -12,6 +12,7 @@ use std::f64::consts::PI;
 use nalgebra::{IsometryMatrix3, Matrix3, Rotation3, Translation3, Unit, Vector3};
 use thiserror::Error;
 
+use super::inertia::{ArmInertials, LinkInertial};
 use super::{ArmDescription, JointLimits, JointOrigins};
 use crate::kinematics::{DhConvention, Pose};
 use crate::orientation::{self, Rpy};
@@ -652,12 +653,142 @@ pub fn arm_from_urdf(
 ) -> Result<ArmDescription, super::ModelError> {
     let arm = UrdfRobot::parse(text).and_then(|robot| {
         let chain = robot.chain(base_link, tip_link)?;
-        chain.arm_description(&robot.name)
+        chain.arm_description(&robot)
     });
     arm.map_err(|error| super::ModelError::Urdf {
         source_name: source_name.to_owned(),
         reason: error.to_string(),
     })
+}
+
+/// The inertials of `chain`'s arm, whose joint frames are `parent_from_joint` (each in the
+/// previous one, the first in the base link; z along the joint's axis): per joint, every body it
+/// carries that no later joint of the chain carries, lumped into one body in its frame. That
+/// takes in links past the tip and side branches (a hand's fingers, a head), their own joints
+/// held at zero: the torques are then the whole tree's with those joints at zero and at rest.
+/// `None` when the chain carries no mass (a description for kinematics only). The drives' largest
+/// torques are the joints' `<limit effort>` where every joint states one; gravity is standard
+/// gravity along the root link's −z, in the base link's frame.
+fn lumped_inertials(
+    robot: &UrdfRobot,
+    chain: &UrdfChain,
+    parent_from_joint: &[IsometryMatrix3<f64>],
+) -> Option<ArmInertials> {
+    let chain_index: HashMap<&str, usize> = chain
+        .joints
+        .iter()
+        .enumerate()
+        .map(|(index, joint)| (joint.name.as_str(), index))
+        .collect();
+    let link_index: HashMap<&str, usize> = robot
+        .links
+        .iter()
+        .enumerate()
+        .map(|(index, link)| (link.as_str(), index))
+        .collect();
+    // Every link's pose in the root at zero, and the last joint of the chain on its way there.
+    let mut placed: HashMap<&str, (IsometryMatrix3<f64>, Option<usize>)> =
+        HashMap::with_capacity(robot.links.len());
+    let mut carried: Vec<Vec<(IsometryMatrix3<f64>, Inertial)>> =
+        vec![Vec::new(); chain.joints.len()];
+    for link in robot.links_from_root() {
+        let (root_from_link, owner) = match robot.joint_to.get(link) {
+            None => (IsometryMatrix3::identity(), None),
+            Some(&joint_index) => {
+                let joint = &robot.joints[joint_index];
+                let (root_from_parent, parent_owner) = placed[joint.parent.as_str()];
+                (
+                    root_from_parent * joint.origin,
+                    chain_index
+                        .get(joint.name.as_str())
+                        .copied()
+                        .or(parent_owner),
+                )
+            }
+        };
+        placed.insert(link, (root_from_link, owner));
+        if let Some(owner) = owner {
+            carried[owner].push((root_from_link, robot.inertials[link_index[link]]));
+        }
+    }
+    let root_from_base = placed
+        .get(chain.base_link.as_str())
+        .map_or_else(IsometryMatrix3::identity, |(pose, _)| *pose);
+    let mut root_from_joint = root_from_base;
+    let mut links = Vec::with_capacity(chain.joints.len());
+    for (bodies, joint_origin) in carried.iter().zip(parent_from_joint) {
+        root_from_joint *= joint_origin;
+        let joint_from_root = root_from_joint.inverse();
+        links.push(lumped(bodies.iter().map(|(root_from_link, inertial)| {
+            let joint_from_link = joint_from_root * root_from_link;
+            let rotation = joint_from_link.rotation.matrix();
+            PlacedBody {
+                mass_kg: inertial.mass_kg,
+                com_m: joint_from_link * nalgebra::Point3::from(inertial.com_m),
+                inertia_kg_m2: rotation * inertial.inertia_kg_m2 * rotation.transpose(),
+            }
+        })));
+    }
+    if links.iter().all(|link| link.mass_kg <= 0.0) {
+        return None;
+    }
+    let max_torque_nm: Option<Vec<f64>> = chain
+        .joints
+        .iter()
+        .map(|joint| joint.max_effort.filter(|effort| *effort > 0.0))
+        .collect();
+    let gravity = root_from_base.rotation.inverse()
+        * Vector3::new(0.0, 0.0, -dynamics::STANDARD_GRAVITY_M_S2);
+    Some(ArmInertials {
+        links,
+        reflected_rotor_inertia_kg_m2: vec![0.0; chain.joints.len()],
+        max_torque_nm,
+        gravity_base_m_s2: Some(gravity.into()),
+    })
+}
+
+/// A body by its centre of mass (a point in some frame) and its inertia about it in that frame's
+/// axes.
+struct PlacedBody {
+    mass_kg: f64,
+    com_m: nalgebra::Point3<f64>,
+    inertia_kg_m2: Matrix3<f64>,
+}
+
+/// Bodies fixed to one another as one: their total mass, its centre, and the inertia about it
+/// (parallel axis theorem); all zero without mass.
+fn lumped(bodies: impl Iterator<Item = PlacedBody>) -> LinkInertial {
+    let bodies: Vec<PlacedBody> = bodies.collect();
+    let mass_kg: f64 = bodies.iter().map(|b| b.mass_kg).sum();
+    if mass_kg <= 0.0 {
+        return LinkInertial {
+            mass_kg: 0.0,
+            com_link_m: [0.0; 3],
+            inertia_com_kg_m2: [0.0; 6],
+        };
+    }
+    let com = bodies
+        .iter()
+        .fold(Vector3::zeros(), |sum, b| sum + b.com_m.coords * b.mass_kg)
+        / mass_kg;
+    let inertia = bodies.iter().fold(Matrix3::zeros(), |sum, b| {
+        let offset = b.com_m.coords - com;
+        sum + b.inertia_kg_m2
+            + (Matrix3::identity() * offset.norm_squared() - offset * offset.transpose())
+                * b.mass_kg
+    });
+    LinkInertial {
+        mass_kg,
+        com_link_m: com.into(),
+        inertia_com_kg_m2: [
+            inertia[(0, 0)],
+            inertia[(1, 1)],
+            inertia[(2, 2)],
+            inertia[(0, 1)],
+            inertia[(0, 2)],
+            inertia[(1, 2)],
+        ],
+    }
 }
 
 fn quoted<'a>(names: impl Iterator<Item = &'a str>) -> String {
@@ -668,10 +799,12 @@ fn quoted<'a>(names: impl Iterator<Item = &'a str>) -> String {
 }
 
 impl UrdfChain {
-    /// The chain as an arm the twin runs (`name`, no DH table, no inertials): each joint's axis
-    /// turned onto its frame's z by a fixed rotation folded into its origin and undone in the
-    /// next one. Prismatic joints are refused: the twin's joints turn.
-    pub fn arm_description(&self, name: &str) -> Result<ArmDescription, UrdfError> {
+    /// The chain as an arm the twin runs, named after `robot` (the URDF it is a chain of), with no
+    /// DH table: each joint's axis turned onto its frame's z by a fixed rotation folded into its
+    /// origin and undone in the next one. Its inertials are every body each joint carries, lumped
+    /// into that joint's link (see [`lumped_inertials`]). Prismatic joints are refused: the
+    /// twin's joints turn.
+    pub fn arm_description(&self, robot: &UrdfRobot) -> Result<ArmDescription, UrdfError> {
         let mut parent_from_joint = Vec::with_capacity(self.joints.len());
         let mut undo_previous = Rotation3::identity();
         for joint in &self.joints {
@@ -687,12 +820,13 @@ impl UrdfChain {
             parent_from_joint.push(undo_previous * joint.parent_from_joint * onto_axis);
             undo_previous = onto_axis.inverse();
         }
+        let inertials = lumped_inertials(robot, self, &parent_from_joint);
         Ok(ArmDescription {
-            name: name.to_owned(),
+            name: robot.name.clone(),
             convention: DhConvention::Standard,
             dh: Vec::new(),
             joint_limits: self.joints.iter().map(|j| j.limits).collect(),
-            inertials: None,
+            inertials,
             joint_origins: Some(JointOrigins {
                 parent_from_joint,
                 last_from_flange: undo_previous * self.last_from_tip,

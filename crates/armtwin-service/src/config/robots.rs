@@ -304,6 +304,12 @@ impl RobotSource<'_> {
         if let Some(thresholds) = self.pick(|s| s.collision_threshold_nm) {
             config.collision_threshold_nm = Some(thresholds);
         }
+        if let Some(rated) = self.pick(|s| s.rated_torque_nm) {
+            config.rated_torque_nm = Some(rated);
+        }
+        if let Some(factors) = self.pick(|s| s.current_to_torque_nm_per_a) {
+            config.current_to_torque_nm_per_a = Some(factors);
+        }
         match (self.pick(|s| s.payload_kg), self.pick(|s| s.payload_cog_m)) {
             (Some(mass_kg), cog) => {
                 config.payload = Some(Payload::point_mass(mass_kg, cog.unwrap_or([0.0; 3])));

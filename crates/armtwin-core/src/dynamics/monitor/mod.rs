@@ -97,8 +97,8 @@ pub struct EffortMonitor {
 }
 
 impl EffortMonitor {
-    /// The monitor of `arm` (a 6-joint arm with inertial parameters), its residual window
-    /// `window_s` long.
+    /// The monitor of `arm` (a 6-joint arm with inertial parameters: a catalog arm, a custom
+    /// arm's `[dynamics]`, a URDF's chain), its residual window `window_s` long.
     pub fn new(
         arm: &ArmDescription,
         config: &EffortConfig,
@@ -124,7 +124,14 @@ impl EffortMonitor {
                 value: config.threshold_learning_s,
             });
         }
-        let floor_nm = ur::default_collision_threshold_nm(&arm.name);
+        let floor_nm = config
+            .rated_torque_nm
+            .or_else(|| {
+                let max_nm = arm.inertials.as_ref()?.max_torque_nm.as_deref()?;
+                <[f64; J]>::try_from(max_nm).ok()
+            })
+            .map(|rated| rated.map(|nm| nm * ur::DEFAULT_COLLISION_SHARE))
+            .or_else(|| ur::default_collision_threshold_nm(&arm.name));
         let thresholds = match (config.collision_threshold_nm, floor_nm) {
             (Some(configured), _) => Thresholds::new(Some(configured), configured, 1.0, 0.0),
             (None, Some(floor)) => Thresholds::new(
@@ -147,6 +154,17 @@ impl EffortMonitor {
                 });
             }
         }
+        if let Some(value) = config
+            .current_to_torque_nm_per_a
+            .iter()
+            .flatten()
+            .find(|v| !(v.is_finite() && **v > 0.0))
+        {
+            return Err(EffortError::Setting {
+                field: "current_to_torque_nm_per_a",
+                value: *value,
+            });
+        }
         let arm_only = ArmDynamics::<J>::from_arm(arm)?;
         let in_use = match config.payload {
             Some(payload) => (payload, PayloadSource::Config),
@@ -161,7 +179,9 @@ impl EffortMonitor {
             controller_payload: None,
             applied: None,
             thresholds,
-            current_to_torque: ur::current_to_torque_nm_per_a(&arm.name),
+            current_to_torque: config
+                .current_to_torque_nm_per_a
+                .or_else(|| ur::current_to_torque_nm_per_a(&arm.name)),
             previous: None,
             observer: Observer::default(),
             identifier: PayloadIdentifier::new(),
@@ -410,6 +430,7 @@ mod tests {
     use super::*;
     use crate::model::catalog;
     use crate::sample::ControllerStatus;
+    use approx::assert_relative_eq;
 
     const DT_S: f64 = 0.002;
     const COULOMB_NM: [f64; J] = [6.0, 6.0, 4.0, 1.5, 1.5, 1.5];
@@ -661,6 +682,82 @@ mod tests {
                 .any(|(_, a)| matches!(a, EffortAlarm::Collision { .. })),
             "{alarms:?}"
         );
+    }
+
+    /// A URDF's arm (Unitree Z1, six joints) reporting joint torques, or motor currents through
+    /// configured factors: its thresholds are the share of its `<limit effort>`s, and a contact
+    /// computed by the whole tree's recursion is caught on its joint.
+    #[test]
+    fn a_urdf_arm_is_watched_with_its_own_effort_limits() {
+        use crate::model::urdf::{UrdfDynamics, UrdfRobot};
+        let text = include_str!("../../../../../tests/data/urdf/z1.urdf");
+        let robot = UrdfRobot::parse(text).expect("URDF");
+        let chain = robot.chain(None, Some("link06")).expect("chain");
+        let arm = chain.arm_description(&robot).expect("arm");
+        let tree = UrdfDynamics::new(&robot, &chain).expect("tree dynamics");
+        let effort_nm: Vec<f64> = chain.joints.iter().filter_map(|j| j.max_effort).collect();
+        let factors = [2.0, 2.5, 2.0, 1.5, 1.0, 0.5];
+        for currents in [false, true] {
+            let config = EffortConfig {
+                threshold_learning_s: 0.0,
+                current_to_torque_nm_per_a: currents.then_some(factors),
+                ..EffortConfig::default()
+            };
+            let mut monitor = EffortMonitor::new(&arm, &config, 10.0).expect("monitor");
+            let summary = monitor.summary();
+            assert_eq!(summary.threshold_source, ThresholdSource::Rated);
+            for (threshold, effort) in summary.collision_threshold_nm.iter().zip(&effort_nm) {
+                assert_relative_eq!(*threshold, effort * ur::DEFAULT_COLLISION_SHARE);
+            }
+            let mut alarms = Vec::new();
+            let mut largest_nm = 0.0_f64;
+            for i in 0..3000 {
+                #[allow(clippy::cast_precision_loss, reason = "a test's sample index")]
+                let t = f64::from(i) * DT_S;
+                let q: [f64; J] = std::array::from_fn(|k| 0.4 * (0.9 * t + k as f64).sin() + 0.3);
+                let qd: [f64; J] = std::array::from_fn(|k| 0.36 * (0.9 * t + k as f64).cos());
+                let qdd: [f64; J] = std::array::from_fn(|k| -0.324 * (0.9 * t + k as f64).sin());
+                let mut tau = tree.inverse_dynamics(&q, &qd, &qdd).expect("torques");
+                // Joint 2 pushed 10 N·m for 0.2 s from t = 4 s (its threshold: 6 N·m).
+                if (4.0..4.2).contains(&t) {
+                    tau[1] += 10.0;
+                }
+                let mut state = JointState::new(J);
+                state.set(JointQuantity::Velocity, &qd);
+                state.set(JointQuantity::TargetPosition, &q);
+                state.set(JointQuantity::TargetVelocity, &qd);
+                state.set(JointQuantity::TargetAcceleration, &qdd);
+                if currents {
+                    let current: Vec<f64> = tau.iter().zip(factors).map(|(t, f)| t / f).collect();
+                    state.set(JointQuantity::Current, &current);
+                } else {
+                    state.set(JointQuantity::Torque, &tau);
+                }
+                let readout = monitor
+                    .step(t, &q, &state, |alarm| alarms.push((t, alarm)))
+                    .expect("a readout");
+                if t < 4.0 {
+                    let residual = readout.residual_nm.expect("a residual");
+                    largest_nm = residual.iter().fold(largest_nm, |m, r| m.max(r.abs()));
+                }
+            }
+            assert!(
+                largest_nm < 1e-9,
+                "model against the tree: {largest_nm:e} N·m"
+            );
+            let raised: Vec<_> = alarms
+                .iter()
+                .filter_map(|(t, alarm)| match alarm {
+                    EffortAlarm::Collision {
+                        joint, on: true, ..
+                    } => Some((*t, *joint)),
+                    _ => None,
+                })
+                .collect();
+            assert_eq!(raised.len(), 1, "{alarms:?}");
+            assert_eq!(raised[0].1, 1, "{alarms:?}");
+            assert!((4.0..4.03).contains(&raised[0].0), "{raised:?}");
+        }
     }
 
     #[test]

@@ -13,9 +13,17 @@ pub struct EffortConfig {
     /// The momentum observer's gain `K` (1/s): its time constant is `1/K`.
     pub observer_gain_per_s: f64,
     /// Per joint, the observer output (N·m) beyond which a collision is reported; `None` to
-    /// learn them from the arm's normal motion, never below the arm's rated-torque share
-    /// ([`ur::default_collision_threshold_nm`](crate::dynamics::ur::default_collision_threshold_nm)).
+    /// learn them from the arm's normal motion, never below a share
+    /// ([`ur::DEFAULT_COLLISION_SHARE`](crate::dynamics::ur::DEFAULT_COLLISION_SHARE)) of its
+    /// rated torques.
     pub collision_threshold_nm: Option<[f64; J]>,
+    /// Per joint, the largest torque its drive gives (N·m), where the arm's description states
+    /// none or states it otherwise: a URDF's `<limit effort>`, Universal Robots' joint sizes.
+    pub rated_torque_nm: Option<[f64; J]>,
+    /// Per joint, the factor from motor current to joint torque (N·m/A), for arms that report
+    /// currents rather than torques and whose factors the catalog does not know (or to give a
+    /// robot's own).
+    pub current_to_torque_nm_per_a: Option<[f64; J]>,
     /// Seconds of armed program-mode motion the thresholds are learnt from (0: the rated-torque
     /// share, unlearnt).
     pub threshold_learning_s: f64,
@@ -43,6 +51,8 @@ impl Default for EffortConfig {
         Self {
             observer_gain_per_s: 50.0,
             collision_threshold_nm: None,
+            rated_torque_nm: None,
+            current_to_torque_nm_per_a: None,
             threshold_learning_s: 60.0,
             threshold_factor: 2.0,
             payload_reach_m: crate::dynamics::payload::DEFAULT_REACH_M,
@@ -63,8 +73,8 @@ pub enum EffortError {
     Dynamics(#[from] DynamicsError),
     /// No collision thresholds are configured and the arm has no default.
     #[error(
-        "arm '{model}' has no default collision thresholds (its joint sizes are not public): \
-         set collision_threshold_nm"
+        "arm '{model}' has no rated torques to derive collision thresholds from (no joint sizes \
+         published, no effort limits in its URDF): set collision_threshold_nm or rated_torque_nm"
     )]
     NoThresholds {
         /// The arm.

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 import urllib.request
 import xml.etree.ElementTree as ET
 
@@ -410,3 +411,80 @@ def test_a_robot_back_after_its_retirement_computes_with_its_own_description_aga
         if client is not None:
             client.close()
         service.stop()
+
+
+def test_a_urdf_arm_reporting_joint_torques_is_watched_for_collisions(armtwin_bin, tmp_path):
+    """The load twin on an arm known only by its URDF (Unitree Z1, six joints, its gripper a body
+    the last joint carries): `effort = true` with `model` the URDF. A torque-sensing gateway sends
+    each sample's joint torques (`state.torque_nm`) beside the target state; here they are
+    Pinocchio's RNEA on the whole model, plus a contact of 8 N·m on joint 3 for 0.2 s. The
+    twin's model torques equal Pinocchio's, its thresholds are 10 % of the URDF's effort limits,
+    and the contact, and nothing else, raises a collision on joint 3 within 50 ms (source time)."""
+    path = URDF_DIR / "z1.urdf"
+    robot = "lab/z1"
+    config = (
+        "[service]\nmetrics_period_ms = 50\npose_congestion = \"block\"\n"
+        "[effort]\nthreshold_learning_s = 0.0\n"
+        f'[robots."{robot}"]\nmodel = "{path}"\ntip_link = "link06"\neffort = true\n'
+        '[robots.default]\nmodel = "ur10e"\n'
+    )
+    model = pin.buildModelFromUrdf(str(path))
+    data = model.createData()
+    joints = chain_joints(model, "link00", "link06")
+    efforts = [model.effortLimit[model.joints[j].idx_v] for j in joints]
+    centre = np.array([(model.lowerPositionLimit[model.joints[j].idx_q] + model.upperPositionLimit[model.joints[j].idx_q]) / 2
+                       for j in joints])  # within every joint's limits
+    dt_s, count, contact = 0.002, 2000, (2.0, 2.2, 2, 8.0)  # onset, end (s), joint (0-based), N·m
+    messages, expected = [], []
+    for i in range(count):
+        t = i * dt_s
+        phase = 0.9 * t + np.arange(6)
+        q_chain, qd, qdd = 0.4 * np.sin(phase) + centre, 0.36 * np.cos(phase), -0.324 * np.sin(phase)
+        q, v, a = pin.neutral(model), np.zeros(model.nv), np.zeros(model.nv)
+        for k, joint in enumerate(joints):
+            set_value(model, q, joint, float(q_chain[k]))
+            v[model.joints[joint].idx_v], a[model.joints[joint].idx_v] = qd[k], qdd[k]
+        tau = pin.rnea(model, data, q, v, a)[[model.joints[j].idx_v for j in joints]].copy()
+        expected.append(tau.copy())
+        if contact[0] <= t < contact[1]:
+            tau[contact[2]] += contact[3]
+        messages.append(json.dumps({"t": t, "q": q_chain.tolist(), "state": {
+            "qd": qd.tolist(), "target_q": q_chain.tolist(), "target_qd": qd.tolist(),
+            "target_qdd": qdd.tolist(), "torque_nm": tau.tolist()}}))
+    service = ArmtwinProcess(armtwin_bin, tmp_path, config, 120.0)
+    service.start()
+    client = None
+    try:
+        client = TwinClient(service.endpoint)
+        client.ready([robot])
+        publisher = client.joints(robot)
+        for message in messages:
+            publisher.put(message)
+        collector = client.collector
+        assert wait_until(lambda: collector.count("effort", robot) >= count, 60.0), \
+            (collector.count("effort", robot), collector.messages("events", robot)[-5:])
+        readouts = collector.messages("effort", robot)
+        worst = max(
+            float(np.max(np.abs(np.array(r["model_nm"]) - want)) / max(1.0, float(np.max(np.abs(want)))))
+            for r, want in zip(readouts, expected, strict=True)
+        )
+        time.sleep(0.3)  # the events that follow the last readout
+        collisions = [(e["kind"], e["t"], e["detail"]) for e in collector.messages("events", robot)
+                      if (e.get("detail") or {}).get("metric") == "collision"]
+        raised = [(t, detail) for kind, t, detail in collisions if kind == "alarm"]
+        answers = get_json(client.session, f"twin/state/{robot}")
+        assert len(answers) == 1, answers
+        thresholds = answers[0][1]["effort"]["collision"]
+        print(f"\n[z1 load twin] {count} samples: model torques against Pinocchio, worst relative {worst:.1e}; "
+              f"thresholds {thresholds['threshold_nm']} N·m ({thresholds['threshold_source']}); collisions {collisions}")
+        assert worst <= TORQUE_TOLERANCE, worst
+        assert thresholds["threshold_source"] == "rated"
+        assert np.allclose(thresholds["threshold_nm"], 0.1 * np.array(efforts), rtol=1e-12), thresholds
+        assert [detail["joint"] for _, detail in raised] == [contact[2] + 1], collisions
+        assert contact[0] <= raised[0][0] < contact[0] + 0.05, raised  # within 50 ms of its onset
+        assert thresholds["count"] == 1
+    finally:
+        if client is not None:
+            client.close()
+        service.stop()
+

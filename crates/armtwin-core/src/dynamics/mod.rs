@@ -324,7 +324,7 @@ impl Twist {
 
     /// `Rx(α) · v`.
     #[inline]
-    fn rotate(self, v: &Vector3<f64>) -> Vector3<f64> {
+    fn rotate(&self, v: &Vector3<f64>) -> Vector3<f64> {
         match self {
             Self::Zero => *v,
             Self::QuarterTurn => Vector3::new(v.x, -v.z, v.y),
@@ -339,7 +339,7 @@ impl Twist {
 
     /// `Rx(α)ᵀ · v`.
     #[inline]
-    fn rotate_back(self, v: &Vector3<f64>) -> Vector3<f64> {
+    fn rotate_back(&self, v: &Vector3<f64>) -> Vector3<f64> {
         match self {
             Self::Zero => *v,
             Self::QuarterTurn => Vector3::new(v.x, v.z, -v.y),
@@ -355,13 +355,14 @@ impl Twist {
 
 /// The rotation `parent_from_child = Rx(α) · Rz(q + θ)` of one joint at one state.
 #[derive(Debug, Clone, Copy)]
-struct JointRotation {
-    twist: Twist,
+struct JointRotation<'a> {
+    /// Borrowed: a general rotation is 72 bytes, copied per joint and call otherwise.
+    twist: &'a Twist,
     cos_q: f64,
     sin_q: f64,
 }
 
-impl JointRotation {
+impl JointRotation<'_> {
     /// `R · v`: a child-frame vector in the parent frame.
     #[inline]
     fn in_parent(&self, v: &Vector3<f64>) -> Vector3<f64> {
@@ -788,11 +789,11 @@ impl<const N: usize> ArmDynamics<N> {
     /// Per joint, the rotation from joint frame i−1 (or the base) to joint frame i,
     /// `Rx(α) · Rz(qᵢ + θᵢ)`.
     #[inline]
-    fn joint_rotations(&self, q_rad: &[f64; N]) -> [JointRotation; N] {
+    fn joint_rotations(&self, q_rad: &[f64; N]) -> [JointRotation<'_>; N] {
         let angles: [f64; N] = std::array::from_fn(|k| q_rad[k] + self.joints[k].theta_offset_rad);
         let (sin, cos) = sin_cos(&angles);
         std::array::from_fn(|k| JointRotation {
-            twist: self.joints[k].twist,
+            twist: &self.joints[k].twist,
             cos_q: cos[k],
             sin_q: sin[k],
         })
@@ -803,7 +804,7 @@ impl<const N: usize> ArmDynamics<N> {
     #[inline]
     fn rnea(
         &self,
-        rotations: &[JointRotation; N],
+        rotations: &[JointRotation<'_>; N],
         qd_rad_s: &[f64; N],
         qdd_rad_s2: &[f64; N],
         base_acceleration_m_s2: Vector3<f64>,

@@ -14,6 +14,7 @@ use nalgebra::{SMatrix, SVector, Vector3};
 use super::*;
 use crate::kinematics::Chain;
 use crate::model::catalog;
+use crate::model::urdf::{UrdfDynamics, UrdfRobot};
 
 /// A small deterministic generator (xorshift64*), so failures reproduce.
 struct Rng(u64);
@@ -477,4 +478,62 @@ fn the_controller_model_is_gravity_in_freedrive_and_never_friction() {
     let factors = ur::current_to_torque_nm_per_a("ur10e").unwrap();
     assert!((factors[0] - 12.08768).abs() < 1e-9);
     assert!(ur::current_to_torque_nm_per_a("ur20").is_none());
+}
+
+/// `ArmDynamics` of a URDF's chain, the recursion the live twin runs with every carried body
+/// lumped into its joint's link, equals the whole tree's recursion (`UrdfDynamics`) at spread
+/// states: fingers, a head and links past the tip included.
+fn lumped_dynamics_agree_with_the_tree<const N: usize>(
+    text: &str,
+    base_link: Option<&str>,
+    tip_link: &str,
+) {
+    let robot = UrdfRobot::parse(text).unwrap();
+    let chain = robot.chain(base_link, Some(tip_link)).unwrap();
+    let arm = chain.arm_description(&robot).unwrap();
+    let inertials = arm.inertials.as_ref().expect("the chain carries mass");
+    assert_eq!(
+        inertials.max_torque_nm.as_ref().map(Vec::len),
+        Some(N),
+        "{tip_link}: every joint states its effort"
+    );
+    let lumped = ArmDynamics::<N>::from_arm(&arm).unwrap();
+    let tree = UrdfDynamics::new(&robot, &chain).unwrap();
+    let mut largest = 0.0_f64;
+    for sample in 0..20 {
+        #[allow(clippy::cast_precision_loss, reason = "a test's sample index")]
+        let value = |scale: f64, k: usize| {
+            scale * ((f64::from(sample) + 1.0) * (k as f64 * 1.7 + 0.3)).sin()
+        };
+        let q: [f64; N] = std::array::from_fn(|k| value(2.5, k));
+        let qd: [f64; N] = std::array::from_fn(|k| value(1.5, k + 11));
+        let qdd: [f64; N] = std::array::from_fn(|k| value(4.0, k + 23));
+        let expected = tree.inverse_dynamics(&q, &qd, &qdd).unwrap();
+        let got = lumped.inverse_dynamics_nm(&q, &qd, &qdd);
+        let scale = expected.iter().fold(1.0_f64, |m, v| m.max(v.abs()));
+        for (g, e) in got.iter().zip(&expected) {
+            largest = largest.max((g - e).abs() / scale);
+        }
+    }
+    assert!(largest < 1e-12, "{tip_link}: {largest:e} relative");
+}
+
+#[test]
+fn a_chains_lumped_dynamics_equal_the_whole_trees() {
+    let data = |name: &str| match name {
+        "ur5" => include_str!("../../../../tests/data/urdf/ur5_robot.urdf"),
+        "z1" => include_str!("../../../../tests/data/urdf/z1.urdf"),
+        "kinova" => include_str!("../../../../tests/data/urdf/kinova.urdf"),
+        "panda" => include_str!("../../../../tests/data/urdf/panda.urdf"),
+        _ => include_str!("../../../../tests/data/urdf/tiago_no_hand.urdf"),
+    };
+    lumped_dynamics_agree_with_the_tree::<6>(data("ur5"), None, "tool0");
+    lumped_dynamics_agree_with_the_tree::<6>(data("z1"), None, "link06");
+    lumped_dynamics_agree_with_the_tree::<6>(data("kinova"), None, "j2s6s200_end_effector");
+    lumped_dynamics_agree_with_the_tree::<7>(data("panda"), None, "panda_hand_tcp");
+    lumped_dynamics_agree_with_the_tree::<7>(
+        data("tiago"),
+        Some("torso_lift_link"),
+        "wrist_ft_tool_link",
+    );
 }

@@ -737,8 +737,8 @@ fn lumped_inertials(
         .iter()
         .map(|joint| joint.max_effort.filter(|effort| *effort > 0.0))
         .collect();
-    let gravity = root_from_base.rotation.inverse()
-        * Vector3::new(0.0, 0.0, -dynamics::STANDARD_GRAVITY_M_S2);
+    let gravity =
+        root_from_base.rotation.inverse() * Vector3::new(0.0, 0.0, -STANDARD_GRAVITY_M_S2);
     Some(ArmInertials {
         links,
         reflected_rotor_inertia_kg_m2: vec![0.0; chain.joints.len()],

@@ -124,6 +124,8 @@ impl EffortMonitor {
                 value: config.threshold_learning_s,
             });
         }
+        // First: an arm of another joint count is refused for that, not for its thresholds.
+        let arm_only = ArmDynamics::<J>::from_arm(arm)?;
         let floor_nm = config
             .rated_torque_nm
             .or_else(|| {
@@ -165,7 +167,6 @@ impl EffortMonitor {
                 value: *value,
             });
         }
-        let arm_only = ArmDynamics::<J>::from_arm(arm)?;
         let in_use = match config.payload {
             Some(payload) => (payload, PayloadSource::Config),
             None => (Payload::NONE, PayloadSource::None),

@@ -538,6 +538,15 @@ impl UrdfRobot {
         order
     }
 
+    /// Each link's index by its name.
+    fn link_indices(&self) -> HashMap<&str, usize> {
+        self.links
+            .iter()
+            .enumerate()
+            .map(|(index, link)| (link.as_str(), index))
+            .collect()
+    }
+
     /// The joints from the root to `link`, root first.
     fn path_to_root(&self, link: &str) -> Result<Vec<usize>, UrdfError> {
         let mut path = Vec::new();
@@ -674,18 +683,8 @@ fn lumped_inertials(
     chain: &UrdfChain,
     parent_from_joint: &[IsometryMatrix3<f64>],
 ) -> Option<ArmInertials> {
-    let chain_index: HashMap<&str, usize> = chain
-        .joints
-        .iter()
-        .enumerate()
-        .map(|(index, joint)| (joint.name.as_str(), index))
-        .collect();
-    let link_index: HashMap<&str, usize> = robot
-        .links
-        .iter()
-        .enumerate()
-        .map(|(index, link)| (link.as_str(), index))
-        .collect();
+    let chain_index = chain.joint_indices();
+    let link_index = robot.link_indices();
     // Every link's pose in the root at zero, and the last joint of the chain on its way there.
     let mut placed: HashMap<&str, (IsometryMatrix3<f64>, Option<usize>)> =
         HashMap::with_capacity(robot.links.len());
@@ -832,6 +831,15 @@ impl UrdfChain {
                 last_from_flange: undo_previous * self.last_from_tip,
             }),
         })
+    }
+
+    /// Each moving joint's index (base to tip) by its name.
+    fn joint_indices(&self) -> HashMap<&str, usize> {
+        self.joints
+            .iter()
+            .enumerate()
+            .map(|(index, joint)| (joint.name.as_str(), index))
+            .collect()
     }
 
     /// The number of moving joints.

@@ -532,6 +532,19 @@ mod tests {
         (alarms, monitor)
     }
 
+    /// The collisions raised: when, and on which joint (from 0).
+    fn collisions_raised(alarms: &[(f64, EffortAlarm)]) -> Vec<(f64, usize)> {
+        alarms
+            .iter()
+            .filter_map(|(t, alarm)| match alarm {
+                EffortAlarm::Collision {
+                    joint, on: true, ..
+                } => Some((*t, *joint)),
+                _ => None,
+            })
+            .collect()
+    }
+
     #[test]
     fn a_clean_run_raises_nothing_and_learns_friction() {
         let (alarms, monitor) = run(60.0, 2.0, 2.0, &[]);
@@ -562,15 +575,7 @@ mod tests {
         ];
         let (alarms, monitor) = run(40.0, 2.0, 2.0, &contacts);
         let summary = monitor.summary();
-        let raised: Vec<_> = alarms
-            .iter()
-            .filter_map(|(t, alarm)| match alarm {
-                EffortAlarm::Collision {
-                    joint, on: true, ..
-                } => Some((*t, *joint)),
-                _ => None,
-            })
-            .collect();
+        let raised = collisions_raised(&alarms);
         assert_eq!(raised.len(), contacts.len(), "{alarms:?}");
         for ((t, joint), (onset, contact_joint, ..)) in raised.iter().zip(contacts) {
             assert_eq!(*joint, contact_joint);
@@ -746,15 +751,7 @@ mod tests {
                 largest_nm < 1e-9,
                 "model against the tree: {largest_nm:e} N·m"
             );
-            let raised: Vec<_> = alarms
-                .iter()
-                .filter_map(|(t, alarm)| match alarm {
-                    EffortAlarm::Collision {
-                        joint, on: true, ..
-                    } => Some((*t, *joint)),
-                    _ => None,
-                })
-                .collect();
+            let raised = collisions_raised(&alarms);
             assert_eq!(raised.len(), 1, "{alarms:?}");
             assert_eq!(raised[0].1, 1, "{alarms:?}");
             assert!((4.0..4.03).contains(&raised[0].0), "{raised:?}");

@@ -51,18 +51,8 @@ impl UrdfDynamics {
     /// The dynamics of `chain`, a chain of `robot`, under standard gravity along the root link's
     /// −z.
     pub fn new(robot: &UrdfRobot, chain: &UrdfChain) -> Result<Self, UrdfError> {
-        let chain_index: HashMap<&str, usize> = chain
-            .joints
-            .iter()
-            .enumerate()
-            .map(|(index, joint)| (joint.name.as_str(), index))
-            .collect();
-        let link_index: HashMap<&str, usize> = robot
-            .links
-            .iter()
-            .enumerate()
-            .map(|(index, link)| (link.as_str(), index))
-            .collect();
+        let chain_index = chain.joint_indices();
+        let link_index = robot.link_indices();
         // Parents before children: each body's joint hangs from a body already placed.
         let mut bodies = Vec::with_capacity(robot.links.len());
         let mut body_of: HashMap<&str, usize> = HashMap::with_capacity(robot.links.len());

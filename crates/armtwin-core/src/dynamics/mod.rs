@@ -250,7 +250,8 @@ impl Body {
 type RigidTransform = (Matrix3<f64>, Vector3<f64>);
 
 /// The fixed part of the transform from joint frame i−1 (or the base) to joint frame i:
-/// `Rx(α) · Rz(qᵢ + θᵢ)` with the origin at `(a, 0, d)`.
+/// `Rx(α) · Rz(qᵢ + θᵢ)` with the origin at `(a, 0, d)` for a DH arm; any fixed rotation and
+/// origin, then `Rz(qᵢ)`, for an arm given by its joint origins.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct JointGeometry {
     twist: Twist,

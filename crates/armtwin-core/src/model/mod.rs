@@ -59,8 +59,9 @@ pub struct ArmDescription {
     pub dh: Vec<DhParameters>,
     /// One entry per joint.
     pub joint_limits: Vec<JointLimits>,
-    /// Link masses, centres of mass and inertias in the DH link frames of `convention`, and rotor
-    /// inertias, for [`crate::dynamics`]; `None` when not published or not given.
+    /// Link masses, centres of mass and inertias in the link frames (DH frames of `convention`,
+    /// or the joint frames of `joint_origins`), and rotor inertias, for [`crate::dynamics`];
+    /// `None` when not published or not given.
     pub inertials: Option<ArmInertials>,
     /// An arm described by its joints' origins (a URDF's chain) rather than a DH table, which is
     /// then empty.

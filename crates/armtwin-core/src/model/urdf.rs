@@ -728,7 +728,10 @@ fn lumped_inertials(
             }
         })));
     }
-    if links.iter().all(|link| link.mass_kg <= 0.0) {
+    if links
+        .iter()
+        .all(|link| link.mass_kg <= 0.0 && link.inertia_com_kg_m2.iter().all(|v| *v == 0.0))
+    {
         return None;
     }
     let max_torque_nm: Option<Vec<f64>> = chain
@@ -755,21 +758,19 @@ struct PlacedBody {
 }
 
 /// Bodies fixed to one another as one: their total mass, its centre, and the inertia about it
-/// (parallel axis theorem); all zero without mass.
+/// (parallel axis theorem).
 fn lumped(bodies: impl Iterator<Item = PlacedBody>) -> LinkInertial {
     let bodies: Vec<PlacedBody> = bodies.collect();
     let mass_kg: f64 = bodies.iter().map(|b| b.mass_kg).sum();
-    if mass_kg <= 0.0 {
-        return LinkInertial {
-            mass_kg: 0.0,
-            com_link_m: [0.0; 3],
-            inertia_com_kg_m2: [0.0; 6],
-        };
-    }
-    let com = bodies
-        .iter()
-        .fold(Vector3::zeros(), |sum, b| sum + b.com_m.coords * b.mass_kg)
-        / mass_kg;
+    // Massless bodies may still state an inertia (a rotor's): it adds, wherever its centre.
+    let com = if mass_kg > 0.0 {
+        bodies
+            .iter()
+            .fold(Vector3::zeros(), |sum, b| sum + b.com_m.coords * b.mass_kg)
+            / mass_kg
+    } else {
+        Vector3::zeros()
+    };
     let inertia = bodies.iter().fold(Matrix3::zeros(), |sum, b| {
         let offset = b.com_m.coords - com;
         sum + b.inertia_kg_m2

@@ -250,7 +250,7 @@ pub(super) struct RobotSection {
     pub(super) self_calibrate: Option<bool>,
     pub(super) effort: Option<bool>,
     pub(super) collision_threshold_nm: Option<[f64; 6]>,
-    /// Per joint, the drive's largest torque (N·m) where the arm's description states none.
+    /// Per joint, the drive's largest torque (N·m), over what the arm's description states.
     pub(super) rated_torque_nm: Option<[f64; 6]>,
     /// Per joint, motor current to joint torque (N·m/A) where the catalog has none.
     pub(super) current_to_torque_nm_per_a: Option<[f64; 6]>,

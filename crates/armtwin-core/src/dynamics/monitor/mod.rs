@@ -104,28 +104,11 @@ impl EffortMonitor {
         config: &EffortConfig,
         window_s: f64,
     ) -> Result<Self, EffortError> {
-        for (field, value) in [
-            ("observer_gain_per_s", config.observer_gain_per_s),
-            ("payload_tolerance_kg", config.payload_tolerance_kg),
-            ("payload_window_s", config.payload_window_s),
-            ("friction_window_s", config.friction_window_s),
-            ("collision_baseline_s", config.collision_baseline_s),
-            ("threshold_factor", config.threshold_factor),
-            ("payload_reach_m", config.payload_reach_m),
-            ("window_s", window_s),
-        ] {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(EffortError::Setting { field, value });
-            }
-        }
-        if !(config.threshold_learning_s.is_finite() && config.threshold_learning_s >= 0.0) {
-            return Err(EffortError::Setting {
-                field: "threshold_learning_s",
-                value: config.threshold_learning_s,
-            });
-        }
+        check_settings(config, window_s)?;
         // First: an arm of another joint count is refused for that, not for its thresholds.
         let arm_only = ArmDynamics::<J>::from_arm(arm)?;
+        // The catalog's drive data are a Universal Robots arm's, never a URDF's of the same name.
+        let catalog_name = Some(arm.name.as_str()).filter(|_| arm.joint_origins.is_none());
         let floor_nm = config
             .rated_torque_nm
             .or_else(|| {
@@ -133,7 +116,7 @@ impl EffortMonitor {
                 <[f64; J]>::try_from(max_nm).ok()
             })
             .map(|rated| rated.map(|nm| nm * ur::DEFAULT_COLLISION_SHARE))
-            .or_else(|| ur::default_collision_threshold_nm(&arm.name));
+            .or_else(|| catalog_name.and_then(ur::default_collision_threshold_nm));
         let thresholds = match (config.collision_threshold_nm, floor_nm) {
             (Some(configured), _) => Thresholds::new(Some(configured), configured, 1.0, 0.0),
             (None, Some(floor)) => Thresholds::new(
@@ -156,17 +139,6 @@ impl EffortMonitor {
                 });
             }
         }
-        if let Some(value) = config
-            .current_to_torque_nm_per_a
-            .iter()
-            .flatten()
-            .find(|v| !(v.is_finite() && **v > 0.0))
-        {
-            return Err(EffortError::Setting {
-                field: "current_to_torque_nm_per_a",
-                value: *value,
-            });
-        }
         let in_use = match config.payload {
             Some(payload) => (payload, PayloadSource::Config),
             None => (Payload::NONE, PayloadSource::None),
@@ -182,7 +154,7 @@ impl EffortMonitor {
             thresholds,
             current_to_torque: config
                 .current_to_torque_nm_per_a
-                .or_else(|| ur::current_to_torque_nm_per_a(&arm.name)),
+                .or_else(|| catalog_name.and_then(ur::current_to_torque_nm_per_a)),
             previous: None,
             observer: Observer::default(),
             identifier: PayloadIdentifier::new(),
@@ -417,6 +389,50 @@ impl EffortMonitor {
             payload_mismatch: self.payload_mismatch,
         }
     }
+}
+
+/// Every setting in its range: the times and gains positive, the learning time not negative,
+/// the rated torques and current factors positive.
+fn check_settings(config: &EffortConfig, window_s: f64) -> Result<(), EffortError> {
+    for (field, value) in [
+        ("observer_gain_per_s", config.observer_gain_per_s),
+        ("payload_tolerance_kg", config.payload_tolerance_kg),
+        ("payload_window_s", config.payload_window_s),
+        ("friction_window_s", config.friction_window_s),
+        ("collision_baseline_s", config.collision_baseline_s),
+        ("threshold_factor", config.threshold_factor),
+        ("payload_reach_m", config.payload_reach_m),
+        ("window_s", window_s),
+    ] {
+        if !(value.is_finite() && value > 0.0) {
+            return Err(EffortError::Setting { field, value });
+        }
+    }
+    if !(config.threshold_learning_s.is_finite() && config.threshold_learning_s >= 0.0) {
+        return Err(EffortError::Setting {
+            field: "threshold_learning_s",
+            value: config.threshold_learning_s,
+        });
+    }
+    for (field, values) in [
+        ("rated_torque_nm", config.rated_torque_nm),
+        (
+            "current_to_torque_nm_per_a",
+            config.current_to_torque_nm_per_a,
+        ),
+    ] {
+        if let Some(value) = values
+            .iter()
+            .flatten()
+            .find(|v| !(v.is_finite() && **v > 0.0))
+        {
+            return Err(EffortError::Setting {
+                field,
+                value: *value,
+            });
+        }
+    }
+    Ok(())
 }
 
 /// One value per joint of `quantity`, if `state` has it for six joints.

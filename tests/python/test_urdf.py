@@ -413,32 +413,38 @@ def test_a_robot_back_after_its_retirement_computes_with_its_own_description_aga
         service.stop()
 
 
-def test_a_urdf_arm_reporting_joint_torques_is_watched_for_collisions(armtwin_bin, tmp_path):
-    """The load twin on an arm known only by its URDF (Unitree Z1, six joints, its gripper a body
-    the last joint carries): `effort = true` with `model` the URDF. A torque-sensing gateway sends
-    each sample's joint torques (`state.torque_nm`) beside the target state; here they are
-    Pinocchio's RNEA on the whole model, plus a contact of 8 N·m on joint 3 for 0.2 s. The
-    twin's model torques equal Pinocchio's, its thresholds are 10 % of the URDF's effort limits,
-    and the contact, and nothing else, raises a collision on joint 3 within 50 ms (source time)."""
-    path = URDF_DIR / "z1.urdf"
-    robot = "lab/z1"
+# (file, base link, tip link): a six-joint arm whose gripper is a body the last joint carries, and
+# a seven-joint arm whose fingers hang off its hand on prismatic joints.
+LOAD_TWIN_ARMS = [("z1.urdf", "link00", "link06"), ("panda.urdf", "panda_link0", "panda_hand_tcp")]
+
+
+@pytest.mark.parametrize("file,base,tip", LOAD_TWIN_ARMS, ids=[f for f, _, _ in LOAD_TWIN_ARMS])
+def test_a_urdf_arm_reporting_joint_torques_is_watched_for_collisions(armtwin_bin, tmp_path, file, base, tip):
+    """The load twin on an arm known only by its URDF: `effort = true` with `model` the URDF. A
+    torque-sensing gateway sends each sample's joint torques (`state.torque_nm`) beside the target
+    state; here they are Pinocchio's RNEA on the whole model (every joint off the chain at zero),
+    plus a contact on joint 3 of 2.5 times its threshold for 0.2 s. The twin's model torques
+    equal Pinocchio's, its thresholds are 10 % of the URDF's effort limits, and the contact, and
+    nothing else, raises a collision on joint 3 within 50 ms (source time)."""
+    path = URDF_DIR / file
+    robot = "lab/arm"
     config = (
         "[service]\nmetrics_period_ms = 50\npose_congestion = \"block\"\n"
         "[effort]\nthreshold_learning_s = 0.0\n"
-        f'[robots."{robot}"]\nmodel = "{path}"\ntip_link = "link06"\neffort = true\n'
+        f'[robots."{robot}"]\nmodel = "{path}"\nbase_link = "{base}"\ntip_link = "{tip}"\neffort = true\n'
         '[robots.default]\nmodel = "ur10e"\n'
     )
     model = pin.buildModelFromUrdf(str(path))
     data = model.createData()
-    joints = chain_joints(model, "link00", "link06")
+    joints = chain_joints(model, base, tip)
     efforts = [model.effortLimit[model.joints[j].idx_v] for j in joints]
     centre = np.array([(model.lowerPositionLimit[model.joints[j].idx_q] + model.upperPositionLimit[model.joints[j].idx_q]) / 2
                        for j in joints])  # within every joint's limits
-    dt_s, count, contact = 0.002, 2000, (2.0, 2.2, 2, 8.0)  # onset, end (s), joint (0-based), N·m
+    dt_s, count, contact = 0.002, 2000, (2.0, 2.2, 2, 2.5 * 0.1 * efforts[2])  # onset, end (s), joint (0-based), N·m
     messages, expected = [], []
     for i in range(count):
         t = i * dt_s
-        phase = 0.9 * t + np.arange(6)
+        phase = 0.9 * t + np.arange(len(joints))
         q_chain, qd, qdd = 0.4 * np.sin(phase) + centre, 0.36 * np.cos(phase), -0.324 * np.sin(phase)
         q, v, a = pin.neutral(model), np.zeros(model.nv), np.zeros(model.nv)
         for k, joint in enumerate(joints):
@@ -475,7 +481,7 @@ def test_a_urdf_arm_reporting_joint_torques_is_watched_for_collisions(armtwin_bi
         answers = get_json(client.session, f"twin/state/{robot}")
         assert len(answers) == 1, answers
         thresholds = answers[0][1]["effort"]["collision"]
-        print(f"\n[z1 load twin] {count} samples: model torques against Pinocchio, worst relative {worst:.1e}; "
+        print(f"\n[{file} load twin] {count} samples: model torques against Pinocchio, worst relative {worst:.1e}; "
               f"thresholds {thresholds['threshold_nm']} N·m ({thresholds['threshold_source']}); collisions {collisions}")
         assert worst <= TORQUE_TOLERANCE, worst
         assert thresholds["threshold_source"] == "rated"

@@ -129,7 +129,7 @@ fn rms(values: &[[f64; J]]) -> [f64; J] {
     })
 }
 
-fn show(values: &[f64; J]) -> String {
+fn show(values: &[f64]) -> String {
     values
         .iter()
         .map(|v| format!("{v:6.2}"))
@@ -177,7 +177,7 @@ fn each_residual_term_pays_on_real_currents() {
             .unwrap();
         let measured = readout.measured_nm.unwrap();
         model_only.push(std::array::from_fn(|k| measured[k] - readout.model_nm[k]));
-        with_friction.push(readout.residual_nm.unwrap());
+        with_friction.push(readout.residual_nm.unwrap().to_array::<J>().unwrap());
         target_current.push(std::array::from_fn(|k| {
             (row.current[k] - row.target_current[k]) * factors[k]
         }));

@@ -12,7 +12,7 @@ use std::time::SystemTime;
 
 use super::mcap_file::{self, McapFile, PoseTopic, pose_of};
 use super::ros2_messages::Transform;
-use armtwin_core::dynamics::monitor::EffortReadout;
+use armtwin_core::dynamics::monitor::{EffortReadout, MAX_EFFORT_JOINTS};
 use armtwin_core::kinematics::PoseReadout;
 use armtwin_core::metrics::Deviation;
 use armtwin_core::model::RobotModel;
@@ -83,12 +83,16 @@ pub fn fill_measured(out: &mut [f64], stamp_s: f64, measured: &PoseReadout, d: &
     out[8..].copy_from_slice(&d.fields());
 }
 
-/// Joints of an effort record (the effort monitor's arms have six).
-const EFFORT_JOINTS: usize = 6;
+/// Joints of an effort record: room for the most the effort monitor watches.
+const EFFORT_JOINTS: usize = MAX_EFFORT_JOINTS;
 
 /// Values of an effort record: `[stamp_s, present, model…, measured…, residual…, observer…]`,
-/// six per array; `present` has bit `i` set when array `i` is.
+/// [`MAX_EFFORT_JOINTS`] per array, the arm's joints first; `present` has bit `i` set when
+/// array `i` is, and the arm's joint count from bit 4 on.
 pub const EFFORT_STRIDE: usize = 2 + 4 * EFFORT_JOINTS;
+
+/// Where an effort record's joint count starts in its `present` value.
+const JOINTS_SHIFT: u32 = 4;
 
 /// Writes an effort readout's record into `out` (`EFFORT_STRIDE` long).
 pub fn fill_effort(out: &mut [f64], readout: &EffortReadout) {
@@ -99,18 +103,33 @@ pub fn fill_effort(out: &mut [f64], readout: &EffortReadout) {
         readout.residual_nm,
         readout.observer_nm,
     ];
-    let mut present = 0;
+    let joints = readout.model_nm.len();
+    let mut present = 0_u32;
     for (i, values) in arrays.iter().enumerate() {
         let slot = &mut out[2 + i * EFFORT_JOINTS..2 + (i + 1) * EFFORT_JOINTS];
-        match values {
-            Some(values) => {
-                slot.copy_from_slice(&values[..EFFORT_JOINTS.min(values.len())]);
-                present |= 1 << i;
-            }
-            None => slot.fill(0.0),
+        slot.fill(0.0);
+        if let Some(values) = values {
+            slot[..joints].copy_from_slice(values);
+            present |= 1 << i;
         }
     }
-    out[1] = f64::from(present);
+    #[allow(clippy::cast_possible_truncation, reason = "at most MAX_EFFORT_JOINTS")]
+    let joints_bits = (joints as u32) << JOINTS_SHIFT;
+    out[1] = f64::from(present | joints_bits);
+}
+
+/// An effort record's arrays (model, measured, residual, observer), each the arm's joints long,
+/// empty where absent.
+fn effort_arrays(record: &[f64]) -> [&[f64]; 4] {
+    let present = present_bits(record[1]);
+    let joints = ((present >> JOINTS_SHIFT) as usize).min(EFFORT_JOINTS);
+    std::array::from_fn(|i| {
+        if present & (1 << i) == 0 {
+            &[][..]
+        } else {
+            &record[2 + i * EFFORT_JOINTS..2 + i * EFFORT_JOINTS + joints]
+        }
+    })
 }
 
 /// What set an incident off.
@@ -238,15 +257,7 @@ pub fn write_mcap<W: Write + Seek>(out: W, incident: &Incident) -> Result<u64, W
         file.deviation(stamp_s, frame, &record[8..])?;
     }
     for record in incident.efforts.chunks_exact(EFFORT_STRIDE) {
-        let present = present_bits(record[1]);
-        let array = |i: usize| {
-            if present & (1 << i) == 0 {
-                &[][..]
-            } else {
-                &record[2 + i * EFFORT_JOINTS..2 + (i + 1) * EFFORT_JOINTS]
-            }
-        };
-        file.effort(record[0], [array(0), array(1), array(2), array(3)])?;
+        file.effort(record[0], effort_arrays(record))?;
     }
     for line in &incident.log {
         file.log(line.stamp_s, line.level, &line.text)?;
@@ -308,4 +319,39 @@ fn metadata(incident: &Incident) -> BTreeMap<String, String> {
 )]
 fn present_bits(value: f64) -> u32 {
     value as u32
+}
+
+#[cfg(test)]
+mod tests {
+    use armtwin_core::dynamics::ControllerMode;
+    use armtwin_core::dynamics::monitor::{JointValues, StateSource};
+
+    use super::*;
+
+    #[test]
+    fn an_effort_record_keeps_a_six_or_seven_joint_arms_arrays_whole() {
+        for joints in [6, 7] {
+            let values = |offset: f64| {
+                let all: Vec<f64> = (0..joints).map(|k| offset + f64::from(k)).collect();
+                JointValues::from_slice(&all).expect("at most seven")
+            };
+            let readout = EffortReadout {
+                stamp_s: 1.5,
+                mode: ControllerMode::Program,
+                state_source: StateSource::Target,
+                model_nm: values(10.0),
+                measured_nm: Some(values(20.0)),
+                residual_nm: None,
+                observer_nm: Some(values(40.0)),
+            };
+            let mut record = [f64::NAN; EFFORT_STRIDE];
+            fill_effort(&mut record, &readout);
+            let [model, measured, residual, observer] = effort_arrays(&record);
+            assert_eq!(record[0].to_bits(), 1.5_f64.to_bits());
+            assert_eq!(model, &*readout.model_nm);
+            assert_eq!(measured, &*values(20.0));
+            assert!(residual.is_empty());
+            assert_eq!(observer, &*values(40.0));
+        }
+    }
 }

@@ -6,7 +6,7 @@
 use super::twin::Twin;
 use super::{EventDetail, EventKind, Reason, Sink};
 use crate::dynamics::Payload;
-use crate::dynamics::monitor::{EffortAlarm, EffortSummary};
+use crate::dynamics::monitor::{EffortAlarm, EffortMonitor, EffortSummary};
 use crate::sample::{JointSample, JointState};
 
 impl Twin {
@@ -79,7 +79,7 @@ impl Twin {
     /// What its effort monitor shows, if it has one.
     #[must_use]
     pub fn effort(&self) -> Option<EffortSummary> {
-        self.effort.as_ref().map(|monitor| monitor.summary())
+        self.effort.as_ref().map(EffortMonitor::summary)
     }
 
     /// Applies the identified payload to its effort model; `None` without an effort monitor or
@@ -94,7 +94,7 @@ impl Twin {
         self.dirty = true;
         self.effort
             .as_mut()
-            .map(|monitor| monitor.discard_applied())
+            .map(EffortMonitor::discard_applied)
             .is_some()
     }
 }

@@ -108,7 +108,8 @@ pub struct Twin {
     newest_s: f64,
     pub(super) alarms: AlarmStates,
     /// Its effort monitor, when the robot's settings ask for one.
-    pub(super) effort: Option<Box<EffortMonitor>>,
+    /// Its monitor boxes its arm's state itself: a robot without one pays for the `Option` only.
+    pub(super) effort: Option<EffortMonitor>,
     /// New results since the last periodic metrics.
     pub(super) dirty: bool,
     scratch_q: Vec<f64>,
@@ -878,11 +879,9 @@ fn transform(target_from_source: &IsometryMatrix3<f64>, pose: &PoseReadout) -> P
 /// The effort monitor `robot`'s settings ask for. The configuration checked the arm when it was
 /// loaded; an arm that still cannot be watched (a model replaced by one of another size) is
 /// watched by none.
-fn effort_monitor(robot: &Robot, config: &PipelineConfig) -> Option<Box<EffortMonitor>> {
+fn effort_monitor(robot: &Robot, config: &PipelineConfig) -> Option<EffortMonitor> {
     let effort = robot.settings().effort.as_ref()?;
-    EffortMonitor::new(robot.settings().model.arm(), effort, config.window_s)
-        .ok()
-        .map(Box::new)
+    EffortMonitor::new(robot.settings().model.arm(), effort, config.window_s).ok()
 }
 
 #[cfg(test)]

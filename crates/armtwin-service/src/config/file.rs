@@ -249,11 +249,11 @@ pub(super) struct RobotSection {
     pub(super) alarm_hold_s: Option<f64>,
     pub(super) self_calibrate: Option<bool>,
     pub(super) effort: Option<bool>,
-    pub(super) collision_threshold_nm: Option<[f64; 6]>,
+    pub(super) collision_threshold_nm: Option<Vec<f64>>,
     /// Per joint, the drive's largest torque (N·m), over what the arm's description states.
-    pub(super) rated_torque_nm: Option<[f64; 6]>,
+    pub(super) rated_torque_nm: Option<Vec<f64>>,
     /// Per joint, motor current to joint torque (N·m/A) where the catalog has none.
-    pub(super) current_to_torque_nm_per_a: Option<[f64; 6]>,
+    pub(super) current_to_torque_nm_per_a: Option<Vec<f64>>,
     pub(super) payload_kg: Option<f64>,
     pub(super) payload_cog_m: Option<[f64; 3]>,
     #[serde(default)]

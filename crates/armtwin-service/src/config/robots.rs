@@ -16,7 +16,9 @@ use zenoh::key_expr::KeyExpr;
 use super::ConfigError;
 use super::file::{RobotSection, Ros2PoseSection};
 use armtwin_core::dynamics::Payload;
-use armtwin_core::dynamics::monitor::{EffortConfig, EffortMonitor};
+use armtwin_core::dynamics::monitor::{
+    EffortConfig, EffortMonitor, JointValues, MAX_EFFORT_JOINTS,
+};
 use armtwin_core::kinematics::{OutputFrame, TcpOffset};
 use armtwin_core::model::{Calibration, ModelError, ModelRef, RobotModel, catalog, custom, urdf};
 use armtwin_core::orientation;
@@ -301,13 +303,36 @@ impl RobotSource<'_> {
             return Ok(None);
         }
         let mut config = shared.effort;
-        if let Some(thresholds) = self.pick(|s| s.collision_threshold_nm) {
+        // One value per joint: their count is checked against the arm's by the monitor below.
+        let per_joint = |name: &str, values: Option<Vec<f64>>| {
+            values
+                .map(|values| {
+                    JointValues::from_slice(&values).ok_or_else(|| {
+                        self.invalid(
+                            name,
+                            format!(
+                                "has {} values; the load twin watches at most {MAX_EFFORT_JOINTS} joints",
+                                values.len()
+                            ),
+                        )
+                    })
+                })
+                .transpose()
+        };
+        if let Some(thresholds) = per_joint(
+            "collision_threshold_nm",
+            self.pick(|s| s.collision_threshold_nm.clone()),
+        )? {
             config.collision_threshold_nm = Some(thresholds);
         }
-        if let Some(rated) = self.pick(|s| s.rated_torque_nm) {
+        if let Some(rated) = per_joint("rated_torque_nm", self.pick(|s| s.rated_torque_nm.clone()))?
+        {
             config.rated_torque_nm = Some(rated);
         }
-        if let Some(factors) = self.pick(|s| s.current_to_torque_nm_per_a) {
+        if let Some(factors) = per_joint(
+            "current_to_torque_nm_per_a",
+            self.pick(|s| s.current_to_torque_nm_per_a.clone()),
+        )? {
             config.current_to_torque_nm_per_a = Some(factors);
         }
         match (self.pick(|s| s.payload_kg), self.pick(|s| s.payload_cog_m)) {

@@ -7,7 +7,7 @@
 //! Not modelled, because on real UR drives it did not pay (docs/load-twin.md): a separate fit per
 //! direction and a Stribeck term each changed the residual by under 0.02 N·m RMS.
 
-use super::{EffortMonitor, J};
+use super::Monitor;
 use crate::dynamics::JointFriction;
 
 /// Joint speed (rad/s) above which a sample tells the joint's friction apart from its sign.
@@ -95,16 +95,16 @@ impl FrictionFit {
     }
 }
 
-impl EffortMonitor {
+impl<const N: usize> Monitor<N> {
     /// Friction: fitted on moving program-mode samples (`measured − model`), used by the
     /// residual and the observer; `keep` is what forgetting leaves of the past.
     pub(super) fn learn_friction(
         &mut self,
         keep: f64,
         program: bool,
-        qd: &[f64; J],
-        measured_nm: &[f64; J],
-        model_nm: &[f64; J],
+        qd: &[f64; N],
+        measured_nm: &[f64; N],
+        model_nm: &[f64; N],
     ) {
         for (k, fit) in self.friction.iter_mut().enumerate() {
             fit.forget(keep);
@@ -118,7 +118,7 @@ impl EffortMonitor {
 
     /// Keeps, per joint, the first friction fitted in each temperature bin.
     pub(super) fn update_baselines(&mut self) {
-        for k in 0..J {
+        for k in 0..N {
             if self.friction[k].weight < MIN_BASELINE_WEIGHT {
                 continue;
             }

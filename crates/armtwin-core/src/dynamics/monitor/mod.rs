@@ -34,7 +34,8 @@ mod window;
 pub use thresholds::ThresholdSource;
 pub use types::{
     DetectionSource, EffortAlarm, EffortConfig, EffortError, EffortReadout, EffortSummary,
-    FrictionReadout, PayloadReadout, PayloadSource, ResidualStats, StateSource,
+    FrictionReadout, JointValues, MAX_EFFORT_JOINTS, PayloadReadout, PayloadSource, ResidualStats,
+    StateSource,
 };
 
 use super::payload::{
@@ -49,75 +50,83 @@ use observer::Observer;
 use thresholds::Thresholds;
 use window::{Block, WINDOW_SLICES, residual_stats};
 
-/// The joints an effort monitor handles (every arm whose dynamics the catalog publishes).
-pub const EFFORT_JOINTS: usize = 6;
-const J: usize = EFFORT_JOINTS;
+/// The fewest joints an effort monitor watches (every arm whose dynamics the catalog
+/// publishes has six).
+pub const MIN_EFFORT_JOINTS: usize = 6;
 
 /// Longest step (s) the observer integrates across: a longer silence starts it afresh.
 const MAX_STEP_S: f64 = 0.1;
 
 /// The previous sample, for differences.
 #[derive(Debug, Clone, Copy)]
-struct Previous {
+struct Previous<const N: usize> {
     stamp_s: f64,
-    q_rad: [f64; J],
-    qd_rad_s: [f64; J],
+    q_rad: [f64; N],
+    qd_rad_s: [f64; N],
 }
 
-/// One robot's effort monitor (6 joints).
+/// One robot's effort monitor for an arm of `N` joints.
 #[derive(Debug, Clone)]
-pub struct EffortMonitor {
+struct Monitor<const N: usize> {
     config: EffortConfig,
-    arm_only: ArmDynamics<J>,
-    loaded: ArmDynamics<J>,
+    arm_only: ArmDynamics<N>,
+    loaded: ArmDynamics<N>,
     in_use: (Payload, PayloadSource),
     controller_payload: Option<Payload>,
     applied: Option<Payload>,
-    thresholds: Thresholds,
-    current_to_torque: Option<[f64; J]>,
-    previous: Option<Previous>,
-    observer: Observer,
+    thresholds: Thresholds<N>,
+    current_to_torque: Option<[f64; N]>,
+    previous: Option<Previous<N>>,
+    observer: Observer<N>,
     identifier: PayloadIdentifier,
     rest_since_estimate: u32,
     estimate: Option<PayloadEstimate>,
     identification: Option<PayloadIdentification>,
-    friction: [FrictionFit; J],
+    friction: [FrictionFit; N],
     /// Each fit's estimate after the latest sample (what the residual and observer subtract).
-    fitted: [Option<JointFriction>; J],
+    fitted: [Option<JointFriction>; N],
     /// Per joint and temperature bin (the last: no temperature), the friction first fitted there.
-    baselines: [[Option<f64>; TEMPERATURE_BINS + 1]; J],
-    temperature_c: [Option<f64>; J],
-    cumulative: Block,
+    baselines: [[Option<f64>; TEMPERATURE_BINS + 1]; N],
+    temperature_c: [Option<f64>; N],
+    cumulative: Block<N>,
     /// Residual magnitudes over the last `window_s`.
-    window: SlicedWindow<J>,
+    window: SlicedWindow<N>,
     latest: Option<EffortReadout>,
-    collision: [bool; J],
+    collision: [bool; N],
     collisions: u64,
     payload_mismatch: bool,
 }
 
-impl EffortMonitor {
-    /// The monitor of `arm` (a 6-joint arm with inertial parameters: a catalog arm, a custom
-    /// arm's `[dynamics]`, a URDF's chain), its residual window `window_s` long.
-    pub fn new(
+impl<const N: usize> Monitor<N> {
+    /// The monitor of `arm` (an arm of `N` joints with inertial parameters: a catalog arm, a
+    /// custom arm's `[dynamics]`, a URDF's chain), its residual window `window_s` long.
+    fn new(
         arm: &ArmDescription,
         config: &EffortConfig,
         window_s: f64,
     ) -> Result<Self, EffortError> {
         check_settings(config, window_s)?;
         // First: an arm of another joint count is refused for that, not for its thresholds.
-        let arm_only = ArmDynamics::<J>::from_arm(arm)?;
+        let arm_only = ArmDynamics::<N>::from_arm(arm)?;
         // The catalog's drive data are a Universal Robots arm's, never a URDF's of the same name.
         let catalog_name = Some(arm.name.as_str()).filter(|_| arm.joint_origins.is_none());
-        let floor_nm = config
-            .rated_torque_nm
+        let catalog =
+            |values: Option<[f64; 6]>| values.and_then(|v| <[f64; N]>::try_from(v.as_slice()).ok());
+        let floor_nm = per_joint::<N>("rated_torque_nm", config.rated_torque_nm)?
             .or_else(|| {
                 let max_nm = arm.inertials.as_ref()?.max_torque_nm.as_deref()?;
-                <[f64; J]>::try_from(max_nm).ok()
+                <[f64; N]>::try_from(max_nm).ok()
             })
             .map(|rated| rated.map(|nm| nm * ur::DEFAULT_COLLISION_SHARE))
-            .or_else(|| catalog_name.and_then(ur::default_collision_threshold_nm));
-        let thresholds = match (config.collision_threshold_nm, floor_nm) {
+            .or_else(|| catalog(catalog_name.and_then(ur::default_collision_threshold_nm)));
+        let configured_nm =
+            per_joint::<N>("collision_threshold_nm", config.collision_threshold_nm)?;
+        let current_to_torque = per_joint::<N>(
+            "current_to_torque_nm_per_a",
+            config.current_to_torque_nm_per_a,
+        )?
+        .or_else(|| catalog(catalog_name.and_then(ur::current_to_torque_nm_per_a)));
+        let thresholds = match (configured_nm, floor_nm) {
             (Some(configured), _) => Thresholds::new(Some(configured), configured, 1.0, 0.0),
             (None, Some(floor)) => Thresholds::new(
                 None,
@@ -152,23 +161,21 @@ impl EffortMonitor {
             controller_payload: None,
             applied: None,
             thresholds,
-            current_to_torque: config
-                .current_to_torque_nm_per_a
-                .or_else(|| catalog_name.and_then(ur::current_to_torque_nm_per_a)),
+            current_to_torque,
             previous: None,
             observer: Observer::default(),
             identifier: PayloadIdentifier::new(),
             rest_since_estimate: 0,
             estimate: None,
             identification: None,
-            friction: [FrictionFit::default(); J],
-            fitted: [None; J],
-            baselines: [[None; TEMPERATURE_BINS + 1]; J],
-            temperature_c: [None; J],
+            friction: [FrictionFit::default(); N],
+            fitted: [None; N],
+            baselines: [[None; TEMPERATURE_BINS + 1]; N],
+            temperature_c: [None; N],
             cumulative: Block::default(),
             window: SlicedWindow::new(window_s, WINDOW_SLICES),
             latest: None,
-            collision: [false; J],
+            collision: [false; N],
             collisions: 0,
             payload_mismatch: false,
         })
@@ -177,14 +184,14 @@ impl EffortMonitor {
     /// Steps the monitor with a joint sample: `q_rad` the actual joint angles, `state` what came
     /// beside them. Alarm changes go to `on_alarm`. `None` when the sample has no velocity and
     /// none can be differenced yet.
-    pub fn step(
+    fn step(
         &mut self,
         stamp_s: f64,
         q_rad: &[f64],
         state: &JointState,
         mut on_alarm: impl FnMut(EffortAlarm),
     ) -> Option<EffortReadout> {
-        let q: [f64; J] = q_rad.try_into().ok()?;
+        let q: [f64; N] = q_rad.try_into().ok()?;
         let get = |quantity: JointQuantity| joint_values(state, quantity);
         let step_s = self
             .previous
@@ -199,7 +206,7 @@ impl EffortMonitor {
                 self.previous = Some(Previous {
                     stamp_s,
                     q_rad: q,
-                    qd_rad_s: [0.0; J],
+                    qd_rad_s: [0.0; N],
                 });
                 return None;
             }
@@ -239,7 +246,7 @@ impl EffortMonitor {
                 &model_nm,
             );
         }
-        let friction_nm: [f64; J] = std::array::from_fn(|k| {
+        let friction_nm: [f64; N] = std::array::from_fn(|k| {
             self.fitted[k].map_or(0.0, |friction| friction.torque_nm(qd[k]))
         });
         let residual_nm = measured_nm
@@ -281,10 +288,10 @@ impl EffortMonitor {
             stamp_s,
             mode,
             state_source,
-            model_nm,
-            measured_nm,
-            residual_nm,
-            observer_nm,
+            model_nm: JointValues::from_array(model_nm),
+            measured_nm: measured_nm.map(JointValues::from_array),
+            residual_nm: residual_nm.map(JointValues::from_array),
+            observer_nm: observer_nm.map(JointValues::from_array),
         };
         // The window follows source time, so it empties when program-mode residuals stop.
         self.window.advance_to(stamp_s);
@@ -297,10 +304,10 @@ impl EffortMonitor {
     fn model_state(
         &self,
         state: &JointState,
-        q: &[f64; J],
-        qd: &[f64; J],
+        q: &[f64; N],
+        qd: &[f64; N],
         step_s: Option<f64>,
-    ) -> (StateSource, [f64; J], [f64; J], [f64; J]) {
+    ) -> (StateSource, [f64; N], [f64; N], [f64; N]) {
         if let (Some(tq), Some(tqd), Some(tqdd)) = (
             joint_values(state, JointQuantity::TargetPosition),
             joint_values(state, JointQuantity::TargetVelocity),
@@ -312,40 +319,40 @@ impl EffortMonitor {
             (Some(dt), Some(previous)) => {
                 std::array::from_fn(|k| (qd[k] - previous.qd_rad_s[k]) / dt)
             }
-            _ => [0.0; J],
+            _ => [0.0; N],
         };
         (StateSource::Actual, *q, *qd, qdd)
     }
 
     /// Measured less target current through the drives' torque factors (N·m), where the
     /// controller sends its target current beside the measured one.
-    fn drive_residual_nm(&self, state: &JointState) -> Option<[f64; J]> {
+    fn drive_residual_nm(&self, state: &JointState) -> Option<[f64; N]> {
         let factors = self.current_to_torque?;
-        let current = joint_values(state, JointQuantity::Current)?;
-        let target = joint_values(state, JointQuantity::TargetCurrent)?;
+        let current: [f64; N] = joint_values(state, JointQuantity::Current)?;
+        let target: [f64; N] = joint_values(state, JointQuantity::TargetCurrent)?;
         Some(std::array::from_fn(|k| {
             (current[k] - target[k]) * factors[k]
         }))
     }
 
     /// The stamp went back (a restarted clock): differences and the observer start afresh.
-    pub fn restart_clock(&mut self) {
+    fn restart_clock(&mut self) {
         self.previous = None;
         self.observer.last_s = None;
         self.window.reset();
     }
 
     /// Residual statistics start afresh (a reset); fits and alarms stay.
-    pub fn reset_statistics(&mut self) {
+    fn reset_statistics(&mut self) {
         self.cumulative = Block::default();
         self.window.reset();
     }
 
     /// What the monitor shows now.
     #[must_use]
-    pub fn summary(&self) -> EffortSummary {
+    fn summary(&self) -> EffortSummary {
         let window = self.window.totals();
-        let friction = std::array::from_fn(|k| {
+        let friction: [Option<FrictionReadout>; N] = std::array::from_fn(|k| {
             let JointFriction {
                 coulomb_nm,
                 viscous_nm_s_rad,
@@ -373,7 +380,7 @@ impl EffortMonitor {
             cumulative: self.cumulative.stats(),
             window: residual_stats(window.n, &window.sums_of_squares, window.maxima),
             window_s: self.window.window_s(),
-            friction,
+            friction: JointValues::from_array(friction),
             payload: PayloadReadout {
                 configured,
                 estimate: self.estimate,
@@ -381,13 +388,95 @@ impl EffortMonitor {
                 applied: self.applied,
                 in_use: self.in_use,
             },
-            collision_threshold_nm: self.thresholds.nm,
+            collision_threshold_nm: JointValues::from_array(self.thresholds.nm),
             threshold_source: self.thresholds.source,
             detection: self.observer.source,
-            collision: self.collision,
+            collision: JointValues::from_array(self.collision),
             collisions: self.collisions,
             payload_mismatch: self.payload_mismatch,
         }
+    }
+}
+
+/// One robot's effort monitor: for an arm of six joints or of seven.
+#[derive(Debug, Clone)]
+pub struct EffortMonitor(Watched);
+
+/// The monitor of the arm's joint count (boxed: a robot pays for its own arm's only).
+#[derive(Debug, Clone)]
+enum Watched {
+    Six(Box<Monitor<6>>),
+    Seven(Box<Monitor<7>>),
+}
+
+/// `$body` with `$monitor` bound to the monitor, whichever joint count it has.
+macro_rules! each {
+    ($watched:expr, $monitor:ident => $body:expr) => {
+        match $watched {
+            Watched::Six($monitor) => $body,
+            Watched::Seven($monitor) => $body,
+        }
+    };
+}
+
+impl EffortMonitor {
+    /// The monitor of `arm` (an arm of [`MIN_EFFORT_JOINTS`] to [`MAX_EFFORT_JOINTS`] joints with
+    /// inertial parameters: a catalog arm, a custom arm's `[dynamics]`, a URDF's chain), its
+    /// residual window `window_s` long.
+    pub fn new(
+        arm: &ArmDescription,
+        config: &EffortConfig,
+        window_s: f64,
+    ) -> Result<Self, EffortError> {
+        let joints = arm
+            .joint_origins
+            .as_ref()
+            .map_or(arm.dh.len(), |origins| origins.parent_from_joint.len());
+        Ok(Self(match joints {
+            6 => Watched::Six(Box::new(Monitor::new(arm, config, window_s)?)),
+            7 => Watched::Seven(Box::new(Monitor::new(arm, config, window_s)?)),
+            joints => return Err(EffortError::JointCount { joints }),
+        }))
+    }
+
+    /// Steps the monitor with a joint sample: `q_rad` the actual joint angles, `state` what came
+    /// beside them. Alarm changes go to `on_alarm`. `None` when the sample has no velocity and
+    /// none can be differenced yet, or not one angle per joint.
+    pub fn step(
+        &mut self,
+        stamp_s: f64,
+        q_rad: &[f64],
+        state: &JointState,
+        on_alarm: impl FnMut(EffortAlarm),
+    ) -> Option<EffortReadout> {
+        each!(&mut self.0, monitor => monitor.step(stamp_s, q_rad, state, on_alarm))
+    }
+
+    /// The stamp went back (a restarted clock): differences and the observer start afresh.
+    pub fn restart_clock(&mut self) {
+        each!(&mut self.0, monitor => monitor.restart_clock());
+    }
+
+    /// Residual statistics start afresh (a reset); fits and alarms stay.
+    pub fn reset_statistics(&mut self) {
+        each!(&mut self.0, monitor => monitor.reset_statistics());
+    }
+
+    /// What the monitor shows now.
+    #[must_use]
+    pub fn summary(&self) -> EffortSummary {
+        each!(&self.0, monitor => monitor.summary())
+    }
+
+    /// Applies the latest identified payload: the model uses it from the next sample on. The
+    /// payload applied, or `None` when there is no estimate.
+    pub fn apply_estimate(&mut self) -> Option<Payload> {
+        each!(&mut self.0, monitor => monitor.apply_estimate())
+    }
+
+    /// Stops using an applied payload: back to the controller's or the configured one.
+    pub fn discard_applied(&mut self) {
+        each!(&mut self.0, monitor => monitor.discard_applied());
     }
 }
 
@@ -423,7 +512,7 @@ fn check_settings(config: &EffortConfig, window_s: f64) -> Result<(), EffortErro
     ] {
         if let Some(value) = values
             .iter()
-            .flatten()
+            .flat_map(|values| values.iter())
             .find(|v| !(v.is_finite() && **v > 0.0))
         {
             return Err(EffortError::Setting {
@@ -435,8 +524,24 @@ fn check_settings(config: &EffortConfig, window_s: f64) -> Result<(), EffortErro
     Ok(())
 }
 
-/// One value per joint of `quantity`, if `state` has it for six joints.
-fn joint_values(state: &JointState, quantity: JointQuantity) -> Option<[f64; J]> {
+/// A per-joint setting as the arm's `N` values, refused with another count.
+fn per_joint<const N: usize>(
+    field: &'static str,
+    values: Option<JointValues<f64>>,
+) -> Result<Option<[f64; N]>, EffortError> {
+    values
+        .map(|values| {
+            values.to_array::<N>().ok_or(EffortError::JointValues {
+                field,
+                expected: N,
+                got: values.len(),
+            })
+        })
+        .transpose()
+}
+
+/// One value per joint of `quantity`, if `state` has it for each of the arm's `N` joints.
+fn joint_values<const N: usize>(state: &JointState, quantity: JointQuantity) -> Option<[f64; N]> {
     state
         .get(quantity)
         .and_then(|values| values.try_into().ok())
@@ -449,6 +554,8 @@ mod tests {
     use crate::sample::ControllerStatus;
     use approx::assert_relative_eq;
 
+    /// The test arms' joints (a UR10e's, a Z1's).
+    const J: usize = 6;
     const DT_S: f64 = 0.002;
     const COULOMB_NM: [f64; J] = [6.0, 6.0, 4.0, 1.5, 1.5, 1.5];
     const VISCOUS_NM_S_RAD: [f64; J] = [3.0, 3.0, 2.0, 0.5, 0.5, 0.5];
@@ -599,7 +706,7 @@ mod tests {
             assert!((0.0..0.03).contains(&latency_s), "latency {latency_s} s");
         }
         assert_eq!(summary.collisions, 3);
-        assert_eq!(summary.collision, [false; J]);
+        assert_eq!(*summary.collision, [false; J]);
     }
 
     #[test]
@@ -722,7 +829,7 @@ mod tests {
         for currents in [false, true] {
             let config = EffortConfig {
                 threshold_learning_s: 0.0,
-                current_to_torque_nm_per_a: currents.then_some(factors),
+                current_to_torque_nm_per_a: currents.then_some(JointValues::from_array(factors)),
                 ..EffortConfig::default()
             };
             let mut monitor = EffortMonitor::new(&arm, &config, 10.0).expect("monitor");

@@ -5,7 +5,7 @@
 //! measured-minus-target torque low-passed with the same time constant `1/K`: the controller's
 //! model already holds the dynamics the observer would integrate.
 
-use super::{DetectionSource, EffortAlarm, EffortMonitor, J};
+use super::{DetectionSource, EffortAlarm, Monitor};
 use crate::dynamics::ControllerMode;
 
 /// Observer time constants (`1/K`) of steady program-mode input before its alarms are armed:
@@ -13,15 +13,15 @@ use crate::dynamics::ControllerMode;
 const ARMING_TIME_CONSTANTS: f64 = 5.0;
 
 /// The momentum observer's state.
-#[derive(Debug, Clone, Copy, Default)]
-pub(super) struct Observer {
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Observer<const N: usize> {
     /// `p(0) + ∫ (…) dt`: what the momentum would be without external torques.
-    pub(super) expected_nms: [f64; J],
+    pub(super) expected_nms: [f64; N],
     /// Its output `r`.
-    pub(super) r_nm: [f64; J],
+    pub(super) r_nm: [f64; N],
     /// Per joint, the output low-passed by `collision_baseline_s`, held while the joint's
     /// collision alarm is on (in the readout's sign).
-    pub(super) baseline_nm: [f64; J],
+    pub(super) baseline_nm: [f64; N],
     /// Stamp of the last step.
     pub(super) last_s: Option<f64>,
     /// Alarms are armed from this stamp on.
@@ -30,7 +30,20 @@ pub(super) struct Observer {
     pub(super) source: DetectionSource,
 }
 
-impl EffortMonitor {
+impl<const N: usize> Default for Observer<N> {
+    fn default() -> Self {
+        Self {
+            expected_nms: [0.0; N],
+            r_nm: [0.0; N],
+            baseline_nm: [0.0; N],
+            last_s: None,
+            armed_from_s: 0.0,
+            source: DetectionSource::default(),
+        }
+    }
+}
+
+impl<const N: usize> Monitor<N> {
     /// One observer step; returns its output in the residual's sign.
     #[allow(clippy::too_many_arguments, reason = "one sample's parts, named")]
     pub(super) fn observe(
@@ -38,13 +51,13 @@ impl EffortMonitor {
         stamp_s: f64,
         step_s: Option<f64>,
         mode: ControllerMode,
-        q: &[f64; J],
-        qd: &[f64; J],
-        measured_nm: &[f64; J],
-        friction_nm: &[f64; J],
-        drive_residual_nm: Option<&[f64; J]>,
+        q: &[f64; N],
+        qd: &[f64; N],
+        measured_nm: &[f64; N],
+        friction_nm: &[f64; N],
+        drive_residual_nm: Option<&[f64; N]>,
         on_alarm: &mut impl FnMut(EffortAlarm),
-    ) -> [f64; J] {
+    ) -> [f64; N] {
         let gain = self.config.observer_gain_per_s;
         let source = drive_residual_nm.map_or(DetectionSource::Observer, |_| {
             DetectionSource::TargetCurrent
@@ -62,7 +75,7 @@ impl EffortMonitor {
             } else {
                 let terms = self.loaded.momentum(q, qd);
                 let gravity_nm = self.loaded.gravity_nm(q);
-                for k in 0..J {
+                for k in 0..N {
                     let drive = measured_nm[k] - friction_nm[k];
                     let partial = observer.expected_nms[k]
                         + (drive + terms.coriolis_transpose_qd_nm[k] - gravity_nm[k]) * dt;
@@ -74,8 +87,8 @@ impl EffortMonitor {
             }
         } else {
             observer.expected_nms = self.loaded.momentum(q, qd).momentum_nms;
-            observer.r_nm = [0.0; J];
-            observer.baseline_nm = [0.0; J];
+            observer.r_nm = [0.0; N];
+            observer.baseline_nm = [0.0; N];
             observer.armed_from_s = stamp_s + ARMING_TIME_CONSTANTS / gain;
         }
         observer.last_s = Some(stamp_s);
@@ -83,12 +96,12 @@ impl EffortMonitor {
             // A person moves the arm: that is the point, not a collision.
             observer.armed_from_s = stamp_s + ARMING_TIME_CONSTANTS / gain;
         }
-        let output: [f64; J] = observer.r_nm.map(|r| -r);
+        let output: [f64; N] = observer.r_nm.map(|r| -r);
         let armed = stamp_s >= observer.armed_from_s;
         let follow = step_s.map_or(1.0, |dt| {
             1.0 - (-dt / self.config.collision_baseline_s).exp()
         });
-        let mut above_baseline_nm = [0.0; J];
+        let mut above_baseline_nm = [0.0; N];
         for (k, output_nm) in output.iter().enumerate() {
             if !armed {
                 // Settling (a start, a gap, freedrive): what the observer shows is the arm's

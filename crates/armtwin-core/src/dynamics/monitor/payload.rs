@@ -2,23 +2,23 @@
 //! the payload identified from samples at rest ([`crate::dynamics::payload`]'s identifier), and
 //! the mismatch alarm between the two.
 
-use super::{EffortAlarm, EffortMonitor, J, PayloadSource};
+use super::{EffortAlarm, Monitor, PayloadSource};
 use crate::dynamics::Payload;
 
 /// Rest samples between two payload estimates (an estimate solves a 4×4 eigenproblem).
 const PAYLOAD_ESTIMATE_EVERY: u32 = 50;
 
-impl EffortMonitor {
+impl<const N: usize> Monitor<N> {
     /// Adds a program-mode sample at rest to the payload identification; estimates every
     /// [`PAYLOAD_ESTIMATE_EVERY`] of them.
     pub(super) fn identify_at_rest(
         &mut self,
-        q: &[f64; J],
-        measured_nm: &[f64; J],
+        q: &[f64; N],
+        measured_nm: &[f64; N],
         on_alarm: &mut impl FnMut(EffortAlarm),
     ) {
         let arm_nm = self.arm_only.gravity_nm(q);
-        let beyond: [f64; J] = std::array::from_fn(|k| measured_nm[k] - arm_nm[k]);
+        let beyond: [f64; N] = std::array::from_fn(|k| measured_nm[k] - arm_nm[k]);
         self.identifier
             .add_static_sample(&self.arm_only, q, &beyond);
         self.rest_since_estimate += 1;
@@ -82,7 +82,7 @@ impl EffortMonitor {
 
     /// Applies the latest identified payload to the model; returns it, or `None` when there is
     /// none (or it has no centre of gravity). The alarm is cleared at the next estimate.
-    pub fn apply_estimate(&mut self) -> Option<Payload> {
+    pub(super) fn apply_estimate(&mut self) -> Option<Payload> {
         let estimate = self.estimate?;
         let payload = Payload::point_mass(estimate.mass_kg, estimate.cog_flange_m?);
         self.applied = Some(payload);
@@ -91,7 +91,7 @@ impl EffortMonitor {
     }
 
     /// Returns to the controller's (or configured) payload.
-    pub fn discard_applied(&mut self) {
+    pub(super) fn discard_applied(&mut self) {
         self.applied = None;
         self.update_payload_in_use();
     }

@@ -7,8 +7,6 @@
 //! Owns the histogram and the thresholds in force. Must not decide what counts as normal motion:
 //! the observer hands in only armed, program-mode samples with no alarm on.
 
-use super::J;
-
 /// Histogram bins per joint, log-spaced over [`LOWEST_NM`, `LOWEST_NM · 10^DECADES`).
 const BINS: usize = 100;
 const LOWEST_NM: f64 = 0.01;
@@ -46,23 +44,23 @@ impl ThresholdSource {
 
 /// The thresholds in force and, while learning, what is being learnt from.
 #[derive(Debug, Clone)]
-pub(super) struct Thresholds {
-    pub(super) nm: [f64; J],
+pub(super) struct Thresholds<const N: usize> {
+    pub(super) nm: [f64; N],
     pub(super) source: ThresholdSource,
-    floor_nm: [f64; J],
+    floor_nm: [f64; N],
     factor: f64,
     learning_s: f64,
     learned_s: f64,
     /// Counts per joint and bin; dropped once learnt (allocated once, at the start).
-    histogram: Option<Box<[[u32; BINS]; J]>>,
+    histogram: Option<Box<[[u32; BINS]; N]>>,
 }
 
-impl Thresholds {
+impl<const N: usize> Thresholds<N> {
     /// Fixed thresholds (configured, or the floor when `learning_s` is not positive), else the
     /// learning floor until `learning_s` of normal motion is in.
     pub(super) fn new(
-        configured_nm: Option<[f64; J]>,
-        floor_nm: [f64; J],
+        configured_nm: Option<[f64; N]>,
+        floor_nm: [f64; N],
         factor: f64,
         learning_s: f64,
     ) -> Self {
@@ -71,7 +69,7 @@ impl Thresholds {
             None if learning_s > 0.0 => (
                 floor_nm.map(|f| f * LEARNING_FLOOR_FACTOR),
                 ThresholdSource::Learning,
-                Some(Box::new([[0; BINS]; J])),
+                Some(Box::new([[0; BINS]; N])),
             ),
             None => (floor_nm, ThresholdSource::Rated, None),
         };
@@ -88,7 +86,7 @@ impl Thresholds {
 
     /// Takes one sample of normal motion `step_s` long: per joint the detector's output less its
     /// baseline (N·m). Learnt once `learning_s` is in.
-    pub(super) fn learn(&mut self, step_s: f64, value_nm: &[f64; J]) {
+    pub(super) fn learn(&mut self, step_s: f64, value_nm: &[f64; N]) {
         let Some(histogram) = &mut self.histogram else {
             return;
         };
@@ -146,6 +144,8 @@ fn quantile_nm(counts: &[u32; BINS], q: f64) -> f64 {
 mod tests {
     use super::*;
 
+    const N: usize = 6;
+
     #[test]
     fn learnt_thresholds_are_the_factor_times_the_quantile_above_the_floor() {
         let floor = [1.0, 1.0, 1.0, 0.1, 0.1, 0.1];
@@ -155,7 +155,7 @@ mod tests {
         // 1 001 samples of 0.01 s (the last completes 10 s despite rounding): joint k's values spread evenly over [0, (k + 1)·0.3) N·m.
         for i in 0..=1000 {
             let fraction = f64::from(i) / 1000.0;
-            let values: [f64; J] = std::array::from_fn(|k| {
+            let values: [f64; N] = std::array::from_fn(|k| {
                 #[allow(clippy::cast_precision_loss, reason = "a joint index")]
                 let top = (k + 1) as f64 * 0.3;
                 fraction * top
@@ -178,11 +178,11 @@ mod tests {
 
     #[test]
     fn configured_thresholds_are_not_learnt_over() {
-        let mut thresholds = Thresholds::new(Some([3.0; J]), [1.0; J], 2.0, 1.0);
-        thresholds.learn(2.0, &[50.0; J]);
-        assert_eq!(thresholds.nm, [3.0; J]);
+        let mut thresholds = Thresholds::new(Some([3.0; N]), [1.0; N], 2.0, 1.0);
+        thresholds.learn(2.0, &[50.0; N]);
+        assert_eq!(thresholds.nm, [3.0; N]);
         assert_eq!(thresholds.source, ThresholdSource::Configured);
-        let rated = Thresholds::new(None, [1.0; J], 2.0, 0.0);
-        assert_eq!((rated.nm, rated.source), ([1.0; J], ThresholdSource::Rated));
+        let rated = Thresholds::new(None, [1.0; N], 2.0, 0.0);
+        assert_eq!((rated.nm, rated.source), ([1.0; N], ThresholdSource::Rated));
     }
 }

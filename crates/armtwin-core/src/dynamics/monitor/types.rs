@@ -2,7 +2,6 @@
 //! one sample, the summary (residual statistics, friction, payload, alarm states) and the alarm
 //! changes. Types only; the monitor and its parts fill them.
 
-use super::J;
 use super::ThresholdSource;
 use crate::dynamics::payload::{PayloadEstimate, PayloadIdentification};
 use crate::dynamics::{ControllerMode, DynamicsError, Payload};
@@ -16,14 +15,14 @@ pub struct EffortConfig {
     /// learn them from the arm's normal motion, never below a share
     /// ([`ur::DEFAULT_COLLISION_SHARE`](crate::dynamics::ur::DEFAULT_COLLISION_SHARE)) of its
     /// rated torques.
-    pub collision_threshold_nm: Option<[f64; J]>,
+    pub collision_threshold_nm: Option<JointValues<f64>>,
     /// Per joint, the largest torque its drive gives (N·m), where the arm's description states
     /// none or states it otherwise: a URDF's `<limit effort>`, Universal Robots' joint sizes.
-    pub rated_torque_nm: Option<[f64; J]>,
+    pub rated_torque_nm: Option<JointValues<f64>>,
     /// Per joint, the factor from motor current to joint torque (N·m/A), for arms that report
     /// currents rather than torques and whose factors the catalog does not know (or to give a
     /// robot's own).
-    pub current_to_torque_nm_per_a: Option<[f64; J]>,
+    pub current_to_torque_nm_per_a: Option<JointValues<f64>>,
     /// Seconds of armed program-mode motion the thresholds are learnt from (0: the rated-torque
     /// share, unlearnt).
     pub threshold_learning_s: f64,
@@ -79,6 +78,26 @@ pub enum EffortError {
     NoThresholds {
         /// The arm.
         model: String,
+    },
+    /// The arm has a joint count the monitor is not built for.
+    #[error(
+        "the load twin watches arms of {min} to {max} joints; this one has {joints}",
+        min = super::MIN_EFFORT_JOINTS,
+        max = MAX_EFFORT_JOINTS
+    )]
+    JointCount {
+        /// The arm's joints.
+        joints: usize,
+    },
+    /// A per-joint setting has another length than the arm's joint count.
+    #[error("{field} has {got} values; the arm has {expected} joints")]
+    JointValues {
+        /// The setting.
+        field: &'static str,
+        /// The arm's joint count.
+        expected: usize,
+        /// The setting's.
+        got: usize,
     },
     /// A setting is out of range.
     #[error("{field} = {value} must be a positive number")]
@@ -169,14 +188,14 @@ pub struct EffortReadout {
     pub state_source: StateSource,
     /// The model's torques (N·m): like the controller's own (rigid body and rotor inertia in a
     /// program, gravity in freedrive), with the payload in use.
-    pub model_nm: [f64; J],
+    pub model_nm: JointValues<f64>,
     /// The drives' torques (N·m): reported torques, else currents times the arm's torque factors.
-    pub measured_nm: Option<[f64; J]>,
+    pub measured_nm: Option<JointValues<f64>>,
     /// `measured − model − friction` (N·m), friction as fitted so far.
-    pub residual_nm: Option<[f64; J]>,
+    pub residual_nm: Option<JointValues<f64>>,
     /// The momentum observer's estimate of the same (N·m), low-passed by `1/K`; `None` until it
     /// has a measured torque and a velocity.
-    pub observer_nm: Option<[f64; J]>,
+    pub observer_nm: Option<JointValues<f64>>,
 }
 
 /// Residual statistics per joint.
@@ -185,9 +204,9 @@ pub struct ResidualStats {
     /// Samples counted.
     pub n: u64,
     /// Root mean square (N·m).
-    pub rms_nm: [f64; J],
+    pub rms_nm: JointValues<f64>,
     /// Largest magnitude (N·m).
-    pub max_nm: [f64; J],
+    pub max_nm: JointValues<f64>,
 }
 
 /// One joint's friction as fitted.
@@ -232,17 +251,17 @@ pub struct EffortSummary {
     /// The window's length (s).
     pub window_s: f64,
     /// Per joint, its friction once fitted.
-    pub friction: [Option<FrictionReadout>; J],
+    pub friction: JointValues<Option<FrictionReadout>>,
     /// The payload.
     pub payload: PayloadReadout,
     /// Per joint, the collision threshold (N·m).
-    pub collision_threshold_nm: [f64; J],
+    pub collision_threshold_nm: JointValues<f64>,
     /// Where the thresholds come from.
     pub threshold_source: ThresholdSource,
     /// What the collision detector watches.
     pub detection: DetectionSource,
     /// Per joint, whether a collision alarm is on.
-    pub collision: [bool; J],
+    pub collision: JointValues<bool>,
     /// Collisions reported since the start.
     pub collisions: u64,
     /// Whether a payload mismatch is reported.
@@ -278,4 +297,79 @@ pub enum EffortAlarm {
         /// Raised or cleared.
         on: bool,
     },
+}
+
+/// The most joints an effort monitor watches (seven-joint arms: a Panda, an iiwa, an xArm7).
+pub const MAX_EFFORT_JOINTS: usize = 7;
+
+/// One value per joint of an arm the monitor watches, without an allocation: a slice of up to
+/// [`MAX_EFFORT_JOINTS`] (it dereferences to the arm's joints only).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JointValues<T> {
+    values: [T; MAX_EFFORT_JOINTS],
+    len: u8,
+}
+
+impl<T: Copy + Default> JointValues<T> {
+    /// The values of an arm of `N` joints (`N` at most [`MAX_EFFORT_JOINTS`]).
+    #[must_use]
+    pub fn from_array<const N: usize>(values: [T; N]) -> Self {
+        const { assert!(N <= MAX_EFFORT_JOINTS) };
+        let mut all = [T::default(); MAX_EFFORT_JOINTS];
+        all[..N].copy_from_slice(&values);
+        Self {
+            values: all,
+            #[allow(clippy::cast_possible_truncation, reason = "at most MAX_EFFORT_JOINTS")]
+            len: N as u8,
+        }
+    }
+
+    /// `values` if there are at most [`MAX_EFFORT_JOINTS`].
+    #[must_use]
+    pub fn from_slice(values: &[T]) -> Option<Self> {
+        let len = u8::try_from(values.len())
+            .ok()
+            .filter(|n| usize::from(*n) <= MAX_EFFORT_JOINTS)?;
+        let mut all = [T::default(); MAX_EFFORT_JOINTS];
+        all[..values.len()].copy_from_slice(values);
+        Some(Self { values: all, len })
+    }
+
+    /// The values as an arm of `N` joints' array, if there are `N`.
+    #[must_use]
+    pub fn to_array<const N: usize>(&self) -> Option<[T; N]> {
+        <[T; N]>::try_from(&**self).ok()
+    }
+}
+
+impl<T: Copy + Default> Default for JointValues<T> {
+    fn default() -> Self {
+        Self {
+            values: [T::default(); MAX_EFFORT_JOINTS],
+            len: 0,
+        }
+    }
+}
+
+impl<T> std::ops::Deref for JointValues<T> {
+    type Target = [T];
+
+    fn deref(&self) -> &[T] {
+        &self.values[..usize::from(self.len)]
+    }
+}
+
+impl<T: serde::Serialize> serde::Serialize for JointValues<T> {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        (**self).serialize(serializer)
+    }
+}
+
+impl<'a, T> IntoIterator for &'a JointValues<T> {
+    type Item = &'a T;
+    type IntoIter = std::slice::Iter<'a, T>;
+
+    fn into_iter(self) -> Self::IntoIter {
+        self.iter()
+    }
 }

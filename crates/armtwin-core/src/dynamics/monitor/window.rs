@@ -2,21 +2,31 @@
 //! `window_s` in the core's sliced window of the residual magnitudes, whose edge moves in steps
 //! of an eighth of the window.
 
-use super::{EffortMonitor, J, ResidualStats};
+use super::{JointValues, Monitor, ResidualStats};
 
 /// Slices the residual window is kept in: its edge moves in steps of an eighth of the window.
 pub(super) const WINDOW_SLICES: usize = 8;
 
 /// Residual statistics since the start or the last reset.
-#[derive(Debug, Clone, Copy, Default)]
-pub(super) struct Block {
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Block<const N: usize> {
     pub(super) n: u64,
-    pub(super) sum_squares: [f64; J],
-    pub(super) max_nm: [f64; J],
+    pub(super) sum_squares: [f64; N],
+    pub(super) max_nm: [f64; N],
 }
 
-impl Block {
-    pub(super) fn add(&mut self, residual_nm: &[f64; J]) {
+impl<const N: usize> Default for Block<N> {
+    fn default() -> Self {
+        Self {
+            n: 0,
+            sum_squares: [0.0; N],
+            max_nm: [0.0; N],
+        }
+    }
+}
+
+impl<const N: usize> Block<N> {
+    pub(super) fn add(&mut self, residual_nm: &[f64; N]) {
         self.n += 1;
         for ((sum, max), residual) in self
             .sum_squares
@@ -39,17 +49,21 @@ impl Block {
     clippy::cast_precision_loss,
     reason = "counts below 2⁵³ are exact in f64"
 )]
-pub(super) fn residual_stats(n: u64, sum_squares: &[f64; J], max_nm: [f64; J]) -> ResidualStats {
+pub(super) fn residual_stats<const N: usize>(
+    n: u64,
+    sum_squares: &[f64; N],
+    max_nm: [f64; N],
+) -> ResidualStats {
     let count = n.max(1) as f64;
     ResidualStats {
         n,
-        rms_nm: std::array::from_fn(|k| (sum_squares[k] / count).sqrt()),
-        max_nm,
+        rms_nm: JointValues::from_array(sum_squares.map(|sum| (sum / count).sqrt())),
+        max_nm: JointValues::from_array(max_nm),
     }
 }
 
-impl EffortMonitor {
-    pub(super) fn add_residual(&mut self, stamp_s: f64, residual_nm: &[f64; J]) {
+impl<const N: usize> Monitor<N> {
+    pub(super) fn add_residual(&mut self, stamp_s: f64, residual_nm: &[f64; N]) {
         self.cumulative.add(residual_nm);
         self.window.add(stamp_s, &residual_nm.map(f64::abs));
     }

@@ -6,7 +6,7 @@
 use super::twin::Twin;
 use super::{EventDetail, EventKind, Reason, Sink};
 use crate::dynamics::Payload;
-use crate::dynamics::monitor::{EffortAlarm, EffortMonitor, EffortSummary};
+use crate::dynamics::monitor::{EffortAlarm, EffortMonitor, EffortSummary, MAX_EFFORT_JOINTS};
 use crate::sample::{JointSample, JointState};
 
 impl Twin {
@@ -25,7 +25,7 @@ impl Twin {
         let empty = JointState::default();
         let state = sample.state.as_deref().unwrap_or(&empty);
         // At most one change per joint and one of the payload per sample.
-        let mut alarms = [None; 8];
+        let mut alarms = [None; MAX_EFFORT_JOINTS + 1];
         let mut count = 0;
         let readout = monitor.step(stamp_s, &sample.q_rad, state, |alarm| {
             if let Some(slot) = alarms.get_mut(count) {

@@ -895,6 +895,31 @@ mod tests {
                 ..
             })
         ));
+        // A Panda: seven joints, so six thresholds are refused; to its fifth link, five joints.
+        let panda = crate::model::urdf::UrdfRobot::parse(include_str!(
+            "../../../../../tests/data/urdf/panda.urdf"
+        ))
+        .expect("URDF");
+        let arm_to = |tip: &str| {
+            let chain = panda.chain(None, Some(tip)).expect("chain");
+            chain.arm_description(&panda).expect("arm")
+        };
+        let six_thresholds = EffortConfig {
+            collision_threshold_nm: Some(JointValues::from_array([5.0; 6])),
+            ..EffortConfig::default()
+        };
+        assert!(matches!(
+            EffortMonitor::new(&arm_to("panda_hand_tcp"), &six_thresholds, 10.0),
+            Err(EffortError::JointValues {
+                field: "collision_threshold_nm",
+                expected: 7,
+                got: 6
+            })
+        ));
+        assert!(matches!(
+            EffortMonitor::new(&arm_to("panda_link5"), &EffortConfig::default(), 10.0),
+            Err(EffortError::JointCount { joints: 5 })
+        ));
         let ur20 = catalog::arm("ur20").expect("catalog arm");
         assert!(matches!(
             EffortMonitor::new(&ur20, &EffortConfig::default(), 10.0),

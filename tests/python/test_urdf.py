@@ -415,12 +415,17 @@ def test_a_robot_back_after_its_retirement_computes_with_its_own_description_aga
         service.stop()
 
 
-# (file, base link, tip link): a six-joint arm whose gripper is a body the last joint carries, and
-# a seven-joint arm whose fingers hang off its hand on prismatic joints.
-LOAD_TWIN_ARMS = [("z1.urdf", "link00", "link06"), ("panda.urdf", "panda_link0", "panda_hand_tcp")]
+# (file, base link, tip link): a six-joint arm whose gripper is a body the last joint carries, a
+# seven-joint arm whose fingers hang off its hand on prismatic joints, and that arm's first five
+# joints as a five-joint arm carrying the rest held at zero.
+LOAD_TWIN_ARMS = [
+    ("z1.urdf", "link00", "link06"),
+    ("panda.urdf", "panda_link0", "panda_hand_tcp"),
+    ("panda.urdf", "panda_link0", "panda_link5"),
+]
 
 
-@pytest.mark.parametrize("file,base,tip", LOAD_TWIN_ARMS, ids=[f for f, _, _ in LOAD_TWIN_ARMS])
+@pytest.mark.parametrize("file,base,tip", LOAD_TWIN_ARMS, ids=[f"{f}:{t}" for f, _, t in LOAD_TWIN_ARMS])
 def test_a_urdf_arm_reporting_joint_torques_is_watched_for_collisions(armtwin_bin, tmp_path, file, base, tip):
     """The load twin on an arm known only by its URDF: `effort = true` with `model` the URDF. A
     torque-sensing gateway sends each sample's joint torques (`state.torque_nm`) beside the target
@@ -483,7 +488,7 @@ def test_a_urdf_arm_reporting_joint_torques_is_watched_for_collisions(armtwin_bi
         answers = get_json(client.session, f"twin/state/{robot}")
         assert len(answers) == 1, answers
         thresholds = answers[0][1]["effort"]["collision"]
-        print(f"\n[{file} load twin] {count} samples: model torques against Pinocchio, worst relative {worst:.1e}; "
+        print(f"\n[{file} to {tip}, load twin] {count} samples: model torques against Pinocchio, worst relative {worst:.1e}; "
               f"thresholds {thresholds['threshold_nm']} N·m ({thresholds['threshold_source']}); collisions {collisions}")
         assert worst <= TORQUE_TOLERANCE, worst
         assert thresholds["threshold_source"] == "rated"

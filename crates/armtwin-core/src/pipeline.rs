@@ -78,7 +78,7 @@ pub struct RobotSettings {
     /// Keep a reservoir of the robot's pairs for self-calibration ([`crate::self_calibration`]).
     pub self_calibration: Option<ReservoirConfig>,
     /// Watch the robot's effort ([`crate::dynamics::monitor`]): its arm must have inertial
-    /// parameters and six or seven joints.
+    /// parameters and five to seven joints.
     pub effort: Option<EffortConfig>,
 }
 

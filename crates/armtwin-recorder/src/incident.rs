@@ -329,8 +329,8 @@ mod tests {
     use super::*;
 
     #[test]
-    fn an_effort_record_keeps_a_six_or_seven_joint_arms_arrays_whole() {
-        for joints in [6, 7] {
+    fn an_effort_record_keeps_every_watched_arms_arrays_whole() {
+        for joints in [5, 6, 7] {
             let values = |offset: f64| {
                 let all: Vec<f64> = (0..joints).map(|k| offset + f64::from(k)).collect();
                 JointValues::from_slice(&all).expect("at most seven")

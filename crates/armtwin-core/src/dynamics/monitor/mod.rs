@@ -50,9 +50,9 @@ use observer::Observer;
 use thresholds::Thresholds;
 use window::{Block, WINDOW_SLICES, residual_stats};
 
-/// The fewest joints an effort monitor watches (every arm whose dynamics the catalog
-/// publishes has six).
-pub const MIN_EFFORT_JOINTS: usize = 6;
+/// The fewest joints an effort monitor watches: five-joint arms (an SO-101, a small
+/// palletizer); every arm whose dynamics the catalog publishes has six.
+pub const MIN_EFFORT_JOINTS: usize = 5;
 
 /// Longest step (s) the observer integrates across: a longer silence starts it afresh.
 const MAX_STEP_S: f64 = 0.1;
@@ -398,13 +398,14 @@ impl<const N: usize> Monitor<N> {
     }
 }
 
-/// One robot's effort monitor: for an arm of six joints or of seven.
+/// One robot's effort monitor: for an arm of five, six or seven joints.
 #[derive(Debug, Clone)]
 pub struct EffortMonitor(Watched);
 
 /// The monitor of the arm's joint count (boxed: a robot pays for its own arm's only).
 #[derive(Debug, Clone)]
 enum Watched {
+    Five(Box<Monitor<5>>),
     Six(Box<Monitor<6>>),
     Seven(Box<Monitor<7>>),
 }
@@ -413,6 +414,7 @@ enum Watched {
 macro_rules! each {
     ($watched:expr, $monitor:ident => $body:expr) => {
         match $watched {
+            Watched::Five($monitor) => $body,
             Watched::Six($monitor) => $body,
             Watched::Seven($monitor) => $body,
         }
@@ -433,6 +435,7 @@ impl EffortMonitor {
             .as_ref()
             .map_or(arm.dh.len(), |origins| origins.parent_from_joint.len());
         Ok(Self(match joints {
+            5 => Watched::Five(Box::new(Monitor::new(arm, config, window_s)?)),
             6 => Watched::Six(Box::new(Monitor::new(arm, config, window_s)?)),
             7 => Watched::Seven(Box::new(Monitor::new(arm, config, window_s)?)),
             joints => return Err(EffortError::JointCount { joints }),
@@ -895,7 +898,7 @@ mod tests {
                 ..
             })
         ));
-        // A Panda: seven joints, so six thresholds are refused; to its fifth link, five joints.
+        // A Panda: seven joints, so six thresholds are refused; to its fourth link, four joints.
         let panda = crate::model::urdf::UrdfRobot::parse(include_str!(
             "../../../../../tests/data/urdf/panda.urdf"
         ))
@@ -917,8 +920,8 @@ mod tests {
             })
         ));
         assert!(matches!(
-            EffortMonitor::new(&arm_to("panda_link5"), &EffortConfig::default(), 10.0),
-            Err(EffortError::JointCount { joints: 5 })
+            EffortMonitor::new(&arm_to("panda_link4"), &EffortConfig::default(), 10.0),
+            Err(EffortError::JointCount { joints: 4 })
         ));
         let ur20 = catalog::arm("ur20").expect("catalog arm");
         assert!(matches!(

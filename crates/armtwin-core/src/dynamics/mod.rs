@@ -576,6 +576,23 @@ impl<const N: usize> ArmDynamics<N> {
         Ok(self)
     }
 
+    /// The same arm with its drives' rotor inertias, seen at the joints, `J_rotor · ratio²`
+    /// (kg·m²), replacing the description's.
+    pub fn with_reflected_rotor_inertia_kg_m2(
+        mut self,
+        inertia_kg_m2: [f64; N],
+    ) -> Result<Self, DynamicsError> {
+        for (k, value) in inertia_kg_m2.iter().enumerate() {
+            checked(
+                || format!("joint {} reflected_rotor_inertia_kg_m2", k + 1),
+                *value,
+                true,
+            )?;
+        }
+        self.reflected_rotor_inertia_kg_m2 = inertia_kg_m2;
+        Ok(self)
+    }
+
     /// The same arm with `friction` per joint.
     pub fn with_friction(mut self, friction: [JointFriction; N]) -> Result<Self, DynamicsError> {
         for (k, joint) in friction.iter().enumerate() {

@@ -572,3 +572,33 @@ fn a_chains_lumped_dynamics_equal_the_whole_trees() {
         "wrist_ft_tool_link",
     );
 }
+
+#[test]
+fn rotor_inertia_given_adds_its_torque_and_its_share_of_the_mass_matrix() {
+    let mut rng = Rng(0x7070);
+    let (_, dynamics) = catalog_dynamics()
+        .into_iter()
+        .find(|(name, _)| *name == "z1.urdf")
+        .expect("a URDF arm");
+    assert_eq!(dynamics.reflected_rotor_inertia_kg_m2(), &[0.0; 6]);
+    let rotor_kg_m2 = [0.5, 0.4, 0.3, 0.2, 0.1, 0.05];
+    let turning = dynamics
+        .clone()
+        .with_reflected_rotor_inertia_kg_m2(rotor_kg_m2)
+        .unwrap();
+    for _ in 0..10 {
+        let (q, qd, qdd) = (rng.joints(2.0), rng.joints(2.0), rng.joints(5.0));
+        let without = dynamics.inverse_dynamics_nm(&q, &qd, &qdd);
+        let with = turning.inverse_dynamics_nm(&q, &qd, &qdd);
+        let mass = turning.mass_matrix_kg_m2(&q) - dynamics.mass_matrix_kg_m2(&q);
+        for k in 0..6 {
+            assert!((with[k] - without[k] - rotor_kg_m2[k] * qdd[k]).abs() < 1e-12);
+            assert!((mass[(k, k)] - rotor_kg_m2[k]).abs() < 1e-12);
+        }
+    }
+    assert!(
+        dynamics
+            .with_reflected_rotor_inertia_kg_m2([0.1, -0.1, 0.0, 0.0, 0.0, 0.0])
+            .is_err()
+    );
+}

@@ -254,6 +254,8 @@ pub(super) struct RobotSection {
     pub(super) rated_torque_nm: Option<Vec<f64>>,
     /// Per joint, motor current to joint torque (N·m/A) where the catalog has none.
     pub(super) current_to_torque_nm_per_a: Option<Vec<f64>>,
+    /// Per joint, the drive's rotor inertia at the joint (kg·m²), over the description's.
+    pub(super) reflected_rotor_inertia_kg_m2: Option<Vec<f64>>,
     pub(super) payload_kg: Option<f64>,
     pub(super) payload_cog_m: Option<[f64; 3]>,
     #[serde(default)]

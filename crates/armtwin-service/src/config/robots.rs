@@ -335,6 +335,12 @@ impl RobotSource<'_> {
         )? {
             config.current_to_torque_nm_per_a = Some(factors);
         }
+        if let Some(rotor) = per_joint(
+            "reflected_rotor_inertia_kg_m2",
+            self.pick(|s| s.reflected_rotor_inertia_kg_m2.clone()),
+        )? {
+            config.reflected_rotor_inertia_kg_m2 = Some(rotor);
+        }
         match (self.pick(|s| s.payload_kg), self.pick(|s| s.payload_cog_m)) {
             (Some(mass_kg), cog) => {
                 config.payload = Some(Payload::point_mass(mass_kg, cog.unwrap_or([0.0; 3])));

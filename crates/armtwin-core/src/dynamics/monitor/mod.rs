@@ -107,7 +107,13 @@ impl<const N: usize> Monitor<N> {
     ) -> Result<Self, EffortError> {
         check_settings(config, window_s)?;
         // First: an arm of another joint count is refused for that, not for its thresholds.
-        let arm_only = ArmDynamics::<N>::from_arm(arm)?;
+        let mut arm_only = ArmDynamics::<N>::from_arm(arm)?;
+        if let Some(rotor_kg_m2) = per_joint::<N>(
+            "reflected_rotor_inertia_kg_m2",
+            config.reflected_rotor_inertia_kg_m2,
+        )? {
+            arm_only = arm_only.with_reflected_rotor_inertia_kg_m2(rotor_kg_m2)?;
+        }
         // The catalog's drive data are a Universal Robots arm's, never a URDF's of the same name.
         let catalog_name = Some(arm.name.as_str()).filter(|_| arm.joint_origins.is_none());
         let catalog =

@@ -23,6 +23,9 @@ pub struct EffortConfig {
     /// currents rather than torques and whose factors the catalog does not know (or to give a
     /// robot's own).
     pub current_to_torque_nm_per_a: Option<JointValues<f64>>,
+    /// Per joint, the drive's rotor inertia seen at the joint (kg·m²), where the arm's
+    /// description states none (a URDF) or states it otherwise.
+    pub reflected_rotor_inertia_kg_m2: Option<JointValues<f64>>,
     /// Seconds of armed program-mode motion the thresholds are learnt from (0: the rated-torque
     /// share, unlearnt).
     pub threshold_learning_s: f64,
@@ -52,6 +55,7 @@ impl Default for EffortConfig {
             collision_threshold_nm: None,
             rated_torque_nm: None,
             current_to_torque_nm_per_a: None,
+            reflected_rotor_inertia_kg_m2: None,
             threshold_learning_s: 60.0,
             threshold_factor: 2.0,
             payload_reach_m: crate::dynamics::payload::DEFAULT_REACH_M,

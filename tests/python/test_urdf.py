@@ -15,6 +15,7 @@ Run: ``ARMTWIN_BIN=$PWD/target/debug/armtwin .venv/bin/python -m pytest tests/py
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import time
@@ -85,6 +86,22 @@ def random_configuration(model: pin.Model, joints: list[int], rng: np.random.Gen
     for joint, value in zip(joints, values):
         set_value(model, q, joint, value)
     return values, q
+
+
+@contextlib.contextmanager
+def twin_and_client(armtwin_bin, tmp_path, config: str, robots: list[str]):
+    """`armtwin serve` on `config` and a client ready for `robots`' inputs; both stopped after."""
+    service = ArmtwinProcess(armtwin_bin, tmp_path, config, 120.0)
+    service.start()
+    client = None
+    try:
+        client = TwinClient(service.endpoint)
+        client.ready(robots)
+        yield service, client
+    finally:
+        if client is not None:
+            client.close()
+        service.stop()
 
 
 def listed(values) -> str:
@@ -270,20 +287,11 @@ def test_a_panda_from_its_urdf_is_twinned_live(armtwin_bin, tmp_path):
     robot = "lab/panda"
     config = (f'[robots."{robot}"]\nmodel = "{path}"\ntip_link = "panda_hand_tcp"\n'
               f'[robots.default]\nmodel = "ur10e"\n')
-    service = ArmtwinProcess(armtwin_bin, tmp_path, config, 120.0)
-    service.start()
-    client = None
-    try:
-        client = TwinClient(service.endpoint)
-        client.ready([robot])
+    with twin_and_client(armtwin_bin, tmp_path, config, [robot]) as (service, client):
         worst_m, worst_quaternion, worst_deviation_m = stream_panda(client, robot, 50, 11)
         print(f"\n[panda live] 50 poses: worst position {worst_m:.1e} m, quaternion {worst_quaternion:.1e}; "
               f"worst deviation {worst_deviation_m:.1e} m")
         assert worst_m <= TOLERANCE and worst_quaternion <= TOLERANCE and worst_deviation_m <= TOLERANCE
-    finally:
-        if client is not None:
-            client.close()
-        service.stop()
 
 
 def test_a_robot_takes_its_own_description_and_a_robot_with_a_model_checks_it(armtwin_bin, tmp_path):
@@ -299,12 +307,7 @@ def test_a_robot_takes_its_own_description_and_a_robot_with_a_model_checks_it(ar
               f'[robots.default]\nmodel = "ur10e"\n'
               f'[robots."{panda}"]\ntip_link = "panda_hand_tcp"\n'
               f'[robots."{ur10e}"]\nmodel = "ur10e"\ntip_link = "tool0"\n')
-    service = ArmtwinProcess(armtwin_bin, tmp_path, config, 120.0)
-    service.start()
-    client = None
-    try:
-        client = TwinClient(service.endpoint)
-        client.ready([panda, ur10e])
+    with twin_and_client(armtwin_bin, tmp_path, config, [panda, ur10e]) as (service, client):
         collector = client.collector
 
         def descriptions(robot: str) -> list[dict]:
@@ -378,10 +381,6 @@ def test_a_robot_takes_its_own_description_and_a_robot_with_a_model_checks_it(ar
         [(_, panda_state)] = get_json(client.session, f"twin/state/{panda}")
         [(_, ur10e_state)] = get_json(client.session, f"twin/state/{ur10e}")
         assert (panda_state["model"], ur10e_state["model"]) == ("panda", "ur10e"), (panda_state, ur10e_state)
-    finally:
-        if client is not None:
-            client.close()
-        service.stop()
 
 
 def test_a_robot_back_after_its_retirement_computes_with_its_own_description_again(armtwin_bin, tmp_path):
@@ -392,12 +391,7 @@ def test_a_robot_back_after_its_retirement_computes_with_its_own_description_aga
     http_port = free_port()
     config = (f'[service]\nforget_after_s = 1.0\n[http]\nlisten = "127.0.0.1:{http_port}"\n'
               f'[robots.default]\nmodel = "ur10e"\ntip_link = "panda_hand_tcp"\n')
-    service = ArmtwinProcess(armtwin_bin, tmp_path, config, 120.0)
-    service.start()
-    client = None
-    try:
-        client = TwinClient(service.endpoint)
-        client.ready([robot])
+    with twin_and_client(armtwin_bin, tmp_path, config, [robot]) as (service, client):
         collector = client.collector
         description_publisher(client.session, robot).put((URDF_DIR / "panda.urdf").read_text())
         assert wait_until(lambda: any(m["kind"] == "description" for m in collector.messages("events", robot)), 20.0)
@@ -409,10 +403,6 @@ def test_a_robot_back_after_its_retirement_computes_with_its_own_description_aga
         assert rejected == [], rejected
         [(_, state)] = get_json(client.session, f"twin/state/{robot}")
         assert state["model"] == "panda" and state["metrics"]["paired"] == 10, state["metrics"]
-    finally:
-        if client is not None:
-            client.close()
-        service.stop()
 
 
 # (file, base link, tip link): a six-joint arm whose gripper is a body the last joint carries, a
@@ -464,12 +454,7 @@ def test_a_urdf_arm_reporting_joint_torques_is_watched_for_collisions(armtwin_bi
         messages.append(json.dumps({"t": t, "q": q_chain.tolist(), "state": {
             "qd": qd.tolist(), "target_q": q_chain.tolist(), "target_qd": qd.tolist(),
             "target_qdd": qdd.tolist(), "torque_nm": tau.tolist()}}))
-    service = ArmtwinProcess(armtwin_bin, tmp_path, config, 120.0)
-    service.start()
-    client = None
-    try:
-        client = TwinClient(service.endpoint)
-        client.ready([robot])
+    with twin_and_client(armtwin_bin, tmp_path, config, [robot]) as (service, client):
         publisher = client.joints(robot)
         for message in messages:
             publisher.put(message)
@@ -496,8 +481,4 @@ def test_a_urdf_arm_reporting_joint_torques_is_watched_for_collisions(armtwin_bi
         assert [detail["joint"] for _, detail in raised] == [contact[2] + 1], collisions
         assert contact[0] <= raised[0][0] < contact[0] + 0.05, raised  # within 50 ms of its onset
         assert thresholds["count"] == 1
-    finally:
-        if client is not None:
-            client.close()
-        service.stop()
 

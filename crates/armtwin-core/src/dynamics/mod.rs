@@ -357,7 +357,7 @@ impl Twist {
 /// The rotation `parent_from_child = Rx(α) · Rz(q + θ)` of one joint at one state.
 #[derive(Debug, Clone, Copy)]
 struct JointRotation<'a> {
-    /// Borrowed: a general rotation is 72 bytes, copied per joint and call otherwise.
+    /// Borrowed: a general rotation is a whole 3×3 matrix, copied per joint and call otherwise.
     twist: &'a Twist,
     cos_q: f64,
     sin_q: f64,
@@ -449,10 +449,7 @@ impl<const N: usize> ArmDynamics<N> {
     /// under (a URDF's: 9.81 m/s² along its root's −z), else 9.82 m/s² along the base's −z (a
     /// floor mounting, as UR's controller models it); no payload and no friction.
     pub fn from_arm(arm: &ArmDescription) -> Result<Self, DynamicsError> {
-        let joint_count = arm
-            .joint_origins
-            .as_ref()
-            .map_or(arm.dh.len(), |origins| origins.parent_from_joint.len());
+        let joint_count = arm.joint_count();
         if joint_count != N {
             return Err(DynamicsError::JointCount {
                 expected: N,

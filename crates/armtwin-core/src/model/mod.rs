@@ -68,6 +68,16 @@ pub struct ArmDescription {
     pub joint_origins: Option<JointOrigins>,
 }
 
+impl ArmDescription {
+    /// Its moving joints: its DH table's rows, or its joint origins'.
+    #[must_use]
+    pub fn joint_count(&self) -> usize {
+        self.joint_origins
+            .as_ref()
+            .map_or(self.dh.len(), |origins| origins.parent_from_joint.len())
+    }
+}
+
 /// A chain of joints that turn about their own frame's z, at fixed origins: a URDF's revolute
 /// chain with each axis turned onto z.
 #[derive(Debug, Clone, PartialEq)]

@@ -72,7 +72,7 @@ impl Robot {
         self.joint_count.load(Ordering::Relaxed)
     }
 
-    /// Its inputs are decoded against `joint_count` joints from now on: its twin took a model
+    /// Its inputs are decoded against `joint_count` joints: its twin took a model
     /// of that many, or will (a robot back after a retirement, with a model of its own).
     pub fn set_joint_count(&self, joint_count: usize) {
         self.joint_count.store(joint_count, Ordering::Relaxed);

@@ -24,8 +24,8 @@ use armtwin_codec::cdr::MAX_ARM_JOINTS;
 use armtwin_core::model::urdf::{self, MAX_URDF_BYTES};
 use armtwin_core::model::{ArmDescription, RobotModel};
 
-/// The descriptions a robot's twin reads: four at once (a start's query racing a gateway's
-/// put, a driver restarted: the newest is not lost), one a second after. Each is an untrusted
+/// The descriptions a robot's twin reads: a few at once (a start's query racing a gateway's
+/// put, a driver restarted: the newest is not lost), then a slow trickle. Each is an untrusted
 /// text of up to [`MAX_URDF_BYTES`] to parse, and a robot's description changes when it is
 /// rebuilt, not at a sample's rate.
 const READS: EventBudget = EventBudget {
@@ -33,7 +33,7 @@ const READS: EventBudget = EventBudget {
     burst: 4,
 };
 
-/// The refusals before reading a robot's events key says: one a second, so that a flood cannot
+/// The refusals before reading a robot's events key says: few, so that a flood cannot
 /// push the robot's alarms out of its recent events. Every one is counted.
 const REFUSALS_SAID: EventBudget = EventBudget {
     per_s: 1.0,

@@ -111,6 +111,7 @@ impl<const N: usize> Monitor<N> {
         if let Some(rotor_kg_m2) = per_joint::<N>(
             "reflected_rotor_inertia_kg_m2",
             config.reflected_rotor_inertia_kg_m2,
+            true,
         )? {
             arm_only = arm_only.with_reflected_rotor_inertia_kg_m2(rotor_kg_m2)?;
         }
@@ -118,18 +119,22 @@ impl<const N: usize> Monitor<N> {
         let catalog_name = Some(arm.name.as_str()).filter(|_| arm.joint_origins.is_none());
         let catalog =
             |values: Option<[f64; 6]>| values.and_then(|v| <[f64; N]>::try_from(v.as_slice()).ok());
-        let floor_nm = per_joint::<N>("rated_torque_nm", config.rated_torque_nm)?
+        let floor_nm = per_joint::<N>("rated_torque_nm", config.rated_torque_nm, false)?
             .or_else(|| {
                 let max_nm = arm.inertials.as_ref()?.max_torque_nm.as_deref()?;
                 <[f64; N]>::try_from(max_nm).ok()
             })
             .map(|rated| rated.map(|nm| nm * ur::DEFAULT_COLLISION_SHARE))
             .or_else(|| catalog(catalog_name.and_then(ur::default_collision_threshold_nm)));
-        let configured_nm =
-            per_joint::<N>("collision_threshold_nm", config.collision_threshold_nm)?;
+        let configured_nm = per_joint::<N>(
+            "collision_threshold_nm",
+            config.collision_threshold_nm,
+            false,
+        )?;
         let current_to_torque = per_joint::<N>(
             "current_to_torque_nm_per_a",
             config.current_to_torque_nm_per_a,
+            false,
         )?
         .or_else(|| catalog(catalog_name.and_then(ur::current_to_torque_nm_per_a)));
         let thresholds = match (configured_nm, floor_nm) {
@@ -436,10 +441,7 @@ impl EffortMonitor {
         config: &EffortConfig,
         window_s: f64,
     ) -> Result<Self, EffortError> {
-        let joints = arm
-            .joint_origins
-            .as_ref()
-            .map_or(arm.dh.len(), |origins| origins.parent_from_joint.len());
+        let joints = arm.joint_count();
         Ok(Self(match joints {
             5 => Watched::Five(Box::new(Monitor::new(arm, config, window_s)?)),
             6 => Watched::Six(Box::new(Monitor::new(arm, config, window_s)?)),
@@ -489,8 +491,8 @@ impl EffortMonitor {
     }
 }
 
-/// Every setting in its range: the times and gains positive, the learning time not negative,
-/// the rated torques and current factors positive.
+/// Every scalar setting in its range: the times and gains positive, the learning time not
+/// negative (the per-joint ones are checked against the arm by `per_joint`).
 fn check_settings(config: &EffortConfig, window_s: f64) -> Result<(), EffortError> {
     for (field, value) in [
         ("observer_gain_per_s", config.observer_gain_per_s),
@@ -512,41 +514,34 @@ fn check_settings(config: &EffortConfig, window_s: f64) -> Result<(), EffortErro
             value: config.threshold_learning_s,
         });
     }
-    for (field, values) in [
-        ("rated_torque_nm", config.rated_torque_nm),
-        (
-            "current_to_torque_nm_per_a",
-            config.current_to_torque_nm_per_a,
-        ),
-    ] {
-        if let Some(value) = values
-            .iter()
-            .flat_map(|values| values.iter())
-            .find(|v| !(v.is_finite() && **v > 0.0))
-        {
-            return Err(EffortError::Setting {
-                field,
-                value: *value,
-            });
-        }
-    }
     Ok(())
 }
 
-/// A per-joint setting as the arm's `N` values, refused with another count.
+/// A per-joint setting as the arm's `N` values, each positive (or zero, with `zero_allowed`);
+/// refused with another count.
 fn per_joint<const N: usize>(
     field: &'static str,
     values: Option<JointValues<f64>>,
+    zero_allowed: bool,
 ) -> Result<Option<[f64; N]>, EffortError> {
+    let Some(values) = values else {
+        return Ok(None);
+    };
+    let in_range = |v: f64| v.is_finite() && (v > 0.0 || (zero_allowed && v == 0.0));
+    if let Some(value) = values.iter().find(|v| !in_range(**v)) {
+        return Err(EffortError::Setting {
+            field,
+            value: *value,
+        });
+    }
     values
-        .map(|values| {
-            values.to_array::<N>().ok_or(EffortError::JointValues {
-                field,
-                expected: N,
-                got: values.len(),
-            })
+        .to_array::<N>()
+        .map(Some)
+        .ok_or(EffortError::JointValues {
+            field,
+            expected: N,
+            got: values.len(),
         })
-        .transpose()
 }
 
 /// One value per joint of `quantity`, if `state` has it for each of the arm's `N` joints.
@@ -856,7 +851,7 @@ mod tests {
                 let qd: [f64; J] = std::array::from_fn(|k| 0.36 * (0.9 * t + k as f64).cos());
                 let qdd: [f64; J] = std::array::from_fn(|k| -0.324 * (0.9 * t + k as f64).sin());
                 let mut tau = tree.inverse_dynamics(&q, &qd, &qdd).expect("torques");
-                // Joint 2 pushed 10 N·m for 0.2 s from t = 4 s (its threshold: 6 N·m).
+                // Joint 2 pushed for 0.2 s from t = 4 s, beyond its rated-torque share.
                 if (4.0..4.2).contains(&t) {
                     tau[1] += 10.0;
                 }

@@ -374,6 +374,9 @@ def test_a_robot_takes_its_own_description_and_a_robot_with_a_model_checks_it(ar
             describe[ur10e].put(f"<robot name='flood-{k}'/>")
         assert wait_until(lambda: (metric(http_port, "armtwin_descriptions_refused_total") or 0) >= 2 + 20, 20.0), \
             metric(http_port, "armtwin_descriptions_refused_total")
+        # The counter is read over HTTP as the events travel the mesh: wait for them (bounded).
+        wait_until(lambda: len(descriptions(ur10e)) >= 4, 10.0)
+        time.sleep(0.3)
         flood = descriptions(ur10e)[3:]
         assert 1 <= len(flood) <= 6, [m["reason"] for m in flood]
         assert len(descriptions(panda)) == 1, descriptions(panda)
